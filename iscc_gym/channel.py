@@ -1,0 +1,232 @@
+"""Air-to-ground channel: geometry, 3GPP UMa-AV LoS path loss, shadowing, Rician fading, UPA, SNR.
+
+All functions broadcast over leading batch axes: positions have shape ``(..., 3)``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .scenario import Scenario
+from .units import db_to_lin, dbm_to_w
+
+__all__ = [
+    "geometry",
+    "path_loss_db",
+    "shadowing_std_db",
+    "shadowing_step",
+    "rician_power_gain",
+    "direction_cosines",
+    "array_response",
+    "beamformer",
+    "beamforming_gain",
+    "noise_power_w",
+    "large_scale_snr",
+]
+
+
+def geometry(s: Scenario, pos_m):
+    """Range, azimuth, elevation and LoS unit vector of the drone seen from the GBS antenna.
+
+    .. math::
+        \\mathbf{r} = \\mathbf{p} - [0, 0, h_\\mathrm{GBS}]^T,\\quad l = \\|\\mathbf{r}\\|_2,\\quad
+        \\theta = \\operatorname{atan2}(r_y, r_x),\\quad \\varphi = \\arcsin(r_z / l),\\quad
+        \\mathbf{g} = \\mathbf{r} / l
+
+    Parameters
+    ----------
+    s : Scenario
+    pos_m : array_like, shape (..., 3)
+        Drone position in m (ground origin below the GBS mast).
+
+    Returns
+    -------
+    dist_m, azimuth_rad, elevation_rad : ndarray, shape (...)
+    los_unit : ndarray, shape (..., 3)
+        The unit LoS direction g_n used to project velocity on the radial direction.
+    """
+    rel = np.asarray(pos_m, dtype=float) - np.array([0.0, 0.0, s.gbs_height_m])
+    dist = np.sqrt(np.einsum("...i,...i->...", rel, rel))
+    dist = np.maximum(dist, 1e-9)
+    los = rel / dist[..., None]
+    az = np.arctan2(rel[..., 1], rel[..., 0])
+    el = np.arcsin(np.clip(los[..., 2], -1.0, 1.0))
+    return dist, az, el, los
+
+
+def path_loss_db(s: Scenario, dist_m):
+    """3GPP TR 36.777 UMa-AV LoS path loss in dB.
+
+    .. math:: \\mathcal{L}(l) = 28.0 + 22\\log_{10}(l) + 20\\log_{10}(f_c)
+
+    with :math:`l` in m and :math:`f_c` in GHz (the paper, Sec. II-B).
+    """
+    return 28.0 + 22.0 * np.log10(dist_m) + 20.0 * np.log10(s.carrier_freq_ghz)
+
+
+def shadowing_std_db(s: Scenario, altitude_m):
+    """Shadowing standard deviation :math:`\\sigma_\\mathrm{SF}(h) = 4.64 e^{-0.0066 h}` dB (Table I).
+
+    ``altitude_m`` is the drone height above ground in m.
+    """
+    return s.shadowing_a_db * np.exp(-s.shadowing_b_per_m * np.asarray(altitude_m, dtype=float))
+
+
+def shadowing_step(s: Scenario, shadow_norm, moved_m, z):
+    """Advance the unit-variance shadowing process by a travelled distance (Gudmundson AR(1)).
+
+    .. math:: s_{n+1} = \\rho s_n + \\sqrt{1-\\rho^2}\\, z_n,\\quad \\rho = e^{-d_n / d_\\mathrm{corr}}
+
+    The shadowing in dB is :math:`\\varepsilon_n = \\sigma_\\mathrm{SF}(h_n)\\, s_n`
+    (:func:`shadowing_std_db`). The paper gives :math:`\\varepsilon\\sim\\mathcal N(0,\\sigma_{SF}^2)`
+    but not its correlation; see ``docs/model.md``.
+
+    Parameters
+    ----------
+    shadow_norm : ndarray, shape (...)
+        Current unit-variance shadowing state.
+    moved_m : ndarray, shape (...)
+        Distance travelled since the last slot in m.
+    z : ndarray, shape (...)
+        Standard normal innovation.
+    """
+    rho = np.exp(-np.asarray(moved_m, dtype=float) / s.shadowing_decorrelation_m)
+    return rho * shadow_norm + np.sqrt(1.0 - rho * rho) * z
+
+
+def rician_power_gain(s: Scenario, z_re, z_im):
+    """Small-scale power gain :math:`|g|^2` of a unit-mean-power Rician coefficient.
+
+    .. math::
+        g = \\sqrt{\\tfrac{K}{K+1}} + \\sqrt{\\tfrac{1}{2(K+1)}}\\,(z_\\mathrm{re} + j z_\\mathrm{im}),
+        \\quad \\mathbb{E}|g|^2 = 1
+
+    i.e. :math:`g \\sim \\mathcal{CN}(\\mu, \\sigma^2)` with :math:`|\\mu|^2/\\sigma^2 = K`
+    (``rician_k_db``), the paper's :math:`g_{C,m,k}` and :math:`g_{S,m,k}`, one draw per slot.
+    ``z_re`` and ``z_im`` are standard normal draws.
+    """
+    k = float(db_to_lin(s.rician_k_db))
+    los = np.sqrt(k / (k + 1.0))
+    scat = np.sqrt(0.5 / (k + 1.0))
+    re = los + scat * np.asarray(z_re, dtype=float)
+    im = scat * np.asarray(z_im, dtype=float)
+    return re * re + im * im
+
+
+def _element_indices(s: Scenario):
+    # Phase reference at the array centre; element order a_x (kron) a_y.
+    ix = np.arange(s.n_x) - 0.5 * (s.n_x - 1)
+    iy = np.arange(s.n_y) - 0.5 * (s.n_y - 1)
+    return np.repeat(ix, s.n_y), np.tile(iy, s.n_x)
+
+
+def direction_cosines(s: Scenario, azimuth_rad, elevation_rad):
+    """The two phase-progression terms (u_x, u_y) of the UPA and their angle derivatives.
+
+    ``array_orientation`` selects the response (see :class:`Scenario`):
+
+    * ``"printed"``: :math:`u_x = \\sin\\theta\\cos\\varphi,\\ u_y = \\sin\\theta\\sin\\varphi`
+      (the paper's :math:`\\mathbf a_x, \\mathbf a_y` as printed);
+    * ``"vertical"``: :math:`u_x = \\cos\\varphi\\sin\\theta,\\ u_y = \\sin\\varphi`;
+    * ``"horizontal"``: :math:`u_x = \\cos\\varphi\\cos\\theta,\\ u_y = \\cos\\varphi\\sin\\theta`.
+
+    Returns
+    -------
+    u : ndarray, shape (..., 2)
+    du_dtheta, du_dphi : ndarray, shape (..., 2)
+    """
+    th = np.asarray(azimuth_rad, dtype=float)
+    ph = np.asarray(elevation_rad, dtype=float)
+    st, ct, sp, cp = np.sin(th), np.cos(th), np.sin(ph), np.cos(ph)
+    zero = np.zeros_like(st * sp)
+    if s.array_orientation == "printed":
+        u = (st * cp, st * sp)
+        dth = (ct * cp, ct * sp)
+        dph = (-st * sp, st * cp)
+    elif s.array_orientation == "vertical":
+        u = (cp * st, sp + zero)
+        dth = (cp * ct, zero)
+        dph = (-sp * st, cp + zero)
+    else:  # horizontal
+        u = (cp * ct, cp * st)
+        dth = (-cp * st, cp * ct)
+        dph = (-sp * ct, -sp * st)
+    return np.stack(u, -1), np.stack(dth, -1), np.stack(dph, -1)
+
+
+def array_response(s: Scenario, azimuth_rad, elevation_rad):
+    """UPA response :math:`\\mathbf a(\\theta,\\varphi) = \\mathbf a_x \\otimes \\mathbf a_y` and derivatives.
+
+    .. math::
+        [\\mathbf a]_{(i,j)} = \\exp\\big(j 2\\pi \\tfrac{d_\\lambda}{\\lambda}
+        (i\\, u_x + j\\, u_y)\\big)
+
+    with centred element indices (phase reference at the array centre) and (u_x, u_y) from
+    :func:`direction_cosines`.
+
+    Returns
+    -------
+    a, da_dtheta, da_dphi : ndarray, complex, shape (..., n_x n_y)
+    """
+    ix, iy = _element_indices(s)
+    u, dth, dph = direction_cosines(s, azimuth_rad, elevation_rad)
+    k = 2.0 * np.pi * s.antenna_spacing_wavelengths
+    phase = k * (u[..., :1] * ix + u[..., 1:] * iy)
+    a = np.exp(1j * phase)
+    dphase_th = k * (dth[..., :1] * ix + dth[..., 1:] * iy)
+    dphase_ph = k * (dph[..., :1] * ix + dph[..., 1:] * iy)
+    return a, 1j * dphase_th * a, 1j * dphase_ph * a
+
+
+def beamformer(s: Scenario, azimuth_rad, elevation_rad):
+    """Unit-norm transmit beamformer w, shape (..., N).
+
+    ``"matched"``: :math:`\\mathbf w = \\mathbf a(\\theta,\\varphi)/\\sqrt N` (steered at the given
+    direction, :math:`G = N`); ``"broadside"``: :math:`\\mathbf w = \\mathbf 1/\\sqrt N`.
+    """
+    n = s.n_antennas
+    if s.beamforming == "matched":
+        a, _, _ = array_response(s, azimuth_rad, elevation_rad)
+        return a / np.sqrt(n)
+    shape = np.broadcast(np.asarray(azimuth_rad), np.asarray(elevation_rad)).shape
+    return np.full(shape + (n,), 1.0 / np.sqrt(n), dtype=complex)
+
+
+def beamforming_gain(a, w):
+    """Beamforming gain :math:`G(\\theta,\\varphi) = |\\mathbf a^H \\mathbf w|^2` (Sec. II-B)."""
+    return np.abs(np.einsum("...i,...i->...", np.conj(a), w)) ** 2
+
+
+def noise_power_w(s: Scenario):
+    """Receiver noise power :math:`N_0 B` in W."""
+    return float(dbm_to_w(s.noise_psd_dbm_hz) * s.bandwidth_hz)
+
+
+def large_scale_snr(s: Scenario, pos_m, shadow_db, gain=None):
+    """Link SNR without small-scale fading (:math:`|g|^2 = 1`), linear.
+
+    .. math::
+        \\bar\\gamma = \\frac{P\\, \\beta_C\\, G(\\theta,\\varphi)}{N_0 B},\\qquad
+        \\sqrt{\\beta_C} = 10^{-(\\mathcal L + \\varepsilon)/20}
+
+    with :math:`P = P_t` (``snr_convention="total_power"``, the printed eq. of :math:`\\gamma`) or
+    :math:`P = P_k = P_t/\\mathcal K` (``"per_subcarrier_power"``), times the calibration
+    ``comm_snr_offset_db``. The slot's SNR is :math:`\\gamma = |g_C|^2 \\bar\\gamma`.
+
+    Parameters
+    ----------
+    pos_m : array_like, shape (..., 3)
+    shadow_db : array_like, shape (...)
+        Shadowing :math:`\\varepsilon` in dB.
+    gain : array_like, optional
+        Beamforming gain; computed from the scenario's beamformer steered at the drone if omitted.
+    """
+    dist, az, el, _ = geometry(s, pos_m)
+    if gain is None:
+        a, _, _ = array_response(s, az, el)
+        gain = beamforming_gain(a, beamformer(s, az, el))
+    p_w = float(dbm_to_w(s.tx_power_dbm))
+    if s.snr_convention == "per_subcarrier_power":
+        p_w /= s.n_subcarriers
+    loss_db = path_loss_db(s, dist) + shadow_db - s.comm_snr_offset_db
+    return p_w * gain * 10.0 ** (-loss_db / 10.0) / noise_power_w(s)

@@ -1,0 +1,84 @@
+"""Drone dynamics (double integrator), process noise, and the LQ feedback gain (Sec. III-A)."""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+import control
+import numpy as np
+
+from .scenario import Scenario
+
+__all__ = ["system_matrices", "process_noise_cov", "lqg_weights", "lqr_gain", "model_matrices"]
+
+
+def system_matrices(dt_s: float):
+    """State transition and input matrices of the discretised double integrator, eq:AB_matrices.
+
+    .. math::
+        \\mathbf A = \\begin{bmatrix}\\mathbf I_3 & \\Delta t\\,\\mathbf I_3\\\\ \\mathbf 0_3 &
+        \\mathbf I_3\\end{bmatrix},\\qquad
+        \\mathbf B = \\begin{bmatrix}\\tfrac12\\Delta t^2\\,\\mathbf I_3\\\\ \\Delta t\\,\\mathbf I_3
+        \\end{bmatrix}
+
+    Returns
+    -------
+    A : ndarray, shape (6, 6)
+    B : ndarray, shape (6, 3)
+    """
+    eye, zero = np.eye(3), np.zeros((3, 3))
+    a = np.block([[eye, dt_s * eye], [zero, eye]])
+    b = np.vstack([0.5 * dt_s**2 * eye, dt_s * eye])
+    return a, b
+
+
+def process_noise_cov(s: Scenario):
+    """Process-noise covariance :math:`\\Sigma_\\omega = \\mathrm{blkdiag}(\\sigma_p^2\\mathbf I_3,
+    \\sigma_v^2\\mathbf I_3)` (eq:state), with the Table I values read per ``process_noise_reading``."""
+    return np.diag([s.process_noise_var_pos_m2] * 3 + [s.process_noise_var_vel_m2s2] * 3)
+
+
+def lqg_weights(s: Scenario):
+    """LQG weights :math:`\\mathbf Q = \\mathrm{blkdiag}(Q_p\\mathbf I_3, Q_v\\mathbf I_3)` and
+    :math:`\\mathbf R = r\\,\\mathbf I_3` (Table I)."""
+    return np.diag([s.lqg_q_pos] * 3 + [s.lqg_q_vel] * 3), s.lqg_r * np.eye(3)
+
+
+def lqr_gain(a, b, q, r):
+    """Feedback gain from the DARE via python-control (eq:LQG_control_input).
+
+    .. math::
+        \\mathbf K = (\\mathbf R + \\mathbf B^T\\mathbf P\\mathbf B)^{-1}\\mathbf B^T\\mathbf P\\mathbf A,\\quad
+        \\mathbf P = \\mathbf A^T\\mathbf P\\mathbf A - \\mathbf A^T\\mathbf P\\mathbf B(\\mathbf R +
+        \\mathbf B^T\\mathbf P\\mathbf B)^{-1}\\mathbf B^T\\mathbf P\\mathbf A + \\mathbf Q
+
+    Returns
+    -------
+    K : ndarray, shape (3, 6)
+    P : ndarray, shape (6, 6)
+    """
+    k, p, _ = control.dlqr(a, b, q, r)
+    return np.asarray(k, dtype=float), np.asarray(p, dtype=float)
+
+
+class ModelMatrices:
+    """The constant matrices of one scenario: A, B, K, P (DARE), Q, R, Sigma_omega, A - BK."""
+
+    __slots__ = ("a", "b", "k", "p", "q", "r", "sigma_w", "a_cl", "chol_w")
+
+    def __init__(self, s: Scenario):
+        self.a, self.b = system_matrices(s.dt_s)
+        self.q, self.r = lqg_weights(s)
+        self.k, self.p = lqr_gain(self.a, self.b, self.q, self.r)
+        self.sigma_w = process_noise_cov(s)
+        self.a_cl = self.a - self.b @ self.k
+        self.chol_w = np.sqrt(np.diag(self.sigma_w))
+        for v in (self.a, self.b, self.k, self.p, self.q, self.r, self.sigma_w, self.a_cl,
+                  self.chol_w):
+            v.setflags(write=False)
+
+
+@lru_cache(maxsize=64)
+def model_matrices(s: Scenario) -> ModelMatrices:
+    """Cached :class:`ModelMatrices` of a (hashable, frozen) scenario."""
+    return ModelMatrices(s)

@@ -1,0 +1,71 @@
+"""Kalman filter with the time-varying ISAC observation matrix (eq:observation_model, eq:KF_update).
+
+Batched over a leading axis: states (..., 6), covariances (..., 6, 6).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["isac_observation_matrix", "kf_predict", "kf_update", "symmetrize"]
+
+
+def symmetrize(p):
+    """:math:`(\\mathbf P + \\mathbf P^T)/2` over the last two axes."""
+    return 0.5 * (p + np.swapaxes(p, -1, -2))
+
+
+def isac_observation_matrix(los_unit):
+    """:math:`\\mathbf C_n = \\mathrm{blkdiag}(\\mathbf I_3, \\mathbf g_n^T)`, shape (..., 4, 6).
+
+    Position is observed in 3-D; velocity only along the LoS unit vector :math:`\\mathbf g_n`.
+    """
+    g = np.asarray(los_unit, dtype=float)
+    c = np.zeros(g.shape[:-1] + (4, 6))
+    c[..., 0, 0] = c[..., 1, 1] = c[..., 2, 2] = 1.0
+    c[..., 3, 3:] = g
+    return c
+
+
+def kf_predict(x, p, a, bu, sigma_w):
+    """Time update :math:`\\hat{\\mathbf x}_{n+1|n} = \\mathbf A\\hat{\\mathbf x}_n + \\mathbf B\\tilde{\\mathbf u}_n`,
+    :math:`\\mathbf P_{n+1|n} = \\mathbf A\\mathbf P_n\\mathbf A^T + \\Sigma_\\omega`.
+
+    ``bu`` is :math:`\\mathbf B\\tilde{\\mathbf u}_n` (..., 6), the command as received (the GBS learns
+    :math:`\\delta_n` from the acknowledgement).
+    """
+    x_new = x @ a.T + bu
+    p_new = a @ p @ a.T + sigma_w
+    return x_new, symmetrize(p_new)
+
+
+def kf_update(x, p, y, c, r):
+    """Measurement update, eq:KF_update, with the covariance in Joseph form.
+
+    .. math::
+        \\mathbf L_n &= \\mathbf P\\mathbf C^T(\\mathbf C\\mathbf P\\mathbf C^T + \\Sigma_\\upsilon)^{-1},\\quad
+        \\hat{\\mathbf x}_n = \\hat{\\mathbf x}_{n|n-1} + \\mathbf L_n(\\mathbf y_n - \\mathbf C_n
+        \\hat{\\mathbf x}_{n|n-1}),\\\\
+        \\mathbf P_n &= (\\mathbf I - \\mathbf L_n\\mathbf C_n)\\mathbf P(\\mathbf I - \\mathbf L_n\\mathbf C_n)^T
+        + \\mathbf L_n\\Sigma_\\upsilon\\mathbf L_n^T
+
+    The Joseph form plus explicit symmetrisation keeps P symmetric PSD for any noise sequence.
+
+    Parameters
+    ----------
+    x : (..., 6) prior mean;  p : (..., 6, 6) prior covariance
+    y : (..., m) measurement;  c : (..., m, 6);  r : (..., m, m) measurement covariance
+
+    Returns
+    -------
+    x_post : (..., 6);  p_post : (..., 6, 6);  gain : (..., 6, m)
+    """
+    ct = np.swapaxes(c, -1, -2)
+    pct = p @ ct
+    s_mat = symmetrize(c @ pct + r)
+    gain = np.swapaxes(np.linalg.solve(s_mat, np.swapaxes(pct, -1, -2)), -1, -2)
+    innov = y - np.einsum("...ij,...j->...i", c, x)
+    x_post = x + np.einsum("...ij,...j->...i", gain, innov)
+    ikc = np.eye(p.shape[-1]) - gain @ c
+    p_post = ikc @ p @ np.swapaxes(ikc, -1, -2) + gain @ r @ np.swapaxes(gain, -1, -2)
+    return x_post, symmetrize(p_post), gain

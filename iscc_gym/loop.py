@@ -1,0 +1,210 @@
+"""One slot of the ISCC closed loop as a pure, batched transition.
+
+``step(scenario, state, alpha, rng) -> (state, metrics)`` advances a batch of B independent
+drones by one slot: sense (CRLB-limited ISAC or GNSS) -> Kalman update -> LQG command ->
+finite-blocklength delivery (Bernoulli drop) -> drone dynamics -> Kalman prediction. The single env
+and the vector env both call it; nothing here keeps state between calls.
+
+Randomness: each slot draws exactly :data:`N_DRAWS` standard normals per drone, from one shared
+Generator or from one Generator per drone (then drone i's draws depend only on its own Generator,
+so a batch reproduces single runs bit for bit).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.special import ndtri
+
+from .channel import geometry, large_scale_snr, rician_power_gain, shadowing_std_db, shadowing_step
+from .dynamics import model_matrices
+from .fbl import comm_rate_bps, ctrl_bler, ctrl_rate_bps
+from .kalman import isac_observation_matrix, kf_predict, kf_update
+from .scenario import Scenario
+from .sensing import crlb, peb, veb
+from .trajectory import Reference
+
+__all__ = ["LoopState", "N_DRAWS", "init_state", "step", "standard_normals", "stack_references"]
+
+#: Standard normals drawn per drone per slot: fading (4), measurement (6), drop (1),
+#: process noise (6), shadowing (1).
+N_DRAWS = 18
+_FADE, _MEAS, _DROP, _PROC, _SHAD = slice(0, 4), slice(4, 10), 10, slice(11, 17), 17
+
+
+@dataclass(frozen=True)
+class LoopState:
+    """State of a batch of B closed loops at the start of slot n (before allocation).
+
+    Attributes
+    ----------
+    x : (B, 6)
+        True drone state [p, v] in m, m/s.
+    x_hat : (B, 6)
+        Predicted estimate :math:`\\hat{\\mathbf x}_{n|n-1}`.
+    p : (B, 6, 6)
+        Predicted error covariance :math:`\\mathbf P_{n|n-1}`.
+    shadow : (B,)
+        Unit-variance shadowing state (shadowing in dB is sigma_SF(h) * shadow).
+    n : (B,) int
+        Slot index.
+    ref : (B, N+1, 9)
+        Reference [position, velocity, acceleration] at every slot.
+    """
+
+    x: np.ndarray
+    x_hat: np.ndarray
+    p: np.ndarray
+    shadow: np.ndarray
+    n: np.ndarray
+    ref: np.ndarray
+
+    def replace(self, **changes) -> LoopState:
+        return dataclasses.replace(self, **changes)
+
+    @property
+    def batch_size(self) -> int:
+        return self.x.shape[0]
+
+
+def standard_normals(rng, batch: int, k: int = N_DRAWS):
+    """(batch, k) standard normals from one Generator or from a sequence of ``batch`` Generators."""
+    if isinstance(rng, np.random.Generator):
+        return rng.standard_normal((batch, k))
+    if isinstance(rng, Sequence) and len(rng) == batch:
+        return np.stack([r.standard_normal(k) for r in rng])
+    raise TypeError("rng must be a numpy Generator or a sequence of one Generator per drone")
+
+
+def stack_references(refs: Sequence[Reference]):
+    """Stack references into the (B, N+1, 9) array the loop state carries."""
+    return np.stack([np.concatenate([r.pos_m, r.vel_mps, r.acc_mps2], -1) for r in refs])
+
+
+def init_state(s: Scenario, refs, rng) -> LoopState:
+    """Initial state at slot 0: drone near the reference start, estimate at the reference start.
+
+    .. math::
+        \\mathbf x_0 = \\mathbf x_{\\mathrm{ref},0} + \\mathcal N(\\mathbf 0, \\mathbf P_0),\\quad
+        \\hat{\\mathbf x}_{0|-1} = \\mathbf x_{\\mathrm{ref},0},\\quad
+        \\mathbf P_0 = \\mathrm{blkdiag}(\\sigma_{p0}^2\\mathbf I_3, \\sigma_{v0}^2\\mathbf I_3)
+
+    Parameters
+    ----------
+    refs : sequence of Reference, or ndarray (B, N+1, 9)
+    rng : Generator or sequence of B Generators (7 normals per drone)
+    """
+    ref = refs if isinstance(refs, np.ndarray) else stack_references(refs)
+    if ref.ndim != 3 or ref.shape[1] != s.n_slots + 1 or ref.shape[2] != 9:
+        raise ValueError(f"refs must have shape (B, {s.n_slots + 1}, 9), got {ref.shape}")
+    batch = ref.shape[0]
+    z = standard_normals(rng, batch, 7)
+    std0 = np.array([s.initial_pos_std_m] * 3 + [s.initial_vel_std_mps] * 3)
+    x_ref0 = ref[:, 0, :6]
+    p0 = np.broadcast_to(np.diag(std0**2), (batch, 6, 6)).copy()
+    return LoopState(x=x_ref0 + std0 * z[:, :6], x_hat=x_ref0.copy(), p=p0, shadow=z[:, 6].copy(),
+                     n=np.zeros(batch, dtype=np.int64), ref=ref)
+
+
+def step(s: Scenario, state: LoopState, alpha, rng):
+    """Advance every loop in the batch by one slot.
+
+    Parameters
+    ----------
+    s : Scenario
+    state : LoopState
+        Batch of B loops at slot n < N.
+    alpha : array_like, shape (B, 3)
+        Applied split (alpha_sen, alpha_ctrl, alpha_comm), each row non-negative and summing to 1.
+    rng : Generator or sequence of B Generators
+
+    Returns
+    -------
+    state : LoopState
+        At slot n + 1.
+    metrics : dict of ndarray, shape (B,)
+        ``tracking_error_m`` (||p_{n+1} - p_ref,n+1||), ``estimation_error_m`` (||p_hat_n - p_n||),
+        ``snr_db`` (the slot's SNR with fading), ``snr_large_scale_db``, ``peb_m``, ``veb_mps``,
+        ``eps_ctrl``, ``packet_received`` (bool), ``rate_comm_bps``, ``rate_ctrl_bps``,
+        ``diverged`` (bool: tracking error above ``max_tracking_error_m`` or non-finite).
+    """
+    mm = model_matrices(s)
+    alpha = np.asarray(alpha, dtype=float)
+    batch = state.batch_size
+    if alpha.shape != (batch, 3):
+        raise ValueError(f"alpha must have shape ({batch}, 3), got {alpha.shape}")
+    if np.any(state.n >= s.n_slots):
+        raise ValueError("a loop is past the last slot of the mission; reset it first")
+    z = standard_normals(rng, batch)
+    rows = np.arange(batch)
+    ref_n = state.ref[rows, state.n]
+    ref_next = state.ref[rows, state.n + 1]
+    x = state.x
+    pos = x[:, :3]
+
+    # --- channel: large-scale (path loss, shadowing) and this slot's small-scale fading
+    _, _, _, los = geometry(s, pos)
+    shadow_db = shadowing_std_db(s, pos[:, 2]) * state.shadow
+    snr_ls = large_scale_snr(s, pos, shadow_db)
+    snr = rician_power_gain(s, z[:, 0], z[:, 1]) * snr_ls
+    fade_s = rician_power_gain(s, z[:, 2], z[:, 3])
+
+    # --- sensing and Kalman measurement update
+    crlb_p, crlb_vr = crlb(s, alpha[:, 0], pos, shadow_db, fade_s)
+    zm = z[:, _MEAS]
+    if s.observation_source == "isac":
+        c = isac_observation_matrix(los)
+        r = np.zeros((batch, 4, 4))
+        r[:, :3, :3] = crlb_p
+        r[:, 3, 3] = crlb_vr
+        noise_p = np.einsum("bij,bj->bi", np.linalg.cholesky(crlb_p), zm[:, :3])
+        noise_v = np.sqrt(crlb_vr) * zm[:, 3]
+        y = np.concatenate([pos + noise_p, (np.einsum("bi,bi->b", los, x[:, 3:])
+                                             + noise_v)[:, None]], -1)
+    else:
+        std = np.array([s.gnss_pos_std_m] * 3 + [s.gnss_vel_std_mps] * 3)
+        c = np.broadcast_to(np.eye(6), (batch, 6, 6))
+        r = np.broadcast_to(np.diag(std**2), (batch, 6, 6))
+        y = x + std * zm
+    x_post, p_post, _ = kf_update(state.x_hat, state.p, y, c, r)
+
+    # --- control command and its finite-blocklength delivery
+    eps = ctrl_bler(s, alpha[:, 1], snr)
+    if s.control_mode == "lqg":
+        u = -(x_post - ref_n[:, :6]) @ mm.k.T
+        if s.reference_feedforward:
+            u = u + ref_n[:, 6:]
+        received = z[:, _DROP] >= ndtri(eps)  # P = 1 - eps
+        u_applied = np.where(received[:, None], u, 0.0)
+    else:  # open loop: the reference acceleration is stored on board, no link involved
+        received = np.ones(batch, dtype=bool)
+        u_applied = ref_n[:, 6:]
+
+    # --- drone dynamics and Kalman time update
+    bu = u_applied @ mm.b.T
+    x_next = x @ mm.a.T + bu + mm.chol_w * z[:, _PROC]
+    x_hat_next, p_next = kf_predict(x_post, p_post, mm.a, bu, mm.sigma_w)
+    moved = np.linalg.norm(x_next[:, :3] - pos, axis=-1)
+    shadow_next = shadowing_step(s, state.shadow, moved, z[:, _SHAD])
+
+    err = np.linalg.norm(x_next[:, :3] - ref_next[:, :3], axis=-1)
+    diverged = ~np.isfinite(err) | (err > s.max_tracking_error_m)
+    metrics = {
+        "tracking_error_m": err,
+        "estimation_error_m": np.linalg.norm(x_post[:, :3] - pos, axis=-1),
+        "snr_db": 10.0 * np.log10(snr),
+        "snr_large_scale_db": 10.0 * np.log10(snr_ls),
+        "peb_m": peb(crlb_p),
+        "veb_mps": veb(crlb_vr),
+        "eps_ctrl": eps,
+        "packet_received": received,
+        "rate_comm_bps": comm_rate_bps(s, alpha[:, 2], snr),
+        "rate_ctrl_bps": ctrl_rate_bps(s, alpha[:, 1], snr),
+        "diverged": diverged,
+    }
+    new_state = LoopState(x=x_next, x_hat=x_hat_next, p=p_next, shadow=shadow_next,
+                          n=state.n + 1, ref=state.ref)
+    return new_state, metrics

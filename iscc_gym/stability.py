@@ -1,0 +1,213 @@
+"""Mean-square stability under packet loss, steady-state covariances, LQG cost and rate-cost
+function (the paper, Sec. III-B, III-C and IV-C)."""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.linalg
+from scipy.optimize import brentq
+
+from .fbl import ctrl_bler
+from .scenario import Scenario
+
+__all__ = [
+    "stability_matrix",
+    "spectral_radius",
+    "eps_star",
+    "alpha_ctrl_star",
+    "kalman_steady_state",
+    "equivalent_noise_cov",
+    "steady_state_covariance",
+    "lqg_cost",
+    "riccati_s_d",
+    "lqg_cost_floor",
+    "entropy_power",
+    "rate_cost_bits",
+]
+
+
+def stability_matrix(a, b, k, eps):
+    """Second-moment transition matrix, eq:M.
+
+    .. math::
+        \\mathbf M = (1-\\varepsilon)\\,(\\mathbf A-\\mathbf B\\mathbf K)\\otimes(\\mathbf A-\\mathbf B\\mathbf K)
+        + \\varepsilon\\,\\mathbf A\\otimes\\mathbf A
+
+    Returns an array of shape (36, 36).
+    """
+    a_cl = a - b @ k
+    return (1.0 - eps) * np.kron(a_cl, a_cl) + eps * np.kron(a, a)
+
+
+def spectral_radius(m):
+    """:math:`\\rho(\\mathbf M) = \\max_i |\\lambda_i(\\mathbf M)|`."""
+    return float(np.max(np.abs(np.linalg.eigvals(m))))
+
+
+def eps_star(a, b, k, xtol: float = 1e-12):
+    """Largest control packet-loss rate that keeps the loop mean-square stable:
+    the first root of :math:`\\rho(\\mathbf M(\\varepsilon)) = 1` on (0, 1) (Sec. IV-C.1).
+
+    The root is bracketed on a grid of 200 loss rates (at :math:`\\varepsilon = 1`,
+    :math:`\\rho(\\mathbf A\\otimes\\mathbf A) = 1` exactly for the double integrator, so the end
+    point itself cannot serve as a bracket) and refined with Brent's method. Returns 1.0 if
+    :math:`\\rho(\\mathbf M) < 1` on the whole grid.
+    """
+    def f(e):
+        return spectral_radius(stability_matrix(a, b, k, e)) - 1.0
+
+    if f(0.0) >= 0.0:
+        raise ValueError("the loss-free closed loop A - BK is not Schur stable; check lqg weights")
+    grid = np.linspace(0.0, 1.0, 201)[:-1]
+    vals = np.array([f(e) for e in grid])
+    above = np.flatnonzero(vals > 0.0)
+    if above.size == 0:
+        return 1.0
+    i = int(above[0])
+    return float(brentq(f, grid[i - 1], grid[i], xtol=xtol))
+
+
+def alpha_ctrl_star(s: Scenario, snr, eps_max: float, xtol: float = 1e-12):
+    """Smallest control share with :math:`\\varepsilon_\\mathrm{ctrl}(\\alpha,\\gamma) \\le \\varepsilon^\\star`,
+    the root of eq:ctrl_bler minus ``eps_max`` (Sec. IV-C.1).
+
+    ``snr`` is a scalar linear SNR. Returns ``nan`` if even alpha_ctrl = 1 is not enough.
+    """
+    def f(al):
+        return float(ctrl_bler(s, al, snr)) - eps_max
+
+    if f(1.0) > 0.0:
+        return float("nan")
+    return float(brentq(f, 1e-12, 1.0, xtol=xtol))
+
+
+def kalman_steady_state(a, c, sigma_w, sigma_v):
+    """Steady-state Kalman covariances for a fixed observation model, via the filtering DARE.
+
+    Returns
+    -------
+    p_prior : (6, 6)
+        Predicted error covariance :math:`\\mathbf P_{n|n-1}` (solution of the filtering DARE).
+    sigma_est : (6, 6)
+        Filtered error covariance :math:`\\Sigma_\\mathrm{est} = \\mathbf P - \\mathbf P\\mathbf C^T
+        (\\mathbf C\\mathbf P\\mathbf C^T + \\Sigma_\\upsilon)^{-1}\\mathbf C\\mathbf P` (eq:omega_tilde_cov).
+    """
+    p = scipy.linalg.solve_discrete_are(a.T, c.T, sigma_w, sigma_v)
+    p = 0.5 * (p + p.T)
+    s_mat = c @ p @ c.T + sigma_v
+    est = p - p @ c.T @ np.linalg.solve(s_mat, c @ p)
+    return p, 0.5 * (est + est.T)
+
+
+def equivalent_noise_cov(sigma_w, b, k, sigma_est, eps):
+    """Covariance of the equivalent process noise, eq:omega_tilde_cov.
+
+    .. math:: \\Sigma_{\\tilde\\omega} = \\Sigma_\\omega + (1-\\varepsilon)\\mathbf B\\mathbf K
+              \\Sigma_\\mathrm{est}\\mathbf K^T\\mathbf B^T
+    """
+    bk = b @ k
+    return sigma_w + (1.0 - eps) * bk @ sigma_est @ bk.T
+
+
+def steady_state_covariance(a, b, k, eps, sigma_wt):
+    """Steady state of eq:covariance_recursion,
+    :math:`\\mathrm{vec}(\\Sigma_\\infty) = (\\mathbf I - \\mathbf M)^{-1}\\mathrm{vec}(\\Sigma_{\\tilde\\omega})`.
+
+    Raises ``ValueError`` if :math:`\\rho(\\mathbf M) \\ge 1` (no steady state).
+    """
+    m = stability_matrix(a, b, k, eps)
+    if spectral_radius(m) >= 1.0:
+        raise ValueError(f"eps = {eps} is not mean-square stable (rho(M) >= 1): no steady state")
+    n = a.shape[0]
+    vec = np.linalg.solve(np.eye(n * n) - m, sigma_wt.reshape(-1, order="F"))
+    sig = vec.reshape(n, n, order="F")
+    return 0.5 * (sig + sig.T)
+
+
+def lqg_cost(q, r, k, eps, sigma_x, sigma_est):
+    """Average LQG cost b of eq:LQG_cost at steady state.
+
+    .. math::
+        b = \\operatorname{Tr}(\\mathbf Q\\Sigma_\\infty) + (1-\\varepsilon)\\operatorname{Tr}\\big(
+        \\mathbf R\\mathbf K(\\Sigma_\\infty - \\Sigma_\\mathrm{est})\\mathbf K^T\\big)
+
+    since :math:`\\tilde{\\mathbf u} = -\\delta\\mathbf K\\hat{\\mathbf x}` and
+    :math:`\\mathbb E[\\hat{\\mathbf x}\\hat{\\mathbf x}^T] = \\Sigma_\\infty - \\Sigma_\\mathrm{est}`
+    (orthogonality of the Kalman estimate), in tracking-error coordinates.
+    """
+    u_cov = k @ (sigma_x - sigma_est) @ k.T
+    return float(np.trace(q @ sigma_x) + (1.0 - eps) * np.trace(r @ u_cov))
+
+
+def riccati_s_d(a, b, q, r, eps, tol: float = 1e-10, max_iter: int = 100_000):
+    """Solve the coupled equations eq:Riccati_D and eq:Riccati_S by fixed-point iteration.
+
+    .. math::
+        \\mathbf D = (1-\\varepsilon)\\mathbf S\\mathbf B(\\mathbf R+\\mathbf B^T\\mathbf S\\mathbf B)^{-1}
+        \\mathbf B^T\\mathbf S,\\qquad \\mathbf S = \\mathbf Q + \\mathbf A^T(\\mathbf S - \\mathbf D)\\mathbf A
+
+    For eps = 0 this is the control DARE. Raises ``ValueError`` if the iteration diverges (the
+    loss rate is beyond what the modified Riccati equation tolerates).
+    """
+    s_mat = np.array(q, dtype=float)
+    for _ in range(max_iter):
+        g = s_mat @ b @ np.linalg.solve(r + b.T @ s_mat @ b, b.T @ s_mat)
+        d = (1.0 - eps) * g
+        s_new = q + a.T @ (s_mat - d) @ a
+        s_new = 0.5 * (s_new + s_new.T)
+        if not np.all(np.isfinite(s_new)) or np.max(np.abs(s_new)) > 1e15:
+            raise ValueError(f"modified Riccati iteration diverges at eps = {eps}")
+        if np.max(np.abs(s_new - s_mat)) <= tol * max(1.0, np.max(np.abs(s_new))):
+            s_mat = s_new
+            break
+        s_mat = s_new
+    else:
+        raise ValueError(f"modified Riccati iteration did not converge at eps = {eps}")
+    d = (1.0 - eps) * s_mat @ b @ np.linalg.solve(r + b.T @ s_mat @ b, b.T @ s_mat)
+    return s_mat, 0.5 * (d + d.T)
+
+
+def lqg_cost_floor(p_dare, sigma_w):
+    """:math:`b_\\min = \\operatorname{Tr}(\\mathbf P\\Sigma_\\omega)`: the average LQR cost with perfect
+    state and no loss (eq:Lb), with P the control DARE solution."""
+    return float(np.trace(p_dare @ sigma_w))
+
+
+def entropy_power(cov):
+    """Entropy power of a Gaussian vector,
+    :math:`N = \\frac{1}{2\\pi e}\\exp(\\tfrac{2}{n}h) = (\\det\\Sigma)^{1/n}`."""
+    n = cov.shape[-1]
+    sign, logdet = np.linalg.slogdet(cov)
+    if sign <= 0:
+        return 0.0
+    return float(np.exp(logdet / n))
+
+
+def rate_cost_bits(a, b_target, b_min, noise_entropy_power, d, determinant: str = "pseudo"):
+    """Rate-cost function L(b) of eq:Lb, in bits per control sample (slot).
+
+    .. math::
+        L(b) = \\log_2|\\det\\mathbf A| + \\frac{n}{2}\\log_2\\left(1 + \\frac{n\\,N(\\tilde\\omega)\\,
+        |\\det\\mathbf D|^{1/n}}{b - b_\\min}\\right),\\quad n = 6
+
+    :math:`\\mathbf D` of eq:Riccati_D has rank 3 (B is 6 x 3), so the printed ``determinant="printed"``
+    gives :math:`\\det\\mathbf D = 0` and :math:`L(b) = \\log_2|\\det\\mathbf A| = 0` for every b.
+    ``determinant="pseudo"`` (default) replaces :math:`n` and :math:`\\det` in the second term by the
+    rank r of D and its pseudo-determinant (product of the non-zero eigenvalues), see docs/model.md.
+    Returns ``inf`` for :math:`b \\le b_\\min`.
+    """
+    n = a.shape[0]
+    if b_target <= b_min:
+        return float("inf")
+    base = float(np.log2(abs(np.linalg.det(a))))
+    if determinant == "printed":
+        dim, det_root = n, abs(np.linalg.det(d)) ** (1.0 / n)
+    else:
+        ev = np.linalg.eigvalsh(0.5 * (d + d.T))
+        nz = ev[ev > 1e-9 * max(ev.max(), 1e-300)]
+        dim = len(nz)
+        if dim == 0:
+            return base
+        det_root = float(np.exp(np.mean(np.log(nz))))
+    return base + 0.5 * dim * float(np.log2(1.0 + dim * noise_entropy_power * det_root
+                                            / (b_target - b_min)))

@@ -18,15 +18,35 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.linalg
 from scipy.optimize import brentq
 
-from iscc_gym import SCENARIOS, Scenario, make_scenario
+from iscc_gym import SCENARIOS, Scenario, loop, make_scenario
 from iscc_gym.channel import geometry, large_scale_snr
 from iscc_gym.dynamics import model_matrices
 from iscc_gym.fbl import comm_rate_bps, ctrl_bler, dispersion, q_inv
-from iscc_gym.sensing import crlb, peb, veb
-from iscc_gym.stability import alpha_ctrl_star, eps_star, spectral_radius, stability_matrix
+from iscc_gym.sensing import (
+    crlb,
+    echo_amplitude_sq,
+    peb,
+    sensing_noise_var_w,
+    signature_derivatives,
+    veb,
+)
+from iscc_gym.stability import (
+    alpha_ctrl_star,
+    entropy_power,
+    eps_star,
+    equivalent_noise_cov,
+    kalman_steady_state,
+    lqg_cost_floor,
+    rate_cost_bits,
+    riccati_s_d,
+    spectral_radius,
+    stability_matrix,
+)
 from iscc_gym.trajectory import sample_reference
+from iscc_gym.units import lin_to_db, w_to_dbm
 
 #: The paper's reported model-level figures (its Sec. II-C Fig. 4, Sec. IV-C, Sec. V Table II text).
 PAPER = {
@@ -113,6 +133,11 @@ def model_level(s: Scenario, sample: TrajectorySample) -> dict:
     bounds = [mean_bounds(s, sample, a) for a in ALPHA_SEN_GRID]
     p02, v02 = mean_bounds(s, sample, 0.2)
     dist = geometry(s, sample.pos_m)[0]
+    # Table I's echo budget (no calibration offset) at the sample's mean range, alpha_sen = 0.2
+    s0 = s.replace(sensing_snr_offset_db=0.0)
+    echo_w = float(echo_amplitude_sq(s0, float(np.mean(dist)), 0.0, 1.0))
+    eta_sq = float(signature_derivatives(s0, 0.3, 0.3)[0])
+    n_samples = s.n_symbols * 0.2 * s.n_subcarriers
     return {
         "eps_ctrl_star": e_star,
         "rho_m_large_alpha_ctrl": spectral_radius(stability_matrix(mm.a, mm.b, mm.k, eps_large)),
@@ -128,7 +153,91 @@ def model_level(s: Scenario, sample: TrajectorySample) -> dict:
         "peb_m_at_alpha_sen_0_2": p02,
         "veb_mps_at_alpha_sen_0_2": v02,
         "mean_range_m": float(np.mean(dist)),
+        "echo_budget_uncalibrated": {
+            "echo_dbm_per_element_subcarrier": float(w_to_dbm(echo_w)),
+            "noise_dbm": float(w_to_dbm(sensing_noise_var_w(s0))),
+            "integrated_snr_db_at_alpha_sen_0_2": float(
+                lin_to_db(echo_w * eta_sq * n_samples / sensing_noise_var_w(s0))),
+        },
     }
+
+
+def lqr_floor_error_m(s: Scenario) -> float:
+    """Mean tracking error E||e_p|| of a perfectly informed, loss-free LQR loop (no sensing error):
+    the stationary covariance of x+ = (A - BK) x + w from the discrete Lyapunov equation, and
+    E||e|| of the 3-D position error by Monte Carlo over that Gaussian (fixed seed)."""
+    mm = model_matrices(s)
+    cov = scipy.linalg.solve_discrete_lyapunov(mm.a_cl, mm.sigma_w)[:3, :3]
+    z = np.random.default_rng(0).standard_normal((200_000, 3)) @ np.linalg.cholesky(cov).T
+    return float(np.mean(np.linalg.norm(z, axis=1)))
+
+
+def closed_loop_error_m(s: Scenario, n_trajectories: int, alpha=(0.2, 0.2, 0.6), seed: int = 0):
+    """Mean tracking error of the closed loop (Monte Carlo, ``n_trajectories`` full missions,
+    stepped as one batch) at a fixed split; the paper's Table II SCA split by default."""
+    rng = np.random.default_rng(seed)
+    refs = [sample_reference(s, rng) for _ in range(n_trajectories)]
+    rngs = [np.random.default_rng([seed, i]) for i in range(n_trajectories)]
+    state = loop.init_state(s, refs, rngs)
+    al = np.tile(np.asarray(alpha, dtype=float), (n_trajectories, 1))
+    total = np.zeros(n_trajectories)
+    alive = np.ones(n_trajectories, dtype=bool)
+    count = np.zeros(n_trajectories)
+    for _ in range(s.n_slots):
+        state, m = loop.step(s, state, al, rngs)
+        total += np.where(alive, m["tracking_error_m"], 0.0)
+        count += alive
+        alive &= ~m["diverged"]
+    return float(np.mean(total / count)), int(np.sum(~alive))
+
+
+def choices(s: Scenario, sample: TrajectorySample, quick: bool) -> dict:
+    """The effect of each named modelling choice of docs/model.md, each against its alternative."""
+    out: dict = {}
+    out["process_noise_reading"] = {
+        r: lqr_floor_error_m(s.replace(process_noise_reading=r)) for r in ("variance", "std")}
+    out["fim_angle_convention"] = {
+        c: mean_bounds(s.replace(fim_angle_convention=c), sample, 0.2)[0]
+        for c in ("definition", "printed")}
+    orient = {}
+    for o in ("horizontal", "vertical", "printed"):
+        cp, _ = crlb(s.replace(array_orientation=o), 0.2, sample.pos_m, 0.0)
+        pe = peb(cp)
+        orient[o] = {"mean": float(np.mean(pe)), "median": float(np.median(pe)),
+                     "p99": float(np.percentile(pe, 99)), "max": float(np.max(pe))}
+    out["array_orientation_peb_m"] = orient
+    out["sensing_noise_convention"] = {
+        c: mean_bounds(s.replace(sensing_noise_convention=c), sample, 0.2)[0]
+        for c in ("per_subcarrier", "full_band")}
+    out["snr_convention_mean_snr_db"] = {
+        c: float(10 * np.log10(mean_snr(s.replace(snr_convention=c), sample)))
+        for c in ("per_subcarrier_power", "total_power")}
+    out["gbs_height_m_mean_snr_db"] = {
+        str(h): float(10 * np.log10(mean_snr(s.replace(gbs_height_m=h), sample))) for h in (25.0, 0.0)}
+    mm = model_matrices(s)
+    e_star = eps_star(mm.a, mm.b, mm.k)
+    out["ctrl_deadline_alpha_ctrl_star"] = {
+        str(d): alpha_ctrl_star(s.replace(ctrl_deadline_s=d), mean_snr(s, sample), e_star)
+        for d in (s.ctrl_deadline_s, s.dt_s)}
+    # rate-cost L(b) at the paper preset's target b, printed vs pseudo determinant
+    sigma_v = np.diag([0.05**2 / 3] * 3 + [1e-6])
+    c = np.zeros((4, 6))
+    c[:3, :3] = np.eye(3)
+    c[3, 3] = 1.0
+    _, est = kalman_steady_state(mm.a, c, mm.sigma_w, sigma_v)
+    eps = 1e-3
+    _, d = riccati_s_d(mm.a, mm.b, mm.q, mm.r, eps)
+    n_w = entropy_power(equivalent_noise_cov(mm.sigma_w, mm.b, mm.k, est, eps))
+    b_min = lqg_cost_floor(mm.p, mm.sigma_w)
+    out["rate_cost_bits"] = {
+        "b_target": s.lqg_cost_target, "b_min": b_min,
+        **{det: rate_cost_bits(mm.a, s.lqg_cost_target, b_min, n_w, d, det)
+           for det in ("pseudo", "printed")}}
+    if not quick:
+        out["reference_feedforward_error_m"] = {
+            str(f): closed_loop_error_m(s.replace(reference_feedforward=f), 4)[0]
+            for f in (False, True)}
+    return out
 
 
 def run(scenario: str = "paper", quick: bool = False, seed: int = 0) -> dict:
@@ -149,6 +258,7 @@ def run(scenario: str = "paper", quick: bool = False, seed: int = 0) -> dict:
             "solved": cal,
             "paper_preset": {k: getattr(preset, k) for k in cal},
         },
+        "choices": choices(s, sample, quick),
         "paper": dict(PAPER),
         "wall_time_s": time.perf_counter() - t0,
     }
@@ -172,6 +282,7 @@ def format_table(res: dict) -> str:
          f"{lo:g}-{hi:g} m"),
         ("VEB at alpha_sen = 0.2", f"{res['veb_mps_at_alpha_sen_0_2']:.4g} m/s", "(Fig. 4a)"),
     ]
+    eb = res["echo_budget_uncalibrated"]
     w0 = max(len(r[0]) for r in rows)
     w1 = max(len(r[1]) for r in rows + [("", "ours")])
     lines = [f"Model-level reproduction, scenario '{res['scenario']}' "
@@ -179,6 +290,10 @@ def format_table(res: dict) -> str:
              f"{'quantity':<{w0}}  {'ours':>{w1}}  paper", "-" * (w0 + w1 + 12)]
     lines += [f"{a:<{w0}}  {b:>{w1}}  {c}" for a, b, c in rows]
     lines.append("")
+    lines.append(f"Table I echo budget at the mean range {res['mean_range_m']:.0f} m (no sensing offset): "
+                 f"echo {eb['echo_dbm_per_element_subcarrier']:.1f} dBm per element and subcarrier, "
+                 f"noise {eb['noise_dbm']:.1f} dBm, integrated SNR at alpha_sen = 0.2: "
+                 f"{eb['integrated_snr_db_at_alpha_sen_0_2']:.1f} dB")
     lines.append("eps_ctrl vs alpha_ctrl (sharp transition at alpha_ctrl*):")
     tr = res["eps_ctrl_vs_alpha_ctrl"]
     for a, e, r in zip(tr["alpha_ctrl"], tr["eps_ctrl"], tr["rho_m"], strict=True):
@@ -190,7 +305,89 @@ def format_table(res: dict) -> str:
     lines.append("Calibration of the 'paper' preset on this trajectory sample (solved vs preset):")
     for k, v in cal["solved"].items():
         lines.append(f"  {k:<24} solved {v:12.5g}   preset {cal['paper_preset'][k]:12.5g}")
+    lines.append("Named modelling choices (docs/model.md), each beside its alternative:")
+    for k, v in res["choices"].items():
+        lines.append(f"  {k}: {_fmt(v)}")
     return "\n".join(lines)
+
+
+def _fmt(v) -> str:
+    if isinstance(v, dict):
+        return "{" + ", ".join(f"{k}: {_fmt(x)}" for k, x in v.items()) + "}"
+    if isinstance(v, float):
+        return f"{v:.4g}"
+    return str(v)
+
+
+def markdown_table(paper_res: dict, literal_res: dict) -> str:
+    """Markdown table: ours (paper preset), the paper's figure, ours (literal preset)."""
+    p = paper_res["paper"]
+    lo, hi = p["peb_m_at_alpha_sen_0_2"]
+    rows = [
+        ("eps_ctrl*", "eps_ctrl_star", "{:.4f}", f"{p['eps_ctrl_star']}"),
+        (f"rho(M) at alpha_ctrl = {LARGE_ALPHA_CTRL:g}", "rho_m_large_alpha_ctrl", "{:.3f}",
+         f"~{p['rho_m_large_alpha_ctrl']}"),
+        ("alpha_ctrl* (trajectory-averaged SNR)", "alpha_ctrl_star", "{:.3%}",
+         f"{100 * p['alpha_ctrl_star']:.2f}%"),
+        ("trajectory-averaged SNR (dB)", "mean_snr_db", "{:.2f}", "not given"),
+        ("max data rate at alpha_comm = 1 (Mbps)", "max_comm_rate_mbps", "{:.2f}",
+         f"~{p['max_comm_rate_mbps']:g}"),
+        ("PEB at alpha_sen = 0.2 (m)", "peb_m_at_alpha_sen_0_2", "{:.4g}", f"{lo:g}-{hi:g}"),
+        ("VEB at alpha_sen = 0.2 (m/s)", "veb_mps_at_alpha_sen_0_2", "{:.4g}", "Fig. 4a"),
+    ]
+    out = ["| quantity | ours (`paper`) | paper | ours (`literal`) |", "|---|---|---|---|"]
+    for name, key, fmt, theirs in rows:
+        out.append(f"| {name} | {fmt.format(paper_res[key])} | {theirs} | "
+                   f"{fmt.format(literal_res[key])} |")
+    return "\n".join(out)
+
+
+README_START, README_END = "<!-- reproduce:start -->", "<!-- reproduce:end -->"
+
+
+def write_docs(paper_res: dict, literal_res: dict, results_path: str = "docs/results.md",
+               readme_path: str = "README.md") -> None:
+    """Regenerate docs/results.md and the README's reproduction block from two runs."""
+    table = markdown_table(paper_res, literal_res)
+    n = paper_res["n_trajectories"]
+    body = [
+        "# Results",
+        "",
+        "Generated by `python -m eval.reproduce --write-docs`; do not edit by hand.",
+        "",
+        f"## Model-level reproduction ({n} seeded trajectories)",
+        "",
+        table,
+        "",
+        "PEB / VEB versus alpha_sen (trajectory average, `paper` preset):",
+        "",
+        "| alpha_sen | PEB (m) | VEB (m/s) |",
+        "|---|---|---|",
+    ]
+    body += [f"| {a:g} | {pe:.4g} | {ve:.4g} |" for a, pe, ve in
+             zip(paper_res["alpha_sen"], paper_res["peb_m"], paper_res["veb_mps"], strict=True)]
+    tr = paper_res["eps_ctrl_vs_alpha_ctrl"]
+    body += ["", "eps_ctrl and rho(M) versus alpha_ctrl at the trajectory-averaged SNR (`paper`):", "",
+             "| alpha_ctrl | eps_ctrl | rho(M) |", "|---|---|---|"]
+    body += [f"| {a:g} | {e:.3e} | {r:.4f} |" for a, e, r in
+             zip(tr["alpha_ctrl"], tr["eps_ctrl"], tr["rho_m"], strict=True)]
+    body += ["", "Named modelling choices (see docs/model.md), `paper` preset:", ""]
+    body += [f"- `{k}`: {_fmt(v)}" for k, v in paper_res["choices"].items()]
+    cal = paper_res["calibration"]
+    body += ["", "Calibration of the `paper` preset, solved on this sample vs the preset's value:", ""]
+    body += [f"- `{k}`: solved {v:.5g}, preset {cal['paper_preset'][k]:.5g}"
+             for k, v in cal["solved"].items()]
+    with open(results_path, "w") as f:
+        f.write("\n".join(body) + "\n")
+    with open(readme_path) as f:
+        readme = f.read()
+    if README_START in readme and README_END in readme:
+        head, rest = readme.split(README_START, 1)
+        _, tail = rest.split(README_END, 1)
+        block = (f"{README_START}\nGenerated by `python -m eval.reproduce --write-docs` ({n} seeded "
+                 f"trajectories):\n\n{table}\n{README_END}")
+        with open(readme_path, "w") as f:
+            f.write(head + block + tail)
 
 
 def main(argv: list[str] | None = None) -> dict:
@@ -199,9 +396,16 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--json", metavar="PATH", help="write the result as JSON to PATH")
     ap.add_argument("--quick", action="store_true", help="reduced trajectory sample (for tests)")
     ap.add_argument("--seed", type=int, default=0, help="trajectory sample seed")
+    ap.add_argument("--write-docs", action="store_true",
+                    help="also run the other preset and regenerate docs/results.md and the README table")
     args = ap.parse_args(argv)
     res = run(args.scenario, quick=args.quick, seed=args.seed)
     print(format_table(res))
+    if args.write_docs:
+        other = run("literal" if args.scenario == "paper" else "paper", quick=args.quick, seed=args.seed)
+        pair = (res, other) if args.scenario == "paper" else (other, res)
+        write_docs(*pair)
+        print("wrote docs/results.md and the README reproduction table")
     if args.json:
         with open(args.json, "w") as f:
             json.dump(res, f, indent=2)

@@ -31,7 +31,7 @@ def dispersion(snr):
     (the paper, below eq:rate_equation). ``snr`` is linear.
     """
     g = np.asarray(snr, dtype=float)
-    return _LOG2E_SQ * (1.0 - 1.0 / ((1.0 + g) * (1.0 + g)))
+    return _LOG2E_SQ * g * (2.0 + g) / ((1.0 + g) * (1.0 + g))  # = 1 - (1+g)^-2, exact at small g
 
 
 def fbl_rate_bps(alpha, bandwidth_hz, snr, blocklength, bler):
@@ -70,7 +70,7 @@ def ctrl_bler(s: Scenario, alpha_ctrl, snr):
     """
     snr = np.asarray(snr, dtype=float)
     a = np.asarray(alpha_ctrl, dtype=float)
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         need = np.where(a > 0.0, s.ctrl_packet_bits / (s.ctrl_deadline_s * np.where(a > 0, a, 1.0)
                                                        * s.bandwidth_hz), np.inf)
         v = dispersion(snr)

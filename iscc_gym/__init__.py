@@ -6,7 +6,18 @@ Efficient Drone Flight", as pure batched numpy functions (``channel``, ``fbl``, 
 :class:`Scenario`.
 """
 
+import gymnasium as _gym
+
+from .env import ISCCEnv, action_to_split, split_to_action
 from .scenario import SCENARIOS, Scenario, make_scenario
 
-__all__ = ["Scenario", "SCENARIOS", "make_scenario"]
+__all__ = ["Scenario", "SCENARIOS", "make_scenario", "ISCCEnv", "action_to_split", "split_to_action",
+           "ENV_ID"]
+
+#: The registered environment id.
+ENV_ID = "iscc_gym/ISCC-v0"
+
+if ENV_ID not in _gym.registry:
+    _gym.register(id=ENV_ID, entry_point="iscc_gym.env:ISCCEnv",
+                  max_episode_steps=SCENARIOS["paper"].n_slots)
 __version__ = "0.1.0"

@@ -8,7 +8,7 @@ from scipy.special import erfc, ndtri
 from .scenario import Scenario
 
 __all__ = ["dispersion", "q_func", "q_inv", "fbl_rate_bps", "comm_rate_bps", "ctrl_rate_bps",
-           "ctrl_bler"]
+           "ctrl_bler", "min_ctrl_share", "min_comm_share"]
 
 _LOG2E_SQ = np.log2(np.e) ** 2
 
@@ -78,3 +78,30 @@ def ctrl_bler(s: Scenario, alpha_ctrl, snr):
         arg = scale * (np.log2(1.0 + snr) - need)
     arg = np.where(np.isnan(arg), -np.inf, arg)
     return q_func(arg)
+
+
+def min_ctrl_share(s: Scenario, snr, eps_max):
+    """Smallest control share whose drop probability (eq:ctrl_bler) is at most ``eps_max``.
+
+    Closed form of :math:`\\varepsilon_\\mathrm{ctrl}(\\alpha, \\gamma) = \\varepsilon_\\max`:
+
+    .. math::
+        \\alpha^\\star(\\gamma) = \\frac{S}{T_d B\\left[\\log_2(1+\\gamma)
+        - Q^{-1}(\\varepsilon_\\max)\\sqrt{V(\\gamma)/L_\\mathrm{ctrl}}\\right]}
+
+    Returns ``inf`` where no share reaches ``eps_max`` (the bracket is not positive); values above 1
+    mean even the whole band is not enough.
+    """
+    snr = np.asarray(snr, dtype=float)
+    cap = np.log2(1.0 + snr) - q_inv(eps_max) * np.sqrt(dispersion(snr) / s.ctrl_blocklength)
+    with np.errstate(divide="ignore"):
+        return np.where(cap > 0.0, s.ctrl_packet_bits / (s.ctrl_deadline_s * s.bandwidth_hz
+                                                         * np.where(cap > 0.0, cap, 1.0)), np.inf)
+
+
+def min_comm_share(s: Scenario, snr, rate_bps):
+    """Smallest data share whose FBL rate (eq:rate_equation) reaches ``rate_bps``; ``inf`` if none."""
+    per_hz = fbl_rate_bps(1.0, 1.0, snr, s.comm_blocklength, s.comm_target_bler)
+    with np.errstate(divide="ignore"):
+        return np.where(per_hz > 0.0, rate_bps / (s.bandwidth_hz * np.where(per_hz > 0, per_hz, 1.0)),
+                        np.inf)

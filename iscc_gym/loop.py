@@ -21,13 +21,14 @@ from scipy.special import ndtri
 
 from .channel import geometry, large_scale_snr, rician_power_gain, shadowing_std_db, shadowing_step
 from .dynamics import model_matrices
-from .fbl import comm_rate_bps, ctrl_bler, ctrl_rate_bps
+from .fbl import comm_rate_bps, ctrl_bler, ctrl_rate_bps, min_comm_share, min_ctrl_share
 from .kalman import isac_observation_matrix, kf_predict, kf_update
 from .scenario import Scenario
 from .sensing import crlb, peb, veb
 from .trajectory import Reference
 
-__all__ = ["LoopState", "N_DRAWS", "init_state", "step", "standard_normals", "stack_references"]
+__all__ = ["LoopState", "N_DRAWS", "init_state", "step", "preview", "standard_normals",
+           "stack_references"]
 
 #: Standard normals drawn per drone per slot: fading (4), measurement (6), drop (1),
 #: process noise (6), shadowing (1).
@@ -208,3 +209,26 @@ def step(s: Scenario, state: LoopState, alpha, rng):
     new_state = LoopState(x=x_next, x_hat=x_hat_next, p=p_next, shadow=shadow_next,
                           n=state.n + 1, ref=state.ref)
     return new_state, metrics
+
+
+def preview(s: Scenario, state: LoopState, eps_max: float) -> dict:
+    """What the GBS can predict about slot n before allocating it, from its estimate x_hat_{n|n-1}.
+
+    Returns a dict of (B,) arrays: ``dist_m``, ``azimuth_rad``, ``elevation_rad`` (geometry of the
+    predicted position), ``snr_db`` (large-scale SNR there: path loss, beam gain and the current
+    shadowing; the slot's small-scale fading is not known yet), ``alpha_ctrl_min`` (control share at
+    which eq:ctrl_bler gives ``eps_max`` at that SNR) and ``alpha_comm_min`` (data share carrying
+    ``rate_min_bps``); both are ``inf`` where unreachable.
+    """
+    pos = state.x_hat[:, :3]
+    dist, az, el, _ = geometry(s, pos)
+    shadow_db = shadowing_std_db(s, pos[:, 2]) * state.shadow
+    snr = large_scale_snr(s, pos, shadow_db)
+    return {
+        "dist_m": dist,
+        "azimuth_rad": az,
+        "elevation_rad": el,
+        "snr_db": 10.0 * np.log10(snr),
+        "alpha_ctrl_min": min_ctrl_share(s, snr, eps_max),
+        "alpha_comm_min": min_comm_share(s, snr, s.rate_min_bps),
+    }

@@ -3,14 +3,18 @@ function (the paper, Sec. III-B, III-C and IV-C)."""
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 import scipy.linalg
 from scipy.optimize import brentq
 
+from .dynamics import model_matrices
 from .fbl import ctrl_bler
 from .scenario import Scenario
 
 __all__ = [
+    "scenario_eps_star",
     "stability_matrix",
     "spectral_radius",
     "eps_star",
@@ -65,6 +69,13 @@ def eps_star(a, b, k, xtol: float = 1e-12):
         return 1.0
     i = int(above[0])
     return float(brentq(f, grid[i - 1], grid[i], xtol=xtol))
+
+
+@lru_cache(maxsize=64)
+def scenario_eps_star(s: Scenario) -> float:
+    """:func:`eps_star` of a scenario's A, B and LQ gain K (cached per scenario)."""
+    mm = model_matrices(s)
+    return eps_star(mm.a, mm.b, mm.k)
 
 
 def alpha_ctrl_star(s: Scenario, snr, eps_max: float, xtol: float = 1e-12):

@@ -1,0 +1,295 @@
+"""Gymnasium environment ``iscc_gym/ISCC-v0``: per-slot time-frequency allocation of an ISCC loop."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from . import loop
+from .scenario import Scenario, make_scenario
+from .stability import scenario_eps_star
+from .trajectory import sample_reference
+
+__all__ = ["ISCCEnv", "action_to_split", "split_to_action", "OBS_NAMES", "OBS_BOUND"]
+
+#: Names of the observation entries, in order (see :class:`ISCCEnv`).
+OBS_NAMES = (
+    "pos_err_x", "pos_err_y", "pos_err_z", "vel_err_x", "vel_err_y", "vel_err_z",
+    "ref_vel_x", "ref_vel_y", "ref_vel_z", "ref_acc_x", "ref_acc_y", "ref_acc_z",
+    "est_pos_std", "snr_db", "range", "sin_elevation", "cos_azimuth", "sin_azimuth",
+    "alpha_ctrl_min", "alpha_comm_min", "last_packet_received", "last_peb", "time_left",
+)
+#: Every observation entry is clipped to [-OBS_BOUND, OBS_BOUND].
+OBS_BOUND = 10.0
+
+
+def action_to_split(action):
+    """Map an action in [-1, 1]^3 onto the simplex (alpha_sen, alpha_ctrl, alpha_comm).
+
+    .. math:: w_i = (\\mathrm{clip}(a_i, -1, 1) + 1)/2,\\qquad \\alpha_i = w_i / \\textstyle\\sum_j w_j
+
+    and the equal split where every w_i = 0. Every split is reachable (see :func:`split_to_action`),
+    including zero shares: there is no minimum share. Broadcasts over leading axes.
+    """
+    w = (np.clip(np.asarray(action, dtype=float), -1.0, 1.0) + 1.0) * 0.5
+    total = w.sum(axis=-1, keepdims=True)
+    safe = np.where(total > 1e-12, total, 1.0)
+    return np.where(total > 1e-12, w / safe, 1.0 / 3.0)
+
+
+def split_to_action(alpha):
+    """Inverse of :func:`action_to_split`: the action whose split is ``alpha`` (largest share at +1).
+
+    ``alpha`` must be non-negative and sum to 1 along the last axis.
+    """
+    a = np.asarray(alpha, dtype=float)
+    if np.any(~np.isfinite(a)) or np.any(a < 0) or not np.allclose(a.sum(axis=-1), 1.0, atol=1e-9):
+        raise ValueError(f"alpha = {alpha!r} is not a split: shares must be >= 0 and sum to 1")
+    return (2.0 * a / a.max(axis=-1, keepdims=True) - 1.0).astype(np.float32)
+
+
+def _symlog(x, scale):
+    return np.sign(x) * np.log1p(np.abs(x) / scale)
+
+
+class ISCCEnv(gym.Env):
+    """Allocate each slot's time-frequency resources of an ISCC drone-tracking loop.
+
+    ## Description
+
+    A ground base station (GBS) senses a drone with an OFDM ISAC waveform, estimates its 6-D state
+    with a Kalman filter and sends LQG acceleration commands over a finite-blocklength link that
+    drops packets (Li et al., *Closed-Loop ISCC for Efficient Drone Flight*; ``docs/model.md``).
+    Every slot (dt = 0.1 s) the agent splits the resources into sensing, control and data
+    shares: sensing sets the Cramér-Rao bound of the radar measurement, control sets the command's
+    loss probability and so mean-square stability, and the data link must carry ``rate_min_bps``.
+    Each step calls the pure transition :func:`iscc_gym.loop.step` once.
+
+    ## Action Space
+
+    ``Box(-1, 1, (3,), float32)``, mapped inside the env onto the simplex by
+    :func:`action_to_split`: :math:`w_i = (a_i + 1)/2`, :math:`\\alpha = w / \\sum w` (equal thirds if
+    all :math:`w_i = 0`). No minimum share: any split is reachable (:func:`split_to_action` gives its
+    action), including zero shares (zero sensing: the radar measurement carries no information; zero
+    control: every command is lost; zero data: no rate). ``info["alpha"]`` is the applied split.
+    Finite out-of-range actions are clipped; NaN/inf or a wrong shape raise ``ValueError`` and leave
+    the env unchanged.
+
+    | Num | Action | Min | Max |
+    |-----|--------|-----|-----|
+    | 0   | sensing weight  | -1 | 1 |
+    | 1   | control weight  | -1 | 1 |
+    | 2   | data weight     | -1 | 1 |
+
+    ## Observation Space
+
+    ``Box(-10, 10, (23,), float32)``: what the GBS knows before it allocates the slot; the slot's
+    small-scale fading is drawn after the allocation. symlog(x, c) = sign(x) ln(1 + |x|/c); every
+    entry is clipped to [-10, 10].
+
+    | Num | Observation | Unit / scaling | Min | Max |
+    |-----|-------------|----------------|-----|-----|
+    | 0-2 | predicted position error x_hat_{n|n-1} - p_ref,n | symlog(m, 0.1) | -10 | 10 |
+    | 3-5 | predicted velocity error | symlog(m/s, 0.1) | -10 | 10 |
+    | 6-8 | reference velocity | m/s / 10 | -10 | 10 |
+    | 9-11 | reference acceleration | m/s^2 | -10 | 10 |
+    | 12 | estimate's position std sqrt(tr P_pp) | symlog(m, 0.1) | 0 | 10 |
+    | 13 | predicted large-scale SNR (path loss, beam gain, shadowing) | dB / 10 | -10 | 10 |
+    | 14 | predicted range to the GBS antenna | / coverage radius | 0 | 10 |
+    | 15 | sin(predicted elevation) | - | -1 | 1 |
+    | 16-17 | cos, sin(predicted azimuth) | - | -1 | 1 |
+    | 18 | control share for eps_ctrl = eps* at the predicted SNR | x 10 | 0 | 10 |
+    | 19 | data share for R_min at the predicted SNR | - | 0 | 10 |
+    | 20 | last slot's command delivered (1 at reset) | 0/1 | 0 | 1 |
+    | 21 | last slot's PEB (0 at reset) | symlog(m, 0.05) | 0 | 10 |
+    | 22 | mission time left | fraction | 0 | 1 |
+
+    ## Rewards
+
+    .. math::
+        r_n = -\\|\\mathbf p_{n+1} - \\mathbf p_{\\mathrm{ref},n+1}\\| - w_\\mathrm{rate}\\,
+        \\frac{(R_\\min - \\mathcal R_{\\mathrm{comm},n})^+}{R_\\min}
+        - w_\\mathrm{stab}\\, \\mathbb 1[\\varepsilon_{\\mathrm{ctrl},n} > \\varepsilon^\\star]
+
+    (tracking error in m, the weights ``w_rate``, ``w_stab`` of the Scenario). The two violations are
+    also reported as costs for constrained RL: ``info["cost_rate"]`` (normalised shortfall, in
+    [0, 1]), ``info["cost_stability"]`` (0/1) and ``info["cost"]`` (their sum);
+    :class:`iscc_gym.wrappers.SafetyCostWrapper` returns Safety-Gymnasium's 6-tuple. Loss of track
+    adds a one-off penalty of ``max_tracking_error_m`` per remaining slot (as if the error stayed at
+    the bound for the rest of the mission), so ending an episode early never pays.
+
+    ## Starting State
+
+    ``reset`` draws a new reference trajectory (Poisson waypoints, cubic spline) and the drone's
+    initial state near its start (``initial_pos_std_m``, ``initial_vel_std_mps``), all from the
+    env's generator.
+
+    ## Episode End
+
+    * Termination: loss of track, the tracking error exceeds ``max_tracking_error_m`` (100 m); the
+      observation stays finite.
+    * Truncation: the mission ends after ``n_slots`` = T_m / dt = 5000 slots (also the registered
+      ``max_episode_steps``).
+
+    ## Arguments
+
+    ``gymnasium.make("iscc_gym/ISCC-v0", scenario="paper", render_mode=None, **overrides)``:
+    ``scenario`` is a preset name (``"paper"``, ``"literal"``) or a :class:`iscc_gym.Scenario`;
+    ``overrides`` are Scenario fields, e.g. ``observation_source="gnss"`` (GNSS feedback, 3 m and
+    0.2 m/s), ``control_mode="open_loop"`` (reference acceleration, no feedback),
+    ``reference_feedforward=True``. Unknown keywords raise ``TypeError``.
+    ``render_mode="rgb_array"`` renders the reference and actual paths and the error so far.
+
+    ## Version History
+
+    * v0: initial version.
+
+    ## Example
+
+    >>> import gymnasium as gym, iscc_gym
+    >>> env = gym.make("iscc_gym/ISCC-v0", scenario="paper")
+    >>> obs, info = env.reset(seed=0)
+    >>> obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
+
+    def __init__(self, scenario: str | Scenario = "paper", render_mode: str | None = None,
+                 **overrides: Any):
+        self.scenario = make_scenario(scenario, **overrides)
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode={render_mode!r}; use None or one of "
+                             f"{self.metadata['render_modes']}")
+        self.render_mode = render_mode
+        self.eps_star = scenario_eps_star(self.scenario)
+        self.action_space = spaces.Box(-1.0, 1.0, (3,), np.float32)
+        self.observation_space = spaces.Box(-OBS_BOUND, OBS_BOUND, (len(OBS_NAMES),), np.float32)
+        self._state: loop.LoopState | None = None
+        self._last_received = True
+        self._last_peb = 0.0
+        self._history: dict[str, list] = {}
+
+    # --- Gymnasium API -------------------------------------------------------------------------
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        s = self.scenario
+        ref = sample_reference(s, self.np_random)
+        self._state = loop.init_state(s, [ref], [self.np_random])
+        self._last_received, self._last_peb = True, 0.0
+        self._history = {"pos": [self._state.x[0, :3].copy()], "err": []}
+        return self._observation(), self._reset_info()
+
+    def step(self, action):
+        if self._state is None:
+            raise RuntimeError("step() called before reset(): call env.reset(seed=...) first")
+        a = np.asarray(action, dtype=np.float64)
+        if a.shape != (3,):
+            raise ValueError(f"action must have shape (3,), got {a.shape}")
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"action {a.tolist()} contains NaN or inf; pass finite values in [-1, 1]")
+        if self._state.n[0] >= self.scenario.n_slots:
+            raise RuntimeError("the mission is over (truncated); call reset() before step()")
+        alpha = action_to_split(a)
+        s = self.scenario
+        self._state, m = loop.step(s, self._state, alpha[None, :], [self.np_random])
+        err = float(m["tracking_error_m"][0])
+        rate = float(m["rate_comm_bps"][0])
+        eps = float(m["eps_ctrl"][0])
+        cost_rate = max(0.0, s.rate_min_bps - rate) / s.rate_min_bps if s.rate_min_bps > 0 else 0.0
+        cost_stab = float(eps > self.eps_star)
+        terminated = bool(m["diverged"][0])
+        n = int(self._state.n[0])
+        truncated = (not terminated) and n >= s.n_slots
+        reward = -min(err, s.max_tracking_error_m) - s.w_rate * cost_rate - s.w_stab * cost_stab
+        if terminated:
+            reward -= s.max_tracking_error_m * (s.n_slots - n)
+        self._last_received = bool(m["packet_received"][0])
+        self._last_peb = float(m["peb_m"][0])
+        if self.render_mode is not None:
+            self._history["pos"].append(self._state.x[0, :3].copy())
+            self._history["err"].append(err)
+        info = {
+            "tracking_error_m": err,
+            "cost_rate": cost_rate,
+            "cost_stability": cost_stab,
+            "cost": cost_rate + cost_stab,
+            "snr_db": float(m["snr_db"][0]),
+            "snr_large_scale_db": float(m["snr_large_scale_db"][0]),
+            "peb_m": self._last_peb,
+            "veb_mps": float(m["veb_mps"][0]),
+            "eps_ctrl": eps,
+            "packet_received": self._last_received,
+            "rate_comm_bps": rate,
+            "rate_ctrl_bps": float(m["rate_ctrl_bps"][0]),
+            "estimation_error_m": float(m["estimation_error_m"][0]),
+            "alpha": alpha,
+            "action": a.astype(np.float32),
+            "slot": n,
+        }
+        return self._observation(), float(reward), terminated, truncated, info
+
+    def render(self):
+        if self.render_mode != "rgb_array":
+            return None
+        if self._state is None:
+            raise RuntimeError("render() called before reset()")
+        return _render_rgb(self._state, self._history, self.scenario)
+
+    # --- helpers ---------------------------------------------------------------------------------
+    def _reset_info(self) -> dict:
+        return {"slot": 0, "alpha": np.full(3, 1.0 / 3.0)}
+
+    def _observation(self) -> np.ndarray:
+        st, s = self._state, self.scenario
+        pv = loop.preview(s, st, self.eps_star)
+        n = int(st.n[0])
+        ref = st.ref[0, n]
+        err = st.x_hat[0] - ref[:6]
+        obs = np.empty(len(OBS_NAMES))
+        obs[0:3] = _symlog(err[:3], 0.1)
+        obs[3:6] = _symlog(err[3:], 0.1)
+        obs[6:9] = ref[3:6] / 10.0
+        obs[9:12] = ref[6:9]
+        obs[12] = _symlog(np.sqrt(max(np.trace(st.p[0, :3, :3]), 0.0)), 0.1)
+        obs[13] = pv["snr_db"][0] / 10.0
+        obs[14] = pv["dist_m"][0] / s.coverage_radius_m
+        obs[15] = np.sin(pv["elevation_rad"][0])
+        obs[16] = np.cos(pv["azimuth_rad"][0])
+        obs[17] = np.sin(pv["azimuth_rad"][0])
+        obs[18] = 10.0 * pv["alpha_ctrl_min"][0]
+        obs[19] = pv["alpha_comm_min"][0]
+        obs[20] = float(self._last_received)
+        obs[21] = _symlog(self._last_peb, 0.05)
+        obs[22] = 1.0 - n / s.n_slots
+        return np.clip(np.nan_to_num(obs, nan=OBS_BOUND, posinf=OBS_BOUND, neginf=-OBS_BOUND),
+                       -OBS_BOUND, OBS_BOUND).astype(np.float32)
+
+
+def _render_rgb(state: loop.LoopState, history: dict, s: Scenario) -> np.ndarray:
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(9, 4), dpi=80)
+    canvas = FigureCanvasAgg(fig)
+    ax = fig.add_subplot(1, 2, 1, projection="3d")
+    ref = state.ref[0, :, :3]
+    pos = np.array(history["pos"])
+    ax.plot(ref[:, 0], ref[:, 1], ref[:, 2], "k--", lw=1, label="reference")
+    ax.plot(pos[:, 0], pos[:, 1], pos[:, 2], "C0", lw=1.5, label="drone")
+    ax.scatter([0], [0], [s.gbs_height_m], c="C3", marker="^", label="GBS")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_zlabel("z (m)")
+    ax.legend(loc="upper left", fontsize=7)
+    ax2 = fig.add_subplot(1, 2, 2)
+    err = np.array(history["err"])
+    ax2.plot(np.arange(len(err)) * s.dt_s, err, "C1")
+    ax2.set_xlabel("time (s)")
+    ax2.set_ylabel("tracking error (m)")
+    ax2.set_xlim(0, s.mission_duration_s)
+    fig.tight_layout()
+    canvas.draw()
+    return np.asarray(canvas.buffer_rgba())[..., :3].copy()

@@ -320,9 +320,11 @@ def _validate(s: Scenario) -> None:
     ]
     for f in dataclasses.fields(s):
         v = getattr(s, f.name)
-        if isinstance(v, bool) or f.name in _CHOICES:
+        if f.name in _CHOICES or f.name == "reference_feedforward":
             continue
-        if isinstance(v, (int, float, np.number)) and not math.isfinite(float(v)):
+        if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, float, np.integer, np.floating)):
+            _fail(f.name, v, "a real number (not a bool or a string)")
+        if not math.isfinite(float(v)):
             _fail(f.name, v, "a finite number")
     for name in positive:
         if not float(getattr(s, name)) > 0.0:

@@ -7,11 +7,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from .scenario import Scenario
+from .scenario import Scenario, per_scenario
 from .units import db_to_lin, dbm_to_w
 
 __all__ = [
     "geometry",
+    "direction_trig",
+    "direction_cosines_trig",
+    "matched_gain",
+    "beam_gain",
+    "link_snr",
     "path_loss_db",
     "shadowing_std_db",
     "shadowing_step",
@@ -120,6 +125,23 @@ def _element_indices(s: Scenario):
     return np.repeat(ix, s.n_y), np.tile(iy, s.n_x)
 
 
+def direction_trig(los_unit):
+    """Sines and cosines of the azimuth and elevation of a unit LoS vector, without trigonometry.
+
+    .. math::
+        \\cos\\varphi = \\sqrt{g_x^2 + g_y^2},\\ \\sin\\varphi = g_z,\\
+        \\cos\\theta = g_x/\\cos\\varphi,\\ \\sin\\theta = g_y/\\cos\\varphi
+
+    (azimuth 0 at the zenith, where it is undefined). Returns ``(cos_az, sin_az, cos_el, sin_el)``.
+    """
+    g = np.asarray(los_unit, dtype=float)
+    gx, gy, gz = g[..., 0], g[..., 1], g[..., 2]
+    cp = np.sqrt(gx * gx + gy * gy)
+    zenith = cp < 1e-12
+    inv = 1.0 / np.where(zenith, 1.0, cp)
+    return np.where(zenith, 1.0, gx * inv), gy * inv, cp, gz
+
+
 def direction_cosines(s: Scenario, azimuth_rad, elevation_rad):
     """The two phase-progression terms (u_x, u_y) of the UPA and their angle derivatives.
 
@@ -137,21 +159,18 @@ def direction_cosines(s: Scenario, azimuth_rad, elevation_rad):
     """
     th = np.asarray(azimuth_rad, dtype=float)
     ph = np.asarray(elevation_rad, dtype=float)
-    st, ct, sp, cp = np.sin(th), np.cos(th), np.sin(ph), np.cos(ph)
+    u, dth, dph = direction_cosines_trig(s, np.cos(th), np.sin(th), np.cos(ph), np.sin(ph))
+    return np.stack(u, -1), np.stack(dth, -1), np.stack(dph, -1)
+
+
+def direction_cosines_trig(s: Scenario, ct, st, cp, sp):
+    """:func:`direction_cosines` from the angles' cosines and sines; returns three (x, y) tuples."""
     zero = np.zeros_like(st * sp)
     if s.array_orientation == "printed":
-        u = (st * cp, st * sp)
-        dth = (ct * cp, ct * sp)
-        dph = (-st * sp, st * cp)
-    elif s.array_orientation == "vertical":
-        u = (cp * st, sp + zero)
-        dth = (cp * ct, zero)
-        dph = (-sp * st, cp + zero)
-    else:  # horizontal
-        u = (cp * ct, cp * st)
-        dth = (-cp * st, cp * ct)
-        dph = (-sp * ct, -sp * st)
-    return np.stack(u, -1), np.stack(dth, -1), np.stack(dph, -1)
+        return (st * cp, st * sp), (ct * cp, ct * sp), (-st * sp, st * cp)
+    if s.array_orientation == "vertical":
+        return (cp * st, sp + zero), (cp * ct, zero), (-sp * st, cp + zero)
+    return (cp * ct, cp * st), (-cp * st, cp * ct), (-sp * ct, -sp * st)  # horizontal
 
 
 def array_response(s: Scenario, azimuth_rad, elevation_rad):
@@ -219,14 +238,48 @@ def large_scale_snr(s: Scenario, pos_m, shadow_db, gain=None):
     shadow_db : array_like, shape (...)
         Shadowing :math:`\\varepsilon` in dB.
     gain : array_like, optional
-        Beamforming gain; computed from the scenario's beamformer steered at the drone if omitted.
+        Beamforming gain; the scenario's beamformer steered at the drone if omitted (for
+        ``"matched"`` this is exactly :math:`G = N`).
     """
     dist, az, el, _ = geometry(s, pos_m)
     if gain is None:
+        gain = matched_gain(s) if s.beamforming == "matched" else None
+    if gain is None:
         a, _, _ = array_response(s, az, el)
         gain = beamforming_gain(a, beamformer(s, az, el))
+    return link_snr(s, dist, shadow_db, gain)
+
+
+def matched_gain(s: Scenario) -> float:
+    """Gain of the matched beamformer, :math:`|\\mathbf a^H \\mathbf a|^2/N = N`."""
+    return float(s.n_antennas)
+
+
+def beam_gain(s: Scenario, trig):
+    """Beamforming gain towards a direction given by :func:`direction_trig`'s output (matched: N)."""
+    if s.beamforming == "matched":
+        return matched_gain(s)
+    ct, st, cp, sp = trig
+    az, el = np.arctan2(st, ct), np.arctan2(sp, cp)
+    a, _, _ = array_response(s, az, el)
+    return beamforming_gain(a, beamformer(s, az, el))
+
+
+def link_snr(s: Scenario, dist_m, shadow_db, gain):
+    """:func:`large_scale_snr` from the range, the shadowing and the beamforming gain.
+
+    The dB budget :math:`P - \\mathcal L(l) - \\varepsilon + \\Delta - N_0B` in linear form,
+    :math:`\\kappa\\, G\\, l^{-2.2}\\, 10^{-\\varepsilon/10}`, with the constant :math:`\\kappa` cached.
+    """
+    return _snr_constant(s) * gain * np.asarray(dist_m, dtype=float) ** -2.2 * 10.0 ** (
+        -0.1 * np.asarray(shadow_db, dtype=float))
+
+
+@per_scenario
+def _snr_constant(s: Scenario) -> float:
     p_w = float(dbm_to_w(s.tx_power_dbm))
     if s.snr_convention == "per_subcarrier_power":
         p_w /= s.n_subcarriers
-    loss_db = path_loss_db(s, dist) + shadow_db - s.comm_snr_offset_db
-    return p_w * gain * 10.0 ** (-loss_db / 10.0) / noise_power_w(s)
+    # path_loss_db(l) = 28 + 20 log10 f_c + 22 log10 l: the l-independent part goes here
+    fixed_db = float(path_loss_db(s, 1.0)) - s.comm_snr_offset_db
+    return p_w / noise_power_w(s) * 10.0 ** (-0.1 * fixed_db)

@@ -2,12 +2,10 @@
 
 from __future__ import annotations
 
-from functools import lru_cache
-
 import control
 import numpy as np
 
-from .scenario import Scenario
+from .scenario import Scenario, per_scenario
 
 __all__ = ["system_matrices", "process_noise_cov", "lqg_weights", "lqr_gain", "model_matrices"]
 
@@ -62,9 +60,11 @@ def lqr_gain(a, b, q, r):
 
 
 class ModelMatrices:
-    """The constant matrices of one scenario: A, B, K, P (DARE), Q, R, Sigma_omega, A - BK."""
+    """The constant matrices of one scenario: A, B, K, P (DARE), Q, R, Sigma_omega, A - BK, and the
+    constants of the slot transition (GBS antenna position, matched beam gain, GNSS noise)."""
 
-    __slots__ = ("a", "b", "k", "p", "q", "r", "sigma_w", "a_cl", "chol_w")
+    __slots__ = ("a", "b", "k", "p", "q", "r", "sigma_w", "a_cl", "chol_w", "gbs_pos",
+                 "eye6", "gnss_std", "gnss_cov")
 
     def __init__(self, s: Scenario):
         self.a, self.b = system_matrices(s.dt_s)
@@ -73,12 +73,17 @@ class ModelMatrices:
         self.sigma_w = process_noise_cov(s)
         self.a_cl = self.a - self.b @ self.k
         self.chol_w = np.sqrt(np.diag(self.sigma_w))
+        # constants of the slot transition (loop.step)
+        self.gbs_pos = np.array([0.0, 0.0, s.gbs_height_m])
+        self.eye6 = np.eye(6)
+        self.gnss_std = np.array([s.gnss_pos_std_m] * 3 + [s.gnss_vel_std_mps] * 3)
+        self.gnss_cov = np.diag(self.gnss_std**2)
         for v in (self.a, self.b, self.k, self.p, self.q, self.r, self.sigma_w, self.a_cl,
-                  self.chol_w):
+                  self.chol_w, self.gbs_pos, self.eye6, self.gnss_std, self.gnss_cov):
             v.setflags(write=False)
 
 
-@lru_cache(maxsize=64)
+@per_scenario
 def model_matrices(s: Scenario) -> ModelMatrices:
     """Cached :class:`ModelMatrices` of a (hashable, frozen) scenario."""
     return ModelMatrices(s)

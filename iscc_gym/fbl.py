@@ -11,11 +11,12 @@ __all__ = ["dispersion", "q_func", "q_inv", "fbl_rate_bps", "comm_rate_bps", "ct
            "ctrl_bler", "min_ctrl_share", "min_comm_share"]
 
 _LOG2E_SQ = np.log2(np.e) ** 2
+_INV_SQRT2 = 1.0 / np.sqrt(2.0)
 
 
 def q_func(x):
     """Gaussian tail :math:`Q(x) = \\tfrac12 \\operatorname{erfc}(x/\\sqrt2)`."""
-    return 0.5 * erfc(np.asarray(x, dtype=float) / np.sqrt(2.0))
+    return 0.5 * erfc(np.asarray(x, dtype=float) * _INV_SQRT2)
 
 
 def q_inv(p):
@@ -69,15 +70,11 @@ def ctrl_bler(s: Scenario, alpha_ctrl, snr):
     (``docs/model.md``). ``alpha_ctrl = 0`` gives 1 (nothing can be sent).
     """
     snr = np.asarray(snr, dtype=float)
-    a = np.asarray(alpha_ctrl, dtype=float)
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        need = np.where(a > 0.0, s.ctrl_packet_bits / (s.ctrl_deadline_s * np.where(a > 0, a, 1.0)
-                                                       * s.bandwidth_hz), np.inf)
-        v = dispersion(snr)
-        scale = np.sqrt(s.ctrl_blocklength / np.maximum(v, 1e-300))
-        arg = scale * (np.log2(1.0 + snr) - need)
-    arg = np.where(np.isnan(arg), -np.inf, arg)
-    return q_func(arg)
+    # alpha -> 1e-30 and V -> 1e-300 floors keep alpha = 0 and gamma = 0 finite (Q -> 1) without
+    # overflow or division warnings
+    need = (s.ctrl_packet_bits / (s.ctrl_deadline_s * s.bandwidth_hz)) / np.maximum(alpha_ctrl, 1e-30)
+    scale = np.sqrt(s.ctrl_blocklength / np.maximum(dispersion(snr), 1e-300))
+    return q_func(scale * (np.log2(1.0 + snr) - need))
 
 
 def min_ctrl_share(s: Scenario, snr, eps_max):

@@ -34,7 +34,7 @@ def kf_predict(x, p, a, bu, sigma_w):
     ``bu`` is :math:`\\mathbf B\\tilde{\\mathbf u}_n` (..., 6), the command as received (the GBS learns
     :math:`\\delta_n` from the acknowledgement).
     """
-    x_new = x @ a.T + bu
+    x_new = (a @ x[..., None])[..., 0] + bu
     p_new = a @ p @ a.T + sigma_w
     return x_new, symmetrize(p_new)
 
@@ -50,6 +50,8 @@ def kf_update(x, p, y, c, r):
         + \\mathbf L_n\\Sigma_\\upsilon\\mathbf L_n^T
 
     The Joseph form plus explicit symmetrisation keeps P symmetric PSD for any noise sequence.
+    Every product is a stacked matrix product (one BLAS call per batch item with the same shapes),
+    so a batch reproduces per-item results bit for bit.
 
     Parameters
     ----------
@@ -62,10 +64,20 @@ def kf_update(x, p, y, c, r):
     """
     ct = np.swapaxes(c, -1, -2)
     pct = p @ ct
-    s_mat = symmetrize(c @ pct + r)
-    gain = np.swapaxes(np.linalg.solve(s_mat, np.swapaxes(pct, -1, -2)), -1, -2)
-    innov = y - np.einsum("...ij,...j->...i", c, x)
-    x_post = x + np.einsum("...ij,...j->...i", gain, innov)
-    ikc = np.eye(p.shape[-1]) - gain @ c
+    gain = pct @ np.linalg.inv(c @ pct + r)
+    innov = y - (c @ x[..., None])[..., 0]
+    x_post = x + (gain @ innov[..., None])[..., 0]
+    ikc = _eye_like(p) - gain @ c
     p_post = ikc @ p @ np.swapaxes(ikc, -1, -2) + gain @ r @ np.swapaxes(gain, -1, -2)
     return x_post, symmetrize(p_post), gain
+
+
+_EYES: dict[int, np.ndarray] = {}
+
+
+def _eye_like(p):
+    n = p.shape[-1]
+    if n not in _EYES:
+        _EYES[n] = np.eye(n)
+        _EYES[n].setflags(write=False)
+    return _EYES[n]

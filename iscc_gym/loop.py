@@ -19,12 +19,21 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import ndtri
 
-from .channel import geometry, large_scale_snr, rician_power_gain, shadowing_std_db, shadowing_step
+from .channel import (
+    beam_gain,
+    direction_trig,
+    geometry,
+    large_scale_snr,
+    link_snr,
+    rician_power_gain,
+    shadowing_std_db,
+    shadowing_step,
+)
 from .dynamics import model_matrices
 from .fbl import comm_rate_bps, ctrl_bler, ctrl_rate_bps, min_comm_share, min_ctrl_share
 from .kalman import isac_observation_matrix, kf_predict, kf_update
 from .scenario import Scenario
-from .sensing import crlb, peb, veb
+from .sensing import crlb_local, local_frame
 from .trajectory import Reference
 
 __all__ = ["LoopState", "N_DRAWS", "init_state", "step", "preview", "standard_normals",
@@ -76,6 +85,8 @@ def standard_normals(rng, batch: int, k: int = N_DRAWS):
     if isinstance(rng, np.random.Generator):
         return rng.standard_normal((batch, k))
     if isinstance(rng, Sequence) and len(rng) == batch:
+        if batch == 1:
+            return rng[0].standard_normal((1, k))
         return np.stack([r.standard_normal(k) for r in rng])
     raise TypeError("rng must be a numpy Generator or a sequence of one Generator per drone")
 
@@ -134,80 +145,96 @@ def step(s: Scenario, state: LoopState, alpha, rng):
     """
     mm = model_matrices(s)
     alpha = np.asarray(alpha, dtype=float)
-    batch = state.batch_size
+    batch = state.x.shape[0]
     if alpha.shape != (batch, 3):
         raise ValueError(f"alpha must have shape ({batch}, 3), got {alpha.shape}")
-    if np.any(state.n >= s.n_slots):
+    n = state.n
+    if n.max() >= s.n_slots:
         raise ValueError("a loop is past the last slot of the mission; reset it first")
     z = standard_normals(rng, batch)
     rows = np.arange(batch)
-    ref_n = state.ref[rows, state.n]
-    ref_next = state.ref[rows, state.n + 1]
+    ref_n = state.ref[rows, n]
     x = state.x
     pos = x[:, :3]
 
-    # --- channel: large-scale (path loss, shadowing) and this slot's small-scale fading
-    _, _, _, los = geometry(s, pos)
+    # --- channel: geometry, large-scale SNR (path loss, beam gain, shadowing), this slot's fading
+    rel = pos - mm.gbs_pos
+    dist = np.sqrt((rel[:, None, :] @ rel[:, :, None])[:, 0, 0])
+    los = rel / dist[:, None]
+    trig = direction_trig(los)
     shadow_db = shadowing_std_db(s, pos[:, 2]) * state.shadow
-    snr_ls = large_scale_snr(s, pos, shadow_db)
+    snr_ls = link_snr(s, dist, shadow_db, beam_gain(s, trig))
     snr = rician_power_gain(s, z[:, 0], z[:, 1]) * snr_ls
-    fade_s = rician_power_gain(s, z[:, 2], z[:, 3])
 
-    # --- sensing and Kalman measurement update
-    crlb_p, crlb_vr = crlb(s, alpha[:, 0], pos, shadow_db, fade_s)
-    zm = z[:, _MEAS]
+    # --- sensing (CRLB in the local range/azimuth/elevation frame) and Kalman measurement update
+    m_r, m_tt, m_tp, m_pp, crlb_vr = crlb_local(s, alpha[:, 0], dist, trig, shadow_db,
+                                                rician_power_gain(s, z[:, 2], z[:, 3]))
     if s.observation_source == "isac":
-        c = isac_observation_matrix(los)
+        u = local_frame(los, trig)
+        # measurement noise U chol(M) z, with the 2 x 2 Cholesky factor in closed form
+        l11 = np.sqrt(m_tt)
+        l21 = m_tp / l11
+        w_loc = np.empty((batch, 3, 1))
+        w_loc[:, 0, 0] = np.sqrt(m_r) * z[:, 4]
+        w_loc[:, 1, 0] = l11 * z[:, 5]
+        w_loc[:, 2, 0] = l21 * z[:, 5] + np.sqrt(m_pp - l21 * l21) * z[:, 6]
+        m_loc = np.zeros((batch, 3, 3))
+        m_loc[:, 0, 0] = m_r
+        m_loc[:, 1, 1] = m_tt
+        m_loc[:, 1, 2] = m_loc[:, 2, 1] = m_tp
+        m_loc[:, 2, 2] = m_pp
         r = np.zeros((batch, 4, 4))
-        r[:, :3, :3] = crlb_p
+        r[:, :3, :3] = u @ m_loc @ np.swapaxes(u, -1, -2)
         r[:, 3, 3] = crlb_vr
-        noise_p = np.einsum("bij,bj->bi", np.linalg.cholesky(crlb_p), zm[:, :3])
-        noise_v = np.sqrt(crlb_vr) * zm[:, 3]
-        y = np.concatenate([pos + noise_p, (np.einsum("bi,bi->b", los, x[:, 3:])
-                                             + noise_v)[:, None]], -1)
+        c = isac_observation_matrix(los)
+        y = np.empty((batch, 4))
+        y[:, :3] = pos + (u @ w_loc)[:, :, 0]
+        y[:, 3] = (los[:, None, :] @ x[:, 3:, None])[:, 0, 0] + np.sqrt(crlb_vr) * z[:, 7]
     else:
-        std = np.array([s.gnss_pos_std_m] * 3 + [s.gnss_vel_std_mps] * 3)
-        c = np.broadcast_to(np.eye(6), (batch, 6, 6))
-        r = np.broadcast_to(np.diag(std**2), (batch, 6, 6))
-        y = x + std * zm
+        c = np.broadcast_to(mm.eye6, (batch, 6, 6))
+        r = np.broadcast_to(mm.gnss_cov, (batch, 6, 6))
+        y = x + mm.gnss_std * z[:, _MEAS]
     x_post, p_post, _ = kf_update(state.x_hat, state.p, y, c, r)
 
     # --- control command and its finite-blocklength delivery
     eps = ctrl_bler(s, alpha[:, 1], snr)
     if s.control_mode == "lqg":
-        u = -(x_post - ref_n[:, :6]) @ mm.k.T
+        u_cmd = -(mm.k @ (x_post - ref_n[:, :6])[:, :, None])[:, :, 0]
         if s.reference_feedforward:
-            u = u + ref_n[:, 6:]
+            u_cmd = u_cmd + ref_n[:, 6:]
         received = z[:, _DROP] >= ndtri(eps)  # P = 1 - eps
-        u_applied = np.where(received[:, None], u, 0.0)
+        u_applied = u_cmd * received[:, None]
     else:  # open loop: the reference acceleration is stored on board, no link involved
         received = np.ones(batch, dtype=bool)
         u_applied = ref_n[:, 6:]
 
     # --- drone dynamics and Kalman time update
-    bu = u_applied @ mm.b.T
-    x_next = x @ mm.a.T + bu + mm.chol_w * z[:, _PROC]
+    bu = (mm.b @ u_applied[:, :, None])[:, :, 0]
+    x_next = (mm.a @ x[:, :, None])[:, :, 0] + bu + mm.chol_w * z[:, _PROC]
     x_hat_next, p_next = kf_predict(x_post, p_post, mm.a, bu, mm.sigma_w)
-    moved = np.linalg.norm(x_next[:, :3] - pos, axis=-1)
+    step_vec = x_next[:, :3] - pos
+    moved = np.sqrt((step_vec[:, None, :] @ step_vec[:, :, None])[:, 0, 0])
     shadow_next = shadowing_step(s, state.shadow, moved, z[:, _SHAD])
 
-    err = np.linalg.norm(x_next[:, :3] - ref_next[:, :3], axis=-1)
-    diverged = ~np.isfinite(err) | (err > s.max_tracking_error_m)
+    n_next = n + 1
+    err_vec = x_next[:, :3] - state.ref[rows, n_next, :3]
+    err = np.sqrt((err_vec[:, None, :] @ err_vec[:, :, None])[:, 0, 0])
+    est_vec = x_post[:, :3] - pos
     metrics = {
         "tracking_error_m": err,
-        "estimation_error_m": np.linalg.norm(x_post[:, :3] - pos, axis=-1),
+        "estimation_error_m": np.sqrt((est_vec[:, None, :] @ est_vec[:, :, None])[:, 0, 0]),
         "snr_db": 10.0 * np.log10(snr),
         "snr_large_scale_db": 10.0 * np.log10(snr_ls),
-        "peb_m": peb(crlb_p),
-        "veb_mps": veb(crlb_vr),
+        "peb_m": np.sqrt(m_r + m_tt + m_pp),
+        "veb_mps": np.sqrt(crlb_vr),
         "eps_ctrl": eps,
         "packet_received": received,
         "rate_comm_bps": comm_rate_bps(s, alpha[:, 2], snr),
         "rate_ctrl_bps": ctrl_rate_bps(s, alpha[:, 1], snr),
-        "diverged": diverged,
+        "diverged": ~(err <= s.max_tracking_error_m),  # also catches NaN
     }
-    new_state = LoopState(x=x_next, x_hat=x_hat_next, p=p_next, shadow=shadow_next,
-                          n=state.n + 1, ref=state.ref)
+    new_state = LoopState(x=x_next, x_hat=x_hat_next, p=p_next, shadow=shadow_next, n=n_next,
+                          ref=state.ref)
     return new_state, metrics
 
 

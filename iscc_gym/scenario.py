@@ -18,12 +18,13 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
-__all__ = ["Scenario", "SCENARIOS", "make_scenario"]
+__all__ = ["Scenario", "SCENARIOS", "make_scenario", "per_scenario"]
 
 _CHOICES: dict[str, tuple[str, ...]] = {
     "process_noise_reading": ("variance", "std"),
@@ -414,3 +415,38 @@ def make_scenario(scenario: str | Scenario = "paper", **overrides: Any) -> Scena
     else:
         raise TypeError(f"scenario must be a preset name or a Scenario, got {type(scenario).__name__}")
     return base.replace(**overrides) if overrides else base
+
+
+_T = TypeVar("_T")
+
+
+def per_scenario(fn: Callable[[Scenario], _T]) -> Callable[[Scenario], _T]:
+    """Cache ``fn(scenario)`` per scenario.
+
+    The hot path looks the scenario up by identity (hashing a 60-field dataclass costs microseconds,
+    too much on the env's step); a miss falls back to a lookup by value, so equal scenarios share
+    one result. Each cache holds at most 256 entries.
+    """
+    by_id: dict[int, tuple[Scenario, _T]] = {}
+    by_value: dict[Scenario, _T] = {}
+
+    def wrapper(s: Scenario) -> _T:
+        hit = by_id.get(id(s))
+        if hit is not None and hit[0] is s:
+            return hit[1]
+        if s in by_value:
+            value = by_value[s]
+        else:
+            value = fn(s)
+            if len(by_value) >= 256:
+                by_value.clear()
+            by_value[s] = value
+        if len(by_id) >= 256:
+            by_id.clear()
+        by_id[id(s)] = (s, value)  # holds s, so its id is not reused while cached
+        return value
+
+    wrapper.__doc__ = fn.__doc__
+    wrapper.__name__ = fn.__name__
+    wrapper.__wrapped__ = fn
+    return wrapper

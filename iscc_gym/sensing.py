@@ -8,8 +8,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from .channel import array_response, beamformer, geometry, path_loss_db
-from .scenario import SPEED_OF_LIGHT_MPS, Scenario
+from .channel import (
+    array_response,
+    beamformer,
+    direction_cosines_trig,
+    direction_trig,
+    geometry,
+    path_loss_db,
+)
+from .scenario import SPEED_OF_LIGHT_MPS, Scenario, per_scenario
 from .units import dbm_to_w
 
 __all__ = [
@@ -17,9 +24,13 @@ __all__ = [
     "sensing_noise_var_w",
     "echo_amplitude_sq",
     "signature_derivatives",
+    "matched_signature_terms",
     "fim",
+    "fim_terms",
     "position_information",
     "crlb",
+    "crlb_local",
+    "local_frame",
     "crlb_position_from_jacobian",
     "position_jacobian",
     "peb",
@@ -55,9 +66,15 @@ def echo_amplitude_sq(s: Scenario, dist_m, shadow_db, fading_gain):
     """Received echo power per element and subcarrier before array gain,
     :math:`P_k \\beta_S |g_S|^2`, in W (with :math:`P_k = P_t/\\mathcal K`), times the calibration
     ``sensing_snr_offset_db``."""
+    # sensing_path_loss_db(l) = L_S(1 m) + 44 log10 l: the l-independent part is cached
+    return (_echo_constant(s) * np.asarray(dist_m, dtype=float) ** -4.4
+            * 10.0 ** (-0.1 * np.asarray(shadow_db, dtype=float)) * fading_gain)
+
+
+@per_scenario
+def _echo_constant(s: Scenario) -> float:
     p_k = float(dbm_to_w(s.tx_power_dbm)) / s.n_subcarriers
-    loss_db = sensing_path_loss_db(s, dist_m) + shadow_db - s.sensing_snr_offset_db
-    return p_k * 10.0 ** (-loss_db / 10.0) * fading_gain
+    return p_k * 10.0 ** (-0.1 * (float(sensing_path_loss_db(s, 1.0)) - s.sensing_snr_offset_db))
 
 
 def signature_derivatives(s: Scenario, azimuth_rad, elevation_rad, w=None):
@@ -80,6 +97,10 @@ def signature_derivatives(s: Scenario, azimuth_rad, elevation_rad, w=None):
         :math:`\\|\\partial_\\theta\\boldsymbol\\eta\\|^2`, :math:`\\|\\partial_\\varphi\\boldsymbol\\eta\\|^2`,
         :math:`\\Re\\{\\partial_\\theta\\boldsymbol\\eta^H\\partial_\\varphi\\boldsymbol\\eta\\}`.
     """
+    if w is None and s.beamforming == "matched":
+        th = np.asarray(azimuth_rad, dtype=float)
+        ph = np.asarray(elevation_rad, dtype=float)
+        return matched_signature_terms(s, np.cos(th), np.sin(th), np.cos(ph), np.sin(ph))
     a, da_t, da_p = array_response(s, azimuth_rad, elevation_rad)
     if w is None:
         w = beamformer(s, azimuth_rad, elevation_rad)
@@ -93,6 +114,37 @@ def signature_derivatives(s: Scenario, azimuth_rad, elevation_rad, w=None):
     d_pp = np.sum(np.abs(deta_p) ** 2, -1)
     d_tp = np.real(np.sum(np.conj(deta_t) * deta_p, -1))
     return eta_sq, d_tt, d_pp, d_tp
+
+
+@per_scenario
+def _index_moments(s: Scenario):
+    # sum over the grid of the centred element indices squared, along each array axis
+    ix = np.arange(s.n_x) - 0.5 * (s.n_x - 1)
+    iy = np.arange(s.n_y) - 0.5 * (s.n_y - 1)
+    return s.n_y * float(ix @ ix), s.n_x * float(iy @ iy)
+
+
+def matched_signature_terms(s: Scenario, ct, st, cp, sp):
+    """:func:`signature_derivatives` for the matched beamformer, in closed form.
+
+    With :math:`\\mathbf w = \\mathbf a/\\sqrt N` and the phase reference at the array centre,
+    :math:`\\mathbf a^H\\mathbf w = \\sqrt N` and :math:`\\partial\\mathbf a^H\\mathbf w = 0`, so
+
+    .. math::
+        \\|\\boldsymbol\\eta\\|^2 = N^2,\\qquad
+        \\Re\\{\\partial_a\\boldsymbol\\eta^H\\partial_b\\boldsymbol\\eta\\} = N k^2 \\left(
+        \\partial_a u_x\\,\\partial_b u_x \\sum i^2 + \\partial_a u_y\\,\\partial_b u_y \\sum j^2\\right)
+
+    with :math:`k = 2\\pi d_\\lambda/\\lambda` and the sums over the centred element grid
+    (:math:`\\sum ij = 0`). Arguments are cos/sin of azimuth and elevation.
+    """
+    _, (tx, ty), (px, py) = direction_cosines_trig(s, ct, st, cp, sp)
+    sxx, syy = _index_moments(s)
+    n = s.n_antennas
+    c = n * (2.0 * np.pi * s.antenna_spacing_wavelengths) ** 2
+    eta_sq = np.full(np.shape(tx), float(n * n))
+    return (eta_sq, c * (tx * tx * sxx + ty * ty * syy), c * (px * px * sxx + py * py * syy),
+            c * (tx * px * sxx + ty * py * syy))
 
 
 def fim(s: Scenario, alpha_sen, pos_m, shadow_db, fading_gain=1.0):
@@ -128,21 +180,34 @@ def fim(s: Scenario, alpha_sen, pos_m, shadow_db, fading_gain=1.0):
         Angle block (theta, phi) in rad^-2.
     """
     dist, az, el, _ = geometry(s, pos_m)
-    amp = echo_amplitude_sq(s, dist, shadow_db, fading_gain)
-    eta_sq, d_tt, d_pp, d_tp = signature_derivatives(s, az, el)
-    sig2 = sensing_noise_var_w(s)
-    k_sen = np.asarray(alpha_sen, dtype=float) * s.n_subcarriers
-    m = s.n_symbols
-    common = amp * eta_sq * m * k_sen / sig2
-    j_tau = common * 8.0 * (np.pi * s.subcarrier_spacing_hz) ** 2 * k_sen**2 / 3.0
-    j_nu = common * 8.0 * (np.pi * s.symbol_duration_s) ** 2 * m**2 / 3.0
-    if s.fim_angle_convention == "printed":
-        ang = common / 2.0
-    else:
-        ang = 2.0 * amp * m * k_sen / sig2
-    j_ang = np.stack([np.stack([ang * d_tt, ang * d_tp], -1),
-                      np.stack([ang * d_tp, ang * d_pp], -1)], -2)
+    j_tau, j_nu, j_tt, j_pp, j_tp = fim_terms(s, alpha_sen, dist, shadow_db, fading_gain,
+                                              signature_derivatives(s, az, el))
+    j_ang = np.stack([np.stack([j_tt, j_tp], -1), np.stack([j_tp, j_pp], -1)], -2)
     return j_tau, j_nu, j_ang
+
+
+@per_scenario
+def _fim_constants(s: Scenario):
+    m = s.n_symbols
+    return (m / sensing_noise_var_w(s), (8.0 / 3.0) * (np.pi * s.subcarrier_spacing_hz) ** 2,
+            (8.0 / 3.0) * (np.pi * s.symbol_duration_s) ** 2 * m * m)
+
+
+def fim_terms(s: Scenario, alpha_sen, dist_m, shadow_db, fading_gain, signature):
+    """Core of :func:`fim` from the range and :func:`signature_derivatives`' output.
+
+    Returns ``(j_tau, j_nu, j_thth, j_phph, j_thph)``.
+    """
+    eta_sq, d_tt, d_pp, d_tp = signature
+    amp = echo_amplitude_sq(s, dist_m, shadow_db, fading_gain)
+    m_over_sig2, c_tau, c_nu = _fim_constants(s)
+    k_sen = np.asarray(alpha_sen, dtype=float) * s.n_subcarriers
+    base = amp * m_over_sig2 * k_sen
+    common = base * eta_sq
+    j_tau = common * c_tau * (k_sen * k_sen)
+    j_nu = common * c_nu
+    ang = 0.5 * common if s.fim_angle_convention == "printed" else 2.0 * base
+    return j_tau, j_nu, ang * d_tt, ang * d_pp, ang * d_tp
 
 
 def position_jacobian(s: Scenario, pos_m):
@@ -191,22 +256,73 @@ def crlb(s: Scenario, alpha_sen, pos_m, shadow_db, fading_gain=1.0):
 
     where :math:`\\sigma_0^2` is ``sensing_prior_var_m2`` (a weak prior that only matters where the
     angle information vanishes; without it this is :math:`\\Upsilon\\mathbf J^{-1}\\Upsilon^T`).
-    ``alpha_sen = 0`` gives the prior alone for position and an infinite-like velocity variance
-    (``sensing_prior_var_m2`` in (m/s)^2).
+    Computed in the local frame of :func:`crlb_local` and rotated back,
+    :math:`\\mathrm{CRLB}_\\mathbf p = \\mathbf U\\mathbf M\\mathbf U^T`.
+    ``alpha_sen = 0`` gives the prior alone (also ``sensing_prior_var_m2`` in (m/s)^2 for v_r).
 
     Returns
     -------
     crlb_p : ndarray, shape (..., 3, 3), m^2
     crlb_vr : ndarray, shape (...), (m/s)^2
     """
-    j_tau, j_nu, j_ang = fim(s, alpha_sen, pos_m, shadow_db, fading_gain)
-    info = position_information(s, pos_m, j_tau, j_ang)
-    info = info + np.eye(3) / s.sensing_prior_var_m2
-    crlb_p = np.linalg.inv(info)
-    crlb_p = 0.5 * (crlb_p + np.swapaxes(crlb_p, -1, -2))
-    lam_half = 0.5 * s.wavelength_m
-    crlb_vr = lam_half**2 / (np.asarray(j_nu) + lam_half**2 / s.sensing_prior_var_m2)
-    return crlb_p, crlb_vr
+    dist, _, _, los = geometry(s, pos_m)
+    trig = direction_trig(los)
+    m_r, m_tt, m_tp, m_pp, crlb_vr = crlb_local(s, alpha_sen, dist, trig, shadow_db, fading_gain)
+    u = local_frame(los, trig)
+    zero = np.zeros_like(m_r)
+    m = np.stack([np.stack([m_r, zero, zero], -1), np.stack([zero, m_tt, m_tp], -1),
+                  np.stack([zero, m_tp, m_pp], -1)], -2)
+    return u @ m @ np.swapaxes(u, -1, -2), crlb_vr
+
+
+def local_frame(los_unit, trig):
+    """Orthonormal frame :math:`\\mathbf U = [\\mathbf g, \\mathbf e_\\theta, \\mathbf e_\\varphi]`
+    (columns) of range, azimuth and elevation directions, shape (..., 3, 3):
+    :math:`\\mathbf e_\\theta = [-\\sin\\theta, \\cos\\theta, 0]`,
+    :math:`\\mathbf e_\\varphi = [-\\sin\\varphi\\cos\\theta, -\\sin\\varphi\\sin\\theta,
+    \\cos\\varphi]`."""
+    ct, st, cp, sp = trig
+    u = np.empty(np.shape(ct) + (3, 3))
+    u[..., :, 0] = los_unit
+    u[..., 0, 1], u[..., 1, 1], u[..., 2, 1] = -st, ct, 0.0
+    u[..., 0, 2], u[..., 1, 2], u[..., 2, 2] = -sp * ct, -sp * st, cp
+    return u
+
+
+def crlb_local(s: Scenario, alpha_sen, dist_m, trig, shadow_db, fading_gain=1.0):
+    """Position CRLB in the local frame :func:`local_frame` and the radial-velocity CRLB.
+
+    The position information :math:`\\Upsilon^{-T}\\mathbf J_\\mathbf p\\Upsilon^{-1}` is, in the
+    frame :math:`(\\mathbf g, \\mathbf e_\\theta, \\mathbf e_\\varphi)`,
+    :math:`\\mathrm{blkdiag}\\big((2/c)^2 J_{\\tau\\tau},\\ \\mathbf D\\mathbf J_{\\theta\\varphi}
+    \\mathbf D\\big)` with :math:`\\mathbf D = \\mathrm{diag}(1/(l\\cos\\varphi), 1/l)`
+    (:math:`\\partial\\theta/\\partial\\mathbf p = \\mathbf e_\\theta/(l\\cos\\varphi)`,
+    :math:`\\partial\\varphi/\\partial\\mathbf p = \\mathbf e_\\varphi/l`), so adding the prior and
+    inverting takes a scalar and a 2 x 2 closed form.
+
+    Returns
+    -------
+    m_r, m_tt, m_tp, m_pp : ndarray, shape (...)
+        Range, azimuth-direction, cross and elevation-direction entries of M in m^2.
+    crlb_vr : ndarray, shape (...)
+    """
+    ct, st, cp, sp = trig
+    j_tau, j_nu, j_tt, j_pp, j_tp = fim_terms(s, alpha_sen, dist_m, shadow_db, fading_gain,
+                                              matched_signature_terms(s, ct, st, cp, sp)
+                                              if s.beamforming == "matched" else
+                                              signature_derivatives(s, np.arctan2(st, ct),
+                                                                    np.arctan2(sp, cp)))
+    prior = 1.0 / s.sensing_prior_var_m2
+    inv_l = 1.0 / np.asarray(dist_m, dtype=float)
+    inv_lc = inv_l / np.maximum(cp, 1e-9)
+    a = j_tt * inv_lc * inv_lc + prior
+    b = j_tp * inv_lc * inv_l
+    d = j_pp * inv_l * inv_l + prior
+    inv_det = 1.0 / (a * d - b * b)
+    m_r = 1.0 / (j_tau * (2.0 / SPEED_OF_LIGHT_MPS) ** 2 + prior)
+    lam_half_sq = (0.5 * s.wavelength_m) ** 2
+    crlb_vr = lam_half_sq / (j_nu + lam_half_sq * prior)
+    return m_r, d * inv_det, -b * inv_det, a * inv_det, crlb_vr
 
 
 def crlb_position_from_jacobian(s: Scenario, pos_m, j_tau, j_ang):

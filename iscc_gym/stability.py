@@ -3,15 +3,13 @@ function (the paper, Sec. III-B, III-C and IV-C)."""
 
 from __future__ import annotations
 
-from functools import lru_cache
-
 import numpy as np
 import scipy.linalg
 from scipy.optimize import brentq
 
 from .dynamics import model_matrices
 from .fbl import ctrl_bler
-from .scenario import Scenario
+from .scenario import Scenario, per_scenario
 
 __all__ = [
     "scenario_eps_star",
@@ -71,7 +69,7 @@ def eps_star(a, b, k, xtol: float = 1e-12):
     return float(brentq(f, grid[i - 1], grid[i], xtol=xtol))
 
 
-@lru_cache(maxsize=64)
+@per_scenario
 def scenario_eps_star(s: Scenario) -> float:
     """:func:`eps_star` of a scenario's A, B and LQ gain K (cached per scenario)."""
     mm = model_matrices(s)

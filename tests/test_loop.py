@@ -138,12 +138,6 @@ def _batch_and_singles(refs, n_steps):
     return batch_states, batch_metrics, singles
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "library bug vs the loop.py docstring ('a batch reproduces single runs bit for bit'): "
-    "loop.step and kalman.kf_predict multiply 2-D (B, 6) arrays by constant matrices "
-    "(x @ mm.a.T, (x_post - ref) @ mm.k.T, u @ mm.b.T, x @ a.T); numpy dispatches B = 1 to BLAS "
-    "gemv and B > 1 to gemm, whose rounding differs by ~1 ulp, so batch and single runs drift "
-    "apart at the 1e-16 level after a few slots"))
 def test_batch_equals_single_runs_bit_for_bit(refs):
     batch_states, batch_metrics, singles = _batch_and_singles(refs, 200)
     for i, (states, metrics) in enumerate(singles):

@@ -340,7 +340,9 @@ def test_crlb_alpha_zero_is_the_prior():
     s = Scenario()
     pos = np.array([[300.0, 200.0, 150.0]])
     crlb_p, crlb_vr = se.crlb(s, 0.0, pos, 0.0, 1.0)
-    np.testing.assert_allclose(crlb_p[0], s.sensing_prior_var_m2 * np.eye(3), rtol=1e-12)
+    # computed as U M U^T in the local frame: off-diagonals are rounding of U U^T (1e-16 relative)
+    np.testing.assert_allclose(crlb_p[0], s.sensing_prior_var_m2 * np.eye(3), rtol=1e-12,
+                               atol=1e-12 * s.sensing_prior_var_m2)
     assert crlb_vr[0] == pytest.approx(s.sensing_prior_var_m2, rel=1e-12)
 
 
@@ -394,3 +396,29 @@ def test_prior_negligible_in_paper_preset():
     no_prior, vr_none = se.crlb(s.replace(sensing_prior_var_m2=1e14), 0.2, pos, 0.0, 1.0)
     np.testing.assert_allclose(se.peb(with_prior), se.peb(no_prior), rtol=1e-6)
     np.testing.assert_allclose(vr_prior, vr_none, rtol=1e-6)
+
+
+@pytest.mark.parametrize("orientation", ["printed", "vertical", "horizontal"])
+def test_matched_closed_form_equals_general_signature(orientation):
+    """The matched-beamformer closed form vs the explicit array sums with w passed in."""
+    s = Scenario(array_orientation=orientation)
+    rng = np.random.default_rng(3)
+    az, el = rng.uniform(-np.pi, np.pi, 50), rng.uniform(0.05, 1.5, 50)
+    closed = se.signature_derivatives(s, az, el)
+    general = se.signature_derivatives(s, az, el, w=ch.beamformer(s, az, el))
+    for c, g in zip(closed, general, strict=True):
+        np.testing.assert_allclose(c, g, rtol=1e-10, atol=1e-9 * np.max(np.abs(g)))
+
+
+@pytest.mark.parametrize("orientation", ["printed", "horizontal"])
+def test_crlb_local_frame_equals_inverse_of_position_information(orientation):
+    """crlb (local frame, closed-form 2x2 inverse) vs inv(position information + prior)."""
+    s = Scenario(array_orientation=orientation)
+    rng = np.random.default_rng(4)
+    pos = np.column_stack([rng.uniform(-600, 600, 40), rng.uniform(-600, 600, 40),
+                           rng.uniform(101, 300, 40)])
+    crlb_p, _ = se.crlb(s, 0.15, pos, 0.3, 0.8)
+    j_tau, _, j_ang = se.fim(s, 0.15, pos, 0.3, 0.8)
+    info = se.position_information(s, pos, j_tau, j_ang) + np.eye(3) / s.sensing_prior_var_m2
+    ref = np.linalg.inv(info)
+    np.testing.assert_allclose(crlb_p, ref, rtol=1e-7, atol=1e-12 * s.sensing_prior_var_m2)

@@ -74,7 +74,7 @@ def shadowing_std_db(s: Scenario, altitude_m):
 
     ``altitude_m`` is the drone height above ground in m.
     """
-    return s.shadowing_a_db * np.exp(-s.shadowing_b_per_m * np.asarray(altitude_m, dtype=float))
+    return s.shadowing_a_db * np.exp(-s.shadowing_b_per_m * altitude_m)
 
 
 def shadowing_step(s: Scenario, shadow_norm, moved_m, z):
@@ -95,7 +95,7 @@ def shadowing_step(s: Scenario, shadow_norm, moved_m, z):
     z : ndarray, shape (...)
         Standard normal innovation.
     """
-    rho = np.exp(-np.asarray(moved_m, dtype=float) / s.shadowing_decorrelation_m)
+    rho = np.exp(moved_m * (-1.0 / s.shadowing_decorrelation_m))
     return rho * shadow_norm + np.sqrt(1.0 - rho * rho) * z
 
 
@@ -110,12 +110,16 @@ def rician_power_gain(s: Scenario, z_re, z_im):
     (``rician_k_db``), the paper's :math:`g_{C,m,k}` and :math:`g_{S,m,k}`, one draw per slot.
     ``z_re`` and ``z_im`` are standard normal draws.
     """
-    k = float(db_to_lin(s.rician_k_db))
-    los = np.sqrt(k / (k + 1.0))
-    scat = np.sqrt(0.5 / (k + 1.0))
-    re = los + scat * np.asarray(z_re, dtype=float)
-    im = scat * np.asarray(z_im, dtype=float)
+    los, scat = _rician_constants(s)
+    re = los + scat * z_re
+    im = scat * z_im
     return re * re + im * im
+
+
+@per_scenario
+def _rician_constants(s: Scenario):
+    k = float(db_to_lin(s.rician_k_db))
+    return float(np.sqrt(k / (k + 1.0))), float(np.sqrt(0.5 / (k + 1.0)))
 
 
 def _element_indices(s: Scenario):
@@ -137,9 +141,9 @@ def direction_trig(los_unit):
     g = np.asarray(los_unit, dtype=float)
     gx, gy, gz = g[..., 0], g[..., 1], g[..., 2]
     cp = np.sqrt(gx * gx + gy * gy)
-    zenith = cp < 1e-12
-    inv = 1.0 / np.where(zenith, 1.0, cp)
-    return np.where(zenith, 1.0, gx * inv), gy * inv, cp, gz
+    zenith = cp < 1e-12  # azimuth undefined: take theta = 0
+    inv = 1.0 / np.maximum(cp, 1e-12)
+    return gx * inv + zenith, gy * inv, cp, gz
 
 
 def direction_cosines(s: Scenario, azimuth_rad, elevation_rad):
@@ -165,12 +169,12 @@ def direction_cosines(s: Scenario, azimuth_rad, elevation_rad):
 
 def direction_cosines_trig(s: Scenario, ct, st, cp, sp):
     """:func:`direction_cosines` from the angles' cosines and sines; returns three (x, y) tuples."""
+    if s.array_orientation == "horizontal":
+        return (cp * ct, cp * st), (-cp * st, cp * ct), (-sp * ct, -sp * st)
     zero = np.zeros_like(st * sp)
     if s.array_orientation == "printed":
         return (st * cp, st * sp), (ct * cp, ct * sp), (-st * sp, st * cp)
-    if s.array_orientation == "vertical":
-        return (cp * st, sp + zero), (cp * ct, zero), (-sp * st, cp + zero)
-    return (cp * ct, cp * st), (-cp * st, cp * ct), (-sp * ct, -sp * st)  # horizontal
+    return (cp * st, sp + zero), (cp * ct, zero), (-sp * st, cp + zero)  # vertical
 
 
 def array_response(s: Scenario, azimuth_rad, elevation_rad):
@@ -271,8 +275,7 @@ def link_snr(s: Scenario, dist_m, shadow_db, gain):
     The dB budget :math:`P - \\mathcal L(l) - \\varepsilon + \\Delta - N_0B` in linear form,
     :math:`\\kappa\\, G\\, l^{-2.2}\\, 10^{-\\varepsilon/10}`, with the constant :math:`\\kappa` cached.
     """
-    return _snr_constant(s) * gain * np.asarray(dist_m, dtype=float) ** -2.2 * 10.0 ** (
-        -0.1 * np.asarray(shadow_db, dtype=float))
+    return _snr_constant(s) * gain * dist_m ** -2.2 * 10.0 ** (-0.1 * shadow_db)
 
 
 @per_scenario

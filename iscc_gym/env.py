@@ -13,7 +13,7 @@ from .scenario import Scenario, make_scenario
 from .stability import scenario_eps_star
 from .trajectory import sample_reference
 
-__all__ = ["ISCCEnv", "action_to_split", "split_to_action", "OBS_NAMES", "OBS_BOUND"]
+__all__ = ["ISCCEnv", "action_to_split", "split_to_action", "observe", "OBS_NAMES", "OBS_BOUND"]
 
 #: Names of the observation entries, in order (see :class:`ISCCEnv`).
 OBS_NAMES = (
@@ -34,10 +34,10 @@ def action_to_split(action):
     and the equal split where every w_i = 0. Every split is reachable (see :func:`split_to_action`),
     including zero shares: there is no minimum share. Broadcasts over leading axes.
     """
-    w = (np.clip(np.asarray(action, dtype=float), -1.0, 1.0) + 1.0) * 0.5
+    w = (np.minimum(np.maximum(np.asarray(action, dtype=float), -1.0), 1.0) + 1.0) * 0.5
     total = w.sum(axis=-1, keepdims=True)
-    safe = np.where(total > 1e-12, total, 1.0)
-    return np.where(total > 1e-12, w / safe, 1.0 / 3.0)
+    empty = total <= 1e-12
+    return np.where(empty, 1.0 / 3.0, w / np.where(empty, 1.0, total)) if empty.any() else w / total
 
 
 def split_to_action(alpha):
@@ -52,7 +52,40 @@ def split_to_action(alpha):
 
 
 def _symlog(x, scale):
-    return np.sign(x) * np.log1p(np.abs(x) / scale)
+    return np.sign(x) * np.log1p(np.abs(x) * (1.0 / scale))
+
+
+#: Per-entry scale of the linear part of the observation (entries 6-11: reference motion).
+_REF_SCALE = np.array([0.1, 0.1, 0.1, 1.0, 1.0, 1.0])
+
+
+def observe(s: Scenario, state: loop.LoopState, last_received, last_peb_m, eps_star: float):
+    """The observation of :class:`ISCCEnv` (table in its docstring), shape (..., 23), float32.
+
+    A pure function of the loop state (one loop or a batch) and the last slot's outcome, so the
+    single env and any vector env build it the same way.
+    """
+    pv = loop.preview(s, state, eps_star)
+    ref = loop.reference_at(state)
+    cos_az, sin_az, _, sin_el = pv["trig"]
+    p = state.p
+    obs = np.empty(state.x.shape[:-1] + (len(OBS_NAMES),))
+    obs[..., 0:6] = _symlog(state.x_hat - ref[..., :6], 0.1)
+    obs[..., 6:12] = ref[..., 3:9] * _REF_SCALE
+    obs[..., 12] = _symlog(np.sqrt(p[..., 0, 0] + p[..., 1, 1] + p[..., 2, 2]), 0.1)
+    obs[..., 13] = pv["snr_db"] * 0.1
+    obs[..., 14] = pv["dist_m"] * (1.0 / s.coverage_radius_m)
+    obs[..., 15] = sin_el
+    obs[..., 16] = cos_az
+    obs[..., 17] = sin_az
+    obs[..., 18] = 10.0 * pv["alpha_ctrl_min"]
+    obs[..., 19] = pv["alpha_comm_min"]
+    obs[..., 20] = last_received
+    obs[..., 21] = _symlog(last_peb_m, 0.05)
+    obs[..., 22] = 1.0 - state.n * (1.0 / s.n_slots)
+    # every entry is finite by construction (floors in min_shares, prior in the CRLB); the clip
+    # keeps divergent states inside the box
+    return np.minimum(np.maximum(obs, -OBS_BOUND), OBS_BOUND).astype(np.float32)
 
 
 class ISCCEnv(gym.Env):
@@ -177,6 +210,7 @@ class ISCCEnv(gym.Env):
         super().reset(seed=seed)
         s = self.scenario
         ref = sample_reference(s, self.np_random)
+        # a batch of one: bit-identical to the same drone in any batch (the vector env)
         self._state = loop.init_state(s, [ref], [self.np_random])
         self._last_received, self._last_peb = True, 0.0
         self._history = {"pos": [self._state.x[0, :3].copy()], "err": []}
@@ -188,26 +222,27 @@ class ISCCEnv(gym.Env):
         a = np.asarray(action, dtype=np.float64)
         if a.shape != (3,):
             raise ValueError(f"action must have shape (3,), got {a.shape}")
-        if not np.all(np.isfinite(a)):
+        if not np.isfinite(a).all():
             raise ValueError(f"action {a.tolist()} contains NaN or inf; pass finite values in [-1, 1]")
-        if self._state.n[0] >= self.scenario.n_slots:
+        s = self.scenario
+        if self._state.n[0] >= s.n_slots:
             raise RuntimeError("the mission is over (truncated); call reset() before step()")
         alpha = action_to_split(a)
-        s = self.scenario
-        self._state, m = loop.step(s, self._state, alpha[None, :], [self.np_random])
-        err = float(m["tracking_error_m"][0])
-        rate = float(m["rate_comm_bps"][0])
-        eps = float(m["eps_ctrl"][0])
+        self._state, m = loop.step(s, self._state, alpha[None], [self.np_random])
+        m = {k: v[0] for k, v in m.items()}
+        err = float(m["tracking_error_m"])
+        rate = float(m["rate_comm_bps"])
+        eps = float(m["eps_ctrl"])
         cost_rate = max(0.0, s.rate_min_bps - rate) / s.rate_min_bps if s.rate_min_bps > 0 else 0.0
         cost_stab = float(eps > self.eps_star)
-        terminated = bool(m["diverged"][0])
+        terminated = bool(m["diverged"])
         n = int(self._state.n[0])
         truncated = (not terminated) and n >= s.n_slots
         reward = -min(err, s.max_tracking_error_m) - s.w_rate * cost_rate - s.w_stab * cost_stab
         if terminated:
             reward -= s.max_tracking_error_m * (s.n_slots - n)
-        self._last_received = bool(m["packet_received"][0])
-        self._last_peb = float(m["peb_m"][0])
+        self._last_received = bool(m["packet_received"])
+        self._last_peb = float(m["peb_m"])
         if self.render_mode is not None:
             self._history["pos"].append(self._state.x[0, :3].copy())
             self._history["err"].append(err)
@@ -216,20 +251,20 @@ class ISCCEnv(gym.Env):
             "cost_rate": cost_rate,
             "cost_stability": cost_stab,
             "cost": cost_rate + cost_stab,
-            "snr_db": float(m["snr_db"][0]),
-            "snr_large_scale_db": float(m["snr_large_scale_db"][0]),
+            "snr_db": float(m["snr_db"]),
+            "snr_large_scale_db": float(m["snr_large_scale_db"]),
             "peb_m": self._last_peb,
-            "veb_mps": float(m["veb_mps"][0]),
+            "veb_mps": float(m["veb_mps"]),
             "eps_ctrl": eps,
             "packet_received": self._last_received,
             "rate_comm_bps": rate,
-            "rate_ctrl_bps": float(m["rate_ctrl_bps"][0]),
-            "estimation_error_m": float(m["estimation_error_m"][0]),
+            "rate_ctrl_bps": float(m["rate_ctrl_bps"]),
+            "estimation_error_m": float(m["estimation_error_m"]),
             "alpha": alpha,
             "action": a.astype(np.float32),
             "slot": n,
         }
-        return self._observation(), float(reward), terminated, truncated, info
+        return self._observation(), reward, terminated, truncated, info
 
     def render(self):
         if self.render_mode != "rgb_array":
@@ -243,29 +278,8 @@ class ISCCEnv(gym.Env):
         return {"slot": 0, "alpha": np.full(3, 1.0 / 3.0)}
 
     def _observation(self) -> np.ndarray:
-        st, s = self._state, self.scenario
-        pv = loop.preview(s, st, self.eps_star)
-        n = int(st.n[0])
-        ref = st.ref[0, n]
-        err = st.x_hat[0] - ref[:6]
-        obs = np.empty(len(OBS_NAMES))
-        obs[0:3] = _symlog(err[:3], 0.1)
-        obs[3:6] = _symlog(err[3:], 0.1)
-        obs[6:9] = ref[3:6] / 10.0
-        obs[9:12] = ref[6:9]
-        obs[12] = _symlog(np.sqrt(max(np.trace(st.p[0, :3, :3]), 0.0)), 0.1)
-        obs[13] = pv["snr_db"][0] / 10.0
-        obs[14] = pv["dist_m"][0] / s.coverage_radius_m
-        obs[15] = np.sin(pv["elevation_rad"][0])
-        obs[16] = np.cos(pv["azimuth_rad"][0])
-        obs[17] = np.sin(pv["azimuth_rad"][0])
-        obs[18] = 10.0 * pv["alpha_ctrl_min"][0]
-        obs[19] = pv["alpha_comm_min"][0]
-        obs[20] = float(self._last_received)
-        obs[21] = _symlog(self._last_peb, 0.05)
-        obs[22] = 1.0 - n / s.n_slots
-        return np.clip(np.nan_to_num(obs, nan=OBS_BOUND, posinf=OBS_BOUND, neginf=-OBS_BOUND),
-                       -OBS_BOUND, OBS_BOUND).astype(np.float32)
+        return observe(self.scenario, self._state, self._last_received, self._last_peb,
+                       self.eps_star)[0]
 
 
 def _render_rgb(state: loop.LoopState, history: dict, s: Scenario) -> np.ndarray:

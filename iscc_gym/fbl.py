@@ -5,12 +5,13 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import erfc, ndtri
 
-from .scenario import Scenario
+from .scenario import Scenario, per_scenario
 
-__all__ = ["dispersion", "q_func", "q_inv", "fbl_rate_bps", "comm_rate_bps", "ctrl_rate_bps",
-           "ctrl_bler", "min_ctrl_share", "min_comm_share"]
+__all__ = ["dispersion", "q_func", "q_inv", "link_terms", "fbl_rate_bps", "comm_rate_bps",
+           "ctrl_rate_bps", "ctrl_bler", "slot_link", "min_shares", "min_ctrl_share", "min_comm_share"]
 
-_LOG2E_SQ = np.log2(np.e) ** 2
+_LOG2E = float(np.log2(np.e))
+_LOG2E_SQ = _LOG2E**2
 _INV_SQRT2 = 1.0 / np.sqrt(2.0)
 
 
@@ -44,19 +45,37 @@ def fbl_rate_bps(alpha, bandwidth_hz, snr, blocklength, bler):
 
     Clipped at zero (no negative rates at very low SNR).
     """
-    snr = np.asarray(snr, dtype=float)
-    r = np.log2(1.0 + snr) - np.sqrt(dispersion(snr) / blocklength) * q_inv(bler)
-    return np.asarray(alpha, dtype=float) * bandwidth_hz * np.maximum(r, 0.0)
+    cap, sqrt_v = link_terms(np.asarray(snr, dtype=float))
+    return _rate(alpha, bandwidth_hz, cap, sqrt_v, q_inv(bler) / np.sqrt(blocklength))
+
+
+def link_terms(snr):
+    """Capacity :math:`\\log_2(1+\\gamma)` and :math:`\\sqrt{V(\\gamma)}`, the two SNR terms every
+    FBL quantity here is built from (computed once per slot)."""
+    g1 = 1.0 + snr
+    return np.log2(g1), _LOG2E * np.sqrt(snr * (2.0 + snr)) / g1
+
+
+def _rate(alpha, bandwidth_hz, cap, sqrt_v, back_off):
+    return alpha * bandwidth_hz * np.maximum(cap - sqrt_v * back_off, 0.0)
+
+
+@per_scenario
+def _link_constants(s: Scenario):
+    """(comm back-off Q^-1(eps)/sqrt(L), ctrl back-off, S / (T_d B), sqrt(L_ctrl))."""
+    return (float(q_inv(s.comm_target_bler)) / np.sqrt(s.comm_blocklength),
+            float(q_inv(s.ctrl_target_bler)) / np.sqrt(s.ctrl_blocklength),
+            s.ctrl_packet_bits / (s.ctrl_deadline_s * s.bandwidth_hz), np.sqrt(s.ctrl_blocklength))
 
 
 def comm_rate_bps(s: Scenario, alpha_comm, snr):
     """Data-link FBL rate :math:`\\mathcal R_\\mathrm{comm}` (L_comm, eps_comm of Table I)."""
-    return fbl_rate_bps(alpha_comm, s.bandwidth_hz, snr, s.comm_blocklength, s.comm_target_bler)
+    return slot_link(s, 0.0, alpha_comm, snr)[2]
 
 
 def ctrl_rate_bps(s: Scenario, alpha_ctrl, snr):
     """Control-link FBL rate :math:`\\mathcal R_\\mathrm{ctrl}` (L_ctrl, eps_ctrl of Table I)."""
-    return fbl_rate_bps(alpha_ctrl, s.bandwidth_hz, snr, s.ctrl_blocklength, s.ctrl_target_bler)
+    return slot_link(s, alpha_ctrl, 0.0, snr)[1]
 
 
 def ctrl_bler(s: Scenario, alpha_ctrl, snr):
@@ -69,36 +88,48 @@ def ctrl_bler(s: Scenario, alpha_ctrl, snr):
     The paper writes :math:`T_d = \\Delta t`; here :math:`T_d` is ``ctrl_deadline_s``
     (``docs/model.md``). ``alpha_ctrl = 0`` gives 1 (nothing can be sent).
     """
-    snr = np.asarray(snr, dtype=float)
-    # alpha -> 1e-30 and V -> 1e-300 floors keep alpha = 0 and gamma = 0 finite (Q -> 1) without
-    # overflow or division warnings
-    need = (s.ctrl_packet_bits / (s.ctrl_deadline_s * s.bandwidth_hz)) / np.maximum(alpha_ctrl, 1e-30)
-    scale = np.sqrt(s.ctrl_blocklength / np.maximum(dispersion(snr), 1e-300))
-    return q_func(scale * (np.log2(1.0 + snr) - need))
+    return slot_link(s, alpha_ctrl, 0.0, snr)[0]
+
+
+def slot_link(s: Scenario, alpha_ctrl, alpha_comm, snr):
+    """The slot's control drop probability (eq:ctrl_bler) and both FBL rates (eq:rate_equation).
+
+    Returns ``(eps_ctrl, rate_ctrl_bps, rate_comm_bps)``, sharing the SNR terms of
+    :func:`link_terms`. Floors (alpha >= 1e-30, sqrt(V) >= 1e-150) keep alpha = 0 and
+    gamma = 0 finite (eps -> 1) without overflow or division warnings.
+    """
+    k_comm, k_ctrl, bits_per_hz, sqrt_l = _link_constants(s)
+    cap, sqrt_v = link_terms(np.asarray(snr, dtype=float))
+    need = bits_per_hz / np.maximum(alpha_ctrl, 1e-30)
+    eps = q_func(sqrt_l / np.maximum(sqrt_v, 1e-150) * (cap - need))
+    return (eps, _rate(alpha_ctrl, s.bandwidth_hz, cap, sqrt_v, k_ctrl),
+            _rate(alpha_comm, s.bandwidth_hz, cap, sqrt_v, k_comm))
+
+
+def min_shares(s: Scenario, snr, eps_max, rate_bps):
+    """Smallest control share with drop probability at most ``eps_max`` and smallest data share
+    carrying ``rate_bps``, at SNR ``snr`` (closed forms of eq:ctrl_bler and eq:rate_equation):
+
+    .. math::
+        \\alpha_\\mathrm{ctrl}^\\star(\\gamma) = \\frac{S}{T_d B\\left[\\log_2(1+\\gamma)
+        - Q^{-1}(\\varepsilon_\\max)\\sqrt{V(\\gamma)/L_\\mathrm{ctrl}}\\right]},\\qquad
+        \\alpha_\\mathrm{comm}^{\\min}(\\gamma) = \\frac{R}{B\\left[\\log_2(1+\\gamma)
+        - Q^{-1}(\\varepsilon_\\mathrm{comm})\\sqrt{V(\\gamma)/L_\\mathrm{comm}}\\right]}
+
+    Where a bracket is not positive (unreachable at any share) the result is at least 1e12.
+    """
+    k_comm, _, bits_per_hz, sqrt_l = _link_constants(s)
+    cap, sqrt_v = link_terms(np.asarray(snr, dtype=float))
+    ctrl = bits_per_hz / np.maximum(cap - float(q_inv(eps_max)) / sqrt_l * sqrt_v, 1e-12 * bits_per_hz)
+    comm = (rate_bps / s.bandwidth_hz) / np.maximum(cap - k_comm * sqrt_v, 1e-12)
+    return ctrl, comm
 
 
 def min_ctrl_share(s: Scenario, snr, eps_max):
-    """Smallest control share whose drop probability (eq:ctrl_bler) is at most ``eps_max``.
-
-    Closed form of :math:`\\varepsilon_\\mathrm{ctrl}(\\alpha, \\gamma) = \\varepsilon_\\max`:
-
-    .. math::
-        \\alpha^\\star(\\gamma) = \\frac{S}{T_d B\\left[\\log_2(1+\\gamma)
-        - Q^{-1}(\\varepsilon_\\max)\\sqrt{V(\\gamma)/L_\\mathrm{ctrl}}\\right]}
-
-    Returns ``inf`` where no share reaches ``eps_max`` (the bracket is not positive); values above 1
-    mean even the whole band is not enough.
-    """
-    snr = np.asarray(snr, dtype=float)
-    cap = np.log2(1.0 + snr) - q_inv(eps_max) * np.sqrt(dispersion(snr) / s.ctrl_blocklength)
-    with np.errstate(divide="ignore"):
-        return np.where(cap > 0.0, s.ctrl_packet_bits / (s.ctrl_deadline_s * s.bandwidth_hz
-                                                         * np.where(cap > 0.0, cap, 1.0)), np.inf)
+    """The control share of :func:`min_shares`."""
+    return min_shares(s, snr, eps_max, 0.0)[0]
 
 
 def min_comm_share(s: Scenario, snr, rate_bps):
-    """Smallest data share whose FBL rate (eq:rate_equation) reaches ``rate_bps``; ``inf`` if none."""
-    per_hz = fbl_rate_bps(1.0, 1.0, snr, s.comm_blocklength, s.comm_target_bler)
-    with np.errstate(divide="ignore"):
-        return np.where(per_hz > 0.0, rate_bps / (s.bandwidth_hz * np.where(per_hz > 0, per_hz, 1.0)),
-                        np.inf)
+    """The data share of :func:`min_shares`."""
+    return min_shares(s, snr, 0.5, rate_bps)[1]

@@ -22,22 +22,20 @@ from scipy.special import ndtri
 from .channel import (
     beam_gain,
     direction_trig,
-    geometry,
-    large_scale_snr,
     link_snr,
     rician_power_gain,
     shadowing_std_db,
     shadowing_step,
 )
 from .dynamics import model_matrices
-from .fbl import comm_rate_bps, ctrl_bler, ctrl_rate_bps, min_comm_share, min_ctrl_share
+from .fbl import min_shares, slot_link
 from .kalman import isac_observation_matrix, kf_predict, kf_update
 from .scenario import Scenario
 from .sensing import crlb_local, local_frame
 from .trajectory import Reference
 
-__all__ = ["LoopState", "N_DRAWS", "init_state", "step", "preview", "standard_normals",
-           "stack_references"]
+__all__ = ["LoopState", "N_DRAWS", "init_state", "step", "preview", "reference_at",
+           "standard_normals", "stack_references", "reference_array"]
 
 #: Standard normals drawn per drone per slot: fading (4), measurement (6), drop (1),
 #: process noise (6), shadowing (1).
@@ -76,12 +74,19 @@ class LoopState:
         return dataclasses.replace(self, **changes)
 
     @property
-    def batch_size(self) -> int:
-        return self.x.shape[0]
+    def batch_size(self) -> int | None:
+        """B for a batch of loops, None for a single (unbatched) loop."""
+        return None if self.x.ndim == 1 else self.x.shape[0]
 
 
-def standard_normals(rng, batch: int, k: int = N_DRAWS):
-    """(batch, k) standard normals from one Generator or from a sequence of ``batch`` Generators."""
+def standard_normals(rng, batch: int | None, k: int = N_DRAWS):
+    """Standard normals for one slot: shape (k,) for an unbatched loop (``batch=None``, one
+    Generator), else (batch, k) from one Generator or from a sequence of ``batch`` Generators
+    (row i drawn from Generator i, exactly as an unbatched loop with that Generator would)."""
+    if batch is None:
+        if not isinstance(rng, np.random.Generator):
+            raise TypeError("an unbatched loop takes one numpy Generator")
+        return rng.standard_normal(k)
     if isinstance(rng, np.random.Generator):
         return rng.standard_normal((batch, k))
     if isinstance(rng, Sequence) and len(rng) == batch:
@@ -93,7 +98,12 @@ def standard_normals(rng, batch: int, k: int = N_DRAWS):
 
 def stack_references(refs: Sequence[Reference]):
     """Stack references into the (B, N+1, 9) array the loop state carries."""
-    return np.stack([np.concatenate([r.pos_m, r.vel_mps, r.acc_mps2], -1) for r in refs])
+    return np.stack([reference_array(r) for r in refs])
+
+
+def reference_array(ref: Reference):
+    """One reference as the (N+1, 9) array [position, velocity, acceleration] the state carries."""
+    return np.concatenate([ref.pos_m, ref.vel_mps, ref.acc_mps2], -1)
 
 
 def init_state(s: Scenario, refs, rng) -> LoopState:
@@ -106,131 +116,160 @@ def init_state(s: Scenario, refs, rng) -> LoopState:
 
     Parameters
     ----------
-    refs : sequence of Reference, or ndarray (B, N+1, 9)
-    rng : Generator or sequence of B Generators (7 normals per drone)
+    refs : Reference or ndarray (N+1, 9)
+        One reference: an unbatched loop (state arrays without a batch axis; ``rng`` one
+        Generator). Or a sequence of B References / an ndarray (B, N+1, 9): a batch of B loops
+        (``rng`` one Generator or a sequence of B Generators).
+    rng : Generator or sequence of Generators (7 normals per drone)
     """
-    ref = refs if isinstance(refs, np.ndarray) else stack_references(refs)
-    if ref.ndim != 3 or ref.shape[1] != s.n_slots + 1 or ref.shape[2] != 9:
-        raise ValueError(f"refs must have shape (B, {s.n_slots + 1}, 9), got {ref.shape}")
-    batch = ref.shape[0]
+    if isinstance(refs, Reference):
+        ref = reference_array(refs)
+    elif isinstance(refs, np.ndarray):
+        ref = np.asarray(refs, dtype=float)
+    else:
+        ref = stack_references(refs)
+    if ref.ndim not in (2, 3) or ref.shape[-2] != s.n_slots + 1 or ref.shape[-1] != 9:
+        raise ValueError(f"refs must have shape ({s.n_slots + 1}, 9) or (B, {s.n_slots + 1}, 9), "
+                         f"got {ref.shape}")
+    batch = None if ref.ndim == 2 else ref.shape[0]
+    shape = () if batch is None else (batch,)
     z = standard_normals(rng, batch, 7)
     std0 = np.array([s.initial_pos_std_m] * 3 + [s.initial_vel_std_mps] * 3)
-    x_ref0 = ref[:, 0, :6]
-    p0 = np.broadcast_to(np.diag(std0**2), (batch, 6, 6)).copy()
-    return LoopState(x=x_ref0 + std0 * z[:, :6], x_hat=x_ref0.copy(), p=p0, shadow=z[:, 6].copy(),
-                     n=np.zeros(batch, dtype=np.int64), ref=ref)
+    x_ref0 = ref[..., 0, :6]
+    p0 = np.broadcast_to(np.diag(std0**2), shape + (6, 6)).copy()
+    return LoopState(x=x_ref0 + std0 * z[..., :6], x_hat=x_ref0.copy(), p=p0,
+                     shadow=np.array(z[..., 6]), n=np.zeros(shape, dtype=np.int64), ref=ref)
+
+
+def _at(ref, n):
+    """Rows ``n`` of the reference: ref[n] unbatched, ref[b, n_b] batched."""
+    if n.ndim == 0:
+        return ref[n]
+    return ref[np.arange(n.shape[0]), n]
+
+
+def reference_at(state: LoopState):
+    """The reference row [p, v, a] of each loop's current slot, shape (9,) or (B, 9)."""
+    return _at(state.ref, state.n)
+
+
+def _norm(v):
+    """Euclidean norm over the last axis of (..., 3) vectors (a stacked product: bit-stable)."""
+    return np.sqrt((v[..., None, :] @ v[..., :, None])[..., 0, 0])
 
 
 def step(s: Scenario, state: LoopState, alpha, rng):
-    """Advance every loop in the batch by one slot.
+    """Advance every loop by one slot.
 
     Parameters
     ----------
     s : Scenario
     state : LoopState
-        Batch of B loops at slot n < N.
-    alpha : array_like, shape (B, 3)
-        Applied split (alpha_sen, alpha_ctrl, alpha_comm), each row non-negative and summing to 1.
-    rng : Generator or sequence of B Generators
+        One loop (arrays without a batch axis) or a batch of B loops, at slot n < N.
+    alpha : array_like, shape (3,) or (B, 3)
+        Applied split (alpha_sen, alpha_ctrl, alpha_comm), non-negative, summing to 1.
+    rng : Generator, or a sequence of B Generators for a batch
 
     Returns
     -------
     state : LoopState
         At slot n + 1.
-    metrics : dict of ndarray, shape (B,)
+    metrics : dict of ndarray, shape () or (B,)
         ``tracking_error_m`` (||p_{n+1} - p_ref,n+1||), ``estimation_error_m`` (||p_hat_n - p_n||),
         ``snr_db`` (the slot's SNR with fading), ``snr_large_scale_db``, ``peb_m``, ``veb_mps``,
         ``eps_ctrl``, ``packet_received`` (bool), ``rate_comm_bps``, ``rate_ctrl_bps``,
         ``diverged`` (bool: tracking error above ``max_tracking_error_m`` or non-finite).
+
+    Notes
+    -----
+    Every elementwise operation is the same for a batch and a single loop and every matrix
+    product is a stacked product, so drone i of a batch stepped with Generator i reproduces the
+    unbatched loop with that Generator bit for bit.
     """
     mm = model_matrices(s)
     alpha = np.asarray(alpha, dtype=float)
-    batch = state.x.shape[0]
-    if alpha.shape != (batch, 3):
-        raise ValueError(f"alpha must have shape ({batch}, 3), got {alpha.shape}")
+    x = state.x
+    batch = None if x.ndim == 1 else x.shape[0]
+    if alpha.shape != x.shape[:-1] + (3,):
+        raise ValueError(f"alpha must have shape {x.shape[:-1] + (3,)}, got {alpha.shape}")
     n = state.n
     if n.max() >= s.n_slots:
         raise ValueError("a loop is past the last slot of the mission; reset it first")
     z = standard_normals(rng, batch)
-    rows = np.arange(batch)
-    ref_n = state.ref[rows, n]
-    x = state.x
-    pos = x[:, :3]
+    ref_n = _at(state.ref, n)
+    pos = x[..., :3]
+    a_sen, a_ctrl, a_comm = alpha[..., 0], alpha[..., 1], alpha[..., 2]
 
     # --- channel: geometry, large-scale SNR (path loss, beam gain, shadowing), this slot's fading
     rel = pos - mm.gbs_pos
-    dist = np.sqrt((rel[:, None, :] @ rel[:, :, None])[:, 0, 0])
-    los = rel / dist[:, None]
+    dist = _norm(rel)
+    los = rel / dist[..., None]
     trig = direction_trig(los)
-    shadow_db = shadowing_std_db(s, pos[:, 2]) * state.shadow
+    shadow_db = shadowing_std_db(s, pos[..., 2]) * state.shadow
     snr_ls = link_snr(s, dist, shadow_db, beam_gain(s, trig))
-    snr = rician_power_gain(s, z[:, 0], z[:, 1]) * snr_ls
+    snr = rician_power_gain(s, z[..., 0], z[..., 1]) * snr_ls
 
     # --- sensing (CRLB in the local range/azimuth/elevation frame) and Kalman measurement update
-    m_r, m_tt, m_tp, m_pp, crlb_vr = crlb_local(s, alpha[:, 0], dist, trig, shadow_db,
-                                                rician_power_gain(s, z[:, 2], z[:, 3]))
+    m_r, m_tt, m_tp, m_pp, crlb_vr = crlb_local(s, a_sen, dist, trig, shadow_db,
+                                                rician_power_gain(s, z[..., 2], z[..., 3]))
     if s.observation_source == "isac":
         u = local_frame(los, trig)
-        # measurement noise U chol(M) z, with the 2 x 2 Cholesky factor in closed form
+        # R = blkdiag(U M U^T, CRLB_vr); the noise U chol(M) z uses the 2 x 2 Cholesky in closed form
         l11 = np.sqrt(m_tt)
         l21 = m_tp / l11
-        w_loc = np.empty((batch, 3, 1))
-        w_loc[:, 0, 0] = np.sqrt(m_r) * z[:, 4]
-        w_loc[:, 1, 0] = l11 * z[:, 5]
-        w_loc[:, 2, 0] = l21 * z[:, 5] + np.sqrt(m_pp - l21 * l21) * z[:, 6]
-        m_loc = np.zeros((batch, 3, 3))
-        m_loc[:, 0, 0] = m_r
-        m_loc[:, 1, 1] = m_tt
-        m_loc[:, 1, 2] = m_loc[:, 2, 1] = m_tp
-        m_loc[:, 2, 2] = m_pp
-        r = np.zeros((batch, 4, 4))
-        r[:, :3, :3] = u @ m_loc @ np.swapaxes(u, -1, -2)
-        r[:, 3, 3] = crlb_vr
+        m_loc = np.zeros(x.shape[:-1] + (3, 3))
+        m_loc[..., 0, 0] = m_r
+        m_loc[..., 1, 1] = m_tt
+        m_loc[..., 1, 2] = m_loc[..., 2, 1] = m_tp
+        m_loc[..., 2, 2] = m_pp
+        w_loc = np.empty(x.shape[:-1] + (3, 1))
+        w_loc[..., 0, 0] = np.sqrt(m_r) * z[..., 4]
+        w_loc[..., 1, 0] = l11 * z[..., 5]
+        w_loc[..., 2, 0] = l21 * z[..., 5] + np.sqrt(m_pp - l21 * l21) * z[..., 6]
+        r = np.zeros(x.shape[:-1] + (4, 4))
+        r[..., :3, :3] = u @ m_loc @ np.swapaxes(u, -1, -2)
+        r[..., 3, 3] = crlb_vr
         c = isac_observation_matrix(los)
-        y = np.empty((batch, 4))
-        y[:, :3] = pos + (u @ w_loc)[:, :, 0]
-        y[:, 3] = (los[:, None, :] @ x[:, 3:, None])[:, 0, 0] + np.sqrt(crlb_vr) * z[:, 7]
+        y = np.empty(x.shape[:-1] + (4,))
+        y[..., :3] = pos + (u @ w_loc)[..., 0]
+        y[..., 3] = (los[..., None, :] @ x[..., 3:, None])[..., 0, 0] + np.sqrt(crlb_vr) * z[..., 7]
     else:
-        c = np.broadcast_to(mm.eye6, (batch, 6, 6))
-        r = np.broadcast_to(mm.gnss_cov, (batch, 6, 6))
-        y = x + mm.gnss_std * z[:, _MEAS]
+        c = mm.eye6
+        r = mm.gnss_cov
+        y = x + mm.gnss_std * z[..., _MEAS]
     x_post, p_post, _ = kf_update(state.x_hat, state.p, y, c, r)
 
     # --- control command and its finite-blocklength delivery
-    eps = ctrl_bler(s, alpha[:, 1], snr)
+    eps, rate_ctrl, rate_comm = slot_link(s, a_ctrl, a_comm, snr)
     if s.control_mode == "lqg":
-        u_cmd = -(mm.k @ (x_post - ref_n[:, :6])[:, :, None])[:, :, 0]
+        u_cmd = -(mm.k @ (x_post - ref_n[..., :6])[..., None])[..., 0]
         if s.reference_feedforward:
-            u_cmd = u_cmd + ref_n[:, 6:]
-        received = z[:, _DROP] >= ndtri(eps)  # P = 1 - eps
-        u_applied = u_cmd * received[:, None]
+            u_cmd = u_cmd + ref_n[..., 6:]
+        received = z[..., _DROP] >= ndtri(eps)  # P = 1 - eps
+        u_applied = u_cmd * np.asarray(received)[..., None]
     else:  # open loop: the reference acceleration is stored on board, no link involved
-        received = np.ones(batch, dtype=bool)
-        u_applied = ref_n[:, 6:]
+        received = np.ones(x.shape[:-1], dtype=bool)
+        u_applied = ref_n[..., 6:]
 
     # --- drone dynamics and Kalman time update
-    bu = (mm.b @ u_applied[:, :, None])[:, :, 0]
-    x_next = (mm.a @ x[:, :, None])[:, :, 0] + bu + mm.chol_w * z[:, _PROC]
+    bu = (mm.b @ u_applied[..., None])[..., 0]
+    x_next = (mm.a @ x[..., None])[..., 0] + bu + mm.chol_w * z[..., _PROC]
     x_hat_next, p_next = kf_predict(x_post, p_post, mm.a, bu, mm.sigma_w)
-    step_vec = x_next[:, :3] - pos
-    moved = np.sqrt((step_vec[:, None, :] @ step_vec[:, :, None])[:, 0, 0])
-    shadow_next = shadowing_step(s, state.shadow, moved, z[:, _SHAD])
+    shadow_next = shadowing_step(s, state.shadow, _norm(x_next[..., :3] - pos), z[..., _SHAD])
 
     n_next = n + 1
-    err_vec = x_next[:, :3] - state.ref[rows, n_next, :3]
-    err = np.sqrt((err_vec[:, None, :] @ err_vec[:, :, None])[:, 0, 0])
-    est_vec = x_post[:, :3] - pos
+    err = _norm(x_next[..., :3] - _at(state.ref, n_next)[..., :3])
     metrics = {
         "tracking_error_m": err,
-        "estimation_error_m": np.sqrt((est_vec[:, None, :] @ est_vec[:, :, None])[:, 0, 0]),
+        "estimation_error_m": _norm(x_post[..., :3] - pos),
         "snr_db": 10.0 * np.log10(snr),
         "snr_large_scale_db": 10.0 * np.log10(snr_ls),
         "peb_m": np.sqrt(m_r + m_tt + m_pp),
         "veb_mps": np.sqrt(crlb_vr),
         "eps_ctrl": eps,
         "packet_received": received,
-        "rate_comm_bps": comm_rate_bps(s, alpha[:, 2], snr),
-        "rate_ctrl_bps": ctrl_rate_bps(s, alpha[:, 1], snr),
+        "rate_comm_bps": rate_comm,
+        "rate_ctrl_bps": rate_ctrl,
         "diverged": ~(err <= s.max_tracking_error_m),  # also catches NaN
     }
     new_state = LoopState(x=x_next, x_hat=x_hat_next, p=p_next, shadow=shadow_next, n=n_next,
@@ -241,21 +280,19 @@ def step(s: Scenario, state: LoopState, alpha, rng):
 def preview(s: Scenario, state: LoopState, eps_max: float) -> dict:
     """What the GBS can predict about slot n before allocating it, from its estimate x_hat_{n|n-1}.
 
-    Returns a dict of (B,) arrays: ``dist_m``, ``azimuth_rad``, ``elevation_rad`` (geometry of the
-    predicted position), ``snr_db`` (large-scale SNR there: path loss, beam gain and the current
-    shadowing; the slot's small-scale fading is not known yet), ``alpha_ctrl_min`` (control share at
-    which eq:ctrl_bler gives ``eps_max`` at that SNR) and ``alpha_comm_min`` (data share carrying
-    ``rate_min_bps``); both are ``inf`` where unreachable.
+    Returns a dict: ``dist_m`` and ``trig`` (range and (cos, sin) of azimuth and elevation of the
+    predicted position, see :func:`iscc_gym.channel.direction_trig`), ``snr_db`` (large-scale SNR
+    there: path loss, beam gain and the current shadowing; the slot's small-scale fading is not
+    known yet), ``alpha_ctrl_min`` (control share at which eq:ctrl_bler gives ``eps_max`` at that
+    SNR) and ``alpha_comm_min`` (data share carrying ``rate_min_bps``), see
+    :func:`iscc_gym.fbl.min_shares`.
     """
-    pos = state.x_hat[:, :3]
-    dist, az, el, _ = geometry(s, pos)
-    shadow_db = shadowing_std_db(s, pos[:, 2]) * state.shadow
-    snr = large_scale_snr(s, pos, shadow_db)
-    return {
-        "dist_m": dist,
-        "azimuth_rad": az,
-        "elevation_rad": el,
-        "snr_db": 10.0 * np.log10(snr),
-        "alpha_ctrl_min": min_ctrl_share(s, snr, eps_max),
-        "alpha_comm_min": min_comm_share(s, snr, s.rate_min_bps),
-    }
+    pos = state.x_hat[..., :3]
+    rel = pos - model_matrices(s).gbs_pos
+    dist = _norm(rel)
+    los = rel / dist[..., None]
+    trig = direction_trig(los)
+    snr = link_snr(s, dist, shadowing_std_db(s, pos[..., 2]) * state.shadow, beam_gain(s, trig))
+    ctrl_min, comm_min = min_shares(s, snr, eps_max, s.rate_min_bps)
+    return {"dist_m": dist, "trig": trig, "snr_db": 10.0 * np.log10(snr),
+            "alpha_ctrl_min": ctrl_min, "alpha_comm_min": comm_min}

@@ -67,8 +67,7 @@ def echo_amplitude_sq(s: Scenario, dist_m, shadow_db, fading_gain):
     :math:`P_k \\beta_S |g_S|^2`, in W (with :math:`P_k = P_t/\\mathcal K`), times the calibration
     ``sensing_snr_offset_db``."""
     # sensing_path_loss_db(l) = L_S(1 m) + 44 log10 l: the l-independent part is cached
-    return (_echo_constant(s) * np.asarray(dist_m, dtype=float) ** -4.4
-            * 10.0 ** (-0.1 * np.asarray(shadow_db, dtype=float)) * fading_gain)
+    return _echo_constant(s) * dist_m ** -4.4 * 10.0 ** (-0.1 * shadow_db) * fading_gain
 
 
 @per_scenario
@@ -118,10 +117,13 @@ def signature_derivatives(s: Scenario, azimuth_rad, elevation_rad, w=None):
 
 @per_scenario
 def _index_moments(s: Scenario):
-    # sum over the grid of the centred element indices squared, along each array axis
+    # N k^2 times the sums over the grid of the squared centred element indices along each axis,
+    # and ||eta||^2 = N^2 of the matched beamformer
     ix = np.arange(s.n_x) - 0.5 * (s.n_x - 1)
     iy = np.arange(s.n_y) - 0.5 * (s.n_y - 1)
-    return s.n_y * float(ix @ ix), s.n_x * float(iy @ iy)
+    n = s.n_antennas
+    c = n * (2.0 * np.pi * s.antenna_spacing_wavelengths) ** 2
+    return c * s.n_y * float(ix @ ix), c * s.n_x * float(iy @ iy), float(n * n)
 
 
 def matched_signature_terms(s: Scenario, ct, st, cp, sp):
@@ -139,12 +141,9 @@ def matched_signature_terms(s: Scenario, ct, st, cp, sp):
     (:math:`\\sum ij = 0`). Arguments are cos/sin of azimuth and elevation.
     """
     _, (tx, ty), (px, py) = direction_cosines_trig(s, ct, st, cp, sp)
-    sxx, syy = _index_moments(s)
-    n = s.n_antennas
-    c = n * (2.0 * np.pi * s.antenna_spacing_wavelengths) ** 2
-    eta_sq = np.full(np.shape(tx), float(n * n))
-    return (eta_sq, c * (tx * tx * sxx + ty * ty * syy), c * (px * px * sxx + py * py * syy),
-            c * (tx * px * sxx + ty * py * syy))
+    sxx, syy, eta_sq = _index_moments(s)
+    return (eta_sq + 0.0 * tx, sxx * (tx * tx) + syy * (ty * ty), sxx * (px * px) + syy * (py * py),
+            sxx * (tx * px) + syy * (ty * py))
 
 
 def fim(s: Scenario, alpha_sen, pos_m, shadow_db, fading_gain=1.0):
@@ -180,8 +179,8 @@ def fim(s: Scenario, alpha_sen, pos_m, shadow_db, fading_gain=1.0):
         Angle block (theta, phi) in rad^-2.
     """
     dist, az, el, _ = geometry(s, pos_m)
-    j_tau, j_nu, j_tt, j_pp, j_tp = fim_terms(s, alpha_sen, dist, shadow_db, fading_gain,
-                                              signature_derivatives(s, az, el))
+    j_tau, j_nu, j_tt, j_pp, j_tp = fim_terms(s, np.asarray(alpha_sen, dtype=float), dist,
+                                              shadow_db, fading_gain, signature_derivatives(s, az, el))
     j_ang = np.stack([np.stack([j_tt, j_tp], -1), np.stack([j_tp, j_pp], -1)], -2)
     return j_tau, j_nu, j_ang
 
@@ -201,7 +200,7 @@ def fim_terms(s: Scenario, alpha_sen, dist_m, shadow_db, fading_gain, signature)
     eta_sq, d_tt, d_pp, d_tp = signature
     amp = echo_amplitude_sq(s, dist_m, shadow_db, fading_gain)
     m_over_sig2, c_tau, c_nu = _fim_constants(s)
-    k_sen = np.asarray(alpha_sen, dtype=float) * s.n_subcarriers
+    k_sen = alpha_sen * s.n_subcarriers
     base = amp * m_over_sig2 * k_sen
     common = base * eta_sq
     j_tau = common * c_tau * (k_sen * k_sen)
@@ -313,7 +312,7 @@ def crlb_local(s: Scenario, alpha_sen, dist_m, trig, shadow_db, fading_gain=1.0)
                                               signature_derivatives(s, np.arctan2(st, ct),
                                                                     np.arctan2(sp, cp)))
     prior = 1.0 / s.sensing_prior_var_m2
-    inv_l = 1.0 / np.asarray(dist_m, dtype=float)
+    inv_l = 1.0 / dist_m
     inv_lc = inv_l / np.maximum(cp, 1e-9)
     a = j_tt * inv_lc * inv_lc + prior
     b = j_tp * inv_lc * inv_l

@@ -88,7 +88,12 @@ def test_init_state_accepts_stacked_array_and_rejects_bad_shapes(refs):
     with pytest.raises(ValueError):
         init_state(S, arr[..., :6], np.random.default_rng(0))
     with pytest.raises(ValueError):
-        init_state(S, arr[0], np.random.default_rng(0))
+        init_state(S, arr[0, :-1], np.random.default_rng(0))
+    with pytest.raises(ValueError):
+        init_state(S, arr[0][None, None], np.random.default_rng(0))
+    # a single (N+1, 9) reference is an unbatched loop
+    single = init_state(S, arr[0], np.random.default_rng(0))
+    assert single.x.shape == (6,) and single.p.shape == (6, 6) and single.n.shape == ()
 
 
 def test_init_state_distribution(refs):
@@ -326,3 +331,23 @@ def test_no_floating_point_warnings_at_healthy_split(refs):
         _, metrics = _rollout(S, refs, 300, _alpha(3), np.random.default_rng(0),
                               np.random.default_rng(1))
     assert np.all(np.isfinite([m["tracking_error_m"] for m in metrics]))
+
+
+def test_unbatched_loop_equals_batch_member(refs):
+    """A single (unbatched) loop with Generator i follows drone i of a batch stepped with a list of
+    Generators: same random draws, same decisions, values equal to rounding (numpy scalars and
+    2-D matrix products may round differently from their batched forms in the last bit)."""
+    alpha = np.array([[0.2, 0.2, 0.6], [0.1, 0.05, 0.85], [0.3, 0.04, 0.66]])
+    gens = [np.random.default_rng(40 + i) for i in range(3)]
+    batch = init_state(S, refs, gens)
+    singles_rng = [np.random.default_rng(40 + i) for i in range(3)]
+    singles = [init_state(S, refs[i], singles_rng[i]) for i in range(3)]
+    for _ in range(300):
+        batch, mb = step(S, batch, alpha, gens)
+        for i in range(3):
+            singles[i], ms = step(S, singles[i], alpha[i], singles_rng[i])
+            assert mb["packet_received"][i] == ms["packet_received"]
+            np.testing.assert_allclose(batch.x[i], singles[i].x, rtol=1e-9, atol=1e-9)
+            np.testing.assert_allclose(batch.p[i], singles[i].p, rtol=1e-9, atol=1e-15)
+            for k in METRIC_KEYS:
+                np.testing.assert_allclose(mb[k][i], ms[k], rtol=1e-9, atol=1e-12)

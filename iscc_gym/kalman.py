@@ -12,7 +12,7 @@ __all__ = ["isac_observation_matrix", "kf_predict", "kf_update", "symmetrize"]
 
 def symmetrize(p):
     """:math:`(\\mathbf P + \\mathbf P^T)/2` over the last two axes."""
-    return 0.5 * (p + np.swapaxes(p, -1, -2))
+    return 0.5 * (p + p.swapaxes(-1, -2))
 
 
 def isac_observation_matrix(los_unit):
@@ -56,19 +56,26 @@ def kf_update(x, p, y, c, r):
     Parameters
     ----------
     x : (..., 6) prior mean;  p : (..., 6, 6) prior covariance
-    y : (..., m) measurement;  c : (..., m, 6);  r : (..., m, m) measurement covariance
+    y : (..., m) measurement;  c : (..., m, 6)
+    r : (..., m, m) measurement covariance, or None for a whitened measurement (identity)
 
     Returns
     -------
     x_post : (..., 6);  p_post : (..., 6, 6);  gain : (..., 6, m)
     """
-    ct = np.swapaxes(c, -1, -2)
+    ct = c.swapaxes(-1, -2)
     pct = p @ ct
-    gain = pct @ np.linalg.inv(c @ pct + r)
+    s_mat = c @ pct
+    if r is None:  # whitened measurement: unit noise covariance
+        s_mat += _eye_like(s_mat)
+    else:
+        s_mat += r
+    gain = pct @ np.linalg.inv(s_mat)
     innov = y - (c @ x[..., None])[..., 0]
     x_post = x + (gain @ innov[..., None])[..., 0]
     ikc = _eye_like(p) - gain @ c
-    p_post = ikc @ p @ np.swapaxes(ikc, -1, -2) + gain @ r @ np.swapaxes(gain, -1, -2)
+    noise = gain @ gain.swapaxes(-1, -2) if r is None else gain @ r @ gain.swapaxes(-1, -2)
+    p_post = ikc @ p @ ikc.swapaxes(-1, -2) + noise
     return x_post, symmetrize(p_post), gain
 
 

@@ -29,9 +29,9 @@ from .channel import (
 )
 from .dynamics import model_matrices
 from .fbl import min_shares, slot_link
-from .kalman import isac_observation_matrix, kf_predict, kf_update
+from .kalman import kf_predict, kf_update
 from .scenario import Scenario
-from .sensing import crlb_local, local_frame
+from .sensing import crlb_local, whitened_observation_matrix
 from .trajectory import Reference
 
 __all__ = ["LoopState", "N_DRAWS", "init_state", "step", "preview", "reference_at",
@@ -213,31 +213,13 @@ def step(s: Scenario, state: LoopState, alpha, rng):
     m_r, m_tt, m_tp, m_pp, crlb_vr = crlb_local(s, a_sen, dist, trig, shadow_db,
                                                 rician_power_gain(s, z[..., 2], z[..., 3]))
     if s.observation_source == "isac":
-        u = local_frame(los, trig)
-        # R = blkdiag(U M U^T, CRLB_vr); the noise U chol(M) z uses the 2 x 2 Cholesky in closed form
-        l11 = np.sqrt(m_tt)
-        l21 = m_tp / l11
-        m_loc = np.zeros(x.shape[:-1] + (3, 3))
-        m_loc[..., 0, 0] = m_r
-        m_loc[..., 1, 1] = m_tt
-        m_loc[..., 1, 2] = m_loc[..., 2, 1] = m_tp
-        m_loc[..., 2, 2] = m_pp
-        w_loc = np.empty(x.shape[:-1] + (3, 1))
-        w_loc[..., 0, 0] = np.sqrt(m_r) * z[..., 4]
-        w_loc[..., 1, 0] = l11 * z[..., 5]
-        w_loc[..., 2, 0] = l21 * z[..., 5] + np.sqrt(m_pp - l21 * l21) * z[..., 6]
-        r = np.zeros(x.shape[:-1] + (4, 4))
-        r[..., :3, :3] = u @ m_loc @ np.swapaxes(u, -1, -2)
-        r[..., 3, 3] = crlb_vr
-        c = isac_observation_matrix(los)
-        y = np.empty(x.shape[:-1] + (4,))
-        y[..., :3] = pos + (u @ w_loc)[..., 0]
-        y[..., 3] = (los[..., None, :] @ x[..., 3:, None])[..., 0, 0] + np.sqrt(crlb_vr) * z[..., 7]
-    else:
-        c = mm.eye6
-        r = mm.gnss_cov
-        y = x + mm.gnss_std * z[..., _MEAS]
-    x_post, p_post, _ = kf_update(state.x_hat, state.p, y, c, r)
+        # eq:observation_model, whitened: W y = W C x + z with W C from the CRLBs, z ~ N(0, I4)
+        c = whitened_observation_matrix(los, trig, m_r, m_tt, m_tp, m_pp, crlb_vr)
+        y = (c @ x[..., None])[..., 0] + z[..., 4:8]
+    else:  # GNSS: position and velocity with independent Gaussian errors, whitened likewise
+        c = mm.gnss_whiten
+        y = (c @ x[..., None])[..., 0] + z[..., _MEAS]
+    x_post, p_post, _ = kf_update(state.x_hat, state.p, y, c, None)
 
     # --- control command and its finite-blocklength delivery
     eps, rate_ctrl, rate_comm = slot_link(s, a_ctrl, a_comm, snr)

@@ -422,3 +422,26 @@ def test_crlb_local_frame_equals_inverse_of_position_information(orientation):
     info = se.position_information(s, pos, j_tau, j_ang) + np.eye(3) / s.sensing_prior_var_m2
     ref = np.linalg.inv(info)
     np.testing.assert_allclose(crlb_p, ref, rtol=1e-7, atol=1e-12 * s.sensing_prior_var_m2)
+
+
+def test_whitened_observation_carries_the_same_information():
+    """(W C)^T (W C) = C^T Sigma_v^{-1} C with Sigma_v = blkdiag(CRLB_p, CRLB_vr) from crlb()."""
+    from iscc_gym.kalman import isac_observation_matrix
+
+    s = Scenario()
+    rng = np.random.default_rng(5)
+    pos = np.column_stack([rng.uniform(-600, 600, 30), rng.uniform(-600, 600, 30),
+                           rng.uniform(101, 300, 30)])
+    alpha, shadow, fade = 0.2, 0.4, 0.9
+    dist, _, _, los = ch.geometry(s, pos)
+    trig = ch.direction_trig(los)
+    m = se.crlb_local(s, alpha, dist, trig, shadow, fade)
+    wc = se.whitened_observation_matrix(los, trig, *m)
+    crlb_p, crlb_vr = se.crlb(s, alpha, pos, shadow, fade)
+    sig = np.zeros((30, 4, 4))
+    sig[:, :3, :3] = crlb_p
+    sig[:, 3, 3] = crlb_vr
+    c = isac_observation_matrix(los)
+    info = np.swapaxes(c, -1, -2) @ np.linalg.inv(sig) @ c
+    got = np.swapaxes(wc, -1, -2) @ wc
+    np.testing.assert_allclose(got, info, rtol=1e-6, atol=1e-9 * np.max(np.abs(info)))

@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from . import loop
+from . import kernel, loop
 from .scenario import Scenario, make_scenario
 from .stability import scenario_eps_star
 from .trajectory import sample_reference
@@ -59,13 +60,24 @@ def _symlog(x, scale):
 _REF_SCALE = np.array([0.1, 0.1, 0.1, 1.0, 1.0, 1.0])
 
 
-def observe(s: Scenario, state: loop.LoopState, last_received, last_peb_m, eps_star: float):
-    """The observation of :class:`ISCCEnv` (table in its docstring), shape (..., 23), float32.
+def observe(s: Scenario, state: loop.LoopState, last_received, last_peb_m):
+    """The observation of :class:`ISCCEnv` (table in its docstring), shape (B, 23), float32.
 
-    A pure function of the loop state (one loop or a batch) and the last slot's outcome, so the
-    single env and any vector env build it the same way.
+    A pure function of a batch of loop states and the last slot's outcome (arrays of shape (B,)),
+    so the single env and any vector env build it the same way. Evaluates
+    :func:`observe_reference` with the compiled kernel where it covers the scenario.
     """
-    pv = loop.preview(s, state, eps_star)
+    if not kernel.supported(s) or state.x.ndim != 2:
+        return observe_reference(s, state, last_received, last_peb_m)
+    nb = state.x.shape[0]
+    return kernel.observe_batch(kernel.kernel_constants(s)[0], state.x_hat, state.p, state.shadow, state.n, state.ref,
+                                np.broadcast_to(np.asarray(last_received, dtype=float), (nb,)),
+                                np.broadcast_to(np.asarray(last_peb_m, dtype=float), (nb,)))
+
+
+def observe_reference(s: Scenario, state: loop.LoopState, last_received, last_peb_m):
+    """:func:`observe` in numpy (one loop or a batch): the readable definition of the observation."""
+    pv = loop.preview(s, state, scenario_eps_star(s))
     ref = loop.reference_at(state)
     cos_az, sin_az, _, sin_el = pv["trig"]
     p = state.p
@@ -86,6 +98,72 @@ def observe(s: Scenario, state: loop.LoopState, last_received, last_peb_m, eps_s
     # every entry is finite by construction (floors in min_shares, prior in the CRLB); the clip
     # keeps divergent states inside the box
     return np.minimum(np.maximum(obs, -OBS_BOUND), OBS_BOUND).astype(np.float32)
+
+
+def reward_and_costs(s: Scenario, metrics: dict, n_next):
+    """Costs, reward and episode end of a slot from :func:`iscc_gym.loop.step`'s metrics (numpy,
+    any batch shape): ``(cost_rate, cost_stability, reward, terminated, truncated)``.
+
+    Reward and penalty as in :class:`ISCCEnv`'s docstring; ``n_next`` is the slot index after the step.
+    """
+    err, rate, eps = metrics["tracking_error_m"], metrics["rate_comm_bps"], metrics["eps_ctrl"]
+    if s.rate_min_bps > 0:
+        cost_rate = np.maximum(0.0, s.rate_min_bps - rate) / s.rate_min_bps
+    else:
+        cost_rate = np.zeros_like(rate)
+    cost_stab = (eps > scenario_eps_star(s)).astype(float)
+    terminated = np.asarray(metrics["diverged"], dtype=bool)
+    reward = -np.where(err <= s.max_tracking_error_m, err, s.max_tracking_error_m) \
+        - s.w_rate * cost_rate - s.w_stab * cost_stab
+    reward = reward - np.where(terminated, s.max_tracking_error_m * (s.n_slots - n_next), 0.0)
+    truncated = ~terminated & (n_next >= s.n_slots)
+    return cost_rate, cost_stab, reward, terminated, truncated
+
+
+#: Columns of the per-loop output array of :func:`env_step`.
+STEP_COLUMNS = kernel.METRIC_NAMES + kernel.ENV_COLUMNS
+
+
+def env_step(s: Scenario, state: loop.LoopState, actions, rng):
+    """One env step of a batch of loops: action map, slot transition, reward, costs, next observation.
+
+    The single env (a batch of one) and the vector env both call it, so drone i of a batch
+    reproduces the single env seeded alike bit for bit.
+
+    Parameters
+    ----------
+    state : LoopState (batched, B loops)
+    actions : ndarray (B, 3), finite
+    rng : sequence of B Generators (one per loop)
+
+    Returns
+    -------
+    state : LoopState
+    out : ndarray (B, len(STEP_COLUMNS))
+        :data:`STEP_COLUMNS`: the loop metrics, the applied split, ``cost_rate``,
+        ``cost_stability``, ``reward``, ``terminated`` and ``truncated`` (0/1).
+    obs : ndarray (B, 23) float32
+    """
+    z = loop.standard_normals(rng, state.x.shape[0])
+    if kernel.supported(s):
+        c, mats = kernel.kernel_constants(s)
+        x, x_hat, p, shadow, out, obs = kernel.env_step_batch(c, mats, state.x, state.x_hat, state.p,
+                                                              state.shadow, state.n, state.ref,
+                                                              actions, z)
+        return loop.LoopState(x=x, x_hat=x_hat, p=p, shadow=shadow, n=state.n + 1, ref=state.ref), out, obs
+    return env_step_reference(s, state, actions, z)
+
+
+def env_step_reference(s: Scenario, state: loop.LoopState, actions, z):
+    """:func:`env_step` in numpy from pre-drawn normals ``z`` (B, N_DRAWS): the readable definition."""
+    alpha = action_to_split(actions)
+    new, m = loop.step_reference(s, state, alpha, None, z=z)
+    costs = reward_and_costs(s, m, new.n)
+    cols = [np.asarray(m[k], dtype=float) for k in kernel.METRIC_NAMES]
+    cols += [alpha[:, 0], alpha[:, 1], alpha[:, 2]] + [np.asarray(v, dtype=float) for v in costs]
+    out = np.stack(cols, axis=-1)
+    obs = observe_reference(s, new, out[:, 7], out[:, 4])
+    return new, out, obs
 
 
 class ISCCEnv(gym.Env):
@@ -222,27 +300,17 @@ class ISCCEnv(gym.Env):
         a = np.asarray(action, dtype=np.float64)
         if a.shape != (3,):
             raise ValueError(f"action must have shape (3,), got {a.shape}")
-        if not np.isfinite(a).all():
+        a0, a1, a2 = a.tolist()
+        if not (math.isfinite(a0) and math.isfinite(a1) and math.isfinite(a2)):
             raise ValueError(f"action {a.tolist()} contains NaN or inf; pass finite values in [-1, 1]")
         s = self.scenario
         if self._state.n[0] >= s.n_slots:
             raise RuntimeError("the mission is over (truncated); call reset() before step()")
-        alpha = action_to_split(a)
-        self._state, m = loop.step(s, self._state, alpha[None], [self.np_random])
-        m = {k: v[0] for k, v in m.items()}
-        err = float(m["tracking_error_m"])
-        rate = float(m["rate_comm_bps"])
-        eps = float(m["eps_ctrl"])
-        cost_rate = max(0.0, s.rate_min_bps - rate) / s.rate_min_bps if s.rate_min_bps > 0 else 0.0
-        cost_stab = float(eps > self.eps_star)
-        terminated = bool(m["diverged"])
+        self._state, out, obs = env_step(s, self._state, a[None], [self.np_random])
+        (err, est, snr_db, snr_ls_db, peb, veb, eps, received, rate, rate_ctrl, _, al_sen, al_ctrl,
+         al_comm, cost_rate, cost_stab, reward, terminated, truncated) = out[0].tolist()
+        self._last_received, self._last_peb = received == 1.0, peb
         n = int(self._state.n[0])
-        truncated = (not terminated) and n >= s.n_slots
-        reward = -min(err, s.max_tracking_error_m) - s.w_rate * cost_rate - s.w_stab * cost_stab
-        if terminated:
-            reward -= s.max_tracking_error_m * (s.n_slots - n)
-        self._last_received = bool(m["packet_received"])
-        self._last_peb = float(m["peb_m"])
         if self.render_mode is not None:
             self._history["pos"].append(self._state.x[0, :3].copy())
             self._history["err"].append(err)
@@ -251,20 +319,20 @@ class ISCCEnv(gym.Env):
             "cost_rate": cost_rate,
             "cost_stability": cost_stab,
             "cost": cost_rate + cost_stab,
-            "snr_db": float(m["snr_db"]),
-            "snr_large_scale_db": float(m["snr_large_scale_db"]),
-            "peb_m": self._last_peb,
-            "veb_mps": float(m["veb_mps"]),
+            "snr_db": snr_db,
+            "snr_large_scale_db": snr_ls_db,
+            "peb_m": peb,
+            "veb_mps": veb,
             "eps_ctrl": eps,
             "packet_received": self._last_received,
             "rate_comm_bps": rate,
-            "rate_ctrl_bps": float(m["rate_ctrl_bps"]),
-            "estimation_error_m": float(m["estimation_error_m"]),
-            "alpha": alpha,
+            "rate_ctrl_bps": rate_ctrl,
+            "estimation_error_m": est,
+            "alpha": np.array((al_sen, al_ctrl, al_comm)),
             "action": a.astype(np.float32),
             "slot": n,
         }
-        return self._observation(), reward, terminated, truncated, info
+        return obs[0], reward, terminated == 1.0, truncated == 1.0, info
 
     def render(self):
         if self.render_mode != "rgb_array":
@@ -278,8 +346,7 @@ class ISCCEnv(gym.Env):
         return {"slot": 0, "alpha": np.full(3, 1.0 / 3.0)}
 
     def _observation(self) -> np.ndarray:
-        return observe(self.scenario, self._state, self._last_received, self._last_peb,
-                       self.eps_star)[0]
+        return observe(self.scenario, self._state, self._last_received, self._last_peb)[0]
 
 
 def _render_rgb(state: loop.LoopState, history: dict, s: Scenario) -> np.ndarray:

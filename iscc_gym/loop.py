@@ -17,8 +17,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import ndtri
 
+from . import kernel
 from .channel import (
     beam_gain,
     direction_trig,
@@ -28,13 +28,13 @@ from .channel import (
     shadowing_step,
 )
 from .dynamics import model_matrices
-from .fbl import min_shares, slot_link
+from .fbl import min_shares, q_func, slot_link
 from .kalman import kf_predict, kf_update
 from .scenario import Scenario
 from .sensing import crlb_local, whitened_observation_matrix
 from .trajectory import Reference
 
-__all__ = ["LoopState", "N_DRAWS", "init_state", "step", "preview", "reference_at",
+__all__ = ["LoopState", "N_DRAWS", "init_state", "step", "step_reference", "preview", "reference_at",
            "standard_normals", "stack_references", "reference_array"]
 
 #: Standard normals drawn per drone per slot: fading (4), measurement (6), drop (1),
@@ -161,6 +161,42 @@ def _norm(v):
 def step(s: Scenario, state: LoopState, alpha, rng):
     """Advance every loop by one slot.
 
+    Evaluates :func:`step_reference`'s equations with the compiled kernel
+    (:mod:`iscc_gym.kernel`) where it covers the scenario, else with numpy; the two agree to
+    rounding (``tests/test_kernel.py``). Parameters, returns and randomness as
+    :func:`step_reference`.
+    """
+    if not kernel.supported(s):
+        return step_reference(s, state, alpha, rng)
+    alpha = np.asarray(alpha, dtype=float)
+    x = state.x
+    batch = None if x.ndim == 1 else x.shape[0]
+    _check_step(s, state, alpha)
+    z = standard_normals(rng, batch)
+    if batch is None:  # a batch of one, squeezed back
+        out = kernel.step_batch(*kernel.kernel_constants(s), x[None], state.x_hat[None], state.p[None],
+                                state.shadow[None], state.n[None], state.ref[None], alpha[None], z[None])
+        x_n, xh_n, p_n, sh_n, met = (v[0] for v in out)
+    else:
+        x_n, xh_n, p_n, sh_n, met = kernel.step_batch(*kernel.kernel_constants(s), x, state.x_hat,
+                                                      state.p, state.shadow, state.n, state.ref,
+                                                      alpha, z)
+    metrics = dict(zip(kernel.METRIC_NAMES, met.T, strict=True))
+    metrics["packet_received"] = metrics["packet_received"] > 0.5
+    metrics["diverged"] = metrics["diverged"] > 0.5
+    return LoopState(x=x_n, x_hat=xh_n, p=p_n, shadow=sh_n, n=state.n + 1, ref=state.ref), metrics
+
+
+def _check_step(s: Scenario, state: LoopState, alpha: np.ndarray) -> None:
+    if alpha.shape != state.x.shape[:-1] + (3,):
+        raise ValueError(f"alpha must have shape {state.x.shape[:-1] + (3,)}, got {alpha.shape}")
+    if state.n.max() >= s.n_slots:
+        raise ValueError("a loop is past the last slot of the mission; reset it first")
+
+
+def step_reference(s: Scenario, state: LoopState, alpha, rng, z=None):
+    """Advance every loop by one slot, in numpy: the readable definition of the transition.
+
     Parameters
     ----------
     s : Scenario
@@ -169,6 +205,8 @@ def step(s: Scenario, state: LoopState, alpha, rng):
     alpha : array_like, shape (3,) or (B, 3)
         Applied split (alpha_sen, alpha_ctrl, alpha_comm), non-negative, summing to 1.
     rng : Generator, or a sequence of B Generators for a batch
+    z : ndarray (N_DRAWS,) or (B, N_DRAWS), optional
+        The slot's standard normals, drawn already (then ``rng`` is not used).
 
     Returns
     -------
@@ -190,12 +228,10 @@ def step(s: Scenario, state: LoopState, alpha, rng):
     alpha = np.asarray(alpha, dtype=float)
     x = state.x
     batch = None if x.ndim == 1 else x.shape[0]
-    if alpha.shape != x.shape[:-1] + (3,):
-        raise ValueError(f"alpha must have shape {x.shape[:-1] + (3,)}, got {alpha.shape}")
+    _check_step(s, state, alpha)
     n = state.n
-    if n.max() >= s.n_slots:
-        raise ValueError("a loop is past the last slot of the mission; reset it first")
-    z = standard_normals(rng, batch)
+    if z is None:
+        z = standard_normals(rng, batch)
     ref_n = _at(state.ref, n)
     pos = x[..., :3]
     a_sen, a_ctrl, a_comm = alpha[..., 0], alpha[..., 1], alpha[..., 2]
@@ -227,7 +263,7 @@ def step(s: Scenario, state: LoopState, alpha, rng):
         u_cmd = -(mm.k @ (x_post - ref_n[..., :6])[..., None])[..., 0]
         if s.reference_feedforward:
             u_cmd = u_cmd + ref_n[..., 6:]
-        received = z[..., _DROP] >= ndtri(eps)  # P = 1 - eps
+        received = (eps < 1.0) & (q_func(-z[..., _DROP]) >= eps)  # Phi(z) >= eps: P = 1 - eps
         u_applied = u_cmd * np.asarray(received)[..., None]
     else:  # open loop: the reference acceleration is stored on board, no link involved
         received = np.ones(x.shape[:-1], dtype=bool)

@@ -124,7 +124,7 @@ def reward_and_costs(s: Scenario, metrics: dict, n_next):
 STEP_COLUMNS = kernel.METRIC_NAMES + kernel.ENV_COLUMNS
 
 
-def env_step(s: Scenario, state: loop.LoopState, actions, rng):
+def env_step(s: Scenario, state: loop.LoopState, actions, normals):
     """One env step of a batch of loops: action map, slot transition, reward, costs, next observation.
 
     The single env (a batch of one) and the vector env both call it, so drone i of a batch
@@ -134,7 +134,8 @@ def env_step(s: Scenario, state: loop.LoopState, actions, rng):
     ----------
     state : LoopState (batched, B loops)
     actions : ndarray (B, 3), finite
-    rng : sequence of B Generators (one per loop)
+    normals : ndarray (B, N_DRAWS)
+        The slot's standard normals (:class:`iscc_gym.loop.SlotNormals`).
 
     Returns
     -------
@@ -144,7 +145,7 @@ def env_step(s: Scenario, state: loop.LoopState, actions, rng):
         ``cost_stability``, ``reward``, ``terminated`` and ``truncated`` (0/1).
     obs : ndarray (B, 23) float32
     """
-    z = loop.standard_normals(rng, state.x.shape[0])
+    z = normals
     if kernel.supported(s):
         c, mats = kernel.kernel_constants(s)
         x, x_hat, p, shadow, out, obs = kernel.env_step_batch(c, mats, state.x, state.x_hat, state.p,
@@ -290,6 +291,7 @@ class ISCCEnv(gym.Env):
         ref = sample_reference(s, self.np_random)
         # a batch of one: bit-identical to the same drone in any batch (the vector env)
         self._state = loop.init_state(s, [ref], [self.np_random])
+        self._normals = loop.SlotNormals([self.np_random])
         self._last_received, self._last_peb = True, 0.0
         self._history = {"pos": [self._state.x[0, :3].copy()], "err": []}
         return self._observation(), self._reset_info()
@@ -306,7 +308,7 @@ class ISCCEnv(gym.Env):
         s = self.scenario
         if self._state.n[0] >= s.n_slots:
             raise RuntimeError("the mission is over (truncated); call reset() before step()")
-        self._state, out, obs = env_step(s, self._state, a[None], [self.np_random])
+        self._state, out, obs = env_step(s, self._state, a[None], self._normals.next())
         (err, est, snr_db, snr_ls_db, peb, veb, eps, received, rate, rate_ctrl, _, al_sen, al_ctrl,
          al_comm, cost_rate, cost_stab, reward, terminated, truncated) = out[0].tolist()
         self._last_received, self._last_peb = received == 1.0, peb

@@ -98,7 +98,7 @@ def kernel_constants(s: Scenario):
 
 # --- scalar building blocks (each mirrors a numpy function named in its docstring) ----------------
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _direction(c, px, py, pz):
     """channel.direction_trig of the LoS vector from the GBS antenna: (dist, g, trig)."""
     rx, ry, rz = px, py, pz - c[_H]
@@ -110,27 +110,27 @@ def _direction(c, px, py, pz):
     return dist, gx, gy, gz, gx * inv + zenith, gy * inv, cp, gz
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _large_scale_snr(c, dist, shadow_db):
     """channel.link_snr with the matched beam gain."""
     return c[_SNR_K] * c[_BEAM_G] * dist ** -2.2 * 10.0 ** (-0.1 * shadow_db)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _link_terms(snr):
     """fbl.link_terms: log2(1 + snr) and sqrt(V(snr))."""
     g1 = 1.0 + snr
     return math.log2(g1), 1.4426950408889634 * math.sqrt(snr * (2.0 + snr)) / g1
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _symlog(x, scale):
     """env._symlog."""
     s = 1.0 if x > 0 else (-1.0 if x < 0 else 0.0)
     return s * math.log1p(abs(x) * (1.0 / scale))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _observe_one(c, x_hat, p, shadow, n, ref, last_received, last_peb, out):
     """env.observe_reference for one drone (loop.preview + the observation table)."""
     dist, gx, gy, gz, ct, st, cp, sp = _direction(c, x_hat[0], x_hat[1], x_hat[2])
@@ -159,7 +159,7 @@ def _observe_one(c, x_hat, p, shadow, n, ref, last_received, last_peb, out):
         out[j] = min(max(out[j], -10.0), 10.0)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def observe_batch(c, x_hat, p, shadow, n, ref, last_received, last_peb):
     """The (B, 23) float32 observation of a batch (env.observe_reference)."""
     nb = x_hat.shape[0]
@@ -170,7 +170,7 @@ def observe_batch(c, x_hat, p, shadow, n, ref, last_received, last_peb):
     return out.astype(np.float32)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _crlb_local(c, a_sen, dist, ct, st, cp, sp, shadow_db, fading):
     """sensing.crlb_local with the matched beamformer (sensing.matched_signature_terms,
     sensing.fim_terms, sensing.echo_amplitude_sq)."""
@@ -206,7 +206,7 @@ def _crlb_local(c, a_sen, dist, ct, st, cp, sp, shadow_db, fading):
     return m_r, d * inv_det, -b * inv_det, a * inv_det, crlb_vr
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _mm(a, b, out):
     """out = a @ b for small matrices (plain loops: no BLAS call per 6 x 6 product)."""
     for i in range(a.shape[0]):
@@ -217,7 +217,7 @@ def _mm(a, b, out):
             out[i, j] = acc
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _mmt(a, b, out):
     """out = a @ b.T for small matrices."""
     for i in range(a.shape[0]):
@@ -228,7 +228,29 @@ def _mmt(a, b, out):
             out[i, j] = acc
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy", inline="always")
+def _mm66(a, b, out):
+    """out = a @ b for 6 x 6 matrices (fixed bounds: unrolled by the compiler)."""
+    for i in range(6):
+        for j in range(6):
+            acc = 0.0
+            for k in range(6):
+                acc += a[i, k] * b[k, j]
+            out[i, j] = acc
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _mmt66(a, b, out):
+    """out = a @ b.T for 6 x 6 matrices."""
+    for i in range(6):
+        for j in range(6):
+            acc = 0.0
+            for k in range(6):
+                acc += a[i, k] * b[j, k]
+            out[i, j] = acc
+
+
+@njit(cache=True, error_model="numpy")
 def _spd_inverse(s_mat, out, low):
     """Inverse of a small symmetric positive-definite matrix through its Cholesky factor."""
     m = s_mat.shape[0]
@@ -256,7 +278,7 @@ def _spd_inverse(s_mat, out, low):
             out[i, col] = acc / low[i, i]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _kf_update(x, p, y, w, x_post, p_post, scratch):
     """kalman.kf_update with a whitened measurement (unit noise), Joseph form, symmetrised."""
     m = w.shape[0]
@@ -268,28 +290,29 @@ def _kf_update(x, p, y, w, x_post, p_post, scratch):
         s_mat[i, i] += 1.0
     _spd_inverse(s_mat, s_inv, low)
     _mm(pwt, s_inv, gain)
+    innov = y.copy()
+    for j in range(m):
+        for k in range(6):
+            innov[j] -= w[j, k] * x[k]
     for i in range(6):
         acc = 0.0
         for j in range(m):
-            innov = y[j]
-            for k in range(6):
-                innov -= w[j, k] * x[k]
-            acc += gain[i, j] * innov
+            acc += gain[i, j] * innov[j]
         x_post[i] = x[i] + acc
     _mm(gain, w, ikc)
     for i in range(6):
         for j in range(6):
             ikc[i, j] = -ikc[i, j]
         ikc[i, i] += 1.0
-    _mm(ikc, p, tmp)
-    _mmt(tmp, ikc, joseph)
+    _mm66(ikc, p, tmp)
+    _mmt66(tmp, ikc, joseph)
     _mmt(gain, gain, tmp)
     for i in range(6):
         for j in range(6):
             p_post[i, j] = 0.5 * ((joseph[i, j] + tmp[i, j]) + (joseph[j, i] + tmp[j, i]))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _step_one(c, mats, xi, x_hat, p, shadow, ni, ref, a_sen, a_ctrl, a_comm, zi,
               x_next, x_hat_next, p_next, mt, work):
     """loop.step_reference for one drone; writes the next state and the metrics row ``mt``
@@ -371,8 +394,8 @@ def _step_one(c, mats, xi, x_hat, p, shadow, ni, ref, a_sen, a_ctrl, a_comm, zi,
             axh += a_mat[j, k] * x_post[k]
         x_next[j] = ax + bu[j] + mats[_DIAGS, 0, j] * zi[11 + j]
         x_hat_next[j] = axh + bu[j]
-    _mm(a_mat, p_post, scratch[6])
-    _mmt(scratch[6], a_mat, pa)
+    _mm66(a_mat, p_post, scratch[6])
+    _mmt66(scratch[6], a_mat, pa)
     for j in range(6):
         for k in range(6):
             p_next[j, k] = 0.5 * ((pa[j, k] + sigma_w[j, k]) + (pa[k, j] + sigma_w[k, j]))
@@ -398,15 +421,18 @@ def _step_one(c, mats, xi, x_hat, p, shadow, ni, ref, a_sen, a_ctrl, a_comm, zi,
     return shadow_next
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _work():
-    scratch = (np.empty((6, 6)), np.empty((6, 6)), np.empty((6, 6)), np.zeros((6, 6)), np.empty((6, 6)),
-               np.empty((6, 6)), np.empty((6, 6)), np.empty((6, 6)))
-    return (np.zeros((4, 6)), np.zeros((6, 6)), np.empty(6), np.empty(6), np.empty((6, 6)), np.empty(3),
-            np.empty(6), np.empty((6, 6)), scratch)
+    """Scratch space of one drone's slot, carved out of one allocation (zeros where only some
+    entries are written: the observation matrices and the Cholesky factor)."""
+    buf = np.zeros(13 * 36 + 21)
+    mats = buf[:13 * 36].reshape(13, 6, 6)
+    vec = buf[13 * 36:]
+    scratch = (mats[0], mats[1], mats[2], mats[3], mats[4], mats[5], mats[6], mats[7])
+    return (mats[8, :4], mats[9], vec[0:6], vec[6:12], mats[10], vec[12:15], vec[15:21], mats[11], scratch)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def step_batch(c, mats, x, x_hat, p, shadow, n, ref, alpha, z):
     """loop.step_reference for a batch: ``(x, x_hat, p, shadow, metrics (B, N_METRICS))``."""
     nb = x.shape[0]
@@ -427,7 +453,7 @@ ENV_COLUMNS = ("alpha_sen", "alpha_ctrl", "alpha_comm", "cost_rate", "cost_stabi
 N_ENV_COLUMNS = N_METRICS + len(ENV_COLUMNS)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def env_step_batch(c, mats, x, x_hat, p, shadow, n, ref, action, z):
     """One env step of a batch (env.env_step_reference): action -> split (env.action_to_split), slot
     transition, reward and costs (env.reward_and_costs), next observation (env.observe_reference).

@@ -35,7 +35,7 @@ from .sensing import crlb_local, whitened_observation_matrix
 from .trajectory import Reference
 
 __all__ = ["LoopState", "N_DRAWS", "init_state", "step", "step_reference", "preview", "reference_at",
-           "standard_normals", "stack_references", "reference_array"]
+           "standard_normals", "stack_references", "reference_array", "SlotNormals"]
 
 #: Standard normals drawn per drone per slot: fading (4), measurement (6), drop (1),
 #: process noise (6), shadowing (1).
@@ -94,6 +94,52 @@ def standard_normals(rng, batch: int | None, k: int = N_DRAWS):
             return rng[0].standard_normal((1, k))
         return np.stack([r.standard_normal(k) for r in rng])
     raise TypeError("rng must be a numpy Generator or a sequence of one Generator per drone")
+
+
+class SlotNormals:
+    """Per-loop streams of each slot's :data:`N_DRAWS` standard normals, drawn from each loop's own
+    Generator in blocks of ``block_slots`` slots (one Generator call per block instead of per slot).
+
+    Loop i's normals depend only on Generator i, so a batch reproduces single loops bit for bit.
+    :meth:`restart` discards the rest of a loop's block (call it at every episode reset, after the
+    trajectory is drawn), so an episode's normals depend only on the Generator state at its reset.
+
+    Parameters
+    ----------
+    rngs : sequence of B numpy Generators
+    block_slots : int
+    """
+
+    def __init__(self, rngs: Sequence[np.random.Generator], block_slots: int = 64):
+        if block_slots < 1:
+            raise ValueError(f"block_slots = {block_slots}; use an integer >= 1")
+        self.rngs = list(rngs)
+        self.block_slots = int(block_slots)
+        self._buf = np.empty((len(self.rngs), self.block_slots, N_DRAWS))
+        self._pos = np.full(len(self.rngs), self.block_slots)
+        self._rows = np.arange(len(self.rngs))
+
+    def restart(self, i: int) -> None:
+        """Start loop i's stream afresh from its Generator (at the next draw)."""
+        self._pos[i] = self.block_slots
+
+    def next(self, idx=None) -> np.ndarray:
+        """The next slot's normals of every loop (or of loops ``idx``), shape (B, N_DRAWS)."""
+        pos, k = self._pos, self.block_slots
+        if len(self.rngs) == 1 and idx is None:  # the single env's hot path
+            if pos[0] == k:
+                self._buf[0] = self.rngs[0].standard_normal((k, N_DRAWS))
+                pos[0] = 0
+            z = self._buf[0, pos[0]:pos[0] + 1]
+            pos[0] += 1
+            return z
+        rows = self._rows if idx is None else np.asarray(idx)
+        for i in rows[pos[rows] == k]:
+            self._buf[i] = self.rngs[i].standard_normal((k, N_DRAWS))
+            pos[i] = 0
+        z = self._buf[rows, pos[rows]]
+        pos[rows] += 1
+        return z
 
 
 def stack_references(refs: Sequence[Reference]):

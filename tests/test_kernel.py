@@ -101,7 +101,7 @@ def test_env_step_batch_equals_single_env_steps_bit_for_bit():
     rb = [np.random.default_rng(200 + i) for i in range(b)]
     outs, obss = [], []
     for t in range(120):
-        batch, out, obs = E.env_step(s, batch, acts[t], rb)
+        batch, out, obs = E.env_step(s, batch, acts[t], loop.standard_normals(rb, b))
         outs.append(out)
         obss.append(obs)
     full = _batch(s, b, seed=7)
@@ -110,7 +110,7 @@ def test_env_step_batch_equals_single_env_steps_bit_for_bit():
                              shadow=full.shadow[i:i + 1], n=full.n[i:i + 1], ref=full.ref[i:i + 1])
         r = [np.random.default_rng(200 + i)]
         for t in range(120):
-            one, out, obs = E.env_step(s, one, acts[t, i:i + 1], r)
+            one, out, obs = E.env_step(s, one, acts[t, i:i + 1], loop.standard_normals(r, 1))
             assert np.array_equal(out[0], outs[t][i])
             assert np.array_equal(obs[0], obss[t][i])
 
@@ -121,7 +121,7 @@ def test_unsupported_scenario_falls_back_to_numpy():
     state = _batch(s, 2)
     z = loop.standard_normals([np.random.default_rng(0), np.random.default_rng(1)], 2)
     _, out, obs = E.env_step_reference(s, state, np.zeros((2, 3)), z)
-    _, out2, obs2 = E.env_step(s, state, np.zeros((2, 3)), [np.random.default_rng(0), np.random.default_rng(1)])
+    _, out2, obs2 = E.env_step(s, state, np.zeros((2, 3)), z)
     assert np.array_equal(out, out2) and np.array_equal(obs, obs2)
 
 
@@ -140,3 +140,20 @@ def test_observation_kernel_matches_reference_on_extreme_states():
     ref = E.observe_reference(s, state, last_rx, last_peb)
     assert np.all(np.isfinite(obs)) and np.all(np.abs(obs) <= E.OBS_BOUND)
     np.testing.assert_allclose(obs, ref, rtol=1e-6, atol=1e-6)
+
+
+def test_slot_normals_blocks_reproduce_per_slot_draws():
+    """Block draws are the same stream as per-slot draws; a restart starts from the Generator."""
+    streams = loop.SlotNormals([np.random.default_rng(4), np.random.default_rng(5)], block_slots=3)
+    direct = [np.random.default_rng(4), np.random.default_rng(5)]
+    for _ in range(7):
+        np.testing.assert_array_equal(streams.next(), loop.standard_normals(direct, 2))
+    one = loop.SlotNormals([np.random.default_rng(4)], block_slots=3)
+    g = np.random.default_rng(4)
+    np.testing.assert_array_equal(one.next(), g.standard_normal((1, loop.N_DRAWS)))
+    g.standard_normal((2, loop.N_DRAWS))  # the rest of the block, discarded by restart
+    one.restart(0)
+    np.testing.assert_array_equal(one.next(), g.standard_normal((1, loop.N_DRAWS)))
+    np.testing.assert_array_equal(streams.next([1]), loop.standard_normals(direct[1:], 1))
+    with pytest.raises(ValueError, match="block_slots"):
+        loop.SlotNormals([g], block_slots=0)

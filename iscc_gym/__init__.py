@@ -19,5 +19,6 @@ ENV_ID = "iscc_gym/ISCC-v0"
 
 if ENV_ID not in _gym.registry:
     _gym.register(id=ENV_ID, entry_point="iscc_gym.env:ISCCEnv",
+                  vector_entry_point="iscc_gym.vector:ISCCVectorEnv",
                   max_episode_steps=SCENARIOS["paper"].n_slots)
 __version__ = "0.1.0"

@@ -120,11 +120,14 @@ def reward_and_costs(s: Scenario, metrics: dict, n_next):
     return cost_rate, cost_stab, reward, terminated, truncated
 
 
+#: Batches at least this large are stepped on all cores (same results bit for bit).
+PARALLEL_MIN_BATCH = 256
+
 #: Columns of the per-loop output array of :func:`env_step`.
 STEP_COLUMNS = kernel.METRIC_NAMES + kernel.ENV_COLUMNS
 
 
-def env_step(s: Scenario, state: loop.LoopState, actions, normals):
+def env_step(s: Scenario, state: loop.LoopState, actions, normals, active=None):
     """One env step of a batch of loops: action map, slot transition, reward, costs, next observation.
 
     The single env (a batch of one) and the vector env both call it, so drone i of a batch
@@ -136,6 +139,8 @@ def env_step(s: Scenario, state: loop.LoopState, actions, normals):
     actions : ndarray (B, 3), finite
     normals : ndarray (B, N_DRAWS)
         The slot's standard normals (:class:`iscc_gym.loop.SlotNormals`).
+    active : ndarray (B,) bool, optional
+        Loops to step (default all); the others keep their state, slot index and zero outputs.
 
     Returns
     -------
@@ -145,14 +150,30 @@ def env_step(s: Scenario, state: loop.LoopState, actions, normals):
         ``cost_stability``, ``reward``, ``terminated`` and ``truncated`` (0/1).
     obs : ndarray (B, 23) float32
     """
-    z = normals
+    nb = state.x.shape[0]
+    all_active = active is None
+    if all_active:
+        active = np.ones(nb, dtype=bool)
     if kernel.supported(s):
         c, mats = kernel.kernel_constants(s)
-        x, x_hat, p, shadow, out, obs = kernel.env_step_batch(c, mats, state.x, state.x_hat, state.p,
-                                                              state.shadow, state.n, state.ref,
-                                                              actions, z)
-        return loop.LoopState(x=x, x_hat=x_hat, p=p, shadow=shadow, n=state.n + 1, ref=state.ref), out, obs
-    return env_step_reference(s, state, actions, z)
+        fn = kernel.env_step_batch_parallel if nb >= PARALLEL_MIN_BATCH else kernel.env_step_batch
+        x, x_hat, p, shadow, out, obs = fn(c, mats, state.x, state.x_hat, state.p, state.shadow, state.n,
+                                           state.ref, actions, normals, active)
+        n = state.n + 1 if all_active else state.n + active
+        return loop.LoopState(x=x, x_hat=x_hat, p=p, shadow=shadow, n=n, ref=state.ref), out, obs
+    if all_active:
+        return env_step_reference(s, state, actions, normals)
+    idx = np.flatnonzero(active)
+    sub = loop.LoopState(x=state.x[idx], x_hat=state.x_hat[idx], p=state.p[idx], shadow=state.shadow[idx],
+                         n=state.n[idx], ref=state.ref[idx])
+    sub, sub_out, sub_obs = env_step_reference(s, sub, actions[idx], normals[idx])
+    fields = {f: getattr(state, f).copy() for f in ("x", "x_hat", "p", "shadow", "n")}
+    for f, arr in fields.items():
+        arr[idx] = getattr(sub, f)
+    out = np.zeros((nb, sub_out.shape[1]))
+    obs = np.zeros((nb, sub_obs.shape[1]), np.float32)
+    out[idx], obs[idx] = sub_out, sub_obs
+    return loop.LoopState(ref=state.ref, **fields), out, obs
 
 
 def env_step_reference(s: Scenario, state: loop.LoopState, actions, z):

@@ -23,7 +23,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from .channel import _rician_constants, _snr_constant, matched_gain
 from .dynamics import model_matrices
@@ -454,20 +454,18 @@ N_ENV_COLUMNS = N_METRICS + len(ENV_COLUMNS)
 
 
 @njit(cache=True, error_model="numpy")
-def env_step_batch(c, mats, x, x_hat, p, shadow, n, ref, action, z):
-    """One env step of a batch (env.env_step_reference): action -> split (env.action_to_split), slot
-    transition, reward and costs (env.reward_and_costs), next observation (env.observe_reference).
-
-    Returns ``(x, x_hat, p, shadow, out (B, N_ENV_COLUMNS), obs (B, 23) float32)``.
-    """
-    nb = x.shape[0]
-    x_next, x_hat_next = np.empty((nb, 6)), np.empty((nb, 6))
-    p_next, shadow_next = np.empty((nb, 6, 6)), np.empty(nb)
-    out = np.empty((nb, N_ENV_COLUMNS))
-    obs = np.empty((nb, 23))
+def _env_rows(c, mats, x, x_hat, p, shadow, n, ref, action, z, active, lo, hi,
+              x_next, x_hat_next, p_next, shadow_next, out, obs):
+    """env_step_batch for rows lo..hi-1, writing into the output arrays."""
     work = _work()
     max_err, n_slots = c[_MAX_ERR], c[_N_SLOTS]
-    for i in range(nb):
+    for i in range(lo, hi):
+        if not active[i]:
+            x_next[i], x_hat_next[i], p_next[i], shadow_next[i] = x[i], x_hat[i], p[i], shadow[i]
+            out[i] = 0.0
+            obs[i] = 0.0
+            continue
+        # env.action_to_split
         w0 = (min(max(action[i, 0], -1.0), 1.0) + 1.0) * 0.5
         w1 = (min(max(action[i, 1], -1.0), 1.0) + 1.0) * 0.5
         w2 = (min(max(action[i, 2], -1.0), 1.0) + 1.0) * 0.5
@@ -479,6 +477,7 @@ def env_step_batch(c, mats, x, x_hat, p, shadow, n, ref, action, z):
         mt = out[i]
         shadow_next[i] = _step_one(c, mats, x[i], x_hat[i], p[i], shadow[i], n[i], ref[i], a0, a1, a2,
                                    z[i], x_next[i], x_hat_next[i], p_next[i], mt, work)
+        # env.reward_and_costs
         err, rate, eps = mt[0], mt[8], mt[6]
         rate_min = c[_RATE_MIN]
         cost_rate = max(0.0, rate_min - rate) / rate_min if rate_min > 0.0 else 0.0
@@ -493,4 +492,41 @@ def env_step_batch(c, mats, x, x_hat, p, shadow, n, ref, action, z):
         mt[17] = 1.0 if terminated else 0.0
         mt[18] = 1.0 if (not terminated and n_next >= n_slots) else 0.0
         _observe_one(c, x_hat_next[i], p_next[i], shadow_next[i], n_next, ref[i], mt[7], mt[4], obs[i])
+
+
+@njit(cache=True, error_model="numpy")
+def _outputs(nb):
+    return (np.empty((nb, 6)), np.empty((nb, 6)), np.empty((nb, 6, 6)), np.empty(nb),
+            np.empty((nb, N_ENV_COLUMNS)), np.empty((nb, 23)))
+
+
+@njit(cache=True, error_model="numpy")
+def env_step_batch(c, mats, x, x_hat, p, shadow, n, ref, action, z, active):
+    """One env step of a batch (env.env_step_reference): action -> split (env.action_to_split), slot
+    transition, reward and costs (env.reward_and_costs), next observation (env.observe_reference).
+
+    Loops with ``active[i]`` False are left as they are (state copied, zero outputs).
+    Returns ``(x, x_hat, p, shadow, out (B, N_ENV_COLUMNS), obs (B, 23) float32)``.
+    """
+    x_next, x_hat_next, p_next, shadow_next, out, obs = _outputs(x.shape[0])
+    _env_rows(c, mats, x, x_hat, p, shadow, n, ref, action, z, active, 0, x.shape[0],
+              x_next, x_hat_next, p_next, shadow_next, out, obs)
+    return x_next, x_hat_next, p_next, shadow_next, out, obs.astype(np.float32)
+
+
+#: Rows per task of :func:`env_step_batch_parallel`.
+PARALLEL_CHUNK = 128
+
+
+@njit(cache=True, error_model="numpy", parallel=True)
+def env_step_batch_parallel(c, mats, x, x_hat, p, shadow, n, ref, action, z, active):
+    """:func:`env_step_batch` with chunks of rows on all cores: each row goes through the same
+    compiled :func:`_env_rows`, so results equal the serial kernel's bit for bit."""
+    nb = x.shape[0]
+    x_next, x_hat_next, p_next, shadow_next, out, obs = _outputs(nb)
+    n_chunks = (nb + PARALLEL_CHUNK - 1) // PARALLEL_CHUNK
+    for k in prange(n_chunks):
+        lo = k * PARALLEL_CHUNK
+        _env_rows(c, mats, x, x_hat, p, shadow, n, ref, action, z, active, lo, min(lo + PARALLEL_CHUNK, nb),
+                  x_next, x_hat_next, p_next, shadow_next, out, obs)
     return x_next, x_hat_next, p_next, shadow_next, out, obs.astype(np.float32)

@@ -1,0 +1,156 @@
+"""The batched vector env against the single env, autoreset semantics, and input validation."""
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import iscc_gym  # noqa: F401  (registers the env)
+from iscc_gym import env as E
+from iscc_gym import kernel, loop
+from iscc_gym.env import split_to_action
+from iscc_gym.scenario import make_scenario
+from iscc_gym.trajectory import sample_reference
+from iscc_gym.vector import ISCCVectorEnv
+
+UNSTABLE = split_to_action([0.98, 0.0, 0.02])  # no control share: every command lost
+
+
+def _make_vec(n, **kw):
+    return gym.make_vec("iscc_gym/ISCC-v0", num_envs=n, vectorization_mode="vector_entry_point", **kw)
+
+
+def _record(venv, actions):
+    recs = []
+    for a in actions:
+        o, r, te, tr, info = venv.step(a)
+        recs.append((o.copy(), r.copy(), te.copy(), tr.copy(),
+                     {k: np.copy(v) for k, v in info.items() if not k.startswith(("final", "_final"))},
+                     info))
+    return recs
+
+
+def test_make_vec_uses_the_native_vector_env():
+    venv = _make_vec(2)
+    assert isinstance(venv, ISCCVectorEnv)
+    assert venv.max_steps == 5000
+    obs, info = venv.reset(seed=0)
+    assert obs.shape == (2, 23) and obs.dtype == np.float32 and venv.observation_space.contains(obs)
+    assert venv.action_space.shape == (2, 3)
+
+
+def test_sub_envs_reproduce_single_envs_over_whole_episodes_with_terminations():
+    """NextStep autoreset: sub-env i seeded s_i equals the single env seeded s_i (reset without a
+    seed after each episode), step for step, through a full 5000-slot mission and through
+    repeated loss-of-track terminations."""
+    n, steps = 3, 5100
+    acts = np.random.default_rng(0).uniform(-1, 1, (steps, n, 3)).astype(np.float32)
+    acts[:, 1] = UNSTABLE
+    venv = _make_vec(n)
+    obs0, _ = venv.reset(seed=[11, 12, 13])
+    recs = _record(venv, acts)
+    for i in range(n):
+        env = gym.make("iscc_gym/ISCC-v0")
+        o, _ = env.reset(seed=11 + i)
+        assert np.array_equal(o, obs0[i])
+        done, resets, truncations = False, 0, 0
+        for t in range(steps):
+            ro, rr, rte, rtr, rinfo, _ = recs[t]
+            if done:  # the vector env resets this sub-env in this step
+                o, _ = env.reset()
+                assert np.array_equal(o, ro[i]) and rr[i] == 0.0 and not rte[i] and not rtr[i]
+                assert not rinfo["_tracking_error_m"][i]
+                done, resets = False, resets + 1
+                continue
+            o, r, te, tr, info = env.step(acts[t, i])
+            assert np.array_equal(o, ro[i]), (i, t)
+            assert (r, te, tr) == (rr[i], rte[i], rtr[i]), (i, t)
+            for key in ("tracking_error_m", "peb_m", "eps_ctrl", "rate_comm_bps", "cost", "slot"):
+                assert info[key] == rinfo[key][i], (key, i, t)
+            assert np.array_equal(info["alpha"], rinfo["alpha"][i])
+            assert info["packet_received"] == rinfo["packet_received"][i]
+            truncations += tr
+            done = te or tr
+        if i == 1:
+            assert resets >= 3  # the unstable sub-env lost track repeatedly
+        else:
+            assert truncations == 1 and resets == 1  # a whole mission, then a new episode
+
+
+def test_same_step_autoreset_reports_final_observation():
+    n = 2
+    venv = _make_vec(n, autoreset_mode="SameStep")
+    single = gym.make("iscc_gym/ISCC-v0")
+    venv.reset(seed=[5, 6])
+    o_single, _ = single.reset(seed=6)
+    acts = np.zeros((400, n, 3), np.float32)
+    acts[:, 1] = UNSTABLE
+    for t in range(400):
+        o, r, te, tr, info = venv.step(acts[t])
+        so, sr, ste, str_, _ = single.step(acts[t, 1])
+        assert sr == r[1] and ste == te[1]
+        if te[1]:
+            assert info["_final_obs"][1] and not info["_final_obs"][0]
+            assert np.array_equal(info["final_obs"][1], so)
+            assert info["final_info"]["_tracking_error_m"][1]
+            so, _ = single.reset()
+            assert np.array_equal(o[1], so)  # already the new episode's first observation
+            return
+        assert np.array_equal(o[1], so)
+    pytest.fail("the unstable sub-env never terminated")
+
+
+def test_reset_mask_resets_only_masked_sub_envs():
+    venv = _make_vec(3)
+    obs, _ = venv.reset(seed=0)
+    for _ in range(10):
+        obs, *_ = venv.step(np.zeros((3, 3), np.float32))
+    x_before = venv._state.x.copy()
+    obs2, info = venv.reset(seed=[None, 42, None], options={"reset_mask": [False, True, False]})
+    assert np.array_equal(venv._state.x[[0, 2]], x_before[[0, 2]])
+    assert list(venv._state.n) == [10, 0, 10]
+    single = gym.make("iscc_gym/ISCC-v0")
+    o, _ = single.reset(seed=42)
+    assert np.array_equal(obs2[1], o)
+    assert list(info["_slot"]) == [False, True, False]
+
+
+@pytest.mark.parametrize("bad,match", [
+    (np.full((2, 3), np.nan), "NaN or inf"),
+    (np.zeros((3, 3)), "shape"),
+    (np.zeros(3), "shape"),
+])
+def test_bad_actions_raise_and_leave_state_unchanged(bad, match):
+    venv = _make_vec(2)
+    venv.reset(seed=1)
+    venv.step(np.zeros((2, 3), np.float32))
+    x, n = venv._state.x.copy(), venv._state.n.copy()
+    rng_states = [r.bit_generator.state for r in venv._rngs]
+    with pytest.raises(ValueError, match=match):
+        venv.step(bad)
+    assert np.array_equal(venv._state.x, x) and np.array_equal(venv._state.n, n)
+    assert [r.bit_generator.state for r in venv._rngs] == rng_states
+
+
+def test_invalid_construction_and_step_before_reset():
+    with pytest.raises(ValueError, match="num_envs"):
+        ISCCVectorEnv(num_envs=0)
+    with pytest.raises(ValueError, match="autoreset_mode"):
+        ISCCVectorEnv(num_envs=2, autoreset_mode="Sometimes")
+    with pytest.raises(TypeError):
+        ISCCVectorEnv(num_envs=2, not_a_field=1)
+    with pytest.raises(RuntimeError, match="reset"):
+        ISCCVectorEnv(num_envs=2).step(np.zeros((2, 3)))
+
+
+def test_parallel_kernel_equals_serial_kernel_bit_for_bit():
+    s = make_scenario("paper")
+    b = E.PARALLEL_MIN_BATCH + 45
+    rng = np.random.default_rng(2)
+    ref = loop.reference_array(sample_reference(s, rng))
+    refs = np.ascontiguousarray(np.broadcast_to(ref, (b,) + ref.shape))
+    state = loop.init_state(s, refs, rng)
+    c, mats = kernel.kernel_constants(s)
+    args = (c, mats, state.x, state.x_hat, state.p, state.shadow, state.n, state.ref,
+            rng.uniform(-1, 1, (b, 3)), rng.standard_normal((b, loop.N_DRAWS)), rng.random(b) < 0.9)
+    for a, b_ in zip(kernel.env_step_batch(*args), kernel.env_step_batch_parallel(*args), strict=True):
+        assert np.array_equal(a, b_)

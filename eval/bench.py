@@ -2,18 +2,23 @@
 
 Usage::
 
-    python -m eval.bench [--steps N] [--repeats R] [--json PATH]
+    python -m eval.bench [--steps N] [--repeats R] [--json PATH] [--quick] [--skip-ppo]
 
-Single-env throughput is measured through ``gymnasium.make`` (with its default wrappers) and
-actions drawn in advance, so ``Box.sample()`` (about 16 us) is not timed; Gymnasium's Pendulum-v1
-is measured in the same process, in the same way, as the reference. Each figure is the median
-over ``repeats`` runs.
+Every figure is the median over ``repeats`` runs, with its reference measured in the same process:
+
+* single env steps/s through ``gymnasium.make`` (default wrappers), actions drawn in advance so
+  ``Box.sample()`` (about 16 us) is not timed; reference: Gymnasium's Pendulum-v1 measured alike;
+* vector env env-steps/s at 1, 64 and 1024 envs (``gymnasium.make_vec``, native batched env);
+* PPO training env-steps/s end to end (SB3 defaults, 4 envs, ``torch.set_num_threads(1)``) on
+  DummyVecEnv, SubprocVecEnv and the batched env; reference: the same PPO on Pendulum-v1 with
+  DummyVecEnv.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
 import statistics
 import sys
@@ -30,6 +35,8 @@ def env_steps_per_second(env_id: str, n_steps: int, repeats: int, seed: int = 0,
     env = gym.make(env_id, **kwargs)
     env.action_space.seed(seed)
     actions = [env.action_space.sample() for _ in range(n_steps)]
+    env.reset(seed=seed)
+    env.step(actions[0])  # warm-up: compiled kernels loaded, first-step checks done
     rates = []
     for r in range(repeats):
         env.reset(seed=seed + r)
@@ -43,27 +50,95 @@ def env_steps_per_second(env_id: str, n_steps: int, repeats: int, seed: int = 0,
     return {"median_steps_per_s": statistics.median(rates), "runs": rates, "n_steps": n_steps}
 
 
-def run(n_steps: int = 5000, repeats: int = 5) -> dict:
-    """All benchmark figures as a JSON-able dict."""
-    return {
+def vector_steps_per_second(num_envs: int, n_steps: int, repeats: int, seed: int = 0) -> dict:
+    """Median env-steps/s of the native vector env (``n_steps`` batched steps per run)."""
+    venv = gym.make_vec(iscc_gym.ENV_ID, num_envs=num_envs, vectorization_mode="vector_entry_point")
+    venv.reset(seed=seed)
+    actions = np.random.default_rng(seed).uniform(-1, 1, (n_steps, num_envs, 3)).astype(np.float32)
+    venv.step(actions[0])  # compiled kernels loaded
+    rates = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        for a in actions:
+            venv.step(a)
+        rates.append(n_steps * num_envs / (time.perf_counter() - t0))
+    venv.close()
+    return {"median_env_steps_per_s": statistics.median(rates), "runs": rates, "n_steps": n_steps,
+            "num_envs": num_envs}
+
+
+def ppo_steps_per_second(kind: str, total_steps: int, repeats: int, n_envs: int = 4) -> dict:
+    """Median env-steps/s of SB3 PPO (default hyperparameters) learning ``total_steps`` steps."""
+    import torch
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecMonitor
+
+    from agents.sb3_vec_env import ISCCBatchedVecEnv
+
+    torch.set_num_threads(1)
+    rates = []
+    for r in range(repeats):
+        if kind == "batched":
+            venv = VecMonitor(ISCCBatchedVecEnv(n_envs))
+        else:
+            env_id = "Pendulum-v1" if kind == "pendulum_dummy" else iscc_gym.ENV_ID
+            cls = SubprocVecEnv if kind == "subproc" else DummyVecEnv
+            venv = make_vec_env(env_id, n_envs=n_envs, seed=r, vec_env_cls=cls)
+        model = PPO("MlpPolicy", venv, seed=r, device="cpu", n_steps=min(2048, total_steps // n_envs))
+        t0 = time.perf_counter()
+        model.learn(total_steps)
+        rates.append(total_steps / (time.perf_counter() - t0))
+        venv.close()
+    return {"median_env_steps_per_s": statistics.median(rates), "runs": rates, "total_steps": total_steps,
+            "n_envs": n_envs}
+
+
+def run(n_steps: int = 5000, repeats: int = 5, quick: bool = False, ppo: bool = True) -> dict:
+    """All benchmark figures as a JSON-able dict (``quick``: tiny sizes, for the tests)."""
+    vec_steps = 5 if quick else 200
+    res = {
         "machine": {"python": platform.python_version(), "numpy": np.__version__,
-                    "gymnasium": gym.__version__, "processor": platform.processor() or "unknown"},
+                    "gymnasium": gym.__version__, "processor": platform.processor() or "unknown",
+                    "cpu_count": os.cpu_count()},
         "single_env": {
             "iscc": env_steps_per_second(iscc_gym.ENV_ID, n_steps, repeats),
             "reference_pendulum_v1": env_steps_per_second("Pendulum-v1", n_steps, repeats),
         },
+        "vector_env": {str(n): vector_steps_per_second(n, vec_steps if n < 1024 else vec_steps // 4 + 1,
+                                                       repeats)
+                       for n in ((1, 64) if quick else (1, 64, 1024))},
     }
+    if ppo:
+        total = 256 if quick else 16384
+        res["ppo_training"] = {kind: ppo_steps_per_second(kind, total, 1 if quick else repeats)
+                               for kind in ("dummy", "subproc", "batched", "pendulum_dummy")}
+    return res
 
 
 def format_report(res: dict) -> str:
     se = res["single_env"]
     ours, ref = se["iscc"]["median_steps_per_s"], se["reference_pendulum_v1"]["median_steps_per_s"]
-    return "\n".join([
-        "Single env through gymnasium.make, actions drawn in advance (median of runs):",
-        f"  {iscc_gym.ENV_ID:<22} {ours:10,.0f} steps/s  ({1e6 / ours:6.1f} us/step)",
-        f"  {'Pendulum-v1 (reference)':<22} {ref:10,.0f} steps/s  ({1e6 / ref:6.1f} us/step)",
+    lines = [
+        "Single env through gymnasium.make, actions drawn in advance (median of runs; target 25,000):",
+        f"  {iscc_gym.ENV_ID:<26} {ours:12,.0f} steps/s  ({1e6 / ours:6.1f} us/step)",
+        f"  {'Pendulum-v1 (reference)':<26} {ref:12,.0f} steps/s  ({1e6 / ref:6.1f} us/step)",
         f"  ratio ISCC / Pendulum: {ours / ref:.3f}",
-    ])
+        "Native vector env (make_vec, vector_entry_point), env-steps/s (target 500,000 at 1024 envs):",
+    ]
+    for n, v in res["vector_env"].items():
+        lines.append(f"  {n + ' envs':<26} {v['median_env_steps_per_s']:12,.0f} env-steps/s")
+    if "ppo_training" in res:
+        pt = res["ppo_training"]
+        pend = pt["pendulum_dummy"]["median_env_steps_per_s"]
+        lines.append("SB3 PPO training, 4 envs, default hyperparameters, 1 torch thread, env-steps/s "
+                     "(goal: >= 0.8 x Pendulum):")
+        names = {"dummy": "ISCC DummyVecEnv", "subproc": "ISCC SubprocVecEnv", "batched": "ISCC batched env",
+                 "pendulum_dummy": "Pendulum-v1 DummyVecEnv (ref)"}
+        for kind, v in pt.items():
+            rate = v["median_env_steps_per_s"]
+            lines.append(f"  {names[kind]:<30} {rate:10,.0f}  ({rate / pend:.2f} x Pendulum)")
+    return "\n".join(lines)
 
 
 def main(argv: list[str] | None = None) -> dict:
@@ -71,8 +146,10 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--steps", type=int, default=5000, help="steps per run")
     ap.add_argument("--repeats", type=int, default=5, help="runs per figure (median reported)")
     ap.add_argument("--json", metavar="PATH", help="write the figures as JSON to PATH")
+    ap.add_argument("--quick", action="store_true", help="tiny sizes (a smoke run, for the tests)")
+    ap.add_argument("--skip-ppo", action="store_true", help="skip the PPO training figures")
     args = ap.parse_args(argv)
-    res = run(args.steps, args.repeats)
+    res = run(args.steps, args.repeats, quick=args.quick, ppo=not args.skip_ppo)
     print(format_report(res))
     if args.json:
         with open(args.json, "w") as f:

@@ -1,0 +1,85 @@
+"""Stable-Baselines3 ``VecEnv`` over the native batched env, so PPO and friends train on it directly.
+
+``ISCCBatchedVecEnv(num_envs, scenario=..., **overrides)`` wraps :class:`iscc_gym.vector.ISCCVectorEnv`
+in ``SameStep`` autoreset mode and speaks SB3's protocol: ``reset() -> obs``, ``step_wait() ->
+(obs, rewards, dones, infos)`` with ``infos[i]["terminal_observation"]`` and
+``infos[i]["TimeLimit.truncated"]`` where sub-env i's episode ended. To keep a step of a large batch
+cheap, ``infos`` carry only those keys unless ``info_keys`` names more (e.g. ``("cost",)`` for
+constrained RL or ``("tracking_error_m",)`` for an EvalCallback-style logger).
+
+Sub-env i seeded s_i (``seed(s)`` gives s + i, SB3's convention) plays exactly the episodes of
+``gymnasium.make("iscc_gym/ISCC-v0")`` reset with seed s_i, so a policy trained here and one trained on
+``DummyVecEnv`` / ``SubprocVecEnv`` of the single env see the same environment.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+from stable_baselines3.common.vec_env.base_vec_env import VecEnv
+
+from iscc_gym.scenario import Scenario
+from iscc_gym.vector import ISCCVectorEnv
+
+__all__ = ["ISCCBatchedVecEnv"]
+
+
+class ISCCBatchedVecEnv(VecEnv):
+    """SB3 ``VecEnv`` of ``num_envs`` ISCC loops stepped as one batch (see the module docstring)."""
+
+    def __init__(self, num_envs: int, scenario: str | Scenario = "paper", info_keys: Sequence[str] = (),
+                 **overrides: Any):
+        self.venv = ISCCVectorEnv(num_envs=num_envs, scenario=scenario, autoreset_mode="SameStep",
+                                  **overrides)
+        self.info_keys = tuple(info_keys)
+        self.render_mode = None
+        super().__init__(num_envs, self.venv.single_observation_space, self.venv.single_action_space)
+        self._actions: np.ndarray | None = None
+
+    # --- SB3 VecEnv protocol -----------------------------------------------------------------------
+    def reset(self):
+        seeds = self._seeds if any(s is not None for s in self._seeds) else None
+        obs, _ = self.venv.reset(seed=seeds)
+        self._reset_seeds()
+        self._reset_options()
+        self.reset_infos = [{} for _ in range(self.num_envs)]
+        return obs
+
+    def step_async(self, actions: np.ndarray) -> None:
+        self._actions = np.asarray(actions)
+
+    def step_wait(self):
+        obs, reward, terminated, truncated, info = self.venv.step(self._actions)
+        dones = terminated | truncated
+        infos: list[dict[str, Any]] = [{} for _ in range(self.num_envs)]
+        for key in self.info_keys:
+            vals, mask = info[key], info["_" + key]
+            for i in np.flatnonzero(mask):
+                infos[i][key] = vals[i]
+        for i in np.flatnonzero(dones):
+            infos[i]["terminal_observation"] = info["final_obs"][i]
+            infos[i]["TimeLimit.truncated"] = bool(truncated[i])
+        return obs, reward.astype(np.float32), dones, infos
+
+    def close(self) -> None:
+        self.venv.close()
+
+    def get_attr(self, attr_name: str, indices=None) -> list[Any]:
+        if attr_name == "render_mode":
+            return [None for _ in self._get_indices(indices)]
+        value = getattr(self.venv, attr_name)
+        return [value for _ in self._get_indices(indices)]
+
+    def set_attr(self, attr_name: str, value: Any, indices=None) -> None:
+        raise AttributeError(f"cannot set {attr_name!r}: the batched env's sub-envs share one scenario")
+
+    def env_method(self, method_name: str, *method_args, indices=None, **method_kwargs) -> list[Any]:
+        raise AttributeError(f"the batched env has no per-sub-env method {method_name!r}")
+
+    def env_is_wrapped(self, wrapper_class, indices=None) -> list[bool]:
+        return [False for _ in self._get_indices(indices)]
+
+    def get_images(self):
+        raise NotImplementedError("the batched env does not render; use gymnasium.make(..., render_mode='rgb_array')")

@@ -1,0 +1,18 @@
+"""The benchmark command in quick mode: every figure present, positive, with its reference."""
+
+import json
+
+from eval import bench
+
+
+def test_bench_quick_reports_every_figure(tmp_path, capsys):
+    path = tmp_path / "bench.json"
+    res = bench.main(["--quick", "--steps", "50", "--repeats", "1", "--skip-ppo", "--json", str(path)])
+    assert json.loads(path.read_text()) == json.loads(json.dumps(res))
+    single = res["single_env"]
+    assert single["iscc"]["median_steps_per_s"] > 0
+    assert single["reference_pendulum_v1"]["median_steps_per_s"] > 0
+    assert set(res["vector_env"]) == {"1", "64"}
+    assert all(v["median_env_steps_per_s"] > 0 for v in res["vector_env"].values())
+    out = capsys.readouterr().out
+    assert "Pendulum-v1 (reference)" in out and "64 envs" in out

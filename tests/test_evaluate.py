@@ -1,0 +1,63 @@
+"""The common-random-number evaluator: pairing, agreement with single-env rollouts, statistics."""
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from scipy import stats
+
+import iscc_gym  # noqa: F401
+from agents.base import EqualSplitPolicy, FixedSplitPolicy
+from eval.evaluate import Entry, evaluate, format_table, mean_ci, run_episodes
+from iscc_gym.env import split_to_action
+
+
+def test_episode_metrics_equal_single_env_rollouts():
+    """The batched evaluator's per-episode sums equal a plain gymnasium.make rollout per seed."""
+    split = [0.3, 0.2, 0.5]
+    res = run_episodes(FixedSplitPolicy(split), seeds=[7, 8], max_steps=150)
+    for k, seed in enumerate([7, 8]):
+        env = gym.make("iscc_gym/ISCC-v0")
+        env.reset(seed=seed)
+        rewards, errors, costs = [], [], []
+        for _ in range(150):
+            _, r, te, tr, info = env.step(split_to_action(split))
+            rewards.append(r)
+            errors.append(info["tracking_error_m"])
+            costs.append(info["cost"])
+        assert res["episodes"]["reward"][k] == pytest.approx(sum(rewards), rel=1e-12)
+        assert res["episodes"]["tracking_error_m"][k] == pytest.approx(np.mean(errors), rel=1e-12)
+        assert res["episodes"]["cost"][k] == pytest.approx(sum(costs), rel=1e-12)
+        assert res["episodes"]["length"][k] == 150
+
+
+def test_identical_policies_pair_to_exactly_zero_and_schemes_differ():
+    res = evaluate({"a": FixedSplitPolicy([0.2, 0.2, 0.6]), "b": FixedSplitPolicy([0.2, 0.2, 0.6]),
+                    "gnss": Entry(FixedSplitPolicy([0.2, 0.2, 0.6]), {"observation_source": "gnss"}),
+                    "equal": EqualSplitPolicy()},
+                   seeds=[1, 2, 3], reference="a", max_steps=600)
+    pair = res["paired"]["b_vs_a"]
+    assert pair["reward_diff_mean"] == 0.0 and pair["reward_diff_ci95"] == [0.0, 0.0]
+    # GNSS feedback (3 m) tracks worse than ISAC at this split, on every paired episode
+    assert res["paired"]["gnss_vs_a"]["tracking_error_m_diff_ci95"][0] > 0
+    assert set(res["policies"]) == {"a", "b", "gnss", "equal"}
+    assert "equal_vs_a" in format_table(res)
+
+
+def test_mean_ci_matches_scipy_t_interval():
+    x = np.random.default_rng(0).normal(3.0, 2.0, 17)
+    m, (lo, hi) = mean_ci(x)
+    ref = stats.t.interval(0.95, 16, loc=x.mean(), scale=stats.sem(x))
+    assert m == pytest.approx(x.mean()) and lo == pytest.approx(ref[0]) and hi == pytest.approx(ref[1])
+
+
+def test_termination_is_counted_and_stops_accumulating():
+    res = run_episodes(FixedSplitPolicy([0.98, 0.0, 0.02]), seeds=[4], max_steps=2000)
+    assert res["episodes"]["terminated"][0] == 1.0
+    assert res["episodes"]["length"][0] < 2000
+
+
+def test_bad_arguments():
+    with pytest.raises(ValueError, match="seeds"):
+        run_episodes(EqualSplitPolicy(), seeds=[])
+    with pytest.raises(ValueError, match="reference"):
+        evaluate({"a": EqualSplitPolicy()}, seeds=[1], reference="sca")

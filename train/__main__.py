@@ -1,0 +1,4 @@
+from train.train import cli
+
+if __name__ == "__main__":
+    cli()

@@ -1,0 +1,308 @@
+"""Train an SB3 agent (PPO by default; SAC, TD3) on ``iscc_gym/ISCC-v0``.
+
+Usage::
+
+    python -m train --total-timesteps 200000 --n-envs 4 --vec-env batched --out runs/ppo
+
+Writes into ``--out``: ``model.zip`` (final), ``best/best_model.zip`` (best on the held-out eval
+seeds), ``vecnormalize.pkl``, ``config.yml`` (the resolved configuration), ``learning_curve.csv`` and
+``.png``, ``checkpoints/`` (periodic model + VecNormalize, for ``--resume``) and TensorBoard logs in
+``tb/`` (``tensorboard --logdir OUT/tb``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import dataclasses
+import os
+import re
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+HYPERPARAMS = Path(__file__).with_name("hyperparams.yml")
+ALGOS = ("ppo", "sac", "td3")
+VEC_ENVS = ("dummy", "subproc", "batched")
+#: Seeds of the EvalCallback's held-out episodes start here (training seeds are small integers, the
+#: final comparison uses ``eval --seed-start``'s, 10_000 by default).
+EVAL_SEED_START = 1_000_000
+
+
+@dataclass
+class Args:
+    """Everything a training run depends on (``python -m train --help`` lists them)."""
+
+    env_id: str = "iscc_gym/ISCC-v0"
+    algo: str = "ppo"  # ppo | sac | td3
+    total_timesteps: int = 200_000
+    n_envs: int = 4
+    vec_env: str = "batched"  # dummy | subproc | batched (the native batched env)
+    seed: int = 0
+    scenario: str = "paper"
+    out: str = "runs/ppo"
+    hyperparams: str = str(HYPERPARAMS)
+    overrides: dict = field(default_factory=dict)  # hyperparameter overrides, e.g. {"n_steps": 64}
+    normalize: bool = True  # VecNormalize of observations and rewards
+    eval_freq: int = 50_000  # env steps between evaluations (0: none)
+    eval_episodes: int = 4
+    eval_max_steps: int = 5000  # slots per eval episode (the full mission by default)
+    checkpoint_freq: int = 50_000  # env steps between checkpoints (0: none)
+    resume: bool = False  # continue from the latest checkpoint in ``out``
+    tensorboard: bool = True
+    progress_bar: bool = False
+    torch_threads: int = 1
+    verbose: int = 0
+
+
+def load_hyperparams(path: str | os.PathLike, env_id: str, algo: str, overrides: dict | None = None) -> dict:
+    """The hyperparameters of ``algo`` on ``env_id`` from the YAML file, with ``overrides`` applied.
+
+    ``policy_kwargs.activation_fn`` is a name looked up in ``torch.nn`` (never eval'd).
+    """
+    with open(path) as f:
+        table = yaml.safe_load(f)
+    if env_id not in table:
+        raise ValueError(f"env_id {env_id!r} has no entry in {path}; add one (keys: {sorted(table)})")
+    if algo not in table[env_id]:
+        raise ValueError(f"algo {algo!r} has no entry for {env_id} in {path}; add one or use {sorted(table[env_id])}")
+    hp = dict(table[env_id][algo])
+    hp.update(overrides or {})
+    return hp
+
+
+def _resolve_policy_kwargs(hp: dict) -> dict:
+    import torch.nn as nn
+
+    hp = dict(hp)
+    pk = dict(hp.get("policy_kwargs") or {})
+    if "activation_fn" in pk and isinstance(pk["activation_fn"], str):
+        names = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU, "leaky_relu": nn.LeakyReLU, "gelu": nn.GELU}
+        key = pk["activation_fn"].lower()
+        if key not in names:
+            raise ValueError(f"policy_kwargs.activation_fn = {pk['activation_fn']!r}; use one of {sorted(names)}")
+        pk["activation_fn"] = names[key]
+    if pk:
+        hp["policy_kwargs"] = pk
+    return hp
+
+
+def _check(args: Args) -> None:
+    if args.algo not in ALGOS:
+        raise ValueError(f"algo = {args.algo!r}; use one of {ALGOS}")
+    if args.vec_env not in VEC_ENVS:
+        raise ValueError(f"vec_env = {args.vec_env!r}; use one of {VEC_ENVS}")
+    if args.vec_env == "batched" and args.env_id != "iscc_gym/ISCC-v0":
+        raise ValueError("vec_env = 'batched' is the ISCC env's own batched env; use dummy or subproc for "
+                         f"{args.env_id}")
+    for name in ("total_timesteps", "n_envs", "eval_episodes", "eval_max_steps", "torch_threads"):
+        if getattr(args, name) < 1:
+            raise ValueError(f"{name} = {getattr(args, name)}; use an integer >= 1")
+
+
+def make_train_env(args: Args):
+    """The training VecEnv, with episode statistics (Monitor / VecMonitor) for the logs."""
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecMonitor
+
+    if args.vec_env == "batched":
+        from agents.sb3_vec_env import ISCCBatchedVecEnv
+
+        venv = ISCCBatchedVecEnv(args.n_envs, scenario=args.scenario)
+        venv.seed(args.seed)
+        return VecMonitor(venv)
+    kwargs = {"scenario": args.scenario} if args.env_id == "iscc_gym/ISCC-v0" else {}
+    cls = SubprocVecEnv if args.vec_env == "subproc" else DummyVecEnv
+    # make_vec_env wraps each env in a Monitor already
+    return make_vec_env(args.env_id, n_envs=args.n_envs, seed=args.seed, vec_env_cls=cls, env_kwargs=kwargs)
+
+
+def make_eval_env(args: Args):
+    """Held-out evaluation episodes: seeds EVAL_SEED_START + i, one sub-env per episode."""
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.vec_env import DummyVecEnv, VecMonitor
+
+    if args.env_id == "iscc_gym/ISCC-v0":
+        from agents.sb3_vec_env import ISCCBatchedVecEnv
+
+        venv = ISCCBatchedVecEnv(args.eval_episodes, scenario=args.scenario)
+        if args.eval_max_steps < venv.venv.max_steps:
+            venv.venv.max_steps = args.eval_max_steps
+        venv.seed(EVAL_SEED_START)
+        return VecMonitor(venv)
+    venv = make_vec_env(args.env_id, n_envs=args.eval_episodes, vec_env_cls=DummyVecEnv)
+    venv.seed(EVAL_SEED_START)
+    return venv
+
+
+def _curve_callback():
+    """A callback recording (timesteps, wall time, mean training episode reward) at every rollout end."""
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    class _Curve(BaseCallback):
+        def __init__(self):
+            super().__init__()
+            self.rows: list[dict] = []
+            self.t0 = time.perf_counter()
+
+        def _on_step(self) -> bool:
+            return True
+
+        def _on_rollout_end(self) -> None:
+            buf = self.model.ep_info_buffer
+            self.rows.append({"timesteps": self.num_timesteps, "wall_s": time.perf_counter() - self.t0,
+                              "train_ep_reward_mean": float(np.mean([e["r"] for e in buf])) if buf else float("nan"),
+                              "train_ep_length_mean": float(np.mean([e["l"] for e in buf])) if buf else float("nan")})
+
+    return _Curve()
+
+
+def _latest_checkpoint(ckpt_dir: Path) -> tuple[Path, Path | None] | None:
+    best = None
+    for p in ckpt_dir.glob("model_*_steps.zip"):
+        m = re.match(r"model_(\d+)_steps\.zip", p.name)
+        if m and (best is None or int(m.group(1)) > best[0]):
+            best = (int(m.group(1)), p)
+    if best is None:
+        return None
+    vn = ckpt_dir / f"model_vecnormalize_{best[0]}_steps.pkl"
+    return best[1], vn if vn.exists() else None
+
+
+def main(args: Args) -> dict:
+    """Train, save everything into ``args.out``; returns a summary (paths, steps, wall time)."""
+    import torch
+    from stable_baselines3 import PPO, SAC, TD3
+    from stable_baselines3.common.callbacks import CallbackList, CheckpointCallback, EvalCallback
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    import iscc_gym  # noqa: F401  (registers the env)
+
+    _check(args)
+    torch.set_num_threads(args.torch_threads)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    hp = load_hyperparams(args.hyperparams, args.env_id, args.algo, args.overrides)
+    algo_cls = {"ppo": PPO, "sac": SAC, "td3": TD3}[args.algo]
+    venv = make_train_env(args)
+    ckpt_dir = out / "checkpoints"
+    latest = _latest_checkpoint(ckpt_dir) if args.resume else None
+    if args.resume and latest is None:
+        raise FileNotFoundError(f"resume: no checkpoint in {ckpt_dir}; train without --resume first")
+    if args.normalize:
+        if latest is not None and latest[1] is not None:
+            venv = VecNormalize.load(str(latest[1]), venv)
+            venv.training = True
+        else:
+            venv = VecNormalize(venv, gamma=hp.get("gamma", 0.99))
+    tb = str(out / "tb") if args.tensorboard else None
+    if latest is not None:
+        model = algo_cls.load(str(latest[0]), env=venv, device="cpu", tensorboard_log=tb)
+    else:
+        kw = _resolve_policy_kwargs(hp)
+        policy = kw.pop("policy", "MlpPolicy")
+        model = algo_cls(policy, venv, seed=args.seed, device="cpu", verbose=args.verbose, tensorboard_log=tb, **kw)
+    resolved = {"args": dataclasses.asdict(args), "hyperparams": hp}
+    with open(out / "config.yml", "w") as f:
+        yaml.safe_dump(resolved, f, sort_keys=False)
+    callbacks = [curve := _curve_callback()]
+    per_env = max(1, args.n_envs)
+    if args.checkpoint_freq > 0:
+        callbacks.append(CheckpointCallback(max(1, args.checkpoint_freq // per_env), str(ckpt_dir), name_prefix="model",
+                                            save_vecnormalize=args.normalize))
+    eval_cb = None
+    if args.eval_freq > 0:
+        eval_env = make_eval_env(args)
+        if args.normalize:
+            eval_env = VecNormalize(eval_env, training=False, norm_reward=False)
+        eval_cb = EvalCallback(eval_env, n_eval_episodes=args.eval_episodes,
+                               eval_freq=max(1, args.eval_freq // per_env),
+                               best_model_save_path=str(out / "best"), log_path=str(out / "eval"),
+                               deterministic=True, verbose=args.verbose)
+        callbacks.append(eval_cb)
+    remaining = args.total_timesteps - (model.num_timesteps if latest is not None else 0)
+    t0 = time.perf_counter()
+    if remaining > 0:
+        model.learn(remaining, callback=CallbackList(callbacks), reset_num_timesteps=latest is None,
+                    progress_bar=args.progress_bar, tb_log_name=args.algo)
+    wall = time.perf_counter() - t0
+    model.save(str(out / "model"))
+    if args.normalize:
+        venv.save(str(out / "vecnormalize.pkl"))
+    evals = []
+    if eval_cb is not None and eval_cb.evaluations_timesteps:
+        evals = list(zip(eval_cb.evaluations_timesteps, [float(np.mean(r)) for r in eval_cb.evaluations_results],
+                         strict=True))
+    _write_curve(out, curve.rows, evals)
+    venv.close()
+    summary = {"out": str(out), "timesteps": int(model.num_timesteps), "wall_time_s": wall,
+               "env_steps_per_s": (remaining / wall) if remaining > 0 and wall > 0 else None,
+               "evaluations": evals, "resumed_from": str(latest[0]) if latest else None}
+    with open(out / "summary.yml", "w") as f:
+        yaml.safe_dump(summary, f, sort_keys=False)
+    return summary
+
+
+def _write_curve(out: Path, rows: list[dict], evals: list[tuple[int, float]]) -> None:
+    with open(out / "learning_curve.csv", "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["timesteps", "wall_s", "train_ep_reward_mean", "train_ep_length_mean", "eval_reward_mean"])
+        ev = dict(evals)
+        for r in rows:
+            w.writerow([r["timesteps"], f"{r['wall_s']:.3f}", r["train_ep_reward_mean"], r["train_ep_length_mean"],
+                        ev.get(r["timesteps"], "")])
+        for t, v in evals:
+            if t not in {r["timesteps"] for r in rows}:
+                w.writerow([t, "", "", "", v])
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(6, 3.5), dpi=100)
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot(1, 1, 1)
+    if rows:
+        ax.plot([r["timesteps"] for r in rows], [r["train_ep_reward_mean"] for r in rows], label="train episodes")
+    if evals:
+        ax.plot(*zip(*evals, strict=True), "o-", label="held-out eval")
+    ax.set_xlabel("env steps")
+    ax.set_ylabel("episode reward")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(out / "learning_curve.png")
+
+
+def parse_args(argv: list[str] | None = None) -> Args:
+    """``Args`` from the command line (every field is a flag; ``--set key=value`` overrides a
+    hyperparameter, the value parsed as YAML)."""
+    ap = argparse.ArgumentParser(prog="python -m train", description=__doc__.split("\n")[0])
+    defaults = Args()
+    for f in dataclasses.fields(Args):
+        if f.name == "overrides":
+            continue
+        flag = "--" + f.name.replace("_", "-")
+        default = getattr(defaults, f.name)
+        if isinstance(default, bool):
+            ap.add_argument(flag, action=argparse.BooleanOptionalAction, default=default)
+        else:
+            ap.add_argument(flag, type=type(default), default=default)
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="override a hyperparameter of the YAML, e.g. --set n_steps=256")
+    ns = ap.parse_args(argv)
+    overrides: dict[str, Any] = {}
+    for item in ns.set:
+        if "=" not in item:
+            ap.error(f"--set {item!r}: use KEY=VALUE")
+        k, v = item.split("=", 1)
+        overrides[k] = yaml.safe_load(v)
+    kw = {f.name: getattr(ns, f.name) for f in dataclasses.fields(Args) if f.name != "overrides"}
+    return Args(overrides=overrides, **kw)
+
+
+def cli(argv: list[str] | None = None) -> dict:
+    summary = main(parse_args(argv))
+    print(f"trained {summary['timesteps']} steps in {summary['wall_time_s']:.1f} s -> {summary['out']}")
+    return summary

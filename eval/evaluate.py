@@ -159,6 +159,7 @@ def evaluate(policies: Mapping[str, Any], seeds: Sequence[int], scenario: str | 
             pair = {}
             for metric, vals in run["episodes"].items():
                 pair[f"{metric}_diff_mean"], pair[f"{metric}_diff_ci95"] = mean_ci(vals - ref[metric])
+            pair["ci95"] = pair["reward_diff_ci95"]  # the headline: episode reward, name minus reference
             res["paired"][f"{name}_vs_{reference}"] = pair
     if record:
         res["traces"] = traces

@@ -61,3 +61,24 @@ def test_bad_arguments():
         run_episodes(EqualSplitPolicy(), seeds=[])
     with pytest.raises(ValueError, match="reference"):
         evaluate({"a": EqualSplitPolicy()}, seeds=[1], reference="sca")
+
+
+def test_eval_cli_writes_json_and_plots(tmp_path, capsys):
+    from eval.__main__ import _split_specs, main
+
+    assert _split_specs("sca,fixed:0.2,0.2,0.6,equal") == ["sca", "fixed:0.2,0.2,0.6", "equal"]
+    path = tmp_path / "out.json"
+    res = main(["--policies", "sca,equal,fixed:0.3,0.2,0.5", "--episodes", "2", "--seed-start", "50",
+                "--max-steps", "40", "--json", str(path), "--plots", str(tmp_path / "figs")])
+    import json
+
+    saved = json.loads(path.read_text())
+    assert saved["seeds"] == [50, 51]
+    for name in ("sca", "equal", "fixed:0.3,0.2,0.5"):
+        assert {"reward_mean", "reward_ci95", "tracking_error_m_mean", "violation_mean"} <= set(saved["policies"][name])
+    pair = saved["paired"]["equal_vs_sca"]
+    assert pair["ci95"] == pair["reward_diff_ci95"] and len(pair["ci95"]) == 2
+    for png in ("allocation.png", "tracking_error.png", "trajectories.png"):
+        assert (tmp_path / "figs" / png).stat().st_size > 1000
+    assert "paired differences vs sca" in capsys.readouterr().out
+    assert res["reference"] == "sca"

@@ -1,0 +1,174 @@
+"""``python -m eval``: compare policies on held-out episodes with common random numbers.
+
+Examples::
+
+    python -m eval                                  # shipped PPO agent vs static SCA, per-slot SCA, equal
+    python -m eval --policies ppo=runs/ppo,sca,equal --episodes 50 --json out.json --plots figs/
+    python -m eval --train-steps 300000             # train a fresh PPO agent first, then compare
+
+Policies are ``NAME=PATH`` (a run directory of ``python -m train`` or a model ``.zip``) or a spec of
+:func:`agents.make_policy` (``sca``, ``sca-per-slot``, ``sca-ignore-loss``, ``equal``,
+``fixed:0.2,0.2,0.6``, ``grid``, ``evolutionary``). Episodes are seeded ``--seed-start``,
+``--seed-start + 1``, ... (or ``--seeds``): held out from training (``python -m train`` trains on
+seeds below 100 and evaluates on seeds from 1,000,000).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from eval.evaluate import evaluate, format_table
+
+#: The trained PPO agent shipped in the repository (produced by ``python -m eval.ship``).
+SHIPPED_AGENT = Path(__file__).resolve().parent.parent / "agents" / "trained" / "ppo_iscc"
+DEFAULT_POLICIES = f"ppo={SHIPPED_AGENT},sca,sca-per-slot,equal"
+
+
+def build_policies(specs: str, scenario: str = "paper") -> dict:
+    """``{name: policy}`` from a comma-separated list of ``NAME=PATH`` or make_policy specs."""
+    from agents import make_policy
+
+    policies = {}
+    items = [p.strip() for p in _split_specs(specs) if p.strip()]
+    if not items:
+        raise ValueError("--policies is empty; e.g. --policies sca,equal")
+    for item in items:
+        if "=" in item:
+            name, path = item.split("=", 1)
+            from agents.sb3_policy import SB3Policy
+
+            policies[name] = SB3Policy.load(path)
+        else:
+            policies[item] = make_policy(item, scenario)
+    return policies
+
+
+def _split_specs(specs: str) -> list[str]:
+    """Split on commas, except inside ``fixed:a,b,c``."""
+    out, parts = [], specs.split(",")
+    i = 0
+    while i < len(parts):
+        p = parts[i]
+        if p.strip().startswith("fixed:"):
+            p = ",".join(parts[i:i + 3])
+            i += 3
+        else:
+            i += 1
+        out.append(p)
+    return out
+
+
+def save_plots(res: dict, out_dir: str | Path) -> list[str]:
+    """Allocation over time, tracking error over time and 3-D trajectories of the first recorded
+    episode of every policy, as PNGs."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    traces = res["traces"]
+    paths = []
+    fig = Figure(figsize=(9, 2.4 * len(traces)), dpi=90)
+    FigureCanvasAgg(fig)
+    for k, (name, tr) in enumerate(traces.items()):
+        ax = fig.add_subplot(len(traces), 1, k + 1)
+        alpha = tr["alpha"][:, 0]
+        t = np.arange(len(alpha)) * 0.1
+        for j, label in enumerate(("sensing", "control", "data")):
+            ax.plot(t, alpha[:, j], lw=0.8, label=label)
+        ax.set_ylabel(f"{name}\nshare")
+        ax.set_ylim(0, 1)
+        ax.legend(loc="upper right", fontsize=7, ncol=3)
+    fig.axes[-1].set_xlabel("time (s)")
+    fig.tight_layout()
+    fig.savefig(out / "allocation.png")
+    paths.append(str(out / "allocation.png"))
+    fig = Figure(figsize=(9, 3.5), dpi=90)
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot(1, 1, 1)
+    for name, tr in traces.items():
+        err = tr["tracking_error_m"][:, 0]
+        ax.plot(np.arange(len(err)) * 0.1, err, lw=0.8, label=name)
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("tracking error (m)")
+    ax.set_yscale("log")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(out / "tracking_error.png")
+    paths.append(str(out / "tracking_error.png"))
+    fig = Figure(figsize=(6, 5), dpi=90)
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot(1, 1, 1, projection="3d")
+    first = next(iter(traces.values()))
+    ref = first["ref_pos"][:, 0]
+    ax.plot(ref[:, 0], ref[:, 1], ref[:, 2], "k--", lw=1, label="reference")
+    for name, tr in traces.items():
+        pos = tr["pos"][:, 0]
+        ax.plot(pos[:, 0], pos[:, 1], pos[:, 2], lw=0.8, label=name)
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_zlabel("z (m)")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(out / "trajectories.png")
+    paths.append(str(out / "trajectories.png"))
+    return paths
+
+
+def main(argv: list[str] | None = None) -> dict:
+    ap = argparse.ArgumentParser(prog="python -m eval", description=__doc__.split("\n")[0])
+    ap.add_argument("--policies", default=DEFAULT_POLICIES,
+                    help="comma-separated NAME=PATH or specs (default: the shipped PPO agent, sca, "
+                         "sca-per-slot, equal)")
+    ap.add_argument("--episodes", type=int, default=20, help="held-out episodes per policy")
+    ap.add_argument("--seed-start", type=int, default=10_000, help="seed of the first episode")
+    ap.add_argument("--seeds", help="explicit comma-separated seeds (instead of --episodes/--seed-start)")
+    ap.add_argument("--scenario", default="paper", help="scenario preset")
+    ap.add_argument("--reference", default="sca", help="policy the paired differences are taken against")
+    ap.add_argument("--max-steps", type=int, help="slots per episode (default: the whole mission)")
+    ap.add_argument("--json", metavar="PATH", help="write the results as JSON")
+    ap.add_argument("--plots", metavar="DIR", help="write allocation / error / trajectory plots here")
+    ap.add_argument("--train-steps", type=int, default=0,
+                    help="train a fresh PPO agent for this many steps first (into --train-out) and "
+                         "evaluate it as 'ppo'")
+    ap.add_argument("--train-out", default="runs/ppo_main", help="run directory of --train-steps")
+    args = ap.parse_args(argv)
+    specs = args.policies
+    if args.train_steps > 0:
+        from train import Args
+        from train import main as train_main
+
+        summary = train_main(Args(total_timesteps=args.train_steps, out=args.train_out, scenario=args.scenario,
+                                  progress_bar=True))
+        print(f"trained PPO: {summary['timesteps']} steps in {summary['wall_time_s']:.0f} s -> {args.train_out}")
+        specs = ",".join(f"ppo={args.train_out}" if s.startswith("ppo=") else s for s in _split_specs(specs))
+        if "ppo=" not in specs:
+            specs = f"ppo={args.train_out}," + specs
+    seeds = ([int(s) for s in args.seeds.split(",")] if args.seeds
+             else list(range(args.seed_start, args.seed_start + args.episodes)))
+    t0 = time.perf_counter()
+    policies = build_policies(specs, args.scenario)
+    reference = args.reference if args.reference in policies else None
+    res = evaluate(policies, seeds, scenario=args.scenario, reference=reference, max_steps=args.max_steps,
+                   record=1 if args.plots else 0)
+    print(format_table(res))
+    print(f"evaluated {len(policies)} policies x {len(seeds)} episodes in {time.perf_counter() - t0:.1f} s")
+    if args.plots:
+        for p in save_plots(res, args.plots):
+            print(f"wrote {p}")
+        res.pop("traces")
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(res, f, indent=1)
+        print(f"wrote {args.json}")
+    return res
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])

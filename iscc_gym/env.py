@@ -70,9 +70,11 @@ def observe(s: Scenario, state: loop.LoopState, last_received, last_peb_m):
     if not kernel.supported(s) or state.x.ndim != 2:
         return observe_reference(s, state, last_received, last_peb_m)
     nb = state.x.shape[0]
-    return kernel.observe_batch(kernel.kernel_constants(s)[0], state.x_hat, state.p, state.shadow, state.n, state.ref,
-                                np.broadcast_to(np.asarray(last_received, dtype=float), (nb,)),
-                                np.broadcast_to(np.asarray(last_peb_m, dtype=float), (nb,)))
+    obs = np.empty((nb, len(OBS_NAMES)), np.float32)
+    kernel.observe_batch(kernel.kernel_constants(s)[0], state.x_hat, state.p, state.shadow, state.n, state.ref,
+                         np.broadcast_to(np.asarray(last_received, dtype=float), (nb,)),
+                         np.broadcast_to(np.asarray(last_peb_m, dtype=float), (nb,)), obs)
+    return obs
 
 
 def observe_reference(s: Scenario, state: loop.LoopState, last_received, last_peb_m):
@@ -157,8 +159,9 @@ def env_step(s: Scenario, state: loop.LoopState, actions, normals, active=None):
     if kernel.supported(s):
         c, mats = kernel.kernel_constants(s)
         fn = kernel.env_step_batch_parallel if nb >= PARALLEL_MIN_BATCH else kernel.env_step_batch
-        x, x_hat, p, shadow, out, obs = fn(c, mats, state.x, state.x_hat, state.p, state.shadow, state.n,
-                                           state.ref, actions, normals, active)
+        x, x_hat, p, shadow, out, obs = outputs = kernel.new_outputs(nb, len(STEP_COLUMNS))
+        fn(c, mats, state.x, state.x_hat, state.p, state.shadow, state.n, state.ref, actions, normals, active,
+           *outputs)
         n = state.n + 1 if all_active else state.n + active
         return loop.LoopState(x=x, x_hat=x_hat, p=p, shadow=shadow, n=n, ref=state.ref), out, obs
     if all_active:

@@ -160,14 +160,10 @@ def _observe_one(c, x_hat, p, shadow, n, ref, last_received, last_peb, out):
 
 
 @njit(cache=True, error_model="numpy")
-def observe_batch(c, x_hat, p, shadow, n, ref, last_received, last_peb):
-    """The (B, 23) float32 observation of a batch (env.observe_reference)."""
-    nb = x_hat.shape[0]
-    out = np.empty((nb, 23))
-    for i in range(nb):
-        _observe_one(c, x_hat[i], p[i], shadow[i], n[i], ref[i], last_received[i],
-                     last_peb[i], out[i])
-    return out.astype(np.float32)
+def observe_batch(c, x_hat, p, shadow, n, ref, last_received, last_peb, obs):
+    """The observation of a batch (env.observe_reference), written into ``obs`` (B, 23) float32."""
+    for i in range(x_hat.shape[0]):
+        _observe_one(c, x_hat[i], p[i], shadow[i], n[i], ref[i], last_received[i], last_peb[i], obs[i])
 
 
 @njit(cache=True, error_model="numpy")
@@ -433,18 +429,15 @@ def _work():
 
 
 @njit(cache=True, error_model="numpy")
-def step_batch(c, mats, x, x_hat, p, shadow, n, ref, alpha, z):
-    """loop.step_reference for a batch: ``(x, x_hat, p, shadow, metrics (B, N_METRICS))``."""
-    nb = x.shape[0]
-    x_next, x_hat_next = np.empty((nb, 6)), np.empty((nb, 6))
-    p_next, shadow_next = np.empty((nb, 6, 6)), np.empty(nb)
-    metrics = np.empty((nb, N_METRICS))
+def step_batch(c, mats, x, x_hat, p, shadow, n, ref, alpha, z, x_next, x_hat_next, p_next, shadow_next, metrics):
+    """loop.step_reference for a batch, written into the output arrays (next x, x_hat, p, shadow and
+    the metrics (B, N_METRICS)); outputs are passed in because returning fresh arrays from compiled
+    code costs more than the slot itself at small batches."""
     work = _work()
-    for i in range(nb):
+    for i in range(x.shape[0]):
         shadow_next[i] = _step_one(c, mats, x[i], x_hat[i], p[i], shadow[i], n[i], ref[i], alpha[i, 0],
                                    alpha[i, 1], alpha[i, 2], z[i], x_next[i], x_hat_next[i], p_next[i],
                                    metrics[i], work)
-    return x_next, x_hat_next, p_next, shadow_next, metrics
 
 
 #: Extra columns of :func:`env_step_batch`'s metrics after :data:`METRIC_NAMES`.
@@ -495,23 +488,15 @@ def _env_rows(c, mats, x, x_hat, p, shadow, n, ref, action, z, active, lo, hi,
 
 
 @njit(cache=True, error_model="numpy")
-def _outputs(nb):
-    return (np.empty((nb, 6)), np.empty((nb, 6)), np.empty((nb, 6, 6)), np.empty(nb),
-            np.empty((nb, N_ENV_COLUMNS)), np.empty((nb, 23)))
-
-
-@njit(cache=True, error_model="numpy")
-def env_step_batch(c, mats, x, x_hat, p, shadow, n, ref, action, z, active):
+def env_step_batch(c, mats, x, x_hat, p, shadow, n, ref, action, z, active,
+                   x_next, x_hat_next, p_next, shadow_next, out, obs):
     """One env step of a batch (env.env_step_reference): action -> split (env.action_to_split), slot
-    transition, reward and costs (env.reward_and_costs), next observation (env.observe_reference).
-
-    Loops with ``active[i]`` False are left as they are (state copied, zero outputs).
-    Returns ``(x, x_hat, p, shadow, out (B, N_ENV_COLUMNS), obs (B, 23) float32)``.
-    """
-    x_next, x_hat_next, p_next, shadow_next, out, obs = _outputs(x.shape[0])
+    transition, reward and costs (env.reward_and_costs), next observation (env.observe_reference),
+    written into the outputs: next x, x_hat, p, shadow, ``out`` (B, N_ENV_COLUMNS) and ``obs``
+    (B, 23) float32. Loops with ``active[i]`` False are left as they are (state copied, zero
+    outputs)."""
     _env_rows(c, mats, x, x_hat, p, shadow, n, ref, action, z, active, 0, x.shape[0],
               x_next, x_hat_next, p_next, shadow_next, out, obs)
-    return x_next, x_hat_next, p_next, shadow_next, out, obs.astype(np.float32)
 
 
 #: Rows per task of :func:`env_step_batch_parallel`.
@@ -519,14 +504,20 @@ PARALLEL_CHUNK = 128
 
 
 @njit(cache=True, error_model="numpy", parallel=True)
-def env_step_batch_parallel(c, mats, x, x_hat, p, shadow, n, ref, action, z, active):
+def env_step_batch_parallel(c, mats, x, x_hat, p, shadow, n, ref, action, z, active,
+                            x_next, x_hat_next, p_next, shadow_next, out, obs):
     """:func:`env_step_batch` with chunks of rows on all cores: each row goes through the same
     compiled :func:`_env_rows`, so results equal the serial kernel's bit for bit."""
     nb = x.shape[0]
-    x_next, x_hat_next, p_next, shadow_next, out, obs = _outputs(nb)
     n_chunks = (nb + PARALLEL_CHUNK - 1) // PARALLEL_CHUNK
     for k in prange(n_chunks):
         lo = k * PARALLEL_CHUNK
         _env_rows(c, mats, x, x_hat, p, shadow, n, ref, action, z, active, lo, min(lo + PARALLEL_CHUNK, nb),
                   x_next, x_hat_next, p_next, shadow_next, out, obs)
-    return x_next, x_hat_next, p_next, shadow_next, out, obs.astype(np.float32)
+
+
+def new_outputs(nb: int, columns: int):
+    """Fresh output arrays for the kernels: next x, x_hat, p, shadow, the columns array, and the
+    float32 observation."""
+    return (np.empty((nb, 6)), np.empty((nb, 6)), np.empty((nb, 6, 6)), np.empty(nb), np.empty((nb, columns)),
+            np.empty((nb, 23), np.float32))

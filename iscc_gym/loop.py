@@ -219,14 +219,16 @@ def step(s: Scenario, state: LoopState, alpha, rng):
     batch = None if x.ndim == 1 else x.shape[0]
     _check_step(s, state, alpha)
     z = standard_normals(rng, batch)
+    nb = 1 if batch is None else batch
+    x_n, xh_n, p_n, sh_n, met, _ = kernel.new_outputs(nb, kernel.N_METRICS)
     if batch is None:  # a batch of one, squeezed back
-        out = kernel.step_batch(*kernel.kernel_constants(s), x[None], state.x_hat[None], state.p[None],
-                                state.shadow[None], state.n[None], state.ref[None], alpha[None], z[None])
-        x_n, xh_n, p_n, sh_n, met = (v[0] for v in out)
+        kernel.step_batch(*kernel.kernel_constants(s), x[None], state.x_hat[None], state.p[None],
+                          state.shadow[None], state.n[None], state.ref[None], alpha[None], z[None],
+                          x_n, xh_n, p_n, sh_n, met)
+        x_n, xh_n, p_n, sh_n, met = x_n[0], xh_n[0], p_n[0], sh_n[0], met[0]
     else:
-        x_n, xh_n, p_n, sh_n, met = kernel.step_batch(*kernel.kernel_constants(s), x, state.x_hat,
-                                                      state.p, state.shadow, state.n, state.ref,
-                                                      alpha, z)
+        kernel.step_batch(*kernel.kernel_constants(s), x, state.x_hat, state.p, state.shadow, state.n,
+                          state.ref, alpha, z, x_n, xh_n, p_n, sh_n, met)
     metrics = dict(zip(kernel.METRIC_NAMES, met.T, strict=True))
     metrics["packet_received"] = metrics["packet_received"] > 0.5
     metrics["diverged"] = metrics["diverged"] > 0.5

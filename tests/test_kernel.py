@@ -40,9 +40,9 @@ def test_env_step_kernel_matches_numpy_reference(name, overrides):
     c, mats = kernel.kernel_constants(s)
     for t in range(150):
         z = loop.standard_normals(rngs, b)
-        x, x_hat, p, shadow, out, obs = kernel.env_step_batch(c, mats, state.x, state.x_hat, state.p,
-                                                              state.shadow, state.n, state.ref, acts[t], z,
-                                                              np.ones(b, dtype=bool))
+        x, x_hat, p, shadow, out, obs = outputs = kernel.new_outputs(b, len(E.STEP_COLUMNS))
+        kernel.env_step_batch(c, mats, state.x, state.x_hat, state.p, state.shadow, state.n, state.ref, acts[t], z,
+                              np.ones(b, dtype=bool), *outputs)
         ref_state, ref_out, ref_obs = E.env_step_reference(s, state, acts[t], z)
         np.testing.assert_allclose(out, ref_out, rtol=1e-9, atol=1e-12)
         np.testing.assert_allclose(obs, ref_obs, rtol=1e-6, atol=1e-6)

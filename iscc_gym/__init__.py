@@ -8,7 +8,7 @@ Efficient Drone Flight", as pure batched numpy functions (``channel``, ``fbl``, 
 
 import gymnasium as _gym
 
-from .env import ISCCEnv, action_to_split, split_to_action
+from .env import REGISTERED_MAX_EPISODE_STEPS, ISCCEnv, action_to_split, split_to_action
 from .scenario import SCENARIOS, Scenario, make_scenario
 
 __all__ = ["Scenario", "SCENARIOS", "make_scenario", "ISCCEnv", "action_to_split", "split_to_action",
@@ -17,8 +17,9 @@ __all__ = ["Scenario", "SCENARIOS", "make_scenario", "ISCCEnv", "action_to_split
 #: The registered environment id.
 ENV_ID = "iscc_gym/ISCC-v0"
 
+assert SCENARIOS["paper"].n_slots == REGISTERED_MAX_EPISODE_STEPS
 if ENV_ID not in _gym.registry:
     _gym.register(id=ENV_ID, entry_point="iscc_gym.env:ISCCEnv",
                   vector_entry_point="iscc_gym.vector:ISCCVectorEnv",
-                  max_episode_steps=SCENARIOS["paper"].n_slots)
+                  max_episode_steps=REGISTERED_MAX_EPISODE_STEPS)
 __version__ = "0.1.0"

@@ -191,6 +191,19 @@ def env_step_reference(s: Scenario, state: loop.LoopState, actions, z):
     return new, out, obs
 
 
+#: The registered ``max_episode_steps`` of ``iscc_gym/ISCC-v0`` (the paper's mission: 500 s / 0.1 s).
+REGISTERED_MAX_EPISODE_STEPS = 5000
+
+
+def warn_time_limit(s: Scenario) -> None:
+    """Warn when the scenario's mission length differs from the registered TimeLimit: ``gymnasium.make``
+    wraps the env in ``TimeLimit(5000)`` unless it is given ``max_episode_steps``."""
+    if s.n_slots != REGISTERED_MAX_EPISODE_STEPS:
+        gym.logger.warn(f"this scenario's mission has n_slots = {s.n_slots} slots, but gymnasium.make applies the "
+                        f"registered TimeLimit of {REGISTERED_MAX_EPISODE_STEPS} steps: pass "
+                        f"max_episode_steps={s.n_slots} to gymnasium.make / make_vec (ignore this if you did)")
+
+
 class ISCCEnv(gym.Env):
     """Allocate each slot's time-frequency resources of an ISCC drone-tracking loop.
 
@@ -296,6 +309,7 @@ class ISCCEnv(gym.Env):
     def __init__(self, scenario: str | Scenario = "paper", render_mode: str | None = None,
                  **overrides: Any):
         self.scenario = make_scenario(scenario, **overrides)
+        warn_time_limit(self.scenario)
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode={render_mode!r}; use None or one of "
                              f"{self.metadata['render_modes']}")

@@ -16,8 +16,11 @@ _INV_SQRT2 = 1.0 / np.sqrt(2.0)
 
 
 def q_func(x):
-    """Gaussian tail :math:`Q(x) = \\tfrac12 \\operatorname{erfc}(x/\\sqrt2)`."""
-    return 0.5 * erfc(np.asarray(x, dtype=float) * _INV_SQRT2)
+    """Gaussian tail :math:`Q(x) = \\tfrac12 \\operatorname{erfc}(x/\\sqrt2)`.
+
+    For x above about 37 the result is subnormal or 0 (a gradual underflow, not an error)."""
+    with np.errstate(under="ignore"):
+        return 0.5 * erfc(np.asarray(x, dtype=float) * _INV_SQRT2)
 
 
 def q_inv(p):

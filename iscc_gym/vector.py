@@ -14,7 +14,15 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from . import loop
-from .env import OBS_BOUND, OBS_NAMES, STEP_COLUMNS, env_step, observe
+from .env import (
+    OBS_BOUND,
+    OBS_NAMES,
+    REGISTERED_MAX_EPISODE_STEPS,
+    STEP_COLUMNS,
+    env_step,
+    observe,
+    warn_time_limit,
+)
 from .scenario import Scenario, make_scenario
 from .trajectory import sample_reference
 
@@ -71,6 +79,8 @@ class ISCCVectorEnv(VectorEnv):
         if max_episode_steps is not None and max_episode_steps < 1:
             raise ValueError(f"max_episode_steps = {max_episode_steps}; use an integer >= 1 or None")
         self.scenario = make_scenario(scenario, **overrides)
+        if max_episode_steps == REGISTERED_MAX_EPISODE_STEPS:
+            warn_time_limit(self.scenario)
         self.num_envs = int(num_envs)
         self.render_mode = None
         self.metadata = {**self.metadata, "autoreset_mode": mode}

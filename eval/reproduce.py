@@ -15,23 +15,28 @@ import argparse
 import json
 import sys
 import time
-from dataclasses import dataclass
 
 import numpy as np
 import scipy.linalg
 from scipy.optimize import brentq
 
 from iscc_gym import SCENARIOS, Scenario, loop, make_scenario
-from iscc_gym.channel import geometry, large_scale_snr
+from iscc_gym.analysis import (
+    TrajectorySample,
+    mean_bounds,
+    mean_comm_rate_bps,
+    mean_snr,
+    sample_positions,
+)
+from iscc_gym.channel import geometry
 from iscc_gym.dynamics import model_matrices
-from iscc_gym.fbl import comm_rate_bps, ctrl_bler, dispersion, q_inv
+from iscc_gym.fbl import ctrl_bler, dispersion, q_inv
 from iscc_gym.sensing import (
     crlb,
     echo_amplitude_sq,
     peb,
     sensing_noise_var_w,
     signature_derivatives,
-    veb,
 )
 from iscc_gym.stability import (
     alpha_ctrl_star,
@@ -60,38 +65,6 @@ PAPER = {
 ALPHA_SEN_GRID = (0.01, 0.02, 0.05, 0.1, 0.15, 0.2, 0.3, 0.5, 0.8)
 ALPHA_CTRL_GRID = (0.02, 0.03, 0.035, 0.04, 0.045, 0.05, 0.06, 0.08, 0.1)
 LARGE_ALPHA_CTRL = 0.2
-
-
-@dataclass(frozen=True)
-class TrajectorySample:
-    """Drone positions along sampled reference trajectories (every ``stride``-th slot)."""
-
-    pos_m: np.ndarray  # (n, 3)
-    n_trajectories: int
-
-
-def sample_positions(s: Scenario, n_trajectories: int, seed: int = 0, stride: int = 10):
-    """Reference positions of ``n_trajectories`` seeded trajectories, one every ``stride`` slots."""
-    rng = np.random.default_rng(seed)
-    pos = [sample_reference(s, rng).pos_m[::stride] for _ in range(n_trajectories)]
-    return TrajectorySample(np.concatenate(pos), n_trajectories)
-
-
-def mean_snr(s: Scenario, sample: TrajectorySample) -> float:
-    """Trajectory-averaged SNR (linear mean of the large-scale SNR, shadowing at its 0 dB median,
-    E|g|^2 = 1)."""
-    return float(np.mean(large_scale_snr(s, sample.pos_m, 0.0)))
-
-
-def mean_comm_rate_bps(s: Scenario, sample: TrajectorySample, alpha_comm: float = 1.0) -> float:
-    """Trajectory average of the data link's FBL rate (eq:rate_equation) at ``alpha_comm``."""
-    return float(np.mean(comm_rate_bps(s, alpha_comm, large_scale_snr(s, sample.pos_m, 0.0))))
-
-
-def mean_bounds(s: Scenario, sample: TrajectorySample, alpha_sen: float):
-    """Trajectory-averaged PEB (m) and VEB (m/s) at ``alpha_sen`` (large-scale echo, no fading)."""
-    cp, cv = crlb(s, alpha_sen, sample.pos_m, 0.0)
-    return float(np.mean(peb(cp))), float(np.mean(veb(cv)))
 
 
 def calibrate(s: Scenario, sample: TrajectorySample, eps_max: float) -> dict[str, float]:

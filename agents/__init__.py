@@ -1,0 +1,96 @@
+"""Policies for ``iscc_gym/ISCC-v0`` behind one SB3-style protocol.
+
+Every policy has ``predict(obs, state=None, episode_start=None, deterministic=True) -> (action,
+state)`` with the env's action in [-1, 1]^3, so evaluation code treats scripted policies and trained
+SB3 models alike:
+
+* :class:`FixedSplitPolicy`, :class:`EqualSplitPolicy`: a constant split;
+* :class:`SCAPolicy`: the paper's Algorithm 1, static (``mode="static"``) or re-solved every slot
+  (``mode="per_slot"``), optionally designed ignoring packet loss;
+* :func:`grid_search`, :func:`evolutionary_search`: search baselines over static splits, scored by
+  :mod:`iscc_gym.analysis`; their results carry a policy that plays the split found;
+* :func:`make_policy`: a policy from a short spec string.
+"""
+
+from __future__ import annotations
+
+import functools
+
+from iscc_gym.scenario import Scenario, make_scenario
+
+from .base import EqualSplitPolicy, FixedSplitPolicy, Policy, SplitPolicy, validate_split
+from .sca import SCAPolicy, SCAResult, sca_allocation, solve_sca
+from .search import SearchResult, evolutionary_search, grid_search
+
+__all__ = [
+    "Policy",
+    "SplitPolicy",
+    "FixedSplitPolicy",
+    "EqualSplitPolicy",
+    "SCAPolicy",
+    "SCAResult",
+    "sca_allocation",
+    "solve_sca",
+    "SearchResult",
+    "grid_search",
+    "evolutionary_search",
+    "make_policy",
+    "POLICY_SPECS",
+]
+
+#: The specs :func:`make_policy` understands.
+POLICY_SPECS = ("sca", "sca-per-slot", "sca-ignore-loss", "equal", "fixed:A_SEN,A_CTRL,A_COMM", "grid",
+                "evolutionary")
+
+
+def make_policy(spec: str, scenario: Scenario | str = "paper", seed: int = 0):
+    """A policy from a spec string.
+
+    Parameters
+    ----------
+    spec : str
+        ``"sca"`` (static SCA), ``"sca-per-slot"``, ``"sca-ignore-loss"`` (static SCA designed with
+        eps_ctrl = 0), ``"equal"``, ``"fixed:0.2,0.2,0.6"`` (alpha_sen, alpha_ctrl, alpha_comm),
+        ``"grid"`` (grid search, 1 % steps), ``"evolutionary"`` (differential evolution); the
+        searches are deterministic, so their policies are cached per scenario (and seed).
+    scenario : Scenario or str
+        The scenario (or preset name) the model-based policies design for.
+    seed : int
+        Seed of the evolutionary search.
+
+    Raises
+    ------
+    ValueError
+        Unknown spec (the message lists the valid ones) or a malformed fixed split.
+    """
+    if not isinstance(spec, str):
+        raise ValueError(f"spec must be a string, one of {list(POLICY_SPECS)}; got {spec!r}")
+    s = make_scenario(scenario) if isinstance(scenario, str) else scenario
+    key = spec.strip().lower()
+    if key == "equal":
+        return EqualSplitPolicy()
+    if key.startswith("fixed:"):
+        parts = key[len("fixed:"):].split(",")
+        try:
+            split = [float(p) for p in parts]
+        except ValueError:
+            raise ValueError(f"spec {spec!r}: 'fixed:' takes three numbers, e.g. 'fixed:0.2,0.2,0.6'") from None
+        return FixedSplitPolicy(validate_split(split, f"spec {spec!r}"), name=key)
+    if key == "sca":
+        return SCAPolicy(s, mode="static")
+    if key == "sca-per-slot":
+        return SCAPolicy(s, mode="per_slot")
+    if key == "sca-ignore-loss":
+        return SCAPolicy(s, mode="static", ignore_loss=True)
+    if key == "grid":
+        return _searched(s, "grid", 0)
+    if key == "evolutionary":
+        return _searched(s, "evolutionary", seed)
+    raise ValueError(f"unknown policy spec {spec!r}; valid specs: {list(POLICY_SPECS)}")
+
+
+@functools.lru_cache(maxsize=16)
+def _searched(s: Scenario, method: str, seed: int) -> FixedSplitPolicy:
+    """The policy of a search (deterministic, so cached per scenario, method and seed)."""
+    res = grid_search(s) if method == "grid" else evolutionary_search(s, seed=seed)
+    return FixedSplitPolicy(res.alpha, name=method)

@@ -1,0 +1,973 @@
+"""Analytic (steady-state) evaluation of a static allocation (alpha_sen, alpha_ctrl, alpha_comm).
+
+The paper's problem prob:resource_allocation asks for the split that minimises the mean tracking
+error of the closed loop eq:closed_loop subject to mean-square stability (cons:stability), the
+rate-cost constraint (cons:rate_cost) and the data rate (cons:comm_rate). This module evaluates any
+static split without simulating: the Kalman filter's steady state (eq:KF_update, eq:observation_model
+with the CRLB of eq:CRLB_pos), the closed loop's second-moment recursion with the split's
+packet-loss rate (eq:covariance_recursion, eq:M), the LQG cost (eq:LQG_cost), the PEB and the
+finite-blocklength rates (eq:rate_equation, eq:ctrl_bler), all averaged over positions sampled
+along random reference trajectories (Sec. V-A). :class:`StaticModel` caches everything that does
+not depend on the split, so a grid of thousands of splits evaluates in a few seconds.
+
+How the steady state is computed (``docs/model.md``, Sec. 3):
+
+* **Frozen geometry.** At each sampled position the filter is taken at its steady state for that
+  position's measurement noise (the drone moves a few metres while the filter converges). With the
+  isotropic A, B, K and process noise, rotating to the principal axes of the local CRLB splits the
+  6-state filter into three independent 2-state (position, velocity) filters: the range axis
+  measures position and radial velocity, the two cross-range axes position only. Each is solved by
+  the structure-preserving doubling algorithm, vectorised over positions, axes and splits.
+* **Exact closed-loop recursion.** With the estimate :math:`\\hat{\\mathbf z}_n = \\hat{\\mathbf x}_n -
+  \\mathbf x_{\\mathrm{ref},n}`, the loop is :math:`\\hat{\\mathbf z}_{n+1} = (\\mathbf A - \\delta_n
+  \\mathbf B\\mathbf K)\\hat{\\mathbf z}_n + \\mathbf L\\boldsymbol\\nu_{n+1}` (innovations white and
+  independent of :math:`\\delta_n`, because the GBS learns :math:`\\delta_n` from the acknowledgement),
+  and the tracking error is :math:`\\hat{\\mathbf z}_n + \\mathbf e_n` with
+  :math:`\\mathbf e_n \\perp \\hat{\\mathbf z}_n`. Hence
+
+  .. math::
+      \\Sigma_{\\hat z} = (1-\\varepsilon)(\\mathbf A-\\mathbf B\\mathbf K)\\Sigma_{\\hat z}(\\mathbf A-
+      \\mathbf B\\mathbf K)^T + \\varepsilon\\mathbf A\\Sigma_{\\hat z}\\mathbf A^T + (\\mathbf P_{n|n-1}
+      - \\Sigma_\\mathrm{est}),\\qquad \\Sigma_x = \\Sigma_{\\hat z} + \\Sigma_\\mathrm{est},
+
+  the recursion eq:covariance_recursion with :math:`\\mathbf P_{n|n-1} - \\Sigma_\\mathrm{est}` in place
+  of eq:omega_tilde_cov's :math:`\\Sigma_{\\tilde\\omega}`. The paper's form (which drops the
+  correlation between :math:`\\mathbf x_n` and :math:`\\mathbf e_n`) is available as
+  ``recursion="paper"``.
+* **Packet loss.** eq:ctrl_bler averaged over the slot's unknowns: shadowing (Gauss-Hermite) and
+  Rician fading (non-central chi-square quantiles), per position. ``loss_average="local"``
+  (default) applies each position's own loss rate to that position's steady state, and the loop is
+  stable only if every position's loss rate is below eps*; ``"trajectory"`` uses one loss rate for
+  all positions, the trajectory average (the paper's :math:`\\varepsilon_\\mathrm{ctrl} =
+  \\frac1N\\sum_n\\varepsilon_{\\mathrm{ctrl},n}`), which is optimistic when the far part of a
+  trajectory loses most commands (the losses come in long runs there, not independently).
+* **Mean error.** The tracking error reported is :math:`\\mathbb E\\|\\mathbf e_\\mathbf p\\|` (what
+  the env and the paper's Table II report) of the zero-mean Gaussian position error, by quadrature
+  on the sphere; ``tracking_rmse_m`` is :math:`\\sqrt{\\mathbb E\\|\\mathbf e_\\mathbf p\\|^2}`
+  (prob:obj).
+
+The lag of a moving reference without feed-forward is neglected (< 0.1 mm, ``docs/model.md`` 2.10).
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass, fields
+
+import numpy as np
+from numpy.polynomial.hermite_e import hermegauss
+from numpy.polynomial.legendre import leggauss
+from scipy.interpolate import CubicSpline
+from scipy.optimize import brentq
+from scipy.stats import ncx2
+
+from .channel import direction_trig, geometry, large_scale_snr, shadowing_std_db
+from .dynamics import model_matrices
+from .fbl import comm_rate_bps, link_terms, min_shares, q_func, q_inv
+from .scenario import SPEED_OF_LIGHT_MPS, Scenario
+from .sensing import crlb, fim_terms, matched_signature_terms, peb, signature_derivatives, veb
+from .stability import lqg_cost_floor, rate_cost_bits, riccati_s_d, scenario_eps_star
+from .trajectory import sample_reference
+from .units import db_to_lin
+
+__all__ = [
+    "TrajectorySample",
+    "sample_positions",
+    "mean_snr",
+    "mean_comm_rate_bps",
+    "mean_bounds",
+    "SensingCoefficients",
+    "sensing_coefficients",
+    "local_crlb",
+    "crlb_trace",
+    "ctrl_goodput_bits",
+    "rician_power_nodes",
+    "axis_kalman_steady_state",
+    "expected_norm",
+    "AllocationMetrics",
+    "StaticModel",
+    "static_model",
+    "evaluate_allocation",
+]
+
+
+# --------------------------------------------------------------------------------------------------
+# trajectory sample and trajectory-averaged link quantities (shared with eval.reproduce)
+# --------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class TrajectorySample:
+    """Drone positions along sampled reference trajectories (every ``stride``-th slot).
+
+    Attributes
+    ----------
+    pos_m : ndarray, shape (n, 3)
+        Reference positions in m, trajectories concatenated.
+    n_trajectories : int
+    """
+
+    pos_m: np.ndarray
+    n_trajectories: int
+
+
+def sample_positions(s: Scenario, n_trajectories: int, seed: int = 0, stride: int = 10) -> TrajectorySample:
+    """Reference positions of ``n_trajectories`` seeded trajectories (Sec. V-A), one every
+    ``stride`` slots (slot 0 included).
+
+    Raises
+    ------
+    ValueError
+        ``n_trajectories`` or ``stride`` not a positive integer.
+    """
+    for name, v in (("n_trajectories", n_trajectories), ("stride", stride)):
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
+            raise ValueError(f"{name} = {v!r} is invalid: must be an integer >= 1")
+    rng = np.random.default_rng(seed)
+    pos = [sample_reference(s, rng).pos_m[::stride] for _ in range(n_trajectories)]
+    return TrajectorySample(np.concatenate(pos), int(n_trajectories))
+
+
+def mean_snr(s: Scenario, sample: TrajectorySample) -> float:
+    """Trajectory-averaged SNR :math:`\\bar\\gamma` (linear mean of the large-scale SNR, shadowing at
+    its 0 dB median, :math:`\\mathbb E|g|^2 = 1`), the SNR of the paper's Sec. IV-C.1."""
+    return float(np.mean(large_scale_snr(s, sample.pos_m, 0.0)))
+
+
+def mean_comm_rate_bps(s: Scenario, sample: TrajectorySample, alpha_comm: float = 1.0) -> float:
+    """Trajectory average of the data link's FBL rate (eq:rate_equation) at ``alpha_comm``, in bit/s
+    (large-scale SNR, no fading)."""
+    return float(np.mean(comm_rate_bps(s, alpha_comm, large_scale_snr(s, sample.pos_m, 0.0))))
+
+
+def mean_bounds(s: Scenario, sample: TrajectorySample, alpha_sen: float):
+    """Trajectory-averaged PEB (m) and VEB (m/s) at ``alpha_sen`` (large-scale echo, no fading)."""
+    cp, cv = crlb(s, alpha_sen, sample.pos_m, 0.0)
+    return float(np.mean(peb(cp))), float(np.mean(veb(cv)))
+
+
+# --------------------------------------------------------------------------------------------------
+# sensing: the CRLB as an explicit function of alpha_sen
+# --------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class SensingCoefficients:
+    """Position-domain Fisher information of the ISAC measurement at ``alpha_sen = 1``.
+
+    The closed-form FIM (eq:FIM_tau -- eq:FIM_zero) scales as :math:`\\alpha_\\mathrm{sen}^3` in the
+    range (delay) entry and as :math:`\\alpha_\\mathrm{sen}` in the angle and Doppler entries, so the
+    CRLB at any share follows from these coefficients (:func:`local_crlb`). Frame: range direction
+    :math:`\\mathbf g`, azimuth direction :math:`\\mathbf e_\\theta`, elevation direction
+    :math:`\\mathbf e_\\varphi` (:func:`iscc_gym.sensing.local_frame`).
+
+    Attributes
+    ----------
+    info_range : ndarray, m^-2
+        :math:`(2/c)^2 J_{\\tau\\tau}` at :math:`\\alpha_\\mathrm{sen}=1`.
+    info_az, info_cross, info_el : ndarray, m^-2
+        Entries of :math:`\\mathbf D\\mathbf J_{\\theta\\varphi}\\mathbf D` (azimuth, cross, elevation).
+    info_vr : ndarray, (m/s)^-2
+        :math:`J_{\\nu\\nu}/(\\lambda/2)^2`.
+    prior : float, m^-2
+        ``1 / sensing_prior_var_m2`` (added to every diagonal entry, as in ``sensing.crlb_local``).
+    """
+
+    info_range: np.ndarray
+    info_az: np.ndarray
+    info_cross: np.ndarray
+    info_el: np.ndarray
+    info_vr: np.ndarray
+    prior: float
+
+
+def sensing_coefficients(s: Scenario, dist_m, trig, shadow_db=0.0, fading_gain=1.0) -> SensingCoefficients:
+    """:class:`SensingCoefficients` at ranges ``dist_m`` and directions ``trig`` (the output of
+    :func:`iscc_gym.channel.direction_trig`), for the given shadowing (dB) and fading gain."""
+    ct, st, cp, sp = trig
+    signature = (matched_signature_terms(s, ct, st, cp, sp) if s.beamforming == "matched" else
+                 signature_derivatives(s, np.arctan2(st, ct), np.arctan2(sp, cp)))
+    dist = np.asarray(dist_m, dtype=float)
+    j_tau, j_nu, j_tt, j_pp, j_tp = fim_terms(s, 1.0, dist, shadow_db, fading_gain, signature)
+    inv_l = 1.0 / dist
+    inv_lc = inv_l / np.maximum(cp, 1e-9)
+    lam_half_sq = (0.5 * s.wavelength_m) ** 2
+    return SensingCoefficients(
+        info_range=np.asarray(j_tau * (2.0 / SPEED_OF_LIGHT_MPS) ** 2, dtype=float),
+        info_az=np.asarray(j_tt * inv_lc * inv_lc, dtype=float),
+        info_cross=np.asarray(j_tp * inv_lc * inv_l, dtype=float),
+        info_el=np.asarray(j_pp * inv_l * inv_l, dtype=float),
+        info_vr=np.asarray(j_nu / lam_half_sq, dtype=float),
+        prior=1.0 / s.sensing_prior_var_m2,
+    )
+
+
+def local_crlb(coef: SensingCoefficients, alpha_sen):
+    """Local-frame CRLB at sensing share ``alpha_sen`` (equal to :func:`iscc_gym.sensing.crlb_local`).
+
+    Returns
+    -------
+    m_r, m_tt, m_tp, m_pp : ndarray, m^2
+        Range variance and the azimuth/elevation 2 x 2 block of the position CRLB (eq:CRLB_pos).
+    crlb_vr : ndarray, (m/s)^2
+    """
+    a_s = np.asarray(alpha_sen, dtype=float)
+    p = coef.prior
+    a = a_s * coef.info_az + p
+    b = a_s * coef.info_cross
+    d = a_s * coef.info_el + p
+    inv_det = 1.0 / (a * d - b * b)
+    return (1.0 / (a_s**3 * coef.info_range + p), d * inv_det, -b * inv_det, a * inv_det,
+            1.0 / (a_s * coef.info_vr + p))
+
+
+def crlb_trace(coef: SensingCoefficients, alpha_sen):
+    """:math:`f_\\mathrm{sen}(\\alpha_\\mathrm{sen}) = \\operatorname{Tr}\\mathrm{CRLB}_\\mathbf p`
+    (PEB squared, m^2) and its derivative in ``alpha_sen`` (the SCA objective, Sec. IV-B).
+
+    Returns
+    -------
+    trace_m2, dtrace : ndarray
+    """
+    a_s = np.asarray(alpha_sen, dtype=float)
+    p = coef.prior
+    a = a_s * coef.info_az + p
+    b = a_s * coef.info_cross
+    d = a_s * coef.info_el + p
+    num, den = a + d, a * d - b * b
+    dden = coef.info_az * d + a * coef.info_el - 2.0 * b * coef.info_cross
+    r = a_s**3 * coef.info_range + p
+    trace = 1.0 / r + num / den
+    dtrace = (-3.0 * a_s**2 * coef.info_range / (r * r)
+              + ((coef.info_az + coef.info_el) * den - num * dden) / (den * den))
+    return trace, dtrace
+
+
+# --------------------------------------------------------------------------------------------------
+# control link: g(alpha_ctrl) of Sec. IV-B
+# --------------------------------------------------------------------------------------------------
+def ctrl_goodput_bits(s: Scenario, alpha_ctrl, snr, ignore_loss: bool = False):
+    """Effective control-link supply :math:`g(\\alpha_\\mathrm{ctrl}) = (1-\\varepsilon_\\mathrm{ctrl})
+    \\mathcal R_\\mathrm{ctrl}\\,\\Delta t` in bits per slot, and its derivative in ``alpha_ctrl``.
+
+    :math:`\\varepsilon_\\mathrm{ctrl}` is eq:ctrl_bler and :math:`\\mathcal R_\\mathrm{ctrl}` the FBL
+    rate eq:rate_equation (target BLER ``ctrl_target_bler``) at the linear SNR ``snr``. The
+    left-hand side of cons:rate_cost, per slot so that it compares with L(b) in bits per control
+    sample. ``ignore_loss=True`` sets :math:`\\varepsilon_\\mathrm{ctrl} = 0` (the design that ignores
+    packet loss).
+
+    .. math::
+        g' = (1-\\varepsilon)\\mathcal R'\\Delta t - \\varepsilon'\\mathcal R\\Delta t,\\qquad
+        \\varepsilon' = -\\phi(x)\\sqrt{L_\\mathrm{ctrl}/V}\\,\\frac{S}{T_d B\\alpha^2}
+
+    Returns
+    -------
+    g_bits, dg_bits : ndarray
+    """
+    a = np.maximum(np.asarray(alpha_ctrl, dtype=float), 1e-12)
+    cap, sqrt_v = link_terms(np.asarray(snr, dtype=float))
+    back_off = float(q_inv(s.ctrl_target_bler)) / math.sqrt(s.ctrl_blocklength)
+    per_share = s.bandwidth_hz * np.maximum(cap - sqrt_v * back_off, 0.0) * s.dt_s  # bits per slot
+    if ignore_loss:
+        return a * per_share, per_share + 0.0 * a
+    bits_per_hz = s.ctrl_packet_bits / (s.ctrl_deadline_s * s.bandwidth_hz)
+    scale = math.sqrt(s.ctrl_blocklength) / np.maximum(sqrt_v, 1e-150)
+    x = scale * (cap - bits_per_hz / a)
+    eps = q_func(x)
+    deps = -np.exp(-0.5 * x * x) / math.sqrt(2.0 * math.pi) * scale * bits_per_hz / (a * a)
+    return (1.0 - eps) * a * per_share, (1.0 - eps) * per_share - deps * a * per_share
+
+
+# --------------------------------------------------------------------------------------------------
+# Kalman steady state of one axis (2 states) and the expected norm of a Gaussian vector
+# --------------------------------------------------------------------------------------------------
+def _mul(x, y):
+    """Product of 2 x 2 matrices stored as (m00, m01, m10, m11) tuples of arrays."""
+    x00, x01, x10, x11 = x
+    y00, y01, y10, y11 = y
+    return (x00 * y00 + x01 * y10, x00 * y01 + x01 * y11, x10 * y00 + x11 * y10, x10 * y01 + x11 * y11)
+
+
+def _tr(x):
+    return (x[0], x[2], x[1], x[3])
+
+
+def _inv(x):
+    x00, x01, x10, x11 = x
+    inv_det = 1.0 / (x00 * x11 - x01 * x10)
+    return (x11 * inv_det, -x01 * inv_det, -x10 * inv_det, x00 * inv_det)
+
+
+def _congruence(m, s):
+    """:math:`\\mathbf M\\mathbf S\\mathbf M^T` for symmetric S (both as 4-tuples); symmetric result."""
+    m00, m01, m10, m11 = m
+    s00, s01, _, s11 = s
+    t00, t01 = m00 * s00 + m01 * s01, m00 * s01 + m01 * s11  # first row of M S
+    t10, t11 = m10 * s00 + m11 * s01, m10 * s01 + m11 * s11
+    r01 = t00 * m10 + t01 * m11
+    return (t00 * m00 + t01 * m01, r01, r01, t10 * m10 + t11 * m11)
+
+
+def _add_sym(x, y):
+    return (x[0] + y[0], x[1] + y[1], x[2] + y[2], x[3] + y[3])
+
+
+def _sym(x):
+    off = 0.5 * (x[1] + x[2])
+    return (x[0], off, off, x[3])
+
+
+def axis_kalman_steady_state(dt_s: float, var_pos_m2: float, var_vel_m2s2: float, meas_pos_var_m2,
+                             meas_vel_var_m2s2=None, tol: float = 1e-12, max_iter: int = 60):
+    """Steady-state Kalman covariances of one axis of the double integrator, batched.
+
+    State (p, v), :math:`\\mathbf A_1 = [[1, \\Delta t], [0, 1]]`, process noise
+    :math:`\\mathrm{diag}(\\sigma_p^2, \\sigma_v^2)`, measurement of p with variance
+    ``meas_pos_var_m2`` and (optionally) of v with variance ``meas_vel_var_m2s2``. The filtering DARE
+    :math:`\\mathbf X = \\mathbf A_1\\mathbf X(\\mathbf I + \\mathbf G\\mathbf X)^{-1}\\mathbf A_1^T
+    + \\mathbf W`, :math:`\\mathbf G = \\mathbf C^T\\mathbf R^{-1}\\mathbf C`, is solved by the
+    structure-preserving doubling algorithm (Chu, Fan and Lin, 2005; quadratic convergence), written
+    out entry by entry so that it vectorises over any number of filters.
+
+    Parameters
+    ----------
+    dt_s : float
+        Slot duration.
+    var_pos_m2, var_vel_m2s2 : float
+        Process-noise variances per axis.
+    meas_pos_var_m2 : array_like, shape (...)
+        Position measurement variance (> 0).
+    meas_vel_var_m2s2 : array_like, shape (...), optional
+        ``None`` or ``inf``: velocity not measured on this axis.
+
+    Returns
+    -------
+    p_prior : ndarray, shape (..., 2, 2)
+        :math:`\\mathbf P_{n|n-1}`.
+    sigma_est : ndarray, shape (..., 2, 2)
+        :math:`\\Sigma_\\mathrm{est} = \\mathbf X(\\mathbf I + \\mathbf G\\mathbf X)^{-1}`.
+    """
+    rp = np.asarray(meas_pos_var_m2, dtype=float)
+    rv = np.full(rp.shape, np.inf) if meas_vel_var_m2s2 is None else np.broadcast_to(
+        np.asarray(meas_vel_var_m2s2, dtype=float), rp.shape)
+    zero = np.zeros(rp.shape)
+    one = zero + 1.0
+    g0 = (1.0 / rp, zero, zero, 1.0 / rv)
+    g = g0
+    a = (one, zero, zero + dt_s, one)  # A_1^T
+    h = (zero + var_pos_m2, zero, zero, zero + var_vel_m2s2)
+    for _ in range(max_iter):
+        gh = _mul(g, h)
+        w_inv = _inv((1.0 + gh[0], gh[1], gh[2], 1.0 + gh[3]))
+        h_new = _add_sym(h, _congruence(_tr(a), _sym(_mul(h, w_inv))))  # H + A^T (H W^-1) A
+        g = _add_sym(g, _congruence(a, _sym(_mul(w_inv, g))))  # G + A (W^-1 G) A^T
+        a = _mul(_mul(a, w_inv), a)
+        change = max(float(np.max(np.abs(h_new[0] - h[0]) / np.maximum(h_new[0], 1e-300), initial=0.0)),
+                     float(np.max(np.abs(h_new[3] - h[3]) / np.maximum(h_new[3], 1e-300), initial=0.0)))
+        h = h_new
+        if change <= tol:
+            break
+    gh = _mul(g0, h)
+    est = _sym(_mul(h, _inv((1.0 + gh[0], gh[1], gh[2], 1.0 + gh[3]))))
+    return _stack2(h), _stack2(est)
+
+
+def _stack2(x):
+    return np.stack([np.stack([x[0], x[1]], -1), np.stack([x[2], x[3]], -1)], -2)
+
+
+@functools.lru_cache(maxsize=4)
+def _sphere_rule(n: int = 6):
+    # Gauss-Legendre in t = |u_3| on [0, 1] and in the azimuth on [0, pi/2]: the octant suffices
+    # because the integrand depends on u_i^2 only
+    t, wt = leggauss(n)
+    t = 0.5 * (t + 1.0)
+    wt = 0.5 * wt
+    ph = 0.25 * np.pi * (t * 2.0)  # same nodes mapped to [0, pi/2]
+    wp = wt.copy()
+    tt, pp = np.meshgrid(t, ph, indexing="ij")
+    w = np.outer(wt, wp).ravel()
+    s2 = 1.0 - tt.ravel() ** 2
+    u2 = np.stack([s2 * np.cos(pp.ravel()) ** 2, s2 * np.sin(pp.ravel()) ** 2, tt.ravel() ** 2])
+    return u2, w / w.sum()
+
+
+_MEAN_CHI3 = 2.0 * math.sqrt(2.0 / math.pi)
+
+
+def expected_norm(var_m2):
+    """:math:`\\mathbb E\\|\\mathbf x\\|` of a zero-mean Gaussian vector in R^3 with covariance
+    eigenvalues ``var_m2`` (..., 3).
+
+    With :math:`\\mathbf x = \\Lambda^{1/2} r\\mathbf u` (:math:`r\\sim\\chi_3` independent of the
+    uniform direction :math:`\\mathbf u`), :math:`\\mathbb E\\|\\mathbf x\\| = \\mathbb E[\\chi_3]\\,
+    \\mathbb E_\\mathbf u\\sqrt{\\sum_i\\lambda_i u_i^2}`, :math:`\\mathbb E[\\chi_3] = 2\\sqrt{2/\\pi}`;
+    the direction average is a 6 x 6 Gauss-Legendre rule on the octant (relative error below 3e-4
+    for eigenvalue ratios up to 100, below 1e-3 in the degenerate limits).
+    """
+    u2, w = _sphere_rule()
+    lam = np.asarray(var_m2, dtype=float)
+    return _MEAN_CHI3 * (np.sqrt(np.maximum(lam @ u2, 0.0)) @ w)
+
+
+# --------------------------------------------------------------------------------------------------
+# the static model
+# --------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class AllocationMetrics:
+    """Steady-state figures of static splits, each an array of shape (n,) (or (n, 3) for ``alpha``).
+
+    Attributes
+    ----------
+    alpha : (n, 3)
+        The split (alpha_sen, alpha_ctrl, alpha_comm).
+    tracking_error_m :
+        Mean tracking error :math:`\\mathbb E\\|\\mathbf p_n - \\mathbf p_{\\mathrm{ref},n}\\|` (inf when
+        not mean-square stable).
+    tracking_rmse_m :
+        :math:`\\sqrt{\\mathbb E\\|\\mathbf e_\\mathbf p\\|^2}` (prob:obj).
+    estimation_error_m :
+        :math:`\\mathbb E\\|\\hat{\\mathbf p}_n - \\mathbf p_n\\|` of the Kalman estimate.
+    peb_m, veb_mps :
+        Trajectory-averaged PEB and VEB (large-scale echo, as ``eval.reproduce``).
+    eps_ctrl :
+        Trajectory-averaged control packet-loss rate (eq:ctrl_bler over shadowing and fading).
+    rho_m :
+        Spectral radius of eq:M at ``eps_ctrl``.
+    rate_comm_bps :
+        Mean data rate (eq:rate_equation over positions, shadowing and fading).
+    rate_shortfall :
+        Expected normalised shortfall :math:`\\mathbb E(R_\\min - \\mathcal R_{\\mathrm{comm},n})^+/R_\\min`
+        (the env's ``cost_rate``).
+    stability_violation :
+        Fraction of slots with :math:`\\varepsilon_{\\mathrm{ctrl},n} > \\varepsilon^\\star` (the env's
+        ``cost_stability``).
+    lqg_cost :
+        Average LQG cost b (eq:LQG_cost).
+    rate_ok :
+        ``rate_comm_bps >= rate_min_bps`` (cons:comm_rate on average).
+    stable :
+        ``eps_ctrl < eps*`` (cons:stability; with ``loss_average="local"`` every position's loss rate).
+    feasible :
+        ``rate_ok & stable``.
+    objective :
+        ``tracking_error_m`` where feasible, else ``max_tracking_error_m`` plus the constraint
+        violations (finite, for optimisers).
+    expected_reward :
+        Steady-state mean per-slot reward of the env: :math:`-\\min(\\mathbb E\\|\\mathbf e\\|, e_\\max)
+        - w_\\mathrm{rate}\\,` ``rate_shortfall`` :math:`- w_\\mathrm{stab}\\,` ``stability_violation``.
+    """
+
+    alpha: np.ndarray
+    tracking_error_m: np.ndarray
+    tracking_rmse_m: np.ndarray
+    estimation_error_m: np.ndarray
+    peb_m: np.ndarray
+    veb_mps: np.ndarray
+    eps_ctrl: np.ndarray
+    rho_m: np.ndarray
+    rate_comm_bps: np.ndarray
+    rate_shortfall: np.ndarray
+    stability_violation: np.ndarray
+    lqg_cost: np.ndarray
+    rate_ok: np.ndarray
+    stable: np.ndarray
+    feasible: np.ndarray
+    objective: np.ndarray
+    expected_reward: np.ndarray
+
+    def __getitem__(self, i):
+        """Metrics of split(s) ``i`` (an index, slice or mask)."""
+        return AllocationMetrics(**{f.name: getattr(self, f.name)[i] for f in fields(self)})
+
+    def as_dict(self, i: int = 0) -> dict:
+        """Plain floats (and a list for ``alpha``) of split ``i``, for JSON."""
+        out = {}
+        for f in fields(self):
+            v = getattr(self, f.name)[i]
+            out[f.name] = v.tolist() if np.ndim(v) else (bool(v) if v.dtype == bool else float(v))
+        return out
+
+
+_RECURSIONS = ("exact", "paper")
+_POS = np.array([[1.0, 0.0, 0.0]])  # the (0, 0) entry: position variance
+_LOSS_AVERAGES = ("trajectory", "local")
+
+
+def _check_alpha(alpha):
+    a = np.asarray(alpha, dtype=float)
+    if a.ndim not in (1, 2) or a.shape[-1] != 3:
+        raise ValueError(f"alpha must have shape (3,) or (n, 3), got {a.shape}")
+    if not np.all(np.isfinite(a)) or np.any(a < -1e-12) or not np.allclose(a.sum(-1), 1.0, atol=1e-6):
+        raise ValueError("alpha must hold finite, non-negative shares (alpha_sen, alpha_ctrl, alpha_comm) "
+                         "summing to 1")
+    return np.maximum(a, 0.0).reshape(-1, 3)
+
+
+class StaticModel:
+    """Steady-state evaluator of static splits for one scenario and one trajectory sample.
+
+    Everything that does not depend on the split is computed once: positions, ranges and
+    directions; the sensing coefficients (:class:`SensingCoefficients`); the SNR at shadowing and
+    fading quadrature nodes; the per-position loss rate eq:ctrl_bler tabulated on a fine grid of
+    ``alpha_ctrl`` (built lazily); and the closed-loop operator of eq:M as a rational function of the
+    loss rate. :meth:`evaluate` is vectorised over splits. Use :func:`static_model` for a cached
+    instance.
+
+    Parameters
+    ----------
+    s : Scenario
+    sample : TrajectorySample
+        Positions along reference trajectories (:func:`sample_positions`).
+    n_shadow_nodes : int
+        Gauss-Hermite nodes of the shadowing :math:`\\mathcal N(0, \\sigma_\\mathrm{SF}(h)^2)` (dB).
+    n_alpha_grid : int
+        Points of the log-spaced ``alpha_ctrl`` grid (1e-4 to 1) of the loss-rate table.
+
+    Notes
+    -----
+    The Kalman and closed-loop part is exact for the model of ``docs/model.md`` Sec. 3 (frozen
+    geometry, loss rate independent of the state); two tables carry approximation error: the
+    loss-rate table (:meth:`eps_ctrl_local`, below 2e-3 in :math:`\\varepsilon` per position, 3e-4 on
+    trajectory average) and the Kalman steady state, a cubic spline in
+    :math:`\\log\\alpha_\\mathrm{sen}` through 121 exact solutions (relative error below 1e-4;
+    :meth:`kalman` is the exact path).
+    """
+
+    def __init__(self, s: Scenario, sample: TrajectorySample, n_shadow_nodes: int = 5,
+                 n_alpha_grid: int = 200):
+        if not isinstance(s, Scenario):
+            raise ValueError(f"s must be a Scenario, got {type(s).__name__}")
+        if s.control_mode != "lqg" or s.observation_source != "isac":
+            raise ValueError("StaticModel evaluates the ISAC-fed LQG loop: Scenario.control_mode must be "
+                             f"'lqg' and observation_source 'isac' (got {s.control_mode!r}, "
+                             f"{s.observation_source!r})")
+        self.scenario = s
+        self.sample = sample
+        mm = model_matrices(s)
+        self.eps_star = scenario_eps_star(s)
+        pos = np.asarray(sample.pos_m, dtype=float)
+        self.n_positions = len(pos)
+        dist, _, _, los = geometry(s, pos)
+        self.dist_m = dist
+        self.trig = direction_trig(los)
+        self.sensing = sensing_coefficients(s, dist, self.trig)
+        self.snr_large_scale = large_scale_snr(s, pos, 0.0)
+        self.mean_snr = float(np.mean(self.snr_large_scale))
+        # --- SNR at quadrature nodes of the slot's unknowns: shadowing x Rician fading
+        xs, ws = hermegauss(n_shadow_nodes)
+        ws = ws / ws.sum()
+        fade, wf = rician_power_nodes(float(db_to_lin(s.rician_k_db)))
+        sh_db = shadowing_std_db(s, pos[:, 2])[:, None] * xs[None, :]  # (P, n_sh)
+        gain = (10.0 ** (-0.1 * sh_db))[:, :, None] * fade[None, None, :]  # (P, n_sh, n_f)
+        self._node_snr = (self.snr_large_scale[:, None, None] * gain).reshape(len(pos), -1)
+        self._node_w = np.outer(ws, wf).ravel()  # per position, sums to 1
+        cap, sqrt_v = link_terms(self._node_snr)
+        k_comm = float(q_inv(s.comm_target_bler)) / math.sqrt(s.comm_blocklength)
+        comm_per_share = s.bandwidth_hz * np.maximum(cap - k_comm * sqrt_v, 0.0)  # (P, nodes)
+        w_all = np.broadcast_to(self._node_w, comm_per_share.shape).ravel() / len(pos)
+        #: Mean FBL rate of the data link per unit share (slot average), bit/s.
+        self.rate_comm_per_share_bps = float(np.sum(comm_per_share.ravel() * w_all))
+        k_ctrl = float(q_inv(s.ctrl_target_bler)) / math.sqrt(s.ctrl_blocklength)
+        #: Mean FBL rate of the control link per unit share (slot average), bit/s.
+        self.rate_ctrl_per_share_bps = float(np.sum(
+            s.bandwidth_hz * np.maximum(cap - k_ctrl * sqrt_v, 0.0).ravel() * w_all))
+        order = np.argsort(comm_per_share.ravel())
+        self._rate_sorted = comm_per_share.ravel()[order]
+        self._rate_cw = np.concatenate([[0.0], np.cumsum(w_all[order])])
+        self._rate_cwr = np.concatenate([[0.0], np.cumsum(w_all[order] * self._rate_sorted)])
+        a_min = np.asarray(min_shares(s, self._node_snr, self.eps_star, 0.0)[0]).ravel()
+        order = np.argsort(a_min)
+        self._amin_sorted = a_min[order]
+        self._amin_cw = np.concatenate([[0.0], np.cumsum(w_all[order])])
+        self._alpha_grid = np.geomspace(1e-4, 1.0, n_alpha_grid)
+        self._eps_table = None  # (n_alpha, P), built on first use
+        # --- closed loop per axis: A1, B1, K1 and eq:M as a rational function of eps
+        dt = s.dt_s
+        self._a1 = np.array([[1.0, dt], [0.0, 1.0]])
+        self._b1 = np.array([[0.5 * dt * dt], [dt]])
+        self._k1 = np.asarray(mm.k)[:1, [0, 3]]
+        self._w1 = np.diag([s.process_noise_var_pos_m2, s.process_noise_var_vel_m2s2])
+        self._poly = _LossOperator(self._a1, self._b1, self._k1)
+        self._kalman_cache: dict[tuple, tuple] = {}
+        self._sen_grid = np.geomspace(1e-4, 1.0, 121)
+        self._kalman_spline = None
+
+    # --- link -------------------------------------------------------------------------------------
+    def _build_eps_table(self):
+        s = self.scenario
+        cap, sqrt_v = link_terms(self._node_snr)
+        bits_per_hz = s.ctrl_packet_bits / (s.ctrl_deadline_s * s.bandwidth_hz)
+        scale = math.sqrt(s.ctrl_blocklength) / np.maximum(sqrt_v, 1e-150)
+        table = np.empty((len(self._alpha_grid), self.n_positions))
+        chunk = max(1, 2_000_000 // max(self._node_snr.size, 1))
+        for i in range(0, len(self._alpha_grid), chunk):
+            need = bits_per_hz / self._alpha_grid[i:i + chunk, None, None]
+            table[i:i + chunk] = q_func(scale * (cap - need)) @ self._node_w
+        self._eps_table = q_inv(np.clip(table, 1e-300, 1.0 - 1e-16))  # probit scale
+
+    def eps_ctrl_local(self, alpha_ctrl):
+        """Per-position loss rate eq:ctrl_bler averaged over shadowing and fading, shape (n, P).
+
+        Interpolated in the table linearly in :math:`1/\\alpha_\\mathrm{ctrl}` on the probit scale
+        :math:`Q^{-1}(\\varepsilon)` (exact for a single quadrature node, where
+        :math:`Q^{-1}(\\varepsilon)` is affine in :math:`1/\\alpha`).
+        """
+        if self._eps_table is None:
+            self._build_eps_table()
+        a = np.atleast_1d(np.asarray(alpha_ctrl, dtype=float))
+        u = 1.0 / self._alpha_grid  # decreasing
+        x = 1.0 / np.clip(a, self._alpha_grid[0], 1.0)
+        i = np.clip(np.searchsorted(-u, -x) - 1, 0, len(u) - 2)
+        t = ((x - u[i]) / (u[i + 1] - u[i]))[:, None]
+        return q_func((1.0 - t) * self._eps_table[i] + t * self._eps_table[i + 1])
+
+    def eps_ctrl(self, alpha_ctrl):
+        """Trajectory-averaged loss rate :math:`\\varepsilon_\\mathrm{ctrl} = \\frac1N\\sum_n
+        \\mathbb E\\,\\varepsilon_{\\mathrm{ctrl},n}`, shape (n,)."""
+        return self.eps_ctrl_local(alpha_ctrl).mean(axis=1)
+
+    def alpha_ctrl_for_loss(self, eps_target: float, local: bool = True) -> float:
+        """Smallest control share whose loss rate is at most ``eps_target``: at every position
+        (``local=True``) or on trajectory average (``local=False``). ``nan`` if even
+        ``alpha_ctrl = 1`` is not enough.
+
+        Raises
+        ------
+        ValueError
+            ``eps_target`` outside (0, 1).
+        """
+        if not 0.0 < eps_target < 1.0:
+            raise ValueError(f"eps_target = {eps_target!r} is invalid: must be in (0, 1)")
+
+        def gap(a):
+            e = self.eps_ctrl_local(a)[0]
+            return float(e.max() if local else e.mean()) - eps_target
+
+        if gap(1.0) > 0.0:
+            return float("nan")
+        lo = float(self._alpha_grid[0])
+        if gap(lo) <= 0.0:
+            return lo
+        return float(brentq(gap, lo, 1.0, xtol=1e-10))
+
+    def rate_comm_bps(self, alpha_comm):
+        """Mean data rate at ``alpha_comm`` (linear in the share), bit/s."""
+        return np.asarray(alpha_comm, dtype=float) * self.rate_comm_per_share_bps
+
+    def rate_shortfall(self, alpha_comm):
+        """:math:`\\mathbb E(R_\\min - \\mathcal R_{\\mathrm{comm},n})^+ / R_\\min` at ``alpha_comm``."""
+        r_min = self.scenario.rate_min_bps
+        a = np.atleast_1d(np.asarray(alpha_comm, dtype=float))
+        if r_min <= 0.0:
+            return np.zeros_like(a)
+        thr = np.where(a > 0, r_min / np.maximum(a, 1e-300), np.inf)
+        k = np.searchsorted(self._rate_sorted, thr)
+        return (r_min * self._rate_cw[k] - a * self._rate_cwr[k]) / r_min
+
+    def stability_violation(self, alpha_ctrl):
+        """Fraction of slots whose loss rate exceeds eps* at ``alpha_ctrl``."""
+        a = np.atleast_1d(np.asarray(alpha_ctrl, dtype=float))
+        k = np.searchsorted(self._amin_sorted, a, side="right")
+        return 1.0 - self._amin_cw[k]
+
+    # --- sensing and the Kalman filter ------------------------------------------------------------
+    def mean_crlb_trace(self, alpha_sen):
+        """Trajectory average of :math:`\\operatorname{Tr}\\mathrm{CRLB}_\\mathbf p` (m^2) and its
+        derivative in ``alpha_sen`` (scalar ``alpha_sen``)."""
+        tr, dtr = crlb_trace(self.sensing, float(alpha_sen))
+        return float(np.mean(tr)), float(np.mean(dtr))
+
+    def kalman(self, alpha_sen):
+        """Per-position, per-axis steady state at sensing shares ``alpha_sen`` (u,).
+
+        Returns
+        -------
+        p_prior, sigma_est : ndarray, shape (u, P, 3, 2, 2)
+            In each position's principal frame (range axis first).
+        peb_m, veb_mps : ndarray, shape (u, P)
+        """
+        s = self.scenario
+        a = np.atleast_1d(np.asarray(alpha_sen, dtype=float))
+        m_r, m_tt, m_tp, m_pp, vr = local_crlb(self.sensing, a[:, None])
+        half_tr = 0.5 * (m_tt + m_pp)
+        disc = np.sqrt(np.maximum(0.25 * (m_tt - m_pp) ** 2 + m_tp * m_tp, 0.0))
+        pos_var = np.stack([m_r, half_tr + disc, np.maximum(half_tr - disc, 1e-300)], -1)
+        vel_var = np.stack([vr, np.full_like(vr, np.inf), np.full_like(vr, np.inf)], -1)
+        p_prior, est = axis_kalman_steady_state(s.dt_s, s.process_noise_var_pos_m2,
+                                                s.process_noise_var_vel_m2s2, pos_var, vel_var)
+        return p_prior, est, np.sqrt(m_r + m_tt + m_pp), np.sqrt(vr)
+
+    def _kalman_interp(self, alpha_sen):
+        """:meth:`kalman` from a cubic spline in log(alpha_sen) through a table of exact solutions
+        (built on first use; relative error below 1e-5); shares below the table (1e-4) exactly."""
+        a = np.asarray(alpha_sen, dtype=float)
+        lo = self._sen_grid[0]
+        inside = a >= lo * (1.0 - 1e-12)
+        if not np.any(inside):
+            return self.kalman(a)
+        if self._kalman_spline is None:
+            p_prior, est, peb_g, veb_g = self.kalman(self._sen_grid)
+            vals = np.concatenate([p_prior.reshape(p_prior.shape[:3] + (4,)), est.reshape(est.shape[:3] + (4,))], -1)
+            self._kalman_spline = CubicSpline(np.log(self._sen_grid), vals, axis=0)
+        out = self._kalman_spline(np.log(np.clip(a[inside], lo, 1.0)))
+        shape = out.shape[:3] + (2, 2)
+        p_prior, est = out[..., :4].reshape(shape), out[..., 4:].reshape(shape)
+        m_r, m_tt, _, m_pp, vr = local_crlb(self.sensing, a[inside][:, None])
+        peb_u, veb_u = np.sqrt(m_r + m_tt + m_pp), np.sqrt(vr)
+        if np.all(inside):
+            return p_prior, est, peb_u, veb_u
+        res = [np.empty((len(a),) + x.shape[1:]) for x in (p_prior, est, peb_u, veb_u)]
+        direct = self.kalman(a[~inside])
+        for r, x_in, x_out in zip(res, (p_prior, est, peb_u, veb_u), direct, strict=True):
+            r[inside], r[~inside] = x_in, x_out
+        return tuple(res)
+
+    # --- evaluation -------------------------------------------------------------------------------
+    def evaluate(self, alpha, recursion: str = "exact", loss_average: str = "local",
+                 chunk: int = 256) -> AllocationMetrics:
+        """Steady-state metrics of static splits.
+
+        Parameters
+        ----------
+        alpha : array_like, shape (3,) or (n, 3)
+            Splits (alpha_sen, alpha_ctrl, alpha_comm), non-negative, summing to 1.
+        recursion : {"exact", "paper"}
+            ``"exact"``: the estimate-error decomposition of the module docstring;
+            ``"paper"``: eq:covariance_recursion with eq:omega_tilde_cov as printed.
+        loss_average : {"local", "trajectory"}
+            Each position's own loss rate (default), or one trajectory-averaged loss rate for all
+            positions (the paper's eq:omega_tilde_cov).
+        chunk : int
+            Splits per vectorised block (memory bound).
+
+        Returns
+        -------
+        AllocationMetrics
+            Arrays of shape (n,).
+
+        Raises
+        ------
+        ValueError
+            ``alpha`` not a split of the right shape; unknown ``recursion`` or ``loss_average``.
+        """
+        if recursion not in _RECURSIONS:
+            raise ValueError(f"recursion = {recursion!r} is invalid: use one of {list(_RECURSIONS)}")
+        if loss_average not in _LOSS_AVERAGES:
+            raise ValueError(f"loss_average = {loss_average!r} is invalid: use one of {list(_LOSS_AVERAGES)}")
+        s = self.scenario
+        al = _check_alpha(alpha)
+        n = len(al)
+        u_sen, inv_sen = np.unique(al[:, 0], return_inverse=True)
+        u_ctrl, inv_ctrl = np.unique(al[:, 1], return_inverse=True)
+        eps_loc = self.eps_ctrl_local(u_ctrl)  # (uc, P)
+        eps_mean = eps_loc.mean(axis=1)
+        p_prior, est, peb_u, veb_u = self._kalman_interp(u_sen)
+        # noise of the recursion: N = N_a + (1 - eps) N_b per (alpha_sen, position, axis)
+        if recursion == "exact":
+            n_a, n_b = p_prior - est, np.zeros_like(est)
+        else:
+            bk = self._b1 @ self._k1
+            n_a, n_b = np.broadcast_to(self._w1, est.shape), bk @ est @ bk.T
+        eta_a, eta_b = self._poly.project(n_a, _POS), self._poly.project(n_b, _POS)  # (us, P, 3, 1, 4)
+        # what each output needs: position variance per axis; LQG state and control costs summed
+        # over axes (linear in the steady state, so they can be reduced before the loss rate enters)
+        q_p, q_v, r = s.lqg_q_pos, s.lqg_q_vel, s.lqg_r
+        k0, k1 = self._k1[0]
+        w_state = np.array([q_p, 0.0, q_v])
+        w_ctrl = r * np.array([k0 * k0, 2.0 * k0 * k1, k1 * k1])
+        est3 = np.stack([est[..., 0, 0], est[..., 0, 1], est[..., 1, 1]], -1)  # (us, P, 3, 3)
+        # with Z the steady state of the recursion: Sigma_x = Z + Sigma_est, Sigma_zhat = Z (exact);
+        # Sigma_x = Z, Sigma_zhat = Z - Sigma_est (paper)
+        exact = recursion == "exact"
+        zero = np.zeros(est3.shape[:2])
+        c_state = (est3 @ w_state).sum(-1) if exact else zero  # (us, P)
+        c_ctrl = zero if exact else -(est3 @ w_ctrl).sum(-1)
+        w_out = np.stack([w_state, w_ctrl])  # (2, 3 entries)
+        lqg_a = self._poly.project(n_a.sum(2), w_out)  # (us, P, 2, 4): the axes share the loss rate
+        lqg_b = self._poly.project(n_b.sum(2), w_out)
+        pos_a, pos_b = eta_a[..., 0, :], eta_b[..., 0, :]  # (us, P, 3 axes, 4 degrees)
+        est_pos = est3[..., 0] if exact else np.zeros_like(est3[..., 0])  # (us, P, 3)
+        ee = expected_norm(est3[..., 0]).mean(axis=1)  # (us,): E||p_hat - p||
+        err = np.empty(n)
+        mse = np.empty(n)
+        lqg = np.empty(n)
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            if loss_average == "trajectory":
+                lqg_a_m, lqg_b_m = lqg_a.mean(1), lqg_b.mean(1)  # (us, 2, 4)
+                eps_n = eps_mean[inv_ctrl]
+                st = self._poly.evaluate(lqg_a_m[inv_sen], lqg_b_m[inv_sen], eps_n[:, None])  # (n, 2)
+                lqg = (c_state.mean(1) + c_ctrl.mean(1))[inv_sen] + st[:, 0] + (1.0 - eps_n) * st[:, 1]
+            for lo in range(0, n, chunk):
+                sl = slice(lo, min(lo + chunk, n))
+                isen, ictrl = inv_sen[sl], inv_ctrl[sl]
+                if loss_average == "trajectory":
+                    eps = eps_mean[ictrl][:, None, None]  # (b, 1, 1)
+                else:
+                    eps = eps_loc[ictrl][:, :, None]  # (b, P, 1)
+                    st = self._poly.evaluate(lqg_a[isen], lqg_b[isen], eps)  # (b, P, 2)
+                    lqg[sl] = (c_state[isen] + c_ctrl[isen] + st[..., 0]
+                               + (1.0 - eps[..., 0]) * st[..., 1]).mean(1)
+                lam = self._poly.evaluate(pos_a[isen], pos_b[isen], eps) + est_pos[isen]  # (b, P, 3)
+                err[sl] = expected_norm(lam).mean(axis=1)
+                mse[sl] = lam.sum(-1).mean(axis=1)
+        eps_n = eps_mean[inv_ctrl]
+        stable = (eps_loc.max(axis=1)[inv_ctrl] if loss_average == "local" else eps_n) < self.eps_star
+        err = np.where(stable, err, np.inf)
+        rate = self.rate_comm_bps(al[:, 2])
+        rate_ok = rate >= s.rate_min_bps * (1.0 - 1e-12)
+        feasible = stable & rate_ok
+        rate_gap = np.maximum(0.0, 1.0 - rate / s.rate_min_bps) if s.rate_min_bps > 0 else np.zeros(n)
+        loss_gap = np.maximum(0.0, (eps_loc.max(axis=1) if loss_average == "local" else eps_mean)[inv_ctrl]
+                              - self.eps_star)
+        objective = np.where(feasible, err, s.max_tracking_error_m * (1.0 + rate_gap + loss_gap))
+        shortfall = self.rate_shortfall(al[:, 2])
+        viol = self.stability_violation(al[:, 1])
+        reward = -np.minimum(err, s.max_tracking_error_m) - s.w_rate * shortfall - s.w_stab * viol
+        return AllocationMetrics(
+            alpha=al,
+            tracking_error_m=err,
+            tracking_rmse_m=np.where(stable, np.sqrt(np.abs(mse)), np.inf),
+            estimation_error_m=ee[inv_sen],
+            peb_m=peb_u.mean(axis=1)[inv_sen],
+            veb_mps=veb_u.mean(axis=1)[inv_sen],
+            eps_ctrl=eps_n,
+            rho_m=self._poly.spectral_radius(eps_n),
+            rate_comm_bps=rate,
+            rate_shortfall=shortfall,
+            stability_violation=viol,
+            lqg_cost=np.where(stable, lqg, np.inf),
+            rate_ok=rate_ok,
+            stable=stable,
+            feasible=feasible,
+            objective=objective,
+            expected_reward=reward,
+        )
+
+    def objective(self, alpha, **kwargs) -> np.ndarray:
+        """:attr:`AllocationMetrics.objective` of splits ``alpha`` (keywords as :meth:`evaluate`)."""
+        return self.evaluate(alpha, **kwargs).objective
+
+    def rate_cost_bits(self, alpha_sen: float, eps: float) -> float:
+        """Right-hand side of cons:rate_cost, :math:`L(b)` of eq:Lb in bits per slot, at the target
+        ``lqg_cost_target`` (``rate_cost_determinant`` selects the printed or pseudo determinant).
+
+        :math:`N(\\tilde\\omega)` is the trajectory average of the entropy power of
+        eq:omega_tilde_cov with each position's :math:`\\Sigma_\\mathrm{est}`; D solves
+        eq:Riccati_D/eq:Riccati_S at the loss rate ``eps``.
+        """
+        s = self.scenario
+        mm = model_matrices(s)
+        key = (round(float(alpha_sen), 12), round(float(eps), 12))
+        if key not in self._kalman_cache:
+            _, est, _, _ = self.kalman(float(alpha_sen))
+            bk = self._b1 @ self._k1
+            sig = self._w1 + (1.0 - eps) * bk @ est[0] @ bk.T  # (P, 3, 2, 2)
+            det_axes = sig[..., 0, 0] * sig[..., 1, 1] - sig[..., 0, 1] ** 2
+            n_w = float(np.mean(np.prod(det_axes, axis=-1) ** (1.0 / 6.0)))
+            _, d = riccati_s_d(mm.a, mm.b, mm.q, mm.r, float(eps))
+            b_min = lqg_cost_floor(mm.p, mm.sigma_w)
+            if len(self._kalman_cache) > 64:
+                self._kalman_cache.clear()
+            self._kalman_cache[key] = (n_w, d, b_min)
+        n_w, d, b_min = self._kalman_cache[key]
+        return rate_cost_bits(mm.a, s.lqg_cost_target, b_min, n_w, d, s.rate_cost_determinant)
+
+
+def rician_power_nodes(k_lin: float):
+    """Quadrature nodes and weights of the unit-mean Rician power gain :math:`|g|^2`.
+
+    :math:`|g|^2 = \\sigma^2\\chi'^2_2(2K)` with :math:`\\sigma^2 = 1/(2(K+1))` (``channel.rician_power_gain``);
+    the nodes are the quantiles at the midpoints of 30 probability bins refined in the lower tail
+    (deep fades drive the loss rate), the weights the bins' probabilities.
+
+    Parameters
+    ----------
+    k_lin : float
+        Rician K factor, linear.
+
+    Returns
+    -------
+    gain, weight : ndarray, shape (30,)
+    """
+    edges = np.concatenate([[0.0, 1e-6, 1e-5, 1e-4, 3e-4, 1e-3, 3e-3, 0.01, 0.02, 0.04],
+                            np.linspace(0.07, 0.97, 19), [0.99, 1.0]])
+    mid = 0.5 * (edges[:-1] + edges[1:])
+    sigma2 = 0.5 / (k_lin + 1.0)
+    return sigma2 * ncx2.ppf(mid, 2, 2.0 * k_lin), np.diff(edges)
+
+
+class _LossOperator:
+    """The per-axis closed-loop map :math:`\\mathrm{vec}\\,\\Sigma = (\\mathbf I - \\mathbf M_1(\\varepsilon))^{-1}
+    \\mathrm{vec}\\,\\mathbf N` as a rational function of the loss rate.
+
+    With :math:`\\mathbf M_1(\\varepsilon) = \\mathbf M_\\mathrm{cl} + \\varepsilon\\Delta`,
+    :math:`(\\mathbf I - \\mathbf M_1)^{-1} = \\mathbf X_0(\\mathbf I - \\varepsilon\\mathbf Y)^{-1}`,
+    :math:`\\mathbf X_0 = (\\mathbf I - \\mathbf M_\\mathrm{cl})^{-1}`, :math:`\\mathbf Y = \\Delta\\mathbf X_0`,
+    and by Cayley-Hamilton :math:`(\\mathbf I - \\varepsilon\\mathbf Y)^{-1} = \\sum_{d=0}^{3}\\varepsilon^d
+    \\mathbf C_d / \\det(\\mathbf I - \\varepsilon\\mathbf Y)`, :math:`\\mathbf C_d = \\sum_{k\\le d}
+    c_{d-k}\\mathbf Y^k` with :math:`c` the characteristic-polynomial coefficients of Y.
+    """
+
+    _OUT = (0, 2, 3)  # column-major vec indices of the (0,0), (0,1), (1,1) entries
+
+    def __init__(self, a1, b1, k1):
+        a_cl = a1 - b1 @ k1
+        self.m_cl = np.kron(a_cl, a_cl)
+        self.m_a = np.kron(a1, a1)
+        x0 = np.linalg.inv(np.eye(4) - self.m_cl)
+        y = (self.m_a - self.m_cl) @ x0
+        c = np.poly(y)  # [1, c1, c2, c3, c4]
+        powers = [np.eye(4), y, y @ y, y @ y @ y]
+        cd = [sum(c[d - k] * powers[k] for k in range(d + 1)) for d in range(4)]
+        # rows: outputs; applied to vec N with N symmetric: columns n00, n01 (twice), n11
+        self.lin = np.stack([(x0 @ cd[d])[list(self._OUT)] for d in range(4)], -1)  # (3, 4, 4deg)
+        self.det_coef = c  # det(I - eps Y) = sum_i c_i eps^i
+
+    def project(self, n_mat, weights):
+        """Numerator coefficients of linear functionals of the steady state.
+
+        ``n_mat`` (..., 2, 2): noise matrices N; ``weights`` (k, 3): functionals
+        :math:`w_0\\Sigma_{00} + w_1\\Sigma_{01} + w_2\\Sigma_{11}`. Returns (..., k, 4 degrees).
+        """
+        vec = np.stack([n_mat[..., 0, 0], n_mat[..., 1, 0], n_mat[..., 0, 1], n_mat[..., 1, 1]], -1)
+        lin = np.einsum("ke,evd->vkd", np.asarray(weights, dtype=float), self.lin).reshape(4, -1)
+        return (vec @ lin).reshape(vec.shape[:-1] + (len(weights), 4))
+
+    def evaluate(self, eta_a, eta_b, eps):
+        """Steady-state outputs for noise :math:`\\mathbf N_a + (1-\\varepsilon)\\mathbf N_b`.
+
+        ``eta_*`` (..., 4 degrees) are :meth:`project` outputs (or linear combinations of them);
+        ``eps`` broadcasts against ``eta_*[..., 0]``. Returns shape ``eta_*.shape[:-1]``.
+        """
+        e = np.asarray(eps, dtype=float)
+        coef = eta_a + (1.0 - e)[..., None] * eta_b
+        num = ((coef[..., 3] * e + coef[..., 2]) * e + coef[..., 1]) * e + coef[..., 0]
+        c = self.det_coef
+        det = (((c[4] * e + c[3]) * e + c[2]) * e + c[1]) * e + c[0]
+        return num / det
+
+    def spectral_radius(self, eps):
+        """:math:`\\rho(\\mathbf M(\\varepsilon))` of eq:M (equal to that of the per-axis 4 x 4 map)."""
+        e = np.atleast_1d(np.asarray(eps, dtype=float))
+        m = (1.0 - e)[:, None, None] * self.m_cl + e[:, None, None] * self.m_a
+        return np.max(np.abs(np.linalg.eigvals(m)), axis=-1)
+
+
+#: Default trajectory sample of :func:`static_model`: 32 trajectories, one position every 250 slots.
+DEFAULT_SAMPLE = {"n_trajectories": 32, "seed": 0, "stride": 250}
+
+
+@functools.lru_cache(maxsize=8)
+def _cached_model(s: Scenario, n_trajectories: int, seed: int, stride: int) -> StaticModel:
+    return StaticModel(s, sample_positions(s, n_trajectories, seed=seed, stride=stride))
+
+
+def static_model(s: Scenario, n_trajectories: int = DEFAULT_SAMPLE["n_trajectories"],
+                 seed: int = DEFAULT_SAMPLE["seed"], stride: int = DEFAULT_SAMPLE["stride"]) -> StaticModel:
+    """Cached :class:`StaticModel` of scenario ``s`` on a seeded trajectory sample."""
+    return _cached_model(s, int(n_trajectories), int(seed), int(stride))
+
+
+def evaluate_allocation(s: Scenario, alpha, recursion: str = "exact", loss_average: str = "local",
+                        **sample) -> AllocationMetrics:
+    """Steady-state metrics of static split(s) ``alpha`` for scenario ``s`` (see
+    :meth:`StaticModel.evaluate`); ``sample`` keywords as :func:`static_model`."""
+    return static_model(s, **sample).evaluate(alpha, recursion=recursion, loss_average=loss_average)

@@ -94,6 +94,36 @@ def ppo_steps_per_second(kind: str, total_steps: int, repeats: int, n_envs: int 
             "n_envs": n_envs}
 
 
+def eval_sca_seconds(episodes: int, max_steps: int | None = None) -> dict:
+    """Wall time of evaluating static SCA on ``episodes`` full missions (batched, common seeds)."""
+    from agents import make_policy
+    from eval.evaluate import run_episodes
+
+    policy = make_policy("sca")
+    run_episodes(policy, seeds=[0], max_steps=5)  # warm: kernels and the policy's design loaded
+    t0 = time.perf_counter()
+    res = run_episodes(policy, seeds=range(episodes), max_steps=max_steps)
+    return {"seconds": time.perf_counter() - t0, "episodes": episodes, "slots": res["slots"]}
+
+
+def solver_seconds(quick: bool = False) -> dict:
+    """Wall times of the allocation solvers on the paper preset (the shared analytic model built
+    first, outside the timing), beside the paper's."""
+    from agents import evolutionary_search, grid_search, sca_allocation
+    from iscc_gym.analysis import static_model
+    from iscc_gym.scenario import make_scenario
+
+    s = make_scenario("paper")
+    static_model(s)
+    out = {}
+    out["sca"] = {"seconds": sca_allocation(s).wall_time_s, "paper_s": 68.60, "target_s": 1.0}
+    r = grid_search(s, step=0.05 if quick else 0.01)
+    out["grid"] = {"seconds": r.wall_time_s, "paper_s": 10154.78, "target_s": 10.0}
+    r = evolutionary_search(s, seed=0)
+    out["evolutionary"] = {"seconds": r.wall_time_s, "paper_s": 694.84, "target_s": 10.0}
+    return out
+
+
 def run(n_steps: int = 5000, repeats: int = 5, quick: bool = False, ppo: bool = True) -> dict:
     """All benchmark figures as a JSON-able dict (``quick``: tiny sizes, for the tests)."""
     vec_steps = 5 if quick else 200
@@ -109,6 +139,8 @@ def run(n_steps: int = 5000, repeats: int = 5, quick: bool = False, ppo: bool = 
                                                        repeats)
                        for n in ((1, 64) if quick else (1, 64, 1024))},
     }
+    res["eval_static_sca"] = eval_sca_seconds(2 if quick else 100, max_steps=20 if quick else None)
+    res["solvers"] = solver_seconds(quick)
     if ppo:
         total = 256 if quick else 16384
         res["ppo_training"] = {kind: ppo_steps_per_second(kind, total, 1 if quick else repeats)
@@ -128,6 +160,12 @@ def format_report(res: dict) -> str:
     ]
     for n, v in res["vector_env"].items():
         lines.append(f"  {n + ' envs':<26} {v['median_env_steps_per_s']:12,.0f} env-steps/s")
+    ev = res["eval_static_sca"]
+    lines.append(f"Static SCA evaluated on {ev['episodes']} missions ({ev['slots']:,} slots): {ev['seconds']:.2f} s "
+                 "(target < 5 s for 100 missions)")
+    lines.append("Allocation solvers (s), ours vs the paper's:")
+    for name, v in res["solvers"].items():
+        lines.append(f"  {name:<14} {v['seconds']:8.3f}   paper {v['paper_s']:9.2f}   target < {v['target_s']:g}")
     if "ppo_training" in res:
         pt = res["ppo_training"]
         pend = pt["pendulum_dummy"]["median_env_steps_per_s"]
@@ -154,6 +192,11 @@ def markdown(res: dict) -> str:
     for n, v in res["vector_env"].items():
         rows.append(f"| vector env, {n} envs, env-steps/s | {v['median_env_steps_per_s']:,.0f} | | "
                     f"{targets.get(n, '')} |")
+    ev = res["eval_static_sca"]
+    rows.append(f"| static SCA on {ev['episodes']} missions ({ev['slots']:,} slots), s | {ev['seconds']:.2f} | | "
+                "< 5 s for 100 |")
+    for name, v in res["solvers"].items():
+        rows.append(f"| {name} solve time, s | {v['seconds']:.3f} | paper: {v['paper_s']:,.2f} | < {v['target_s']:g} |")
     if "ppo_training" in res:
         pt = res["ppo_training"]
         pend = pt["pendulum_dummy"]["median_env_steps_per_s"]

@@ -14,5 +14,8 @@ def test_bench_quick_reports_every_figure(tmp_path, capsys):
     assert single["reference_pendulum_v1"]["median_steps_per_s"] > 0
     assert set(res["vector_env"]) == {"1", "64"}
     assert all(v["median_env_steps_per_s"] > 0 for v in res["vector_env"].values())
+    assert res["eval_static_sca"]["slots"] == 40 and res["eval_static_sca"]["seconds"] > 0
+    assert set(res["solvers"]) == {"sca", "grid", "evolutionary"}
+    assert all(v["seconds"] > 0 and v["paper_s"] > v["seconds"] for v in res["solvers"].values())
     out = capsys.readouterr().out
     assert "Pendulum-v1 (reference)" in out and "64 envs" in out

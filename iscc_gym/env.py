@@ -196,9 +196,10 @@ REGISTERED_MAX_EPISODE_STEPS = 5000
 
 
 def warn_time_limit(s: Scenario) -> None:
-    """Warn when the scenario's mission length differs from the registered TimeLimit: ``gymnasium.make``
-    wraps the env in ``TimeLimit(5000)`` unless it is given ``max_episode_steps``."""
-    if s.n_slots != REGISTERED_MAX_EPISODE_STEPS:
+    """Warn when the scenario's mission is longer than the registered TimeLimit: ``gymnasium.make``
+    wraps the env in ``TimeLimit(5000)`` unless it is given ``max_episode_steps``, which would cut
+    the mission short (a shorter mission ends by itself)."""
+    if s.n_slots > REGISTERED_MAX_EPISODE_STEPS:
         gym.logger.warn(f"this scenario's mission has n_slots = {s.n_slots} slots, but gymnasium.make applies the "
                         f"registered TimeLimit of {REGISTERED_MAX_EPISODE_STEPS} steps: pass "
                         f"max_episode_steps={s.n_slots} to gymnasium.make / make_vec (ignore this if you did)")

@@ -55,12 +55,34 @@ def test_resume_without_checkpoint_and_bad_args(tmp_path):
 
 
 def test_cli_parsing():
-    args = parse_args(["--algo", "sac", "--n-envs", "3", "--no-normalize", "--set", "learning_rate=0.001"])
+    args = parse_args(["--algo", "sac", "--n-envs", "3", "--no-normalize", "--set", "learning_rate=0.001",
+                       "--env-set", "observation_source=gnss"])
     assert args.algo == "sac" and args.n_envs == 3 and args.normalize is False
     assert args.overrides == {"learning_rate": 0.001}
+    assert args.env_overrides == {"observation_source": "gnss"}
 
 
 def test_sac_runs_on_the_batched_env(tmp_path):
     summary = main(_args(tmp_path, algo="sac", total_timesteps=64, eval_freq=0, checkpoint_freq=0,
                          overrides={"learning_starts": 16, "batch_size": 16}))
     assert summary["timesteps"] >= 64
+
+
+def test_ppo_learns_bit_identically_on_the_batched_env_and_on_single_envs(tmp_path):
+    """Same seed, same budget: PPO on the batched env ends with exactly the parameters and VecNormalize
+    statistics of PPO on DummyVecEnv of gymnasium.make envs (SubprocVecEnv equals DummyVecEnv,
+    tests/test_env.py), through episode ends (20 s missions) and autoresets."""
+    import torch
+    from stable_baselines3 import PPO
+
+    params, stats = {}, {}
+    for vec in ("dummy", "batched"):
+        out = tmp_path / vec
+        main(_args(out, vec_env=vec, total_timesteps=512, eval_freq=0, checkpoint_freq=0, seed=5,
+                   env_overrides={"mission_duration_s": 10.0}))
+        model = PPO.load(out / "model.zip", device="cpu")
+        params[vec] = torch.cat([p.detach().flatten() for p in model.policy.parameters()])
+        stats[vec] = SB3Policy.load(out).vecnormalize
+    assert torch.equal(params["dummy"], params["batched"])
+    assert np.array_equal(stats["dummy"].obs_rms.mean, stats["batched"].obs_rms.mean)
+    assert np.array_equal(stats["dummy"].ret_rms.var, stats["batched"].ret_rms.var)

@@ -44,6 +44,7 @@ class Args:
     vec_env: str = "batched"  # dummy | subproc | batched (the native batched env)
     seed: int = 0
     scenario: str = "paper"
+    env_overrides: dict = field(default_factory=dict)  # Scenario field overrides, e.g. {"observation_source": "gnss"}
     out: str = "runs/ppo"
     hyperparams: str = str(HYPERPARAMS)
     overrides: dict = field(default_factory=dict)  # hyperparameter overrides, e.g. {"n_steps": 64}
@@ -112,10 +113,10 @@ def make_train_env(args: Args):
     if args.vec_env == "batched":
         from agents.sb3_vec_env import ISCCBatchedVecEnv
 
-        venv = ISCCBatchedVecEnv(args.n_envs, scenario=args.scenario)
+        venv = ISCCBatchedVecEnv(args.n_envs, scenario=args.scenario, **args.env_overrides)
         venv.seed(args.seed)
         return VecMonitor(venv)
-    kwargs = {"scenario": args.scenario} if args.env_id == "iscc_gym/ISCC-v0" else {}
+    kwargs = {"scenario": args.scenario, **args.env_overrides} if args.env_id == "iscc_gym/ISCC-v0" else {}
     cls = SubprocVecEnv if args.vec_env == "subproc" else DummyVecEnv
     # make_vec_env wraps each env in a Monitor already
     return make_vec_env(args.env_id, n_envs=args.n_envs, seed=args.seed, vec_env_cls=cls, env_kwargs=kwargs)
@@ -129,7 +130,7 @@ def make_eval_env(args: Args):
     if args.env_id == "iscc_gym/ISCC-v0":
         from agents.sb3_vec_env import ISCCBatchedVecEnv
 
-        venv = ISCCBatchedVecEnv(args.eval_episodes, scenario=args.scenario)
+        venv = ISCCBatchedVecEnv(args.eval_episodes, scenario=args.scenario, **args.env_overrides)
         if args.eval_max_steps < venv.venv.max_steps:
             venv.venv.max_steps = args.eval_max_steps
         venv.seed(EVAL_SEED_START)
@@ -281,7 +282,7 @@ def parse_args(argv: list[str] | None = None) -> Args:
     ap = argparse.ArgumentParser(prog="python -m train", description=__doc__.split("\n")[0])
     defaults = Args()
     for f in dataclasses.fields(Args):
-        if f.name == "overrides":
+        if f.name in ("overrides", "env_overrides"):
             continue
         flag = "--" + f.name.replace("_", "-")
         default = getattr(defaults, f.name)
@@ -291,15 +292,21 @@ def parse_args(argv: list[str] | None = None) -> Args:
             ap.add_argument(flag, type=type(default), default=default)
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="override a hyperparameter of the YAML, e.g. --set n_steps=256")
+    ap.add_argument("--env-set", action="append", default=[], metavar="FIELD=VALUE",
+                    help="override a Scenario field of the env, e.g. --env-set observation_source=gnss")
     ns = ap.parse_args(argv)
-    overrides: dict[str, Any] = {}
-    for item in ns.set:
-        if "=" not in item:
-            ap.error(f"--set {item!r}: use KEY=VALUE")
-        k, v = item.split("=", 1)
-        overrides[k] = yaml.safe_load(v)
-    kw = {f.name: getattr(ns, f.name) for f in dataclasses.fields(Args) if f.name != "overrides"}
-    return Args(overrides=overrides, **kw)
+
+    def pairs(items, flag):
+        out: dict[str, Any] = {}
+        for item in items:
+            if "=" not in item:
+                ap.error(f"{flag} {item!r}: use KEY=VALUE")
+            k, v = item.split("=", 1)
+            out[k] = yaml.safe_load(v)
+        return out
+
+    kw = {f.name: getattr(ns, f.name) for f in dataclasses.fields(Args) if f.name not in ("overrides", "env_overrides")}
+    return Args(overrides=pairs(ns.set, "--set"), env_overrides=pairs(ns.env_set, "--env-set"), **kw)
 
 
 def cli(argv: list[str] | None = None) -> dict:

@@ -82,3 +82,18 @@ def test_eval_cli_writes_json_and_plots(tmp_path, capsys):
         assert (tmp_path / "figs" / png).stat().st_size > 1000
     assert "paired differences vs sca" in capsys.readouterr().out
     assert res["reference"] == "sca"
+
+
+def test_eval_write_docs_owns_only_its_sections(tmp_path, monkeypatch):
+    from eval.__main__ import main
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "docs").mkdir()
+    (tmp_path / "docs" / "results.md").write_text("# Results\n\n<!-- bench:start -->\nkeep me\n<!-- bench:end -->\n")
+    (tmp_path / "README.md").write_text("intro\n<!-- comparison:start -->\nold\n<!-- comparison:end -->\noutro\n")
+    main(["--policies", "sca,equal", "--episodes", "2", "--max-steps", "20", "--write-docs"])
+    results = (tmp_path / "docs" / "results.md").read_text()
+    readme = (tmp_path / "README.md").read_text()
+    assert "keep me" in results and "| equal_vs_sca |" in results
+    assert readme.startswith("intro\n") and readme.endswith("outro\n") and "old" not in readme
+    assert "`python -m eval --policies sca,equal --episodes 2 --max-steps 20 --write-docs`" in readme

@@ -155,7 +155,7 @@ def env_step(s: Scenario, state: loop.LoopState, actions, normals, active=None):
     nb = state.x.shape[0]
     all_active = active is None
     if all_active:
-        active = np.ones(nb, dtype=bool)
+        active = _all_active(nb)
     if kernel.supported(s):
         c, mats = kernel.kernel_constants(s)
         fn = kernel.env_step_batch_parallel if nb >= PARALLEL_MIN_BATCH else kernel.env_step_batch
@@ -177,6 +177,19 @@ def env_step(s: Scenario, state: loop.LoopState, actions, normals, active=None):
     obs = np.zeros((nb, sub_obs.shape[1]), np.float32)
     out[idx], obs[idx] = sub_out, sub_obs
     return loop.LoopState(ref=state.ref, **fields), out, obs
+
+
+_ALL_ACTIVE: dict[int, np.ndarray] = {}
+
+
+def _all_active(nb: int) -> np.ndarray:
+    """A read-only all-True mask of length nb (cached: built once per batch size)."""
+    mask = _ALL_ACTIVE.get(nb)
+    if mask is None:
+        mask = np.ones(nb, dtype=bool)
+        mask.setflags(write=False)
+        _ALL_ACTIVE[nb] = mask
+    return mask
 
 
 def env_step_reference(s: Scenario, state: loop.LoopState, actions, z):

@@ -12,9 +12,8 @@ so a batch reproduces single runs bit for bit).
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Sequence
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -43,9 +42,9 @@ N_DRAWS = 18
 _FADE, _MEAS, _DROP, _PROC, _SHAD = slice(0, 4), slice(4, 10), 10, slice(11, 17), 17
 
 
-@dataclass(frozen=True)
-class LoopState:
-    """State of a batch of B closed loops at the start of slot n (before allocation).
+class LoopState(NamedTuple):
+    """State of a batch of B closed loops at the start of slot n (before allocation); an immutable
+    named tuple (cheap to build on the env's hot path).
 
     Attributes
     ----------
@@ -71,7 +70,8 @@ class LoopState:
     ref: np.ndarray
 
     def replace(self, **changes) -> LoopState:
-        return dataclasses.replace(self, **changes)
+        """A copy with the given fields replaced (the state is immutable)."""
+        return self._replace(**changes)
 
     @property
     def batch_size(self) -> int | None:

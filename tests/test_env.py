@@ -12,7 +12,6 @@ hypothesis test over random action sequences. Everything goes through the public
 from __future__ import annotations
 
 import copy
-import dataclasses
 import math
 import pickle
 import warnings
@@ -127,7 +126,7 @@ def time_limit(env):
 def snapshot(env):
     """Copies of everything a step may change: loop state, last outcome, generator, step counts."""
     u = env.unwrapped
-    snap = {f.name: np.array(getattr(u._state, f.name), copy=True) for f in dataclasses.fields(u._state)}
+    snap = {name: np.array(getattr(u._state, name), copy=True) for name in u._state._fields}
     snap["last_received"] = copy.deepcopy(u._last_received)
     snap["last_peb"] = copy.deepcopy(u._last_peb)
     snap["rng"] = copy.deepcopy(u.np_random.bit_generator.state)

@@ -123,7 +123,7 @@ def reward_and_costs(s: Scenario, metrics: dict, n_next):
 
 
 #: Batches at least this large are stepped on all cores (same results bit for bit).
-PARALLEL_MIN_BATCH = 256
+PARALLEL_MIN_BATCH = 64
 
 #: Columns of the per-loop output array of :func:`env_step`.
 STEP_COLUMNS = kernel.METRIC_NAMES + kernel.ENV_COLUMNS
@@ -158,10 +158,12 @@ def env_step(s: Scenario, state: loop.LoopState, actions, normals, active=None):
         active = _all_active(nb)
     if kernel.supported(s):
         c, mats = kernel.kernel_constants(s)
-        fn = kernel.env_step_batch_parallel if nb >= PARALLEL_MIN_BATCH else kernel.env_step_batch
         x, x_hat, p, shadow, out, obs = outputs = kernel.new_outputs(nb, len(STEP_COLUMNS))
-        fn(c, mats, state.x, state.x_hat, state.p, state.shadow, state.n, state.ref, actions, normals, active,
-           *outputs)
+        args = (c, mats, state.x, state.x_hat, state.p, state.shadow, state.n, state.ref, actions, normals, active)
+        if nb >= PARALLEL_MIN_BATCH:
+            kernel.env_step_batch_parallel(*args, *outputs, kernel.parallel_chunk(nb))
+        else:
+            kernel.env_step_batch(*args, *outputs)
         n = state.n + 1 if all_active else state.n + active
         return loop.LoopState(x=x, x_hat=x_hat, p=p, shadow=shadow, n=n, ref=state.ref), out, obs
     if all_active:
@@ -229,7 +231,11 @@ class ISCCEnv(gym.Env):
     Every slot (dt = 0.1 s) the agent splits the resources into sensing, control and data
     shares: sensing sets the Cramér-Rao bound of the radar measurement, control sets the command's
     loss probability and so mean-square stability, and the data link must carry ``rate_min_bps``.
-    Each step calls the pure transition :func:`iscc_gym.loop.step` once.
+    Each step calls the pure batched transition :func:`env_step` once on a batch of one (the vector
+    env :class:`iscc_gym.vector.ISCCVectorEnv` calls the same function on N loops, so sub-env i
+    reproduces this env seeded alike bit for bit). It evaluates the model of ``docs/model.md``
+    (:func:`iscc_gym.loop.step_reference`, :func:`reward_and_costs`, :func:`observe_reference`)
+    with a compiled kernel.
 
     ## Action Space
 
@@ -308,7 +314,8 @@ class ISCCEnv(gym.Env):
 
     ## Version History
 
-    * v0: initial version.
+    * v0: initial version (slot normals drawn in blocks of 64 slots per Generator,
+      :class:`iscc_gym.loop.SlotNormals`).
 
     ## Example
 

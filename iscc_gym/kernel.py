@@ -499,21 +499,26 @@ def env_step_batch(c, mats, x, x_hat, p, shadow, n, ref, action, z, active,
               x_next, x_hat_next, p_next, shadow_next, out, obs)
 
 
-#: Rows per task of :func:`env_step_batch_parallel`.
-PARALLEL_CHUNK = 128
-
-
 @njit(cache=True, error_model="numpy", parallel=True)
 def env_step_batch_parallel(c, mats, x, x_hat, p, shadow, n, ref, action, z, active,
-                            x_next, x_hat_next, p_next, shadow_next, out, obs):
-    """:func:`env_step_batch` with chunks of rows on all cores: each row goes through the same
-    compiled :func:`_env_rows`, so results equal the serial kernel's bit for bit."""
+                            x_next, x_hat_next, p_next, shadow_next, out, obs, chunk):
+    """:func:`env_step_batch` with chunks of ``chunk`` rows spread over all cores: each row goes
+    through the same compiled :func:`_env_rows`, so results equal the serial kernel's bit for bit
+    whatever the chunking."""
     nb = x.shape[0]
-    n_chunks = (nb + PARALLEL_CHUNK - 1) // PARALLEL_CHUNK
+    n_chunks = (nb + chunk - 1) // chunk
     for k in prange(n_chunks):
-        lo = k * PARALLEL_CHUNK
-        _env_rows(c, mats, x, x_hat, p, shadow, n, ref, action, z, active, lo, min(lo + PARALLEL_CHUNK, nb),
+        lo = k * chunk
+        _env_rows(c, mats, x, x_hat, p, shadow, n, ref, action, z, active, lo, min(lo + chunk, nb),
                   x_next, x_hat_next, p_next, shadow_next, out, obs)
+
+
+def parallel_chunk(nb: int) -> int:
+    """Rows per task: about four tasks per thread, at least 16 rows each."""
+    import numba
+
+    tasks = 4 * numba.get_num_threads()
+    return max(16, -(-nb // tasks))
 
 
 def new_outputs(nb: int, columns: int):

@@ -152,8 +152,10 @@ def test_parallel_kernel_equals_serial_kernel_bit_for_bit():
     c, mats = kernel.kernel_constants(s)
     args = (c, mats, state.x, state.x_hat, state.p, state.shadow, state.n, state.ref,
             rng.uniform(-1, 1, (b, 3)), rng.standard_normal((b, loop.N_DRAWS)), rng.random(b) < 0.9)
-    serial, parallel = kernel.new_outputs(b, len(E.STEP_COLUMNS)), kernel.new_outputs(b, len(E.STEP_COLUMNS))
+    serial = kernel.new_outputs(b, len(E.STEP_COLUMNS))
     kernel.env_step_batch(*args, *serial)
-    kernel.env_step_batch_parallel(*args, *parallel)
-    for a, b_ in zip(serial, parallel, strict=True):
-        assert np.array_equal(a, b_)
+    for chunk in (16, 37, kernel.parallel_chunk(b)):
+        parallel = kernel.new_outputs(b, len(E.STEP_COLUMNS))
+        kernel.env_step_batch_parallel(*args, *parallel, chunk)
+        for a, b_ in zip(serial, parallel, strict=True):
+            assert np.array_equal(a, b_)

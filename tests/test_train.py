@@ -86,3 +86,24 @@ def test_ppo_learns_bit_identically_on_the_batched_env_and_on_single_envs(tmp_pa
     assert torch.equal(params["dummy"], params["batched"])
     assert np.array_equal(stats["dummy"].obs_rms.mean, stats["batched"].obs_rms.mean)
     assert np.array_equal(stats["dummy"].ret_rms.var, stats["batched"].ret_rms.var)
+
+
+def test_shipped_agent_loads_and_acts():
+    import gymnasium as gym
+
+    import iscc_gym  # noqa: F401
+    from eval.__main__ import SHIPPED_AGENT
+    from train.ship import SHIP_ARGS
+
+    policy = SB3Policy.load(SHIPPED_AGENT)
+    cfg = yaml.safe_load((SHIPPED_AGENT / "config.yml").read_text())
+    assert cfg["args"]["seed"] == SHIP_ARGS.seed and cfg["args"]["total_timesteps"] == SHIP_ARGS.total_timesteps
+    env = gym.make("iscc_gym/ISCC-v0")
+    obs, _ = env.reset(seed=10_000)
+    for _ in range(20):
+        action, _ = policy.predict(obs)
+        assert env.action_space.contains(action.astype(np.float32))
+        obs, reward, terminated, truncated, info = env.step(action)
+        assert np.isfinite(reward) and not terminated
+    batch, _ = policy.predict(np.stack([obs, obs]))
+    assert batch.shape == (2, 3) and np.array_equal(batch[0], batch[1])

@@ -16,13 +16,13 @@ seeds below 100 and evaluates on seeds from 1,000,000).
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
+from eval.docs import publish, save_json
 from eval.evaluate import evaluate, format_table
 
 #: The trained PPO agent shipped in the repository (produced by ``python -m eval.ship``).
@@ -194,18 +194,11 @@ def main(argv: list[str] | None = None) -> dict:
             print(f"wrote {p}")
         res.pop("traces")
     if args.write_docs:
-        from eval.docs import README_PATH, RESULTS_PATH, write_section
-
         cmd = "python -m eval" + ("" if argv is None or not argv else " " + " ".join(
             a for a in argv if a != "--write-docs"))
-        table = markdown_table(res, cmd)
-        write_section(RESULTS_PATH, "comparison", "## Learned vs scripted allocation\n\n" + table)
-        write_section(README_PATH, "comparison", table)
-        print(f"wrote {RESULTS_PATH} and {README_PATH}")
+        publish("comparison", "Learned vs scripted allocation", markdown_table(res, cmd))
     if args.json:
-        with open(args.json, "w") as f:
-            json.dump(res, f, indent=1)
-        print(f"wrote {args.json}")
+        save_json(args.json, res)
     return res
 
 

@@ -17,7 +17,6 @@ Every figure is the median over ``repeats`` runs, with its reference measured in
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import statistics
@@ -28,6 +27,7 @@ import gymnasium as gym
 import numpy as np
 
 import iscc_gym
+from eval.docs import publish, save_json
 
 
 def env_steps_per_second(env_id: str, n_steps: int, repeats: int, seed: int = 0, **kwargs) -> dict:
@@ -220,16 +220,9 @@ def main(argv: list[str] | None = None) -> dict:
     res = run(args.steps, args.repeats, quick=args.quick, ppo=not args.skip_ppo)
     print(format_report(res))
     if args.write_docs:
-        from eval.docs import README_PATH, RESULTS_PATH, write_section
-
-        table = markdown(res)
-        write_section(RESULTS_PATH, "bench", "## Speed\n\n" + table)
-        write_section(README_PATH, "bench", table)
-        print(f"wrote {RESULTS_PATH} and {README_PATH}")
+        publish("bench", "Speed", markdown(res))
     if args.json:
-        with open(args.json, "w") as f:
-            json.dump(res, f, indent=2)
-        print(f"wrote {args.json}")
+        save_json(args.json, res)
     return res
 
 

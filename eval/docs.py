@@ -3,9 +3,10 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
-__all__ = ["write_section", "RESULTS_PATH", "README_PATH"]
+__all__ = ["write_section", "publish", "save_json", "RESULTS_PATH", "README_PATH"]
 
 RESULTS_PATH = "docs/results.md"
 README_PATH = "README.md"
@@ -26,3 +27,18 @@ def write_section(path: str | Path, name: str, text: str) -> None:
     else:
         doc = doc.rstrip() + "\n\n" + block + "\n"
     p.write_text(doc)
+
+
+def publish(name: str, title: str, table: str) -> None:
+    """Write ``table`` as section ``name`` of docs/results.md (under the heading ``title``) and as
+    block ``name`` of the README."""
+    write_section(RESULTS_PATH, name, f"## {title}\n\n{table}")
+    write_section(README_PATH, name, table)
+    print(f"wrote {RESULTS_PATH} and {README_PATH}")
+
+
+def save_json(path: str | Path, res: dict) -> None:
+    """Write a command's results as JSON."""
+    with open(path, "w") as f:
+        json.dump(res, f, indent=1)
+    print(f"wrote {path}")

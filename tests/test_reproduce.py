@@ -1,19 +1,31 @@
-"""The reproduce command in quick mode: keys, the paper's model-level targets, calibration."""
+"""The reproduce command in quick mode: keys, the paper's model-level targets, calibration, the
+scheme level (Table II and Fig. 9 analogs), figures and the generated docs sections."""
 
 import json
 
 import numpy as np
 import pytest
 
-from eval import reproduce
+from eval import reproduce, schemes
+from eval.figures import FIGURES
 from iscc_gym import SCENARIOS
 
 
 @pytest.fixture(scope="module")
-def quick_paper(tmp_path_factory):
+def figures_dir(tmp_path_factory):
+    return tmp_path_factory.mktemp("figures")
+
+
+@pytest.fixture(scope="module")
+def quick_paper(tmp_path_factory, figures_dir):
     path = tmp_path_factory.mktemp("repro") / "out.json"
-    reproduce.main(["--quick", "--json", str(path)])
+    reproduce.main(["--quick", "--json", str(path), "--figures", str(figures_dir)])
     return json.loads(path.read_text())
+
+
+@pytest.fixture(scope="module")
+def quick_literal():
+    return reproduce.run("literal", quick=True, schemes=False)
 
 
 def test_json_has_the_issue_keys(quick_paper):
@@ -57,8 +69,8 @@ def test_calibration_solved_matches_the_preset(quick_paper):
     assert solved["ctrl_deadline_s"] == pytest.approx(preset.ctrl_deadline_s, rel=0.1)
 
 
-def test_literal_preset_shows_the_mismatch():
-    r = reproduce.run("literal", quick=True)
+def test_literal_preset_shows_the_mismatch(quick_literal):
+    r = quick_literal
     assert r["alpha_ctrl_star"] < 1e-3  # collapses far below 4.03 %
     assert r["max_comm_rate_mbps"] > 80.0  # far above 35 Mbps
     assert r["peb_m_at_alpha_sen_0_2"] > 100.0  # the radar sees nothing useful
@@ -73,13 +85,94 @@ def test_closed_loop_at_table2_split_tracks_near_paper():
     assert 0.3 < err < 0.5  # paper: 0.41 m
 
 
-def test_write_docs_regenerates_markers(tmp_path, quick_paper):
+def test_write_docs_regenerates_only_its_sections(tmp_path, quick_paper, quick_literal):
     readme = tmp_path / "README.md"
-    readme.write_text("head\n<!-- reproduce:start -->\nold\n<!-- reproduce:end -->\ntail\n")
+    readme.write_text("head\n<!-- reproduce:start -->\nSTALE\n<!-- reproduce:end -->\n"
+                      "<!-- bench:start -->\nbench table\n<!-- bench:end -->\ntail\n")
     results = tmp_path / "results.md"
-    literal = reproduce.run("literal", quick=True)
-    reproduce.write_docs(quick_paper, literal, str(results), str(readme))
+    # a results file as the previous version of the command wrote it (no markers), plus a marked
+    # section of another command that must survive
+    results.write_text("# Results\n\n" + reproduce.LEGACY_LINE + "\n\n## Model-level reproduction\n\nold table\n\n"
+                       "<!-- bench:start -->\n## Speed\n\nbench table\n<!-- bench:end -->\n")
+    reproduce.write_docs(quick_paper, quick_literal, str(results), str(readme))
     text = readme.read_text()
-    assert "old" not in text and text.startswith("head\n") and text.endswith("tail\n")
-    assert "| eps_ctrl* |" in text
-    assert "| eps_ctrl* |" in results.read_text()
+    assert "STALE" not in text and text.startswith("head\n") and text.endswith("tail\n")
+    assert "| eps_ctrl* |" in text and "Scheme level" in text and "bench table" in text
+    doc = results.read_text()
+    assert "old table" not in doc and reproduce.LEGACY_LINE not in doc
+    for name in ("reproduce", "reproduce-schemes", "bench"):
+        assert doc.count(f"<!-- {name}:start -->") == 1 and doc.count(f"<!-- {name}:end -->") == 1
+    assert "| eps_ctrl* |" in doc and "Table II analog" in doc and "Fig. 9 analog" in doc and "## Speed" in doc
+    assert "alloc_tracking_error.png" in doc  # figure links
+    assert doc.index("<!-- reproduce:start -->") < doc.index("<!-- bench:start -->")  # migrated in place
+    before = doc
+    reproduce.write_docs(quick_paper, quick_literal, str(results), str(readme))
+    assert results.read_text() == before  # idempotent
+
+
+# --- scheme level ---------------------------------------------------------------------------------
+ALLOC_KEYS = ("tracking_error_m", "rate_mbps", "peb_m", "lqg_cost", "time_s", "alpha_sen", "alpha_ctrl",
+              "alpha_comm")
+
+
+def test_scheme_level_json_has_the_issue_keys(quick_paper):
+    r = quick_paper
+    for method in ("sca", "grid", "evolutionary"):
+        for key in ALLOC_KEYS:
+            assert np.isfinite(r["allocation"][method][key]), (method, key)
+            assert key in r["paper"]["allocation"][method]
+        a = [r["allocation"][method][k] for k in ("alpha_sen", "alpha_ctrl", "alpha_comm")]
+        assert min(a) >= 0.0 and sum(a) == pytest.approx(1.0)
+    for scheme in ("open_loop", "gnss", "ignore_loss", "iscc"):
+        for key in ("tracking_error_m", "terminated", "tracking_error_full_horizon_m"):
+            assert key in r["schemes"][scheme]
+        assert "tracking_error_m" in r["paper"]["schemes"][scheme]
+    assert np.isfinite(r["iscc_over_gnss"])
+    assert r["paper"]["iscc_over_gnss"] == 0.1737
+    assert r["paper"]["allocation"]["sca"]["time_s"] == 68.60
+    names = [t["name"] for t in r["targets"]]
+    assert len(names) == 10 and all(isinstance(t["holds"], bool) for t in r["targets"])
+
+
+def test_scheme_level_sanity(quick_paper):
+    al, sc = quick_paper["allocation"], quick_paper["schemes"]
+    sca = al["sca"]["tracking_error_m"]
+    assert 0.3 < sca < 0.6  # paper 0.41 m
+    for method in ("grid", "evolutionary"):
+        assert al[method]["tracking_error_m"] == pytest.approx(sca, rel=0.05)
+        assert al[method]["lqg_cost"] == pytest.approx(al["sca"]["lqg_cost"], rel=0.05)
+    assert sc["iscc"]["tracking_error_m"] == sca  # the proposed scheme is the SCA allocation
+    assert sc["iscc"]["terminated"] == 0.0 and sc["gnss"]["terminated"] == 0.0
+    assert sc["ignore_loss"]["terminated"] == 1.0  # every mission loses track
+    assert sc["ignore_loss"]["tracking_error_full_horizon_m"] > 100.0
+    assert sc["open_loop"]["tracking_error_m"] > 5.0 * sca
+    assert sca < sc["gnss"]["tracking_error_m"] < sc["open_loop"]["tracking_error_m"]
+    assert sc["gnss"]["alpha"][0] == 0.0  # GNSS does not sense
+    assert quick_paper["iscc_over_gnss"] == pytest.approx(sca / sc["gnss"]["tracking_error_m"])
+    for method in ("sca", "grid", "evolutionary"):
+        assert 0.0 < al[method]["time_s"] < 60.0
+
+
+def test_figures_written(quick_paper, figures_dir):
+    assert set(quick_paper["figures"]) == set(FIGURES)
+    for name in FIGURES:
+        data = (figures_dir / name).read_bytes()
+        assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 5000
+
+
+def test_gnss_steady_state_matches_the_env(quick_paper):
+    wi = quick_paper["schemes"]["gnss"]["what_if"]
+    env = quick_paper["schemes"]["gnss"]["tracking_error_m"]
+    assert wi["env_reading_10hz_m"] == pytest.approx(env, rel=0.1)
+    # a slower receiver, an unfiltered fix and a noisier fix all make the GNSS loop worse
+    assert wi["receiver_1hz_m"] > wi["env_reading_10hz_m"]
+    assert wi["unfiltered_fix_m"] > wi["env_reading_10hz_m"]
+    assert wi["gnss_pos_std_for_paper_m"] > SCENARIOS["paper"].gnss_pos_std_m
+    s = SCENARIOS["paper"].replace(gnss_pos_std_m=wi["gnss_pos_std_for_paper_m"])
+    assert schemes.gnss_steady_error_m(s, wi["eps_ctrl"]) == pytest.approx(2.36, rel=1e-3)
+
+
+def test_format_prints_paper_beside_ours(quick_paper):
+    text = reproduce.format_table(quick_paper)
+    for snippet in ("Table II analog", "Fig. 9 analog", "68.6", "57.8", "2.36", "17.37", "holds"):
+        assert snippet in text

@@ -44,8 +44,8 @@ N_METRICS = len(METRIC_NAMES)
 (_H, _SF_A, _SF_B, _NEG_INV_DECORR, _RIC_LOS, _RIC_SCAT, _SNR_K, _BEAM_G, _ECHO_K, _M_OVER_SIG2,
  _C_TAU, _C_NU, _N_SUB, _ETA_SQ, _SXX, _SYY, _PRIOR, _TWO_OVER_C_SQ, _LAM_HALF_SQ, _K_COMM, _K_CTRL,
  _BITS_PER_HZ, _SQRT_L, _BW, _MAX_ERR, _RATE_MIN, _COVERAGE_R, _N_SLOTS, _ORIENT, _FIM_PRINTED,
- _GNSS, _OPEN_LOOP, _FEEDFORWARD, _EPS_STAR, _Q_BACK, _W_RATE, _W_STAB) = range(37)
-_N_CONST = 37
+ _GNSS, _OPEN_LOOP, _FEEDFORWARD, _EPS_STAR, _Q_BACK, _W_RATE, _W_STAB, _GNSS_EVERY) = range(38)
+_N_CONST = 38
 # slices of the packed matrices (5, 6, 6): A, B (6 x 3), K (3 x 6), Sigma_w, [chol_w; gnss whitening]
 _A, _B, _K, _SIGMA_W, _DIAGS = range(5)
 _ORIENTATIONS = {"horizontal": 0.0, "printed": 1.0, "vertical": 2.0}
@@ -88,6 +88,7 @@ def kernel_constants(s: Scenario):
     c[_EPS_STAR] = eps_star
     c[_Q_BACK] = float(q_inv(eps_star)) / sqrt_l  # control-share bound of the observation (min_shares)
     c[_W_RATE], c[_W_STAB] = s.w_rate, s.w_stab
+    c[_GNSS_EVERY] = s.gnss_update_slots
     mats = np.zeros((5, 6, 6))
     mats[_A], mats[_B, :, :3], mats[_K, :3, :], mats[_SIGMA_W] = mm.a, mm.b, mm.k, mm.sigma_w
     mats[_DIAGS, 0], mats[_DIAGS, 1] = mm.chol_w, np.diag(mm.gnss_whiten)
@@ -352,7 +353,11 @@ def _step_one(c, mats, xi, x_hat, p, shadow, ni, ref, a_sen, a_ctrl, a_comm, zi,
                 acc += w[j, k] * xi[k]
             y[j] = acc + zi[4 + j]
     m = w.shape[0]
-    _kf_update(x_hat, p, y[:m], w, x_post, p_post, scratch)
+    if c[_GNSS] == 1.0 and ni % int(c[_GNSS_EVERY]) != 0:  # no GNSS fix this slot: prediction only
+        x_post[:] = x_hat
+        p_post[:] = p
+    else:
+        _kf_update(x_hat, p, y[:m], w, x_post, p_post, scratch)
     # control command and its FBL delivery (fbl.slot_link)
     cap, sqrt_v = _link_terms(snr)
     need = c[_BITS_PER_HZ] / max(a_ctrl, 1e-30)

@@ -304,6 +304,10 @@ def step_reference(s: Scenario, state: LoopState, alpha, rng, z=None):
         c = mm.gnss_whiten
         y = (c @ x[..., None])[..., 0] + z[..., _MEAS]
     x_post, p_post, _ = kf_update(state.x_hat, state.p, y, c, None)
+    if s.observation_source == "gnss" and s.gnss_update_slots > 1:  # a fix every k-th slot only
+        fix = (n % s.gnss_update_slots) == 0
+        x_post = np.where(fix[..., None], x_post, state.x_hat)
+        p_post = np.where(fix[..., None, None], p_post, state.p)
 
     # --- control command and its finite-blocklength delivery
     eps, rate_ctrl, rate_comm = slot_link(s, a_ctrl, a_comm, snr)

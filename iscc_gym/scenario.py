@@ -179,6 +179,10 @@ class Scenario:
         GNSS position noise std per axis in m (the paper's baseline: 3).
     gnss_vel_std_mps : float
         GNSS velocity noise std per axis in m/s (the paper's baseline: 0.2).
+    gnss_update_period_s : float
+        Time between GNSS fixes in s, rounded to a whole number of slots, at least one (not given;
+        1.0, the usual receiver rate, reproduces the paper's GNSS figure; ``dt_s`` or less feeds a
+        fix every slot). Between fixes the Kalman filter only predicts.
     observation_source : str
         ``"isac"`` (radar CRLB-limited position and radial velocity) or ``"gnss"``.
     control_mode : str
@@ -249,6 +253,7 @@ class Scenario:
     # --- comparison schemes -------------------------------------------------------------------------
     gnss_pos_std_m: float = 3.0
     gnss_vel_std_mps: float = 0.2
+    gnss_update_period_s: float = 1.0
     observation_source: str = "isac"
     control_mode: str = "lqg"
     reference_feedforward: bool = False
@@ -266,6 +271,11 @@ class Scenario:
     def n_antennas(self) -> int:
         """Number of UPA elements N = n_x n_y."""
         return self.n_x * self.n_y
+
+    @property
+    def gnss_update_slots(self) -> int:
+        """Slots between GNSS fixes: gnss_update_period_s / dt_s rounded, at least 1 (a fix every slot)."""
+        return max(1, int(round(self.gnss_update_period_s / self.dt_s)))
 
     @property
     def n_slots(self) -> int:
@@ -308,7 +318,7 @@ def _validate(s: Scenario) -> None:
         "shadowing_decorrelation_m", "rcs_m2", "subcarrier_spacing_hz", "symbol_duration_s",
         "mission_duration_s", "dt_s", "lqg_r", "ctrl_deadline_s", "lqg_cost_target",
         "max_tracking_error_m", "waypoint_intensity_per_km3", "sensing_prior_var_m2",
-        "gnss_pos_std_m", "gnss_vel_std_mps",
+        "gnss_pos_std_m", "gnss_vel_std_mps", "gnss_update_period_s",
     ]
     non_negative = [
         "gbs_height_m", "shadowing_a_db", "shadowing_b_per_m", "lqg_q_pos",
@@ -386,6 +396,7 @@ LITERAL_OVERRIDES: dict[str, Any] = {
     "fim_angle_convention": "printed",
     "ctrl_deadline_s": 0.1,
     "rate_cost_determinant": "printed",
+    "gnss_update_period_s": 0.1,
 }
 
 SCENARIOS: dict[str, Scenario] = {

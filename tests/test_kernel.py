@@ -12,6 +12,7 @@ VARIANTS = [
     ("paper", {}),
     ("literal", {}),
     ("paper", {"observation_source": "gnss"}),
+    ("paper", {"observation_source": "gnss", "gnss_update_period_s": 0.1}),
     ("paper", {"control_mode": "open_loop"}),
     ("paper", {"reference_feedforward": True, "array_orientation": "printed",
                "fim_angle_convention": "printed"}),

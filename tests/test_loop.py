@@ -7,7 +7,7 @@ import pytest
 import scipy.linalg
 import scipy.stats
 
-from iscc_gym import SCENARIOS, Scenario
+from iscc_gym import SCENARIOS, Scenario, make_scenario
 from iscc_gym.loop import N_DRAWS, LoopState, init_state, stack_references, step
 from iscc_gym.trajectory import sample_reference
 
@@ -351,3 +351,23 @@ def test_unbatched_loop_equals_batch_member(refs):
             np.testing.assert_allclose(batch.p[i], singles[i].p, rtol=1e-9, atol=1e-15)
             for k in METRIC_KEYS:
                 np.testing.assert_allclose(mb[k][i], ms[k], rtol=1e-9, atol=1e-12)
+
+
+
+def test_gnss_fix_every_k_slots_and_prediction_in_between():
+    """With a GNSS fix every 3rd slot, the covariance between fixes follows the prediction alone,
+    P <- A P A^T + Sigma_w (an independent recursion), and a fix shrinks it."""
+    from iscc_gym.dynamics import model_matrices as _mm
+
+    s = make_scenario("paper", observation_source="gnss", gnss_update_period_s=0.3)
+    mm = _mm(s)
+    rng = np.random.default_rng(0)
+    state = init_state(s, [sample_reference(s, rng)], [rng])
+    for n in range(9):
+        p_before = state.p[0].copy()
+        state, _ = step(s, state, np.array([[0.0, 0.2, 0.8]]), [rng])
+        predicted = mm.a @ p_before @ mm.a.T + mm.sigma_w
+        if n % 3 == 0:
+            assert np.trace(state.p[0][:3, :3]) < np.trace(predicted[:3, :3]) - 1e-6
+        else:
+            np.testing.assert_allclose(state.p[0], predicted, rtol=1e-12, atol=1e-15)

@@ -32,7 +32,7 @@ POSITIVE_INT = ["n_x", "n_y", "n_symbols", "n_subcarriers", "ctrl_packet_bits",
 BLER = ["ctrl_target_bler", "comm_target_bler"]  # in (0, 0.5)
 ANY_FINITE = ["tx_power_dbm", "noise_psd_dbm_hz", "comm_snr_offset_db", "sensing_snr_offset_db",
               "rician_k_db", "altitude_max_m"]
-SPECIAL = ["lqg_q_pos"]  # > 0 (cross-check: zero position weight)
+SPECIAL = ["lqg_q_pos", "gnss_update_period_s"]  # > 0 (and: zero position weight; a multiple of dt_s)
 CHOICES = {
     "process_noise_reading": ("variance", "std"),
     "snr_convention": ("total_power", "per_subcarrier_power"),
@@ -263,6 +263,7 @@ DOCUMENTED_LITERAL = {
     "fim_angle_convention": "printed",
     "ctrl_deadline_s": 0.1,
     "rate_cost_determinant": "printed",
+    "gnss_update_period_s": 0.1,
 }
 
 
@@ -320,3 +321,10 @@ def test_bool_in_float_field_rejected():
 def test_string_in_float_field_rejected():
     with pytest.raises(ValueError, match=_msg("tx_power_dbm")):
         Scenario(tx_power_dbm="42")
+
+
+def test_gnss_update_period_in_slots():
+    assert Scenario(gnss_update_period_s=0.3).gnss_update_slots == 3
+    assert Scenario(gnss_update_period_s=0.26).gnss_update_slots == 3  # rounded to whole slots
+    assert Scenario(gnss_update_period_s=0.01).gnss_update_slots == 1  # at least every slot
+    assert SCENARIOS["paper"].gnss_update_slots == 10 and SCENARIOS["literal"].gnss_update_slots == 1

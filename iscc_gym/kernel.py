@@ -519,11 +519,12 @@ def env_step_batch_parallel(c, mats, x, x_hat, p, shadow, n, ref, action, z, act
 
 
 def parallel_chunk(nb: int) -> int:
-    """Rows per task: about four tasks per thread, at least 16 rows each."""
+    """Rows per task: two tasks per thread, at least 32 rows each (measured on 2 cores: 1024 envs
+    ~0.9 M env-steps/s with 64-512 rows per task, ~0.5 M with 16)."""
     import numba
 
-    tasks = 4 * numba.get_num_threads()
-    return max(16, -(-nb // tasks))
+    tasks = 2 * numba.get_num_threads()
+    return max(32, -(-nb // tasks))
 
 
 def new_outputs(nb: int, columns: int):

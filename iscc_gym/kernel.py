@@ -49,6 +49,7 @@ _N_CONST = 38
 # slices of the packed matrices (5, 6, 6): A, B (6 x 3), K (3 x 6), Sigma_w, [chol_w; gnss whitening]
 _A, _B, _K, _SIGMA_W, _DIAGS = range(5)
 _ORIENTATIONS = {"horizontal": 0.0, "printed": 1.0, "vertical": 2.0}
+_LN10_OVER_10 = math.log(10.0) / 10.0
 
 
 def supported(s: Scenario) -> bool:
@@ -114,7 +115,8 @@ def _direction(c, px, py, pz):
 @njit(cache=True, error_model="numpy", inline="always")
 def _large_scale_snr(c, dist, shadow_db):
     """channel.link_snr with the matched beam gain."""
-    return c[_SNR_K] * c[_BEAM_G] * dist ** -2.2 * 10.0 ** (-0.1 * shadow_db)
+    # = K G l^-2.2 10^(-eps/10), as one exp of a log (pow twice costs more than the rest of the budget)
+    return c[_SNR_K] * c[_BEAM_G] * math.exp(-2.2 * math.log(dist) - _LN10_OVER_10 * shadow_db)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -182,7 +184,7 @@ def _crlb_local(c, a_sen, dist, ct, st, cp, sp, shadow_db, fading):
     d_tt = sxx * (tx * tx) + syy * (ty * ty)
     d_pp = sxx * (qx * qx) + syy * (qy * qy)
     d_tp = sxx * (tx * qx) + syy * (ty * qy)
-    amp = c[_ECHO_K] * dist ** -4.4 * 10.0 ** (-0.1 * shadow_db) * fading
+    amp = c[_ECHO_K] * math.exp(-4.4 * math.log(dist) - _LN10_OVER_10 * shadow_db) * fading
     k_sen = a_sen * c[_N_SUB]
     base = amp * c[_M_OVER_SIG2] * k_sen
     common = base * c[_ETA_SQ]
@@ -395,8 +397,15 @@ def _step_one(c, mats, xi, x_hat, p, shadow, ni, ref, a_sen, a_ctrl, a_comm, zi,
             axh += a_mat[j, k] * x_post[k]
         x_next[j] = ax + bu[j] + mats[_DIAGS, 0, j] * zi[11 + j]
         x_hat_next[j] = axh + bu[j]
-    _mm66(a_mat, p_post, scratch[6])
-    _mmt66(scratch[6], a_mat, pa)
+    # A P A^T with A = [[I, dt I], [0, I]] (dynamics.system_matrices), blockwise
+    dt = a_mat[0, 3]
+    for j in range(3):
+        for k in range(3):
+            p12 = p_post[j, 3 + k] + dt * p_post[3 + j, 3 + k]
+            pa[j, k] = p_post[j, k] + dt * p_post[3 + j, k] + dt * p12
+            pa[j, 3 + k] = p12
+            pa[3 + j, k] = p_post[3 + j, k] + dt * p_post[3 + j, 3 + k]
+            pa[3 + j, 3 + k] = p_post[3 + j, 3 + k]
     for j in range(6):
         for k in range(6):
             p_next[j, k] = 0.5 * ((pa[j, k] + sigma_w[j, k]) + (pa[k, j] + sigma_w[k, j]))

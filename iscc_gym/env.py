@@ -169,16 +169,11 @@ def env_step(s: Scenario, state: loop.LoopState, actions, normals, active=None):
     if all_active:
         return env_step_reference(s, state, actions, normals)
     idx = np.flatnonzero(active)
-    sub = loop.LoopState(x=state.x[idx], x_hat=state.x_hat[idx], p=state.p[idx], shadow=state.shadow[idx],
-                         n=state.n[idx], ref=state.ref[idx])
-    sub, sub_out, sub_obs = env_step_reference(s, sub, actions[idx], normals[idx])
-    fields = {f: getattr(state, f).copy() for f in ("x", "x_hat", "p", "shadow", "n")}
-    for f, arr in fields.items():
-        arr[idx] = getattr(sub, f)
+    sub, sub_out, sub_obs = env_step_reference(s, state.rows(idx), actions[idx], normals[idx])
     out = np.zeros((nb, sub_out.shape[1]))
     obs = np.zeros((nb, sub_obs.shape[1]), np.float32)
     out[idx], obs[idx] = sub_out, sub_obs
-    return loop.LoopState(ref=state.ref, **fields), out, obs
+    return state.with_rows(idx, sub), out, obs
 
 
 _ALL_ACTIVE: dict[int, np.ndarray] = {}

@@ -229,7 +229,8 @@ def _mmt(a, b, out):
 
 @njit(cache=True, error_model="numpy", inline="always")
 def _mm66(a, b, out):
-    """out = a @ b for 6 x 6 matrices (fixed bounds: unrolled by the compiler)."""
+    """out = a @ b for 6 x 6 matrices: :func:`_mm` with fixed bounds, which the compiler unrolls
+    (the Joseph update with the generic loops measured 4-8 % slower per slot)."""
     for i in range(6):
         for j in range(6):
             acc = 0.0

@@ -73,6 +73,21 @@ class LoopState(NamedTuple):
         """A copy with the given fields replaced (the state is immutable)."""
         return self._replace(**changes)
 
+    def rows(self, idx) -> LoopState:
+        """The loops ``idx`` of a batch (copies)."""
+        return LoopState(*(field[idx] for field in self))
+
+    def with_rows(self, idx, sub: LoopState) -> LoopState:
+        """A copy of this batch with loops ``idx`` replaced by ``sub``. The per-slot arrays are
+        copied; the (large, constant per episode) reference array is updated in place."""
+        fields = {}
+        for name in ("x", "x_hat", "p", "shadow", "n"):
+            arr = getattr(self, name).copy()
+            arr[idx] = getattr(sub, name)
+            fields[name] = arr
+        self.ref[idx] = sub.ref
+        return LoopState(ref=self.ref, **fields)
+
     @property
     def batch_size(self) -> int | None:
         """B for a batch of loops, None for a single (unbatched) loop."""

@@ -156,7 +156,7 @@ class ISCCVectorEnv(VectorEnv):
             self._last_rx = np.where(active, out[:, _COL["packet_received"]], self._last_rx)
             self._last_peb = np.where(active, out[:, _COL["peb_m"]], self._last_peb)
             self._reset_rows(np.flatnonzero(restart))
-            obs[restart] = observe(s, _rows(self._state, restart), self._last_rx[restart],
+            obs[restart] = observe(s, self._state.rows(restart), self._last_rx[restart],
                                    self._last_peb[restart])
         else:
             self._last_rx = out[:, _COL["packet_received"]].copy()
@@ -176,7 +176,7 @@ class ISCCVectorEnv(VectorEnv):
                                   if not k.startswith(("final", "_final"))}
             info["_final_info"] = done.copy()
             self._reset_rows(idx)
-            obs[idx] = observe(s, _rows(self._state, idx), self._last_rx[idx], self._last_peb[idx])
+            obs[idx] = observe(s, self._state.rows(idx), self._last_rx[idx], self._last_peb[idx])
             self._done = np.zeros(self.num_envs, dtype=bool)
         else:
             self._done = done
@@ -195,28 +195,11 @@ class ISCCVectorEnv(VectorEnv):
         if self._state is None or idx.size == self.num_envs:
             self._state = new
         else:
-            self._state = _scatter(self._state, idx, new)
+            self._state = self._state.with_rows(idx, new)
         for i in idx:
             self._normals.restart(i)
         self._last_rx[idx] = 1.0
         self._last_peb[idx] = 0.0
-
-
-def _rows(state: loop.LoopState, idx) -> loop.LoopState:
-    return loop.LoopState(x=state.x[idx], x_hat=state.x_hat[idx], p=state.p[idx], shadow=state.shadow[idx],
-                          n=state.n[idx], ref=state.ref[idx])
-
-
-def _scatter(state: loop.LoopState, idx, sub: loop.LoopState) -> loop.LoopState:
-    """A copy of ``state`` with rows ``idx`` replaced by ``sub`` (the reference array in place:
-    nothing else holds it)."""
-    fields = {}
-    for f in ("x", "x_hat", "p", "shadow", "n"):
-        arr = getattr(state, f).copy()
-        arr[idx] = getattr(sub, f)
-        fields[f] = arr
-    state.ref[idx] = sub.ref
-    return loop.LoopState(ref=state.ref, **fields)
 
 
 def _info(out: np.ndarray, n: np.ndarray, valid: np.ndarray) -> dict:

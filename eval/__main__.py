@@ -64,49 +64,48 @@ def _split_specs(specs: str) -> list[str]:
     return out
 
 
-def save_plots(res: dict, out_dir: str | Path) -> list[str]:
+def save_plots(res: dict, out_dir: str | Path, dt_s: float = 0.1) -> list[str]:
     """Allocation over time, tracking error over time and 3-D trajectories of the first recorded
     episode of every policy, as PNGs."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
+    from eval.figures import new_figure
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     traces = res["traces"]
     paths = []
-    fig = Figure(figsize=(9, 2.4 * len(traces)), dpi=90)
-    FigureCanvasAgg(fig)
+
+    def save(fig, name):
+        fig.tight_layout()
+        fig.savefig(out / name)
+        paths.append(str(out / name))
+
+    fig = new_figure((9, 2.4 * len(traces)), dpi=90)
     for k, (name, tr) in enumerate(traces.items()):
         ax = fig.add_subplot(len(traces), 1, k + 1)
         alpha = tr["alpha"][:, 0]
-        t = np.arange(len(alpha)) * 0.1
+        t = np.arange(len(alpha)) * dt_s
         for j, label in enumerate(("sensing", "control", "data")):
             ax.plot(t, alpha[:, j], lw=0.8, label=label)
         ax.set_ylabel(f"{name}\nshare")
         ax.set_ylim(0, 1)
         ax.legend(loc="upper right", fontsize=7, ncol=3)
     fig.axes[-1].set_xlabel("time (s)")
-    fig.tight_layout()
-    fig.savefig(out / "allocation.png")
-    paths.append(str(out / "allocation.png"))
-    fig = Figure(figsize=(9, 3.5), dpi=90)
-    FigureCanvasAgg(fig)
+    save(fig, "allocation.png")
+
+    fig = new_figure((9, 3.5), dpi=90)
     ax = fig.add_subplot(1, 1, 1)
     for name, tr in traces.items():
         err = tr["tracking_error_m"][:, 0]
-        ax.plot(np.arange(len(err)) * 0.1, err, lw=0.8, label=name)
+        ax.plot(np.arange(len(err)) * dt_s, err, lw=0.8, label=name)
     ax.set_xlabel("time (s)")
     ax.set_ylabel("tracking error (m)")
     ax.set_yscale("log")
     ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(out / "tracking_error.png")
-    paths.append(str(out / "tracking_error.png"))
-    fig = Figure(figsize=(6, 5), dpi=90)
-    FigureCanvasAgg(fig)
+    save(fig, "tracking_error.png")
+
+    fig = new_figure((6, 5), dpi=90)
     ax = fig.add_subplot(1, 1, 1, projection="3d")
-    first = next(iter(traces.values()))
-    ref = first["ref_pos"][:, 0]
+    ref = next(iter(traces.values()))["ref_pos"][:, 0]
     ax.plot(ref[:, 0], ref[:, 1], ref[:, 2], "k--", lw=1, label="reference")
     for name, tr in traces.items():
         pos = tr["pos"][:, 0]
@@ -115,9 +114,7 @@ def save_plots(res: dict, out_dir: str | Path) -> list[str]:
     ax.set_ylabel("y (m)")
     ax.set_zlabel("z (m)")
     ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(out / "trajectories.png")
-    paths.append(str(out / "trajectories.png"))
+    save(fig, "trajectories.png")
     return paths
 
 
@@ -192,7 +189,9 @@ def main(argv: list[str] | None = None) -> dict:
     print(format_table(res))
     print(f"evaluated {len(policies)} policies x {len(seeds)} episodes in {time.perf_counter() - t0:.1f} s")
     if args.plots:
-        for p in save_plots(res, args.plots):
+        from iscc_gym import make_scenario
+
+        for p in save_plots(res, args.plots, make_scenario(args.scenario).dt_s):
             print(f"wrote {p}")
         res.pop("traces")
     if args.write_docs:

@@ -41,11 +41,12 @@ _SCHEME_STYLE = {
 _ALLOC_MARK = {"sca": ("SCA", "o"), "grid": ("grid", "s"), "evolutionary": ("evolutionary", "^")}
 
 
-def _figure(size):
+def new_figure(size, dpi: int = 100):
+    """A matplotlib Figure on the Agg canvas (no display needed)."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=size, dpi=100)
+    fig = Figure(figsize=size, dpi=dpi)
     FigureCanvasAgg(fig)
     return fig
 
@@ -59,7 +60,7 @@ def _alive(tr):
 def trajectories_3d(path: Path, traces: dict, dt_s: float) -> None:
     """(a) the whole mission of every scheme; (b) a 30 s window of GNSS feedback and ISCC, whose
     errors (metres, decimetres) do not show at the mission's scale."""
-    fig = _figure((13, 6))
+    fig = new_figure((13, 6))
     first = traces["iscc"]
     ok = _alive(first)
     ref = np.asarray(first["ref_pos"])[ok, 0]
@@ -88,7 +89,7 @@ def trajectories_3d(path: Path, traces: dict, dt_s: float) -> None:
 
 
 def tracking_error_vs_time(path: Path, traces: dict, dt_s: float, bound_m: float) -> None:
-    fig = _figure((9, 4))
+    fig = new_figure((9, 4))
     ax = fig.add_subplot(1, 1, 1)
     for name, (label, color) in _SCHEME_STYLE.items():
         if name not in traces:
@@ -128,7 +129,7 @@ def allocation_maps(out: Path, model: StaticModel, splits: dict, n: int) -> None
                               ("lqg_cost", "alloc_lqg_cost.png", "LQG cost b")):
         z = getattr(met, key).reshape(n, n)
         z = np.where(met.stable.reshape(n, n) & np.isfinite(z), z, np.nan)
-        fig = _figure((14, 4.2))
+        fig = new_figure((14, 4.2))
         ax = fig.add_subplot(1, 3, 1)
         ax.set_facecolor("0.85")
         im = ax.pcolormesh(100 * a_sen, 100 * a_ctrl, z.T, shading="auto", cmap="viridis",
@@ -172,7 +173,7 @@ def peb_veb(path: Path, model: StaticModel) -> None:
     m_r, m_tt, _, m_pp, vr = local_crlb(model.sensing, a[:, None])
     pe = np.sqrt(m_r + m_tt + m_pp).mean(axis=1)
     ve = np.sqrt(vr).mean(axis=1)
-    fig = _figure((9, 3.8))
+    fig = new_figure((9, 3.8))
     ax = fig.add_subplot(1, 2, 1)
     ax.loglog(100 * a, pe, lw=1.2)
     ax.axhspan(0.03, 0.07, xmin=0, xmax=1, color="tab:orange", alpha=0.15, label="paper at 20 %: 0.03-0.07 m")
@@ -194,7 +195,7 @@ def rho_vs_eps(path: Path, s: Scenario, model: StaticModel) -> None:
     e_star = scenario_eps_star(s)
     eps = np.linspace(0.0, 1.0, 401)
     rho = [spectral_radius(stability_matrix(mm.a, mm.b, mm.k, e)) for e in eps]
-    fig = _figure((10, 3.8))
+    fig = new_figure((10, 3.8))
     ax = fig.add_subplot(1, 2, 1)
     ax.plot(eps, rho, lw=1.2)
     ax.axhline(1.0, color="grey", ls=":", lw=1)

@@ -129,7 +129,7 @@ PARALLEL_MIN_BATCH = 64
 STEP_COLUMNS = kernel.METRIC_NAMES + kernel.ENV_COLUMNS
 
 
-def env_step(s: Scenario, state: loop.LoopState, actions, normals, active=None):
+def env_step(s: Scenario, state: loop.LoopState, actions, normals=None, active=None):
     """One env step of a batch of loops: action map, slot transition, reward, costs, next observation.
 
     The single env (a batch of one) and the vector env both call it, so drone i of a batch
@@ -139,8 +139,9 @@ def env_step(s: Scenario, state: loop.LoopState, actions, normals, active=None):
     ----------
     state : LoopState (batched, B loops)
     actions : ndarray (B, 3), finite
-    normals : ndarray (B, N_DRAWS)
-        The slot's standard normals (:class:`iscc_gym.loop.SlotNormals`).
+    normals : ndarray (B, N_DRAWS), optional
+        The slot's standard normals; default: each loop's episode stream
+        (:func:`iscc_gym.noise.slot_normals` of its key and slot, drawn inside the kernel).
     active : ndarray (B,) bool, optional
         Loops to step (default all); the others keep their state, slot index and zero outputs.
 
@@ -159,13 +160,17 @@ def env_step(s: Scenario, state: loop.LoopState, actions, normals, active=None):
     if kernel.supported(s):
         c, mats = kernel.kernel_constants(s)
         x, x_hat, p, shadow, out, obs = outputs = kernel.new_outputs(nb, len(STEP_COLUMNS))
-        args = (c, mats, state.x, state.x_hat, state.p, state.shadow, state.n, state.ref, actions, normals, active)
+        z = _NO_NORMALS if normals is None else normals
+        args = (c, mats, state.x, state.x_hat, state.p, state.shadow, state.n, state.ref, state.key, actions, z,
+                active)
         if nb >= PARALLEL_MIN_BATCH:
             kernel.env_step_batch_parallel(*args, *outputs, kernel.parallel_chunk(nb))
         else:
             kernel.env_step_batch(*args, *outputs)
         n = state.n + 1 if all_active else state.n + active
-        return loop.LoopState(x=x, x_hat=x_hat, p=p, shadow=shadow, n=n, ref=state.ref), out, obs
+        return state._replace(x=x, x_hat=x_hat, p=p, shadow=shadow, n=n), out, obs
+    if normals is None:
+        normals = loop.slot_noise(state)
     if all_active:
         return env_step_reference(s, state, actions, normals)
     idx = np.flatnonzero(active)
@@ -177,6 +182,7 @@ def env_step(s: Scenario, state: loop.LoopState, actions, normals, active=None):
 
 
 _ALL_ACTIVE: dict[int, np.ndarray] = {}
+_NO_NORMALS = np.empty((0, loop.N_DRAWS))  # the kernel's "draw from the keys" signal
 
 
 def _all_active(nb: int) -> np.ndarray:
@@ -289,7 +295,9 @@ class ISCCEnv(gym.Env):
 
     ``reset`` draws a new reference trajectory (Poisson waypoints, cubic spline) and the drone's
     initial state near its start (``initial_pos_std_m``, ``initial_vel_std_mps``), all from the
-    env's generator.
+    env's generator, and then the episode's noise key: every slot's fading, measurement, drop,
+    process and shadowing normals are :func:`iscc_gym.noise.slot_normals` (key, slot), so an
+    episode is fixed by the generator's state at reset.
 
     ## Episode End
 
@@ -309,8 +317,10 @@ class ISCCEnv(gym.Env):
 
     ## Version History
 
-    * v0: initial version (slot normals drawn in blocks of 64 slots per Generator,
-      :class:`iscc_gym.loop.SlotNormals`).
+    * v0: initial version. Each slot's normals come from a per-episode stream: a key drawn at
+      reset from ``np_random``, then :func:`iscc_gym.noise.slot_normals` (key, slot). (Before the
+      first release they were drawn from ``np_random`` itself, in blocks of 64 slots, so seeded
+      episodes of earlier development versions differ.)
 
     ## Example
 
@@ -345,7 +355,6 @@ class ISCCEnv(gym.Env):
         ref = sample_reference(s, self.np_random)
         # a batch of one: bit-identical to the same drone in any batch (the vector env)
         self._state = loop.init_state(s, [ref], [self.np_random])
-        self._normals = loop.SlotNormals([self.np_random])
         self._last_received, self._last_peb = True, 0.0
         self._history = {"pos": [self._state.x[0, :3].copy()], "err": []}
         return self._observation(), self._reset_info()
@@ -362,7 +371,7 @@ class ISCCEnv(gym.Env):
         s = self.scenario
         if self._state.n[0] >= s.n_slots:
             raise RuntimeError("the mission is over (truncated); call reset() before step()")
-        self._state, out, obs = env_step(s, self._state, a[None], self._normals.next())
+        self._state, out, obs = env_step(s, self._state, a[None])
         (err, est, snr_db, snr_ls_db, peb, veb, eps, received, rate, rate_ctrl, _, al_sen, al_ctrl,
          al_comm, cost_rate, cost_stab, reward, terminated, truncated) = out[0].tolist()
         self._last_received, self._last_peb = received == 1.0, peb

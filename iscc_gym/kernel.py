@@ -3,11 +3,17 @@ fused into one loop over the batch (numba).
 
 Why it exists: one slot is ~200 small numpy operations on 6 x 6 matrices; at a batch of one, numpy's
 per-call overhead (about 1 us each) dominates and the env ran ~20x slower than Pendulum-v1. The
-kernel evaluates exactly the same equations, in the same order, one drone at a time, so
+kernel evaluates the same equations one drone at a time, so
 
 * it is a faster evaluation of the documented model, not a second model: every formula here cites the
   numpy function it mirrors, and ``tests/test_kernel.py`` checks the kernel against the numpy
-  reference (to ~1e-12 relative) on random states and whole episodes;
+  reference (to ~1e-9 relative) on random states and whole episodes. Only the order of
+  floating-point operations differs: products use the structure of A = [[I, dt I], [0, I]] and the
+  symmetry of the Joseph update, the 4 x 4 inverse goes through the inverse Cholesky factor, and the
+  slot and update functions may reassociate sums and fuse multiply-adds
+  (``fastmath={"reassoc", "contract"}``: no assumption about NaN or inf);
+* each slot draws its own normals from the loop's episode key (:mod:`iscc_gym.noise`), on whichever
+  core steps the loop;
 * drone i of a batch goes through the same machine code whatever the batch size, so a batch
   reproduces single runs bit for bit (the vector env relies on it).
 
@@ -28,6 +34,7 @@ from numba import njit, prange
 from .channel import _rician_constants, _snr_constant, matched_gain
 from .dynamics import model_matrices
 from .fbl import _link_constants, q_inv
+from .noise import N_DRAWS, fill_slot_normals
 from .scenario import SPEED_OF_LIGHT_MPS, Scenario, per_scenario
 from .sensing import _echo_constant, _fim_constants, _index_moments
 from .stability import scenario_eps_star
@@ -240,49 +247,40 @@ def _mm66(a, b, out):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _mmt66(a, b, out):
-    """out = a @ b.T for 6 x 6 matrices."""
-    for i in range(6):
-        for j in range(6):
-            acc = 0.0
-            for k in range(6):
-                acc += a[i, k] * b[j, k]
-            out[i, j] = acc
-
-
-@njit(cache=True, error_model="numpy")
 def _spd_inverse(s_mat, out, low):
-    """Inverse of a small symmetric positive-definite matrix through its Cholesky factor."""
+    """Inverse of a small symmetric positive-definite matrix, :math:`S^{-1} = L^{-T} L^{-1}` from its
+    Cholesky factor :math:`S = L L^T`; ``low`` receives :math:`L^{-1}` (one division per row, no
+    chained divisions: this was the slowest part of the update)."""
     m = s_mat.shape[0]
-    for j in range(m):
-        acc = s_mat[j, j]
-        for k in range(j):
-            acc -= low[j, k] * low[j, k]
-        low[j, j] = math.sqrt(acc)
-        for i in range(j + 1, m):
+    for j in range(m):  # Cholesky, row-major; the diagonal of low holds 1 / L_jj
+        for i in range(j, m):
             acc = s_mat[i, j]
             for k in range(j):
-                acc -= low[i, k] * low[j, k]
-            low[i, j] = acc / low[j, j]
-    # out = L^-T L^-1, column by column: solve L L^T x = e_c
-    for col in range(m):
-        for i in range(m):  # forward: L v = e_col
-            acc = 1.0 if i == col else 0.0
-            for k in range(i):
-                acc -= low[i, k] * out[k, col]
-            out[i, col] = acc / low[i, i]
-        for i in range(m - 1, -1, -1):  # backward: L^T x = v
-            acc = out[i, col]
-            for k in range(i + 1, m):
-                acc -= low[k, i] * out[k, col]
-            out[i, col] = acc / low[i, i]
+                acc -= out[i, k] * out[j, k]
+            if i == j:
+                low[j, j] = 1.0 / math.sqrt(acc)
+            else:
+                out[i, j] = acc * low[j, j]
+    for i in range(m):  # L^-1 (lower triangle of low), forward substitution with the reciprocals
+        for j in range(i):
+            acc = 0.0
+            for k in range(j, i):
+                acc += out[i, k] * low[k, j]
+            low[i, j] = -acc * low[i, i]
+    for i in range(m):  # S^-1 = L^-T L^-1, symmetric
+        for j in range(i, m):
+            acc = 0.0
+            for k in range(j, m):
+                acc += low[k, i] * low[k, j]
+            out[i, j] = acc
+            out[j, i] = acc
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", fastmath={"reassoc", "contract"})
 def _kf_update(x, p, y, w, x_post, p_post, scratch):
     """kalman.kf_update with a whitened measurement (unit noise), Joseph form, symmetrised."""
     m = w.shape[0]
-    pwt, s_mat, s_inv, low, gain, ikc, tmp, joseph = scratch
+    pwt, s_mat, s_inv, low, gain, ikc, tmp = scratch
     pwt, s_mat, s_inv, low, gain = pwt[:, :m], s_mat[:m, :m], s_inv[:m, :m], low[:m, :m], gain[:, :m]
     _mmt(p, w, pwt)
     _mm(w, pwt, s_mat)
@@ -290,7 +288,7 @@ def _kf_update(x, p, y, w, x_post, p_post, scratch):
         s_mat[i, i] += 1.0
     _spd_inverse(s_mat, s_inv, low)
     _mm(pwt, s_inv, gain)
-    innov = y.copy()
+    innov = y  # the innovation overwrites y (no allocation on the hot path)
     for j in range(m):
         for k in range(6):
             innov[j] -= w[j, k] * x[k]
@@ -305,14 +303,19 @@ def _kf_update(x, p, y, w, x_post, p_post, scratch):
             ikc[i, j] = -ikc[i, j]
         ikc[i, i] += 1.0
     _mm66(ikc, p, tmp)
-    _mmt66(tmp, ikc, joseph)
-    _mmt(gain, gain, tmp)
+    # (I - G W) P (I - G W)^T + G G^T is symmetric: its upper triangle, mirrored
     for i in range(6):
-        for j in range(6):
-            p_post[i, j] = 0.5 * ((joseph[i, j] + tmp[i, j]) + (joseph[j, i] + tmp[j, i]))
+        for j in range(i, 6):
+            acc = 0.0
+            for k in range(6):
+                acc += tmp[i, k] * ikc[j, k]
+            for k in range(m):
+                acc += gain[i, k] * gain[j, k]
+            p_post[i, j] = acc
+            p_post[j, i] = acc
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", fastmath={"reassoc", "contract"})
 def _step_one(c, mats, xi, x_hat, p, shadow, ni, ref, a_sen, a_ctrl, a_comm, zi,
               x_next, x_hat_next, p_next, mt, work):
     """loop.step_reference for one drone; writes the next state and the metrics row ``mt``
@@ -390,16 +393,13 @@ def _step_one(c, mats, xi, x_hat, p, shadow, ni, ref, a_sen, a_ctrl, a_comm, zi,
         for k in range(3):
             acc += b_mat[j, k] * u[k]
         bu[j] = acc
+    # A x and A P A^T with A = [[I, dt I], [0, I]] (dynamics.system_matrices), blockwise
+    dt = a_mat[0, 3]
     for j in range(6):
-        ax = 0.0
-        axh = 0.0
-        for k in range(6):
-            ax += a_mat[j, k] * xi[k]
-            axh += a_mat[j, k] * x_post[k]
+        ax = xi[j] + dt * xi[j + 3] if j < 3 else xi[j]
+        axh = x_post[j] + dt * x_post[j + 3] if j < 3 else x_post[j]
         x_next[j] = ax + bu[j] + mats[_DIAGS, 0, j] * zi[11 + j]
         x_hat_next[j] = axh + bu[j]
-    # A P A^T with A = [[I, dt I], [0, I]] (dynamics.system_matrices), blockwise
-    dt = a_mat[0, 3]
     for j in range(3):
         for k in range(3):
             p12 = p_post[j, 3 + k] + dt * p_post[3 + j, 3 + k]
@@ -436,11 +436,11 @@ def _step_one(c, mats, xi, x_hat, p, shadow, ni, ref, a_sen, a_ctrl, a_comm, zi,
 def _work():
     """Scratch space of one drone's slot, carved out of one allocation (zeros where only some
     entries are written: the observation matrices and the Cholesky factor)."""
-    buf = np.zeros(13 * 36 + 21)
-    mats = buf[:13 * 36].reshape(13, 6, 6)
-    vec = buf[13 * 36:]
-    scratch = (mats[0], mats[1], mats[2], mats[3], mats[4], mats[5], mats[6], mats[7])
-    return (mats[8, :4], mats[9], vec[0:6], vec[6:12], mats[10], vec[12:15], vec[15:21], mats[11], scratch)
+    buf = np.zeros(12 * 36 + 21)
+    mats = buf[:12 * 36].reshape(12, 6, 6)
+    vec = buf[12 * 36:]
+    scratch = (mats[0], mats[1], mats[2], mats[3], mats[4], mats[5], mats[6])
+    return (mats[7, :4], mats[8], vec[0:6], vec[6:12], mats[9], vec[12:15], vec[15:21], mats[10], scratch)
 
 
 @njit(cache=True, error_model="numpy")
@@ -462,10 +462,12 @@ N_ENV_COLUMNS = N_METRICS + len(ENV_COLUMNS)
 
 
 @njit(cache=True, error_model="numpy")
-def _env_rows(c, mats, x, x_hat, p, shadow, n, ref, action, z, active, lo, hi,
+def _env_rows(c, mats, x, x_hat, p, shadow, n, ref, key, action, z, active, lo, hi,
               x_next, x_hat_next, p_next, shadow_next, out, obs):
     """env_step_batch for rows lo..hi-1, writing into the output arrays."""
     work = _work()
+    draw = z.shape[0] == 0
+    zbuf = np.empty(N_DRAWS)
     max_err, n_slots = c[_MAX_ERR], c[_N_SLOTS]
     for i in range(lo, hi):
         if not active[i]:
@@ -483,8 +485,13 @@ def _env_rows(c, mats, x, x_hat, p, shadow, n, ref, action, z, active, lo, hi,
         else:
             a0, a1, a2 = w0 / total, w1 / total, w2 / total
         mt = out[i]
+        if draw:  # the episode's noise stream (noise.slot_normals), drawn where it is used
+            fill_slot_normals(key[i], n[i], zbuf)
+            zi = zbuf
+        else:
+            zi = z[i]
         shadow_next[i] = _step_one(c, mats, x[i], x_hat[i], p[i], shadow[i], n[i], ref[i], a0, a1, a2,
-                                   z[i], x_next[i], x_hat_next[i], p_next[i], mt, work)
+                                   zi, x_next[i], x_hat_next[i], p_next[i], mt, work)
         # env.reward_and_costs
         err, rate, eps = mt[0], mt[8], mt[6]
         rate_min = c[_RATE_MIN]
@@ -503,19 +510,20 @@ def _env_rows(c, mats, x, x_hat, p, shadow, n, ref, action, z, active, lo, hi,
 
 
 @njit(cache=True, error_model="numpy")
-def env_step_batch(c, mats, x, x_hat, p, shadow, n, ref, action, z, active,
+def env_step_batch(c, mats, x, x_hat, p, shadow, n, ref, key, action, z, active,
                    x_next, x_hat_next, p_next, shadow_next, out, obs):
     """One env step of a batch (env.env_step_reference): action -> split (env.action_to_split), slot
     transition, reward and costs (env.reward_and_costs), next observation (env.observe_reference),
     written into the outputs: next x, x_hat, p, shadow, ``out`` (B, N_ENV_COLUMNS) and ``obs``
-    (B, 23) float32. Loops with ``active[i]`` False are left as they are (state copied, zero
-    outputs)."""
-    _env_rows(c, mats, x, x_hat, p, shadow, n, ref, action, z, active, 0, x.shape[0],
+    (B, 23) float32. ``z`` holds the slot's normals (B, N_DRAWS), or has no rows: then each loop
+    draws its own from its episode key (noise.slot_normals(key[i], n[i])). Loops with ``active[i]``
+    False are left as they are (state copied, zero outputs)."""
+    _env_rows(c, mats, x, x_hat, p, shadow, n, ref, key, action, z, active, 0, x.shape[0],
               x_next, x_hat_next, p_next, shadow_next, out, obs)
 
 
 @njit(cache=True, error_model="numpy", parallel=True)
-def env_step_batch_parallel(c, mats, x, x_hat, p, shadow, n, ref, action, z, active,
+def env_step_batch_parallel(c, mats, x, x_hat, p, shadow, n, ref, key, action, z, active,
                             x_next, x_hat_next, p_next, shadow_next, out, obs, chunk):
     """:func:`env_step_batch` with chunks of ``chunk`` rows spread over all cores: each row goes
     through the same compiled :func:`_env_rows`, so results equal the serial kernel's bit for bit
@@ -524,7 +532,7 @@ def env_step_batch_parallel(c, mats, x, x_hat, p, shadow, n, ref, action, z, act
     n_chunks = (nb + chunk - 1) // chunk
     for k in prange(n_chunks):
         lo = k * chunk
-        _env_rows(c, mats, x, x_hat, p, shadow, n, ref, action, z, active, lo, min(lo + chunk, nb),
+        _env_rows(c, mats, x, x_hat, p, shadow, n, ref, key, action, z, active, lo, min(lo + chunk, nb),
                   x_next, x_hat_next, p_next, shadow_next, out, obs)
 
 

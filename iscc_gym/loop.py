@@ -5,9 +5,11 @@ drones by one slot: sense (CRLB-limited ISAC or GNSS) -> Kalman update -> LQG co
 finite-blocklength delivery (Bernoulli drop) -> drone dynamics -> Kalman prediction. The single env
 and the vector env both call it; nothing here keeps state between calls.
 
-Randomness: each slot draws exactly :data:`N_DRAWS` standard normals per drone, from one shared
-Generator or from one Generator per drone (then drone i's draws depend only on its own Generator,
-so a batch reproduces single runs bit for bit).
+Randomness: each slot uses exactly :data:`N_DRAWS` standard normals per drone. By default they are
+the episode's stream (:func:`iscc_gym.noise.slot_normals` of the key the state carries, drawn at
+:func:`init_state`), so the transition is a pure function of the state; or they are drawn from a
+Generator passed in (one shared, or one per drone: then drone i's draws depend only on its own
+Generator, so a batch reproduces single runs bit for bit).
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ from typing import NamedTuple
 import numpy as np
 
 from . import kernel
+from .noise import N_DRAWS, draw_keys, slot_normals
 from .channel import (
     beam_gain,
     direction_trig,
@@ -34,11 +37,10 @@ from .sensing import crlb_local, whitened_observation_matrix
 from .trajectory import Reference
 
 __all__ = ["LoopState", "N_DRAWS", "init_state", "step", "step_reference", "preview", "reference_at",
-           "standard_normals", "stack_references", "reference_array", "SlotNormals"]
+           "standard_normals", "stack_references", "reference_array", "slot_noise"]
 
-#: Standard normals drawn per drone per slot: fading (4), measurement (6), drop (1),
-#: process noise (6), shadowing (1).
-N_DRAWS = 18
+# The layout of each slot's N_DRAWS standard normals: fading (4), measurement (6), drop (1),
+# process noise (6), shadowing (1).
 _FADE, _MEAS, _DROP, _PROC, _SHAD = slice(0, 4), slice(4, 10), 10, slice(11, 17), 17
 
 
@@ -60,6 +62,8 @@ class LoopState(NamedTuple):
         Slot index.
     ref : (B, N+1, 9)
         Reference [position, velocity, acceleration] at every slot.
+    key : (B,) uint64
+        The episode's noise key: slot n's normals are :func:`iscc_gym.noise.slot_normals` (key, n).
     """
 
     x: np.ndarray
@@ -68,6 +72,7 @@ class LoopState(NamedTuple):
     shadow: np.ndarray
     n: np.ndarray
     ref: np.ndarray
+    key: np.ndarray
 
     def replace(self, **changes) -> LoopState:
         """A copy with the given fields replaced (the state is immutable)."""
@@ -81,7 +86,7 @@ class LoopState(NamedTuple):
         """A copy of this batch with loops ``idx`` replaced by ``sub``. The per-slot arrays are
         copied; the (large, constant per episode) reference array is updated in place."""
         fields = {}
-        for name in ("x", "x_hat", "p", "shadow", "n"):
+        for name in ("x", "x_hat", "p", "shadow", "n", "key"):
             arr = getattr(self, name).copy()
             arr[idx] = getattr(sub, name)
             fields[name] = arr
@@ -92,6 +97,14 @@ class LoopState(NamedTuple):
     def batch_size(self) -> int | None:
         """B for a batch of loops, None for a single (unbatched) loop."""
         return None if self.x.ndim == 1 else self.x.shape[0]
+
+
+def slot_noise(state: LoopState, rng=None) -> np.ndarray:
+    """The slot's :data:`N_DRAWS` standard normals, (N_DRAWS,) or (B, N_DRAWS): the episode stream
+    of the state's key at its slot (``rng`` None), else drawn from ``rng`` (:func:`standard_normals`)."""
+    if rng is None:
+        return slot_normals(state.key, state.n)
+    return standard_normals(rng, state.batch_size)
 
 
 def standard_normals(rng, batch: int | None, k: int = N_DRAWS):
@@ -109,52 +122,6 @@ def standard_normals(rng, batch: int | None, k: int = N_DRAWS):
             return rng[0].standard_normal((1, k))
         return np.stack([r.standard_normal(k) for r in rng])
     raise TypeError("rng must be a numpy Generator or a sequence of one Generator per drone")
-
-
-class SlotNormals:
-    """Per-loop streams of each slot's :data:`N_DRAWS` standard normals, drawn from each loop's own
-    Generator in blocks of ``block_slots`` slots (one Generator call per block instead of per slot).
-
-    Loop i's normals depend only on Generator i, so a batch reproduces single loops bit for bit.
-    :meth:`restart` discards the rest of a loop's block (call it at every episode reset, after the
-    trajectory is drawn), so an episode's normals depend only on the Generator state at its reset.
-
-    Parameters
-    ----------
-    rngs : sequence of B numpy Generators
-    block_slots : int
-    """
-
-    def __init__(self, rngs: Sequence[np.random.Generator], block_slots: int = 64):
-        if block_slots < 1:
-            raise ValueError(f"block_slots = {block_slots}; use an integer >= 1")
-        self.rngs = list(rngs)
-        self.block_slots = int(block_slots)
-        self._buf = np.empty((len(self.rngs), self.block_slots, N_DRAWS))
-        self._pos = np.full(len(self.rngs), self.block_slots)
-        self._rows = np.arange(len(self.rngs))
-
-    def restart(self, i: int) -> None:
-        """Start loop i's stream afresh from its Generator (at the next draw)."""
-        self._pos[i] = self.block_slots
-
-    def next(self, idx=None) -> np.ndarray:
-        """The next slot's normals of every loop (or of loops ``idx``), shape (B, N_DRAWS)."""
-        pos, k = self._pos, self.block_slots
-        if len(self.rngs) == 1 and idx is None:  # the single env's hot path
-            if pos[0] == k:
-                self._buf[0] = self.rngs[0].standard_normal((k, N_DRAWS))
-                pos[0] = 0
-            z = self._buf[0, pos[0]:pos[0] + 1]
-            pos[0] += 1
-            return z
-        rows = self._rows if idx is None else np.asarray(idx)
-        for i in rows[pos[rows] == k]:
-            self._buf[i] = self.rngs[i].standard_normal((k, N_DRAWS))
-            pos[i] = 0
-        z = self._buf[rows, pos[rows]]
-        pos[rows] += 1
-        return z
 
 
 def stack_references(refs: Sequence[Reference]):
@@ -181,7 +148,9 @@ def init_state(s: Scenario, refs, rng) -> LoopState:
         One reference: an unbatched loop (state arrays without a batch axis; ``rng`` one
         Generator). Or a sequence of B References / an ndarray (B, N+1, 9): a batch of B loops
         (``rng`` one Generator or a sequence of B Generators).
-    rng : Generator or sequence of Generators (7 normals per drone)
+    rng : Generator or sequence of Generators
+        Per drone: 7 normals (initial state and shadowing), then the episode's noise key
+        (:func:`iscc_gym.noise.draw_keys`).
     """
     if isinstance(refs, Reference):
         ref = reference_array(refs)
@@ -195,11 +164,12 @@ def init_state(s: Scenario, refs, rng) -> LoopState:
     batch = None if ref.ndim == 2 else ref.shape[0]
     shape = () if batch is None else (batch,)
     z = standard_normals(rng, batch, 7)
+    key = draw_keys(rng, batch)
     std0 = np.array([s.initial_pos_std_m] * 3 + [s.initial_vel_std_mps] * 3)
     x_ref0 = ref[..., 0, :6]
     p0 = np.broadcast_to(np.diag(std0**2), shape + (6, 6)).copy()
     return LoopState(x=x_ref0 + std0 * z[..., :6], x_hat=x_ref0.copy(), p=p0,
-                     shadow=np.array(z[..., 6]), n=np.zeros(shape, dtype=np.int64), ref=ref)
+                     shadow=np.array(z[..., 6]), n=np.zeros(shape, dtype=np.int64), ref=ref, key=key)
 
 
 def _at(ref, n):
@@ -219,7 +189,7 @@ def _norm(v):
     return np.sqrt((v[..., None, :] @ v[..., :, None])[..., 0, 0])
 
 
-def step(s: Scenario, state: LoopState, alpha, rng):
+def step(s: Scenario, state: LoopState, alpha, rng=None):
     """Advance every loop by one slot.
 
     Evaluates :func:`step_reference`'s equations with the compiled kernel
@@ -233,7 +203,7 @@ def step(s: Scenario, state: LoopState, alpha, rng):
     x = state.x
     batch = None if x.ndim == 1 else x.shape[0]
     _check_step(s, state, alpha)
-    z = standard_normals(rng, batch)
+    z = slot_noise(state, rng)
     nb = 1 if batch is None else batch
     x_n, xh_n, p_n, sh_n, met, _ = kernel.new_outputs(nb, kernel.N_METRICS)
     if batch is None:  # a batch of one, squeezed back
@@ -247,7 +217,7 @@ def step(s: Scenario, state: LoopState, alpha, rng):
     metrics = dict(zip(kernel.METRIC_NAMES, met.T, strict=True))
     metrics["packet_received"] = metrics["packet_received"] > 0.5
     metrics["diverged"] = metrics["diverged"] > 0.5
-    return LoopState(x=x_n, x_hat=xh_n, p=p_n, shadow=sh_n, n=state.n + 1, ref=state.ref), metrics
+    return state._replace(x=x_n, x_hat=xh_n, p=p_n, shadow=sh_n, n=state.n + 1), metrics
 
 
 def _check_step(s: Scenario, state: LoopState, alpha: np.ndarray) -> None:
@@ -257,7 +227,7 @@ def _check_step(s: Scenario, state: LoopState, alpha: np.ndarray) -> None:
         raise ValueError("a loop is past the last slot of the mission; reset it first")
 
 
-def step_reference(s: Scenario, state: LoopState, alpha, rng, z=None):
+def step_reference(s: Scenario, state: LoopState, alpha, rng=None, z=None):
     """Advance every loop by one slot, in numpy: the readable definition of the transition.
 
     Parameters
@@ -267,7 +237,9 @@ def step_reference(s: Scenario, state: LoopState, alpha, rng, z=None):
         One loop (arrays without a batch axis) or a batch of B loops, at slot n < N.
     alpha : array_like, shape (3,) or (B, 3)
         Applied split (alpha_sen, alpha_ctrl, alpha_comm), non-negative, summing to 1.
-    rng : Generator, or a sequence of B Generators for a batch
+    rng : Generator, or a sequence of B Generators for a batch, optional
+        Draw the slot's normals from it; default: the episode stream of the state's key
+        (:func:`slot_noise`).
     z : ndarray (N_DRAWS,) or (B, N_DRAWS), optional
         The slot's standard normals, drawn already (then ``rng`` is not used).
 
@@ -294,7 +266,7 @@ def step_reference(s: Scenario, state: LoopState, alpha, rng, z=None):
     _check_step(s, state, alpha)
     n = state.n
     if z is None:
-        z = standard_normals(rng, batch)
+        z = slot_noise(state, rng)
     ref_n = _at(state.ref, n)
     pos = x[..., :3]
     a_sen, a_ctrl, a_comm = alpha[..., 0], alpha[..., 1], alpha[..., 2]
@@ -357,8 +329,7 @@ def step_reference(s: Scenario, state: LoopState, alpha, rng, z=None):
         "rate_ctrl_bps": rate_ctrl,
         "diverged": ~(err <= s.max_tracking_error_m),  # also catches NaN
     }
-    new_state = LoopState(x=x_next, x_hat=x_hat_next, p=p_next, shadow=shadow_next, n=n_next,
-                          ref=state.ref)
+    new_state = state._replace(x=x_next, x_hat=x_hat_next, p=p_next, shadow=shadow_next, n=n_next)
     return new_state, metrics
 
 

@@ -56,8 +56,6 @@ class ISCCVectorEnv(VectorEnv):
         ``info["final_obs"]`` / ``info["final_info"]`` (masks ``_final_obs``, ``_final_info``).
     max_episode_steps : int, optional
         Truncate after this many steps (``make_vec`` passes the registered 5000).
-    block_slots : int
-        Slots of normals drawn per Generator call (:class:`iscc_gym.loop.SlotNormals`).
 
     ``reset(seed=s)`` seeds sub-env i with ``s + i``; ``reset(seed=[s_0, ...])`` with ``s_i``;
     ``reset(options={"reset_mask": mask})`` resets only the masked sub-envs.
@@ -67,7 +65,7 @@ class ISCCVectorEnv(VectorEnv):
 
     def __init__(self, num_envs: int = 1, scenario: str | Scenario = "paper",
                  autoreset_mode: str | AutoresetMode = AutoresetMode.NEXT_STEP,
-                 max_episode_steps: int | None = None, block_slots: int = 64, **overrides: Any):
+                 max_episode_steps: int | None = None, **overrides: Any):
         if not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
             raise ValueError(f"num_envs = {num_envs!r}; use an integer >= 1")
         try:
@@ -85,7 +83,6 @@ class ISCCVectorEnv(VectorEnv):
         self.render_mode = None
         self.metadata = {**self.metadata, "autoreset_mode": mode}
         self.autoreset_mode = mode
-        self.block_slots = block_slots
         s = self.scenario
         self.max_steps = s.n_slots if max_episode_steps is None else min(int(max_episode_steps), s.n_slots)
         self.single_action_space = spaces.Box(-1.0, 1.0, (3,), np.float32)
@@ -94,7 +91,6 @@ class ISCCVectorEnv(VectorEnv):
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self._rngs: list[np.random.Generator] | None = None
         self._state: loop.LoopState | None = None
-        self._normals: loop.SlotNormals | None = None
         self._last_rx = np.ones(self.num_envs)
         self._last_peb = np.zeros(self.num_envs)
         self._done = np.zeros(self.num_envs, dtype=bool)
@@ -123,8 +119,6 @@ class ISCCVectorEnv(VectorEnv):
             for i in np.flatnonzero(mask):
                 if seeds[i] is not None:
                     self._rngs[i] = seeding.np_random(seeds[i])[0]
-        if self._normals is None:
-            self._normals = loop.SlotNormals(self._rngs, self.block_slots)
         self._reset_rows(np.flatnonzero(mask))
         self._done[mask] = False
         obs = observe(self.scenario, self._state, self._last_rx, self._last_peb)
@@ -141,16 +135,8 @@ class ISCCVectorEnv(VectorEnv):
             raise ValueError(f"actions of sub-envs {bad} contain NaN or inf; pass finite values in [-1, 1]")
         s = self.scenario
         restart = self._done.copy()  # NextStep: these sub-envs reset now instead of stepping
-        if not restart.any():
-            active = None
-            z = self._normals.next()
-        else:
-            active = ~restart
-            z = np.zeros((self.num_envs, loop.N_DRAWS))
-            idx = np.flatnonzero(active)
-            if idx.size:
-                z[idx] = self._normals.next(idx)
-        self._state, out, obs = env_step(s, self._state, a, z, active)
+        active = ~restart if restart.any() else None
+        self._state, out, obs = env_step(s, self._state, a, active=active)
         valid = np.ones(self.num_envs, dtype=bool) if active is None else active
         if active is not None:
             self._last_rx = np.where(active, out[:, _COL["packet_received"]], self._last_rx)
@@ -190,14 +176,11 @@ class ISCCVectorEnv(VectorEnv):
         s = self.scenario
         refs = [sample_reference(s, self._rngs[i]) for i in idx]
         parts = [loop.init_state(s, [r], [self._rngs[i]]) for r, i in zip(refs, idx, strict=True)]
-        new = loop.LoopState(**{f: np.concatenate([getattr(p, f) for p in parts])
-                                for f in ("x", "x_hat", "p", "shadow", "n", "ref")})
+        new = loop.LoopState(*(np.concatenate(fields) for fields in zip(*parts, strict=True)))
         if self._state is None or idx.size == self.num_envs:
             self._state = new
         else:
             self._state = self._state.with_rows(idx, new)
-        for i in idx:
-            self._normals.restart(i)
         self._last_rx[idx] = 1.0
         self._last_peb[idx] = 0.0
 

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from iscc_gym import env as E
-from iscc_gym import kernel, loop
+from iscc_gym import kernel, loop, noise
 from iscc_gym.scenario import make_scenario
 from iscc_gym.trajectory import sample_reference
 
@@ -42,8 +42,8 @@ def test_env_step_kernel_matches_numpy_reference(name, overrides):
     for t in range(150):
         z = loop.standard_normals(rngs, b)
         x, x_hat, p, shadow, out, obs = outputs = kernel.new_outputs(b, len(E.STEP_COLUMNS))
-        kernel.env_step_batch(c, mats, state.x, state.x_hat, state.p, state.shadow, state.n, state.ref, acts[t], z,
-                              np.ones(b, dtype=bool), *outputs)
+        kernel.env_step_batch(c, mats, state.x, state.x_hat, state.p, state.shadow, state.n, state.ref, state.key,
+                              acts[t], z, np.ones(b, dtype=bool), *outputs)
         ref_state, ref_out, ref_obs = E.env_step_reference(s, state, acts[t], z)
         np.testing.assert_allclose(out, ref_out, rtol=1e-9, atol=1e-12)
         np.testing.assert_allclose(obs, ref_obs, rtol=1e-6, atol=1e-6)
@@ -108,8 +108,7 @@ def test_env_step_batch_equals_single_env_steps_bit_for_bit():
         obss.append(obs)
     full = _batch(s, b, seed=7)
     for i in range(b):
-        one = loop.LoopState(x=full.x[i:i + 1], x_hat=full.x_hat[i:i + 1], p=full.p[i:i + 1],
-                             shadow=full.shadow[i:i + 1], n=full.n[i:i + 1], ref=full.ref[i:i + 1])
+        one = full.rows(slice(i, i + 1))
         r = [np.random.default_rng(200 + i)]
         for t in range(120):
             one, out, obs = E.env_step(s, one, acts[t, i:i + 1], loop.standard_normals(r, 1))
@@ -144,18 +143,37 @@ def test_observation_kernel_matches_reference_on_extreme_states():
     np.testing.assert_allclose(obs, ref, rtol=1e-6, atol=1e-6)
 
 
-def test_slot_normals_blocks_reproduce_per_slot_draws():
-    """Block draws are the same stream as per-slot draws; a restart starts from the Generator."""
-    streams = loop.SlotNormals([np.random.default_rng(4), np.random.default_rng(5)], block_slots=3)
-    direct = [np.random.default_rng(4), np.random.default_rng(5)]
-    for _ in range(7):
-        np.testing.assert_array_equal(streams.next(), loop.standard_normals(direct, 2))
-    one = loop.SlotNormals([np.random.default_rng(4)], block_slots=3)
-    g = np.random.default_rng(4)
-    np.testing.assert_array_equal(one.next(), g.standard_normal((1, loop.N_DRAWS)))
-    g.standard_normal((2, loop.N_DRAWS))  # the rest of the block, discarded by restart
-    one.restart(0)
-    np.testing.assert_array_equal(one.next(), g.standard_normal((1, loop.N_DRAWS)))
-    np.testing.assert_array_equal(streams.next([1]), loop.standard_normals(direct[1:], 1))
-    with pytest.raises(ValueError, match="block_slots"):
-        loop.SlotNormals([g], block_slots=0)
+def test_kernel_draws_the_episode_stream_of_each_key():
+    """With no normals passed, the kernel draws loop i's slot normals from its key and slot: the
+    same outputs as passing noise.slot_normals(key, n), on the serial and the parallel kernel,
+    whatever the rows' slots (rows at different slots, some inactive)."""
+    s = make_scenario("paper")
+    b = E.PARALLEL_MIN_BATCH + 9
+    state = _batch(s, b, seed=4)
+    state = state.replace(n=np.arange(b, dtype=np.int64) * 37 % s.n_slots)
+    acts = np.random.default_rng(1).uniform(-1, 1, (b, 3))
+    active = np.random.default_rng(2).random(b) < 0.8
+    c, mats = kernel.kernel_constants(s)
+    args = (c, mats, state.x, state.x_hat, state.p, state.shadow, state.n, state.ref, state.key, acts)
+    given = kernel.new_outputs(b, len(E.STEP_COLUMNS))
+    kernel.env_step_batch(*args, noise.slot_normals(state.key, state.n), active, *given)
+    drawn = kernel.new_outputs(b, len(E.STEP_COLUMNS))
+    kernel.env_step_batch(*args, np.empty((0, noise.N_DRAWS)), active, *drawn)
+    par = kernel.new_outputs(b, len(E.STEP_COLUMNS))
+    kernel.env_step_batch_parallel(*args, np.empty((0, noise.N_DRAWS)), active, *par, 16)
+    for g, d, q in zip(given, drawn, par, strict=True):
+        assert np.array_equal(g, d) and np.array_equal(g, q)
+    new, out, obs = E.env_step(s, state, acts, active=active)
+    assert np.array_equal(out, given[4]) and np.array_equal(new.key, state.key)
+
+
+def test_loop_step_defaults_to_the_state_key_stream():
+    """loop.step and loop.step_reference without a Generator use noise.slot_normals(key, n)."""
+    s = make_scenario("paper")
+    state = _batch(s, 3, seed=6)
+    alpha = np.tile([0.2, 0.2, 0.6], (3, 1))
+    a, ma = loop.step(s, state, alpha)
+    b, mb = loop.step_reference(s, state, alpha, z=noise.slot_normals(state.key, state.n))
+    c, mc = loop.step_reference(s, state, alpha)
+    np.testing.assert_allclose(a.x, b.x, rtol=1e-12, atol=1e-9)
+    assert np.array_equal(b.x, c.x) and np.array_equal(a.key, state.key)

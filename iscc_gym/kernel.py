@@ -436,9 +436,9 @@ def _step_one(c, mats, xi, x_hat, p, shadow, ni, ref, a_sen, a_ctrl, a_comm, zi,
 def _work():
     """Scratch space of one drone's slot, carved out of one allocation (zeros where only some
     entries are written: the observation matrices and the Cholesky factor)."""
-    buf = np.zeros(12 * 36 + 21)
-    mats = buf[:12 * 36].reshape(12, 6, 6)
-    vec = buf[12 * 36:]
+    buf = np.zeros(11 * 36 + 21)
+    mats = buf[:11 * 36].reshape(11, 6, 6)
+    vec = buf[11 * 36:]
     scratch = (mats[0], mats[1], mats[2], mats[3], mats[4], mats[5], mats[6])
     return (mats[7, :4], mats[8], vec[0:6], vec[6:12], mats[9], vec[12:15], vec[15:21], mats[10], scratch)
 

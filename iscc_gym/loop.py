@@ -20,7 +20,6 @@ from typing import NamedTuple
 import numpy as np
 
 from . import kernel
-from .noise import N_DRAWS, draw_keys, slot_normals
 from .channel import (
     beam_gain,
     direction_trig,
@@ -32,6 +31,7 @@ from .channel import (
 from .dynamics import model_matrices
 from .fbl import min_shares, q_func, slot_link
 from .kalman import kf_predict, kf_update
+from .noise import N_DRAWS, draw_keys, slot_normals
 from .scenario import Scenario
 from .sensing import crlb_local, whitened_observation_matrix
 from .trajectory import Reference
@@ -256,13 +256,12 @@ def step_reference(s: Scenario, state: LoopState, alpha, rng=None, z=None):
     Notes
     -----
     Every elementwise operation is the same for a batch and a single loop and every matrix
-    product is a stacked product, so drone i of a batch stepped with Generator i reproduces the
-    unbatched loop with that Generator bit for bit.
+    product is a stacked product, so drone i of a batch reproduces the unbatched loop bit for bit
+    (with its own key's stream, or stepped with Generator i against that Generator).
     """
     mm = model_matrices(s)
     alpha = np.asarray(alpha, dtype=float)
     x = state.x
-    batch = None if x.ndim == 1 else x.shape[0]
     _check_step(s, state, alpha)
     n = state.n
     if z is None:

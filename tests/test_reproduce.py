@@ -177,3 +177,18 @@ def test_format_prints_paper_beside_ours(quick_paper):
     text = reproduce.format_table(quick_paper)
     for snippet in ("Table II analog", "Fig. 9 analog", "68.6", "57.8", "2.36", "17.37", "holds"):
         assert snippet in text
+
+
+def test_evaluator_check_rows_and_table():
+    """The evaluator-vs-env table (tiny budget): env and evaluator errors side by side; the
+    evaluator flags a control share below the stability threshold."""
+    from eval import evaluator_check
+
+    rows = evaluator_check.run(seeds=range(1000, 1002), splits=((0.2, 0.2, 0.6), (0.2, 0.05, 0.75)),
+                               max_steps=30)
+    ok, unstable = rows
+    assert ok["missions"] == 2 and 0.0 < ok["env_error_m"] < 5.0
+    assert 0.3 < ok["evaluator_exact_m"] < 0.5 and 0.0 < ok["evaluator_eps_ctrl"] < 0.05
+    assert unstable["evaluator_exact_m"] is None and unstable["evaluator_eps_ctrl"] > ok["evaluator_eps_ctrl"]
+    table = evaluator_check.markdown(rows)
+    assert "| 0.2, 0.2, 0.6 |" in table and "unstable" in table

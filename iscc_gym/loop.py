@@ -31,7 +31,7 @@ from .channel import (
 from .dynamics import model_matrices
 from .fbl import min_shares, q_func, slot_link
 from .kalman import kf_predict, kf_update
-from .noise import N_DRAWS, draw_keys, slot_normals
+from .noise import N_DRAWS, draw_keys, slot_normals, standard_normals
 from .scenario import Scenario
 from .sensing import crlb_local, whitened_observation_matrix
 from .trajectory import Reference
@@ -105,23 +105,6 @@ def slot_noise(state: LoopState, rng=None) -> np.ndarray:
     if rng is None:
         return slot_normals(state.key, state.n)
     return standard_normals(rng, state.batch_size)
-
-
-def standard_normals(rng, batch: int | None, k: int = N_DRAWS):
-    """Standard normals for one slot: shape (k,) for an unbatched loop (``batch=None``, one
-    Generator), else (batch, k) from one Generator or from a sequence of ``batch`` Generators
-    (row i drawn from Generator i, exactly as an unbatched loop with that Generator would)."""
-    if batch is None:
-        if not isinstance(rng, np.random.Generator):
-            raise TypeError("an unbatched loop takes one numpy Generator")
-        return rng.standard_normal(k)
-    if isinstance(rng, np.random.Generator):
-        return rng.standard_normal((batch, k))
-    if isinstance(rng, Sequence) and len(rng) == batch:
-        if batch == 1:
-            return rng[0].standard_normal((1, k))
-        return np.stack([r.standard_normal(k) for r in rng])
-    raise TypeError("rng must be a numpy Generator or a sequence of one Generator per drone")
 
 
 def stack_references(refs: Sequence[Reference]):

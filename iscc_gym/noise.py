@@ -19,11 +19,12 @@ draws its noise where it uses it, on all cores.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 from numba import njit
 
-__all__ = ["N_DRAWS", "draw_keys", "slot_normals", "ZIGGURAT_R"]
+__all__ = ["N_DRAWS", "draw_keys", "slot_normals", "standard_normals", "ZIGGURAT_R"]
 
 #: Standard normals per drone per slot: fading (4), measurement (6), drop (1), process noise (6),
 #: shadowing (1) (the layout :mod:`iscc_gym.loop` reads).
@@ -157,16 +158,28 @@ def slot_normals(key, n, k: int = N_DRAWS) -> np.ndarray:
     return out
 
 
-def draw_keys(rng, batch: int | None) -> np.ndarray:
-    """Episode keys from the Generator(s): a uint64 scalar array for ``batch=None`` (one Generator),
-    else (batch,) from one Generator or from a sequence of ``batch`` Generators (key i from
-    Generator i, exactly as an unbatched draw would)."""
+def _per_loop(rng, batch: int | None, draw):
+    """``draw(g, size)`` for an unbatched loop (``batch=None``, one Generator, ``size=None``), else
+    for a batch: from one Generator (``size=batch``) or from a sequence of ``batch`` Generators
+    (row i from Generator i, exactly as an unbatched loop with that Generator would draw it)."""
     if batch is None:
         if not isinstance(rng, np.random.Generator):
             raise TypeError("an unbatched loop takes one numpy Generator")
-        return np.asarray(rng.integers(0, 2**64, dtype=np.uint64))
+        return draw(rng, None)
     if isinstance(rng, np.random.Generator):
-        return rng.integers(0, 2**64, size=batch, dtype=np.uint64)
-    if len(rng) != batch:
-        raise TypeError("rng must be a numpy Generator or a sequence of one Generator per drone")
-    return np.array([r.integers(0, 2**64, dtype=np.uint64) for r in rng], dtype=np.uint64)
+        return draw(rng, batch)
+    if isinstance(rng, Sequence) and len(rng) == batch:
+        return np.stack([draw(g, None) for g in rng])
+    raise TypeError("rng must be a numpy Generator or a sequence of one Generator per drone")
+
+
+def standard_normals(rng, batch: int | None, k: int = N_DRAWS) -> np.ndarray:
+    """Standard normals for one slot drawn from Generators: shape (k,) for an unbatched loop
+    (``batch=None``), else (batch, k) from one Generator or one Generator per loop."""
+    return _per_loop(rng, batch, lambda g, size: g.standard_normal(k if size is None else (size, k)))
+
+
+def draw_keys(rng, batch: int | None) -> np.ndarray:
+    """Episode keys (uint64) from Generators: a 0-d array for an unbatched loop (``batch=None``),
+    else (batch,) from one Generator or one Generator per loop."""
+    return np.asarray(_per_loop(rng, batch, lambda g, size: g.integers(0, 2**64, size=size, dtype=np.uint64)))

@@ -224,7 +224,8 @@ def _kf_update(x, p, y, w, x_post, p_post, h):
         \hat{\mathbf x} \leftarrow \hat{\mathbf x} + \mathbf h\,(y - \mathbf w\hat{\mathbf x})/s,\quad
         \mathbf P \leftarrow \mathbf P - \mathbf h\mathbf h^T/s
 
-    (the Joseph form of a scalar update reduces to this), symmetric by construction. About a third
+    (the Joseph form of a scalar update reduces to this), symmetric by construction; no rows: the
+    prior is copied (a slot without a measurement). About a third
     of the batch update's arithmetic and no matrix inverse; it agrees with the numpy reference's
     batch Joseph form to rounding (``tests/test_kernel.py``).
     """
@@ -298,10 +299,8 @@ def _step_one(c, mats, xi, x_hat, p, shadow, ni, ref, a_sen, a_ctrl, a_comm, zi,
             y[j] = acc + zi[4 + j]
     m = w.shape[0]
     if c[_GNSS] == 1.0 and ni % int(c[_GNSS_EVERY]) != 0:  # no GNSS fix this slot: prediction only
-        x_post[:] = x_hat
-        p_post[:] = p
-    else:
-        _kf_update(x_hat, p, y[:m], w, x_post, p_post, h)
+        m = 0
+    _kf_update(x_hat, p, y[:m], w[:m], x_post, p_post, h)
     # control command and its FBL delivery (fbl.slot_link)
     cap, sqrt_v = _link_terms(snr)
     need = c[_BITS_PER_HZ] / max(a_ctrl, 1e-30)

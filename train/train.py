@@ -39,8 +39,9 @@ class Args:
 
     env_id: str = "iscc_gym/ISCC-v0"
     algo: str = "ppo"  # ppo | sac | td3
-    total_timesteps: int = 200_000
-    n_envs: int = 4
+    # None: the YAML entry's ``n_timesteps`` / ``n_envs`` (rl-zoo3's keys), else RUN_DEFAULTS
+    total_timesteps: int | None = None
+    n_envs: int | None = None
     vec_env: str = "batched"  # dummy | subproc | batched (the native batched env)
     seed: int = 0
     scenario: str = "paper"
@@ -48,11 +49,11 @@ class Args:
     out: str = "runs/ppo"
     hyperparams: str = str(HYPERPARAMS)
     overrides: dict = field(default_factory=dict)  # hyperparameter overrides, e.g. {"n_steps": 64}
-    normalize: bool = True  # VecNormalize of observations and rewards
-    eval_freq: int = 50_000  # env steps between evaluations (0: none)
-    eval_episodes: int = 4
+    normalize: bool | None = None  # VecNormalize of observations and rewards (None: the YAML's, else True)
+    eval_freq: int = 500_000  # env steps between evaluations (0: none)
+    eval_episodes: int = 8
     eval_max_steps: int = 5000  # slots per eval episode (the full mission by default)
-    checkpoint_freq: int = 50_000  # env steps between checkpoints (0: none)
+    checkpoint_freq: int = 1_000_000  # env steps between checkpoints (0: none)
     resume: bool = False  # continue from the latest checkpoint in ``out``
     tensorboard: bool = True
     progress_bar: bool = False
@@ -60,10 +61,17 @@ class Args:
     verbose: int = 0
 
 
+#: Run settings a YAML entry may hold beside the algorithm's hyperparameters (rl-zoo3's names), mapped
+#: to the :class:`Args` field they fill, and the value used when neither the flag nor the YAML sets it.
+RUN_KEYS = {"n_timesteps": "total_timesteps", "n_envs": "n_envs", "normalize": "normalize"}
+RUN_DEFAULTS = {"total_timesteps": 200_000, "n_envs": 4, "normalize": True}
+
+
 def load_hyperparams(path: str | os.PathLike, env_id: str, algo: str, overrides: dict | None = None) -> dict:
     """The hyperparameters of ``algo`` on ``env_id`` from the YAML file, with ``overrides`` applied.
 
-    ``policy_kwargs.activation_fn`` is a name looked up in ``torch.nn`` (never eval'd).
+    ``policy_kwargs.activation_fn`` is a name looked up in ``torch.nn`` (never eval'd). The run
+    settings of :data:`RUN_KEYS` stay in the dict; :func:`resolve_args` takes them out.
     """
     with open(path) as f:
         table = yaml.safe_load(f)
@@ -74,6 +82,20 @@ def load_hyperparams(path: str | os.PathLike, env_id: str, algo: str, overrides:
     hp = dict(table[env_id][algo])
     hp.update(overrides or {})
     return hp
+
+
+def resolve_args(args: Args) -> tuple[Args, dict]:
+    """``(args, hyperparameters)``: the run settings that ``args`` leaves at None filled from the
+    YAML entry (``n_timesteps``, ``n_envs``, ``normalize``), else from :data:`RUN_DEFAULTS`; the
+    returned hyperparameters are the algorithm's keyword arguments only."""
+    hp = load_hyperparams(args.hyperparams, args.env_id, args.algo, args.overrides)
+    filled = {}
+    for key, name in RUN_KEYS.items():
+        value = hp.pop(key, None)
+        if getattr(args, name) is None:
+            value = RUN_DEFAULTS[name] if value is None else value
+            filled[name] = bool(value) if name == "normalize" else int(float(value))
+    return dataclasses.replace(args, **filled), hp
 
 
 def _resolve_policy_kwargs(hp: dict) -> dict:
@@ -101,7 +123,7 @@ def _check(args: Args) -> None:
         raise ValueError("vec_env = 'batched' is the ISCC env's own batched env; use dummy or subproc for "
                          f"{args.env_id}")
     for name in ("total_timesteps", "n_envs", "eval_episodes", "eval_max_steps", "torch_threads"):
-        if getattr(args, name) < 1:
+        if getattr(args, name) is not None and getattr(args, name) < 1:
             raise ValueError(f"{name} = {getattr(args, name)}; use an integer >= 1")
 
 
@@ -184,10 +206,10 @@ def main(args: Args) -> dict:
     import iscc_gym  # noqa: F401  (registers the env)
 
     _check(args)
+    args, hp = resolve_args(args)
     torch.set_num_threads(args.torch_threads)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    hp = load_hyperparams(args.hyperparams, args.env_id, args.algo, args.overrides)
     algo_cls = {"ppo": PPO, "sac": SAC, "td3": TD3}[args.algo]
     venv = make_train_env(args)
     ckpt_dir = out / "checkpoints"
@@ -286,8 +308,10 @@ def parse_args(argv: list[str] | None = None) -> Args:
             continue
         flag = "--" + f.name.replace("_", "-")
         default = getattr(defaults, f.name)
-        if isinstance(default, bool):
+        if isinstance(default, bool) or f.name == "normalize":
             ap.add_argument(flag, action=argparse.BooleanOptionalAction, default=default)
+        elif default is None:  # a run setting the YAML fills (RUN_KEYS)
+            ap.add_argument(flag, type=int, default=None, help="default: the YAML entry's value")
         else:
             ap.add_argument(flag, type=type(default), default=default)
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",

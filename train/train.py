@@ -196,8 +196,13 @@ def _latest_checkpoint(ckpt_dir: Path) -> tuple[Path, Path | None] | None:
     return best[1], vn if vn.exists() else None
 
 
-def main(args: Args) -> dict:
-    """Train, save everything into ``args.out``; returns a summary (paths, steps, wall time)."""
+def main(args: Args, callback_after_eval=None) -> dict:
+    """Train, save everything into ``args.out``; returns a summary (paths, steps, wall time).
+
+    ``callback_after_eval`` (an SB3 ``BaseCallback``, optional) runs after every held-out evaluation
+    as the EvalCallback's child (``parent.last_mean_reward``); returning False stops training. The
+    Optuna studies of :mod:`train.study` report and prune through it.
+    """
     import torch
     from stable_baselines3 import PPO, SAC, TD3
     from stable_baselines3.common.callbacks import CallbackList, CheckpointCallback, EvalCallback
@@ -206,6 +211,8 @@ def main(args: Args) -> dict:
     import iscc_gym  # noqa: F401  (registers the env)
 
     _check(args)
+    if callback_after_eval is not None and args.eval_freq <= 0:
+        raise ValueError(f"eval_freq = {args.eval_freq} with a callback_after_eval; use eval_freq >= 1")
     args, hp = resolve_args(args)
     torch.set_num_threads(args.torch_threads)
     out = Path(args.out)
@@ -245,7 +252,7 @@ def main(args: Args) -> dict:
         eval_cb = EvalCallback(eval_env, n_eval_episodes=args.eval_episodes,
                                eval_freq=max(1, args.eval_freq // per_env),
                                best_model_save_path=str(out / "best"), log_path=str(out / "eval"),
-                               deterministic=True, verbose=args.verbose)
+                               deterministic=True, verbose=args.verbose, callback_after_eval=callback_after_eval)
         callbacks.append(eval_cb)
     remaining = args.total_timesteps - (model.num_timesteps if latest is not None else 0)
     t0 = time.perf_counter()
@@ -298,9 +305,9 @@ def _write_curve(out: Path, rows: list[dict], evals: list[tuple[int, float]]) ->
     fig.savefig(out / "learning_curve.png")
 
 
-def parse_args(argv: list[str] | None = None) -> Args:
-    """``Args`` from the command line (every field is a flag; ``--set key=value`` overrides a
-    hyperparameter, the value parsed as YAML)."""
+def build_parser() -> argparse.ArgumentParser:
+    """The parser of ``python -m train``: every :class:`Args` field is a flag, ``--set`` / ``--env-set``
+    override hyperparameters / Scenario fields, and :mod:`train.study` adds ``--optimize``, ``--seeds``."""
     ap = argparse.ArgumentParser(prog="python -m train", description=__doc__.split("\n")[0])
     defaults = Args()
     for f in dataclasses.fields(Args):
@@ -318,7 +325,14 @@ def parse_args(argv: list[str] | None = None) -> Args:
                     help="override a hyperparameter of the YAML, e.g. --set n_steps=256")
     ap.add_argument("--env-set", action="append", default=[], metavar="FIELD=VALUE",
                     help="override a Scenario field of the env, e.g. --env-set observation_source=gnss")
-    ns = ap.parse_args(argv)
+    from train.study import add_study_arguments
+
+    add_study_arguments(ap)
+    return ap
+
+
+def args_from_namespace(ap: argparse.ArgumentParser, ns: argparse.Namespace) -> Args:
+    """The :class:`Args` of flags parsed by :func:`build_parser` (``--set`` values parsed as YAML)."""
 
     def pairs(items, flag):
         out: dict[str, Any] = {}
@@ -333,7 +347,22 @@ def parse_args(argv: list[str] | None = None) -> Args:
     return Args(overrides=pairs(ns.set, "--set"), env_overrides=pairs(ns.env_set, "--env-set"), **kw)
 
 
+def parse_args(argv: list[str] | None = None) -> Args:
+    """``Args`` from the command line (every field is a flag; ``--set key=value`` overrides a
+    hyperparameter, the value parsed as YAML)."""
+    ap = build_parser()
+    return args_from_namespace(ap, ap.parse_args(argv))
+
+
 def cli(argv: list[str] | None = None) -> dict:
-    summary = main(parse_args(argv))
+    """``python -m train``: train once, or run a study (``--optimize``) or several seeds (``--seeds``)."""
+    ap = build_parser()
+    ns = ap.parse_args(argv)
+    args = args_from_namespace(ap, ns)
+    if ns.optimize or ns.seeds is not None:
+        from train.study import run_cli
+
+        return run_cli(ap, ns, args)
+    summary = main(args)
     print(f"trained {summary['timesteps']} steps in {summary['wall_time_s']:.1f} s -> {summary['out']}")
     return summary

@@ -9,6 +9,8 @@ SB3 models alike:
   (``mode="per_slot"``), optionally designed ignoring packet loss;
 * :func:`grid_search`, :func:`evolutionary_search`: search baselines over static splits, scored by
   :mod:`iscc_gym.analysis`; their results carry a policy that plays the split found;
+* :class:`MarginPolicy`: per slot, fixed multiples of the predicted control and data needs (tuned by
+  ``python -m eval.tune margin``);
 * :func:`make_policy`: a policy from a short spec string.
 """
 
@@ -19,6 +21,7 @@ import functools
 from iscc_gym.scenario import Scenario, make_scenario
 
 from .base import EqualSplitPolicy, FixedSplitPolicy, Policy, SplitPolicy, validate_split
+from .margin import MarginPolicy
 from .sca import SCAPolicy, SCAResult, sca_allocation, solve_sca
 from .search import SearchResult, evolutionary_search, grid_search
 
@@ -28,6 +31,7 @@ __all__ = [
     "FixedSplitPolicy",
     "EqualSplitPolicy",
     "SCAPolicy",
+    "MarginPolicy",
     "SCAResult",
     "sca_allocation",
     "solve_sca",
@@ -40,7 +44,7 @@ __all__ = [
 
 #: The specs :func:`make_policy` understands.
 POLICY_SPECS = ("sca", "sca-per-slot", "sca-ignore-loss", "equal", "fixed:A_SEN,A_CTRL,A_COMM", "grid",
-                "evolutionary")
+                "evolutionary", "margin", "margin:M_CTRL,M_COMM")
 
 
 def make_policy(spec: str, scenario: Scenario | str = "paper", seed: int = 0):
@@ -53,6 +57,8 @@ def make_policy(spec: str, scenario: Scenario | str = "paper", seed: int = 0):
         eps_ctrl = 0), ``"equal"``, ``"fixed:0.2,0.2,0.6"`` (alpha_sen, alpha_ctrl, alpha_comm),
         ``"grid"`` (grid search, 1 % steps), ``"evolutionary"`` (differential evolution); the
         searches are deterministic, so their policies are cached per scenario (and seed).
+        ``"margin"`` (the rule with the multiples tuned by ``python -m eval.tune margin``),
+        ``"margin:4,1.3"`` (given m_ctrl, m_comm).
     scenario : Scenario or str
         The scenario (or preset name) the model-based policies design for.
     seed : int
@@ -76,6 +82,15 @@ def make_policy(spec: str, scenario: Scenario | str = "paper", seed: int = 0):
         except ValueError:
             raise ValueError(f"spec {spec!r}: 'fixed:' takes three numbers, e.g. 'fixed:0.2,0.2,0.6'") from None
         return FixedSplitPolicy(validate_split(split, f"spec {spec!r}"), name=key)
+    if key == "margin":
+        return MarginPolicy.tuned()
+    if key.startswith("margin:"):
+        parts = key[len("margin:"):].split(",")
+        try:
+            m_ctrl, m_comm = (float(p) for p in parts)
+        except ValueError:
+            raise ValueError(f"spec {spec!r}: 'margin:' takes two numbers m_ctrl,m_comm, e.g. 'margin:4,1.3'") from None
+        return MarginPolicy(m_ctrl, m_comm, name=key)
     if key == "sca":
         return SCAPolicy(s, mode="static")
     if key == "sca-per-slot":

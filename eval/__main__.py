@@ -8,7 +8,8 @@ Examples::
 
 Policies are ``NAME=PATH`` (a run directory of ``python -m train`` or a model ``.zip``) or a spec of
 :func:`agents.make_policy` (``sca``, ``sca-per-slot``, ``sca-ignore-loss``, ``equal``,
-``fixed:0.2,0.2,0.6``, ``grid``, ``evolutionary``). Episodes are seeded ``--seed-start``,
+``fixed:0.2,0.2,0.6``, ``grid``, ``evolutionary``, ``margin``, ``margin:4,1.3``, ``myopic``).
+Episodes are seeded ``--seed-start``,
 ``--seed-start + 1``, ... (or ``--seeds``): held out from training (``python -m train`` trains on
 seeds below 100 and evaluates on seeds from 1,000,000).
 """
@@ -50,17 +51,14 @@ def build_policies(specs: str, scenario: str = "paper") -> dict:
 
 
 def _split_specs(specs: str) -> list[str]:
-    """Split on commas, except inside ``fixed:a,b,c``."""
+    """Split on commas, except inside ``fixed:a,b,c`` and ``margin:a,b``."""
     out, parts = [], specs.split(",")
     i = 0
     while i < len(parts):
         p = parts[i]
-        if p.strip().startswith("fixed:"):
-            p = ",".join(parts[i:i + 3])
-            i += 3
-        else:
-            i += 1
-        out.append(p)
+        width = 3 if p.strip().startswith("fixed:") else 2 if p.strip().startswith("margin:") else 1
+        out.append(",".join(parts[i:i + width]))
+        i += width
     return out
 
 

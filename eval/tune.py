@@ -1,0 +1,160 @@
+"""``python -m eval.tune margin``: tune a scripted baseline on training seeds, store the result.
+
+Tuning seeds (default :data:`TUNE_SEEDS`, 500,000 onwards) are disjoint from every evaluation seed
+of the project (the comparison's 10,000-10,999, training's held-out 1,000,000 onwards, RL training's
+small integers), so the tuned baseline is evaluated once on seeds it never saw (linkgym's rule).
+
+``margin``: a grid over (m_ctrl, m_comm, sensing_floor), every point played on the same tuning seeds (common random
+numbers; all grid points x seeds in one batch of the vector env), then Nelder-Mead
+(``scipy.optimize.minimize``) from the best grid point on the same seeds. The record (tuned values,
+seeds, the grid's table, the command) goes to ``agents/tuned/margin.yml`` (written atomically),
+which ``make_policy("margin")`` reads.
+
+Examples::
+
+    python -m eval.tune margin                       # 40 missions from seed 500000
+    python -m eval.tune margin --episodes 10 --out /tmp/margin.yml
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+import numpy as np
+from scipy import optimize
+
+from agents.base import SplitPolicy
+from agents.margin import _COMM, _CTRL, _CTRL_SCALE, margin_split, save_tuned
+from eval.evaluate import run_episodes
+
+#: First tuning seed (training seeds for the scripted baselines).
+TUNE_SEED_START = 500_000
+#: Default tuning seeds.
+TUNE_SEEDS = tuple(range(TUNE_SEED_START, TUNE_SEED_START + 40))
+#: Evaluation seeds of the project, which tuning seeds must avoid: [start, stop).
+EVAL_SEED_RANGES = ((10_000, 11_000), (1_000_000, 2_000_000))
+#: Default grid of ``python -m eval.tune margin``.
+MARGIN_GRID = {"m_ctrl": (2.5, 3.0, 3.5, 4.0, 5.0, 6.0, 8.0),
+               "m_comm": (1.0, 1.2, 1.4, 1.7, 2.0, 2.5, 3.0, 4.0, 6.0),
+               "sensing_floor": (0.01, 0.02, 0.03, 0.05, 0.08, 0.12)}
+#: The tuned parameters, in the order of a grid point.
+PARAMS = ("m_ctrl", "m_comm", "sensing_floor")
+
+
+class _RowMargins(SplitPolicy):
+    """The margin rule with its own parameters per batch row (grid points x seeds in one batch)."""
+
+    def __init__(self, m_ctrl, m_comm, sensing_floor):
+        self.m_ctrl, self.m_comm, self.sensing_floor = (np.asarray(v) for v in (m_ctrl, m_comm, sensing_floor))
+
+    def split_batch(self, obs, state=None, episode_start=None):
+        o = np.asarray(obs, dtype=float)
+        return margin_split(o[:, _CTRL] * _CTRL_SCALE, o[:, _COMM], self.m_ctrl, self.m_comm,
+                            self.sensing_floor), state
+
+
+def check_tuning_seeds(seeds) -> list[int]:
+    """The seeds as ints; ``ValueError`` if any lies in an evaluation range or they are empty."""
+    seeds = [int(s) for s in seeds]
+    if not seeds:
+        raise ValueError("tuning seeds are empty; pass --episodes >= 1")
+    for lo, hi in EVAL_SEED_RANGES:
+        bad = [s for s in seeds if lo <= s < hi]
+        if bad:
+            raise ValueError(f"tuning seed {bad[0]} lies in the evaluation range [{lo}, {hi}); tune on seeds "
+                             f"outside it (default: from {TUNE_SEED_START})")
+    return seeds
+
+
+#: Largest batch (grid points x seeds) played at once (each loop holds its 5,000-slot reference).
+MAX_BATCH = 1024
+
+
+def margin_rewards(points, seeds, scenario="paper") -> np.ndarray:
+    """Mean episode reward over ``seeds`` of each (m_ctrl, m_comm, sensing_floor) in ``points``
+    (k, 3), played in batches of up to :data:`MAX_BATCH` loops (common random numbers: every point
+    on the same seeds)."""
+    pts = np.asarray(points, dtype=float).reshape(-1, 3)
+    n = len(seeds)
+    per = max(1, MAX_BATCH // n)
+    out = []
+    for i in range(0, len(pts), per):
+        rows = np.repeat(pts[i:i + per], n, axis=0)
+        run = run_episodes(_RowMargins(rows[:, 0], rows[:, 1], rows[:, 2]), list(seeds) * (len(rows) // n),
+                           scenario)
+        out.append(run["episodes"]["reward"].reshape(-1, n).mean(axis=1))
+    return np.concatenate(out)
+
+
+def tune_margin(seeds=TUNE_SEEDS, grid=None, scenario: str = "paper", refine: bool = True, log=print) -> dict:
+    """Grid over (m_ctrl, m_comm, sensing_floor), then Nelder-Mead from the best point, on the
+    tuning seeds; returns the tuning record (see the module)."""
+    seeds = check_tuning_seeds(seeds)
+    grid = grid or MARGIN_GRID
+    t0 = time.perf_counter()
+    axes = [np.asarray(grid[k], float) for k in PARAMS]
+    points = np.stack([g.ravel() for g in np.meshgrid(*axes, indexing="ij")], axis=1)
+    rewards = margin_rewards(points, seeds, scenario)
+    best = int(np.argmax(rewards))
+    log(f"grid: {len(points)} points x {len(seeds)} missions in {time.perf_counter() - t0:.1f} s; best "
+        + _fmt(points[best]) + f": {rewards[best]:.1f}")
+    x_best, r_best, evals = points[best], float(rewards[best]), []
+    if refine:
+        def neg(x):
+            if np.any(x < 0) or x[2] >= 1:
+                return 1e12
+            r = float(margin_rewards(x[None], seeds, scenario)[0])
+            evals.append([float(v) for v in x] + [r])
+            return -r
+
+        simplex = [x_best, x_best * [1.1, 1, 1], x_best * [1, 1.1, 1], x_best * [1, 1, 1.2]]
+        res = optimize.minimize(neg, x_best, method="Nelder-Mead",
+                                options={"xatol": 0.01, "fatol": 1.0, "maxfev": 40, "initial_simplex": simplex})
+        if -res.fun > r_best:
+            x_best, r_best = res.x, float(-res.fun)
+        log(f"Nelder-Mead: {len(evals)} evaluations; best " + _fmt(x_best) + f": {r_best:.1f}")
+    return {
+        "policy": "margin",
+        "params": {k: round(float(v), 4) for k, v in zip(PARAMS, x_best, strict=True)},
+        "objective": "mean episode reward on the tuning seeds (common random numbers)",
+        "objective_value": round(r_best, 3),
+        "scenario": scenario,
+        "seeds": f"{seeds[0]}-{seeds[-1]}" if seeds == list(range(seeds[0], seeds[-1] + 1)) else seeds,
+        "n_seeds": len(seeds),
+        "columns": [*PARAMS, "reward"],
+        "grid": [[float(v) for v in p] + [round(float(r), 3)] for p, r in zip(points, rewards, strict=True)],
+        "refinement": [[round(v, 4) for v in row[:3]] + [round(row[3], 3)] for row in evals],
+        "wall_time_s": round(time.perf_counter() - t0, 1),
+    }
+
+
+def _fmt(x) -> str:
+    return ", ".join(f"{k} = {v:.4g}" for k, v in zip(PARAMS, x, strict=True))
+
+
+def main(argv: list[str] | None = None) -> dict:
+    ap = argparse.ArgumentParser(prog="python -m eval.tune", description=__doc__.split("\n")[0])
+    ap.add_argument("policy", choices=["margin"], help="the baseline to tune")
+    ap.add_argument("--episodes", type=int, default=len(TUNE_SEEDS), help="tuning missions")
+    ap.add_argument("--seed-start", type=int, default=TUNE_SEED_START, help="first tuning seed")
+    ap.add_argument("--scenario", default="paper")
+    ap.add_argument("--no-refine", action="store_true", help="grid only (no Nelder-Mead)")
+    ap.add_argument("--out", help="where to write the record (default agents/tuned/<policy>.yml)")
+    args = ap.parse_args(argv)
+    if args.episodes < 1:
+        ap.error(f"--episodes {args.episodes}: use an integer >= 1")
+    seeds = list(range(args.seed_start, args.seed_start + args.episodes))
+    try:
+        record = tune_margin(seeds, scenario=args.scenario, refine=not args.no_refine)
+    except ValueError as e:
+        ap.error(str(e))
+    record["command"] = " ".join(["python -m eval.tune", *(argv if argv is not None else sys.argv[1:])])
+    path = save_tuned(args.policy, record, args.out)
+    print(f"wrote {path}: {record['params']}")
+    return record
+
+
+if __name__ == "__main__":
+    main()

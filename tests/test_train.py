@@ -107,3 +107,25 @@ def test_shipped_agent_loads_and_acts():
         assert np.isfinite(reward) and not terminated
     batch, _ = policy.predict(np.stack([obs, obs]))
     assert batch.shape == (2, 3) and np.allclose(batch[0], batch[1], atol=1e-6)  # torch batching: last ulp
+
+
+def test_every_evaluation_plays_the_same_held_out_missions(tmp_path):
+    """With a frozen policy (learning rate 0, no normalisation) every held-out evaluation gives the
+    same reward: the eval env is re-seeded before each one (a VecEnv forgets its seeds on reset)."""
+    summary = main(_args(tmp_path, total_timesteps=384, eval_freq=128, checkpoint_freq=0, normalize=False,
+                         overrides={**TINY, "learning_rate": 0.0}))
+    rewards = [r for _, r in summary["evaluations"]]
+    assert len(rewards) == 3 and rewards[0] == rewards[1] == rewards[2]
+
+
+def test_run_settings_come_from_the_yaml_unless_flags_set_them(tmp_path):
+    from train.train import resolve_args
+
+    hp = tmp_path / "hp.yml"
+    hp.write_text("iscc_gym/ISCC-v0:\n  ppo:\n    policy: MlpPolicy\n    n_envs: 16\n    n_timesteps: 2.0e+5\n"
+                  "    normalize: false\n    n_steps: 32\n")
+    args, kw = resolve_args(Args(hyperparams=str(hp)))
+    assert (args.n_envs, args.total_timesteps, args.normalize) == (16, 200_000, False)
+    assert "n_envs" not in kw and "n_timesteps" not in kw and kw["n_steps"] == 32
+    args, _ = resolve_args(parse_args(["--hyperparams", str(hp), "--n-envs", "3", "--normalize"]))
+    assert (args.n_envs, args.total_timesteps, args.normalize) == (3, 200_000, True)

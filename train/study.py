@@ -504,9 +504,9 @@ def _trial_callback(trial: optuna.Trial):
     """An EvalCallback ``callback_after_eval`` that reports each held-out evaluation to ``trial``.
 
     Reports ``parent.last_mean_reward`` at step ``k`` (the k-th evaluation, so trials of different
-    ``n_envs`` are compared at the same point of their budget), re-seeds the eval env with
-    :data:`EVAL_SEED_START` (every evaluation then plays the same held-out episodes) and stops
-    training, setting ``pruned``, when the pruner says so.
+    ``n_envs`` are compared at the same point of their budget; every evaluation plays the same
+    held-out episodes, :func:`train.train.main` re-seeds them) and stops training, setting
+    ``pruned``, when the pruner says so.
     """
     from stable_baselines3.common.callbacks import BaseCallback
 
@@ -521,7 +521,6 @@ def _trial_callback(trial: optuna.Trial):
             value = float(self.parent.last_mean_reward)
             self.evaluations.append((int(self.parent.num_timesteps), value))
             self.trial.report(value, len(self.evaluations))
-            self.parent.eval_env.seed(EVAL_SEED_START)
             if self.trial.should_prune():
                 self.pruned = True
                 return False

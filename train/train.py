@@ -162,6 +162,20 @@ def make_eval_env(args: Args):
     return venv
 
 
+def _held_out_eval_callback(base):
+    """``base`` (SB3's EvalCallback) re-seeding its env with :data:`EVAL_SEED_START` before every
+    evaluation, so every evaluation plays the same held-out missions (a VecEnv forgets its seeds
+    after a reset) and ``best_model`` is chosen on one fixed set of episodes."""
+
+    class HeldOutEvalCallback(base):
+        def _on_step(self) -> bool:
+            if self.eval_freq > 0 and self.n_calls % self.eval_freq == 0:
+                self.eval_env.seed(EVAL_SEED_START)
+            return super()._on_step()
+
+    return HeldOutEvalCallback
+
+
 def _curve_callback():
     """A callback recording (timesteps, wall time, mean training episode reward) at every rollout end."""
     from stable_baselines3.common.callbacks import BaseCallback
@@ -249,7 +263,7 @@ def main(args: Args, callback_after_eval=None) -> dict:
         eval_env = make_eval_env(args)
         if args.normalize:
             eval_env = VecNormalize(eval_env, training=False, norm_reward=False)
-        eval_cb = EvalCallback(eval_env, n_eval_episodes=args.eval_episodes,
+        eval_cb = _held_out_eval_callback(EvalCallback)(eval_env, n_eval_episodes=args.eval_episodes,
                                eval_freq=max(1, args.eval_freq // per_env),
                                best_model_save_path=str(out / "best"), log_path=str(out / "eval"),
                                deterministic=True, verbose=args.verbose, callback_after_eval=callback_after_eval)

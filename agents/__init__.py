@@ -11,6 +11,7 @@ SB3 models alike:
   :mod:`iscc_gym.analysis`; their results carry a policy that plays the split found;
 * :class:`MarginPolicy`: per slot, fixed multiples of the predicted control and data needs (tuned by
   ``python -m eval.tune margin``);
+* :class:`MyopicPolicy`: per slot, the split maximising the expected one-slot reward (model-based);
 * :func:`make_policy`: a policy from a short spec string.
 """
 
@@ -22,6 +23,7 @@ from iscc_gym.scenario import Scenario, make_scenario
 
 from .base import EqualSplitPolicy, FixedSplitPolicy, Policy, SplitPolicy, validate_split
 from .margin import MarginPolicy
+from .myopic import MyopicPolicy
 from .sca import SCAPolicy, SCAResult, sca_allocation, solve_sca
 from .search import SearchResult, evolutionary_search, grid_search
 
@@ -32,6 +34,7 @@ __all__ = [
     "EqualSplitPolicy",
     "SCAPolicy",
     "MarginPolicy",
+    "MyopicPolicy",
     "SCAResult",
     "sca_allocation",
     "solve_sca",
@@ -44,7 +47,7 @@ __all__ = [
 
 #: The specs :func:`make_policy` understands.
 POLICY_SPECS = ("sca", "sca-per-slot", "sca-ignore-loss", "equal", "fixed:A_SEN,A_CTRL,A_COMM", "grid",
-                "evolutionary", "margin", "margin:M_CTRL,M_COMM")
+                "evolutionary", "margin", "margin:M_CTRL,M_COMM", "myopic")
 
 
 def make_policy(spec: str, scenario: Scenario | str = "paper", seed: int = 0):
@@ -58,7 +61,8 @@ def make_policy(spec: str, scenario: Scenario | str = "paper", seed: int = 0):
         ``"grid"`` (grid search, 1 % steps), ``"evolutionary"`` (differential evolution); the
         searches are deterministic, so their policies are cached per scenario (and seed).
         ``"margin"`` (the rule with the multiples tuned by ``python -m eval.tune margin``),
-        ``"margin:4,1.3"`` (given m_ctrl, m_comm).
+        ``"margin:4,1.3"`` (given m_ctrl, m_comm), ``"myopic"`` (:class:`MyopicPolicy`, cached per
+        scenario: its tables are built once).
     scenario : Scenario or str
         The scenario (or preset name) the model-based policies design for.
     seed : int
@@ -91,6 +95,8 @@ def make_policy(spec: str, scenario: Scenario | str = "paper", seed: int = 0):
         except ValueError:
             raise ValueError(f"spec {spec!r}: 'margin:' takes two numbers m_ctrl,m_comm, e.g. 'margin:4,1.3'") from None
         return MarginPolicy(m_ctrl, m_comm, name=key)
+    if key == "myopic":
+        return _myopic(s)
     if key == "sca":
         return SCAPolicy(s, mode="static")
     if key == "sca-per-slot":
@@ -109,3 +115,9 @@ def _searched(s: Scenario, method: str, seed: int) -> FixedSplitPolicy:
     """The policy of a search (deterministic, so cached per scenario, method and seed)."""
     res = grid_search(s) if method == "grid" else evolutionary_search(s, seed=seed)
     return FixedSplitPolicy(res.alpha, name=method)
+
+
+@functools.lru_cache(maxsize=4)
+def _myopic(s: Scenario) -> MyopicPolicy:
+    """The myopic policy of a scenario (stateless; its tables are built once, so cached)."""
+    return MyopicPolicy(s)

@@ -2,7 +2,7 @@
 
 Examples::
 
-    python -m eval                                  # shipped PPO agent vs static SCA, per-slot SCA, equal
+    python -m eval                                  # shipped PPO agent vs every scripted baseline
     python -m eval --policies ppo=runs/ppo,sca,equal --episodes 50 --json out.json --plots figs/
     python -m eval --train-steps 300000             # train a fresh PPO agent first, then compare
 
@@ -28,7 +28,7 @@ from eval.evaluate import evaluate, format_table
 
 #: The trained PPO agent shipped in the repository (produced by ``python -m eval.ship``).
 SHIPPED_AGENT = Path(__file__).resolve().parent.parent / "agents" / "trained" / "ppo_iscc"
-DEFAULT_POLICIES = f"ppo={SHIPPED_AGENT},sca,sca-per-slot,equal"
+DEFAULT_POLICIES = f"ppo={SHIPPED_AGENT},sca,sca-per-slot,margin,myopic,equal"
 
 
 def build_policies(specs: str, scenario: str = "paper") -> dict:
@@ -150,7 +150,7 @@ def main(argv: list[str] | None = None) -> dict:
     ap = argparse.ArgumentParser(prog="python -m eval", description=__doc__.split("\n")[0])
     ap.add_argument("--policies", default=DEFAULT_POLICIES,
                     help="comma-separated NAME=PATH or specs (default: the shipped PPO agent, sca, "
-                         "sca-per-slot, equal)")
+                         "sca-per-slot, margin, myopic, equal)")
     ap.add_argument("--episodes", type=int, default=20, help="held-out episodes per policy")
     ap.add_argument("--seed-start", type=int, default=10_000, help="seed of the first episode")
     ap.add_argument("--seeds", help="explicit comma-separated seeds (instead of --episodes/--seed-start)")
@@ -163,6 +163,8 @@ def main(argv: list[str] | None = None) -> dict:
                     help="train a fresh PPO agent for this many steps first (into --train-out) and "
                          "evaluate it as 'ppo'")
     ap.add_argument("--train-out", default="runs/ppo_main", help="run directory of --train-steps")
+    ap.add_argument("--torch-threads", type=int, default=1,
+                    help="torch threads of a learned policy's inference (1: fastest for the batch sizes here)")
     ap.add_argument("--write-docs", action="store_true",
                     help="write the comparison into docs/results.md and the README (comparison block)")
     args = ap.parse_args(argv)
@@ -179,6 +181,12 @@ def main(argv: list[str] | None = None) -> dict:
             specs = f"ppo={args.train_out}," + specs
     seeds = ([int(s) for s in args.seeds.split(",")] if args.seeds
              else list(range(args.seed_start, args.seed_start + args.episodes)))
+    if args.torch_threads < 1:
+        ap.error(f"--torch-threads {args.torch_threads}: use an integer >= 1")
+    if any("=" in p for p in _split_specs(specs)):
+        import torch
+
+        torch.set_num_threads(args.torch_threads)
     t0 = time.perf_counter()
     policies = build_policies(specs, args.scenario)
     reference = args.reference if args.reference in policies else None

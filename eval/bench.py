@@ -11,7 +11,9 @@ Every figure is the median over ``repeats`` runs, with its reference measured in
 * vector env env-steps/s at 1, 64 and 1024 envs (``gymnasium.make_vec``, native batched env);
 * PPO training env-steps/s end to end (SB3 defaults, 4 envs, ``torch.set_num_threads(1)``) on
   DummyVecEnv, SubprocVecEnv and the batched env; reference: the same PPO on Pendulum-v1 with
-  DummyVecEnv.
+  DummyVecEnv;
+* PPO training env-steps/s of ``python -m train``'s own configuration (the YAML's env count and
+  hyperparameters, VecNormalize, batched env) for each (numba threads, torch threads) setting.
 """
 
 from __future__ import annotations
@@ -94,6 +96,42 @@ def ppo_steps_per_second(kind: str, total_steps: int, repeats: int, n_envs: int 
             "n_envs": n_envs}
 
 
+#: Thread settings of the shipped-configuration PPO figure: (numba threads, torch threads).
+THREAD_SETTINGS = ((1, 1), (2, 1), (1, 2), (2, 2))
+
+
+def ppo_shipped_steps_per_second(total_steps: int, repeats: int, settings=THREAD_SETTINGS) -> dict:
+    """Median env-steps/s of ``python -m train``'s default run (the YAML's env count and
+    hyperparameters, VecNormalize, the batched env), learning ``total_steps`` steps without
+    evaluations or checkpoints, per (numba threads, torch threads) setting."""
+    import tempfile
+
+    import torch
+
+    from train.train import Args, main, resolve_args
+
+    out = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        resolved, hp = resolve_args(Args())
+        for numba_threads, torch_threads in settings:
+            if numba_threads > os.cpu_count() or torch_threads > os.cpu_count():
+                continue
+            rates = []
+            for r in range(repeats):
+                summary = main(Args(total_timesteps=total_steps, seed=r, out=f"{tmp}/run", eval_freq=0,
+                                    checkpoint_freq=0, tensorboard=False, numba_threads=numba_threads,
+                                    torch_threads=torch_threads))
+                rates.append(summary["env_steps_per_s"])
+            out[f"numba{numba_threads}_torch{torch_threads}"] = {
+                "median_env_steps_per_s": statistics.median(rates), "runs": rates, "numba_threads": numba_threads,
+                "torch_threads": torch_threads}
+        torch.set_num_threads(1)
+    default = Args()
+    return {"settings": out, "n_envs": resolved.n_envs, "total_steps": total_steps,
+            "hyperparams": {k: hp[k] for k in ("n_steps", "batch_size", "n_epochs") if k in hp},
+            "default": f"numba{default.numba_threads or os.cpu_count()}_torch{default.torch_threads}"}
+
+
 def eval_sca_seconds(episodes: int, max_steps: int | None = None) -> dict:
     """Wall time of evaluating static SCA on ``episodes`` full missions (batched, common seeds)."""
     from agents import make_policy
@@ -145,6 +183,8 @@ def run(n_steps: int = 5000, repeats: int = 5, quick: bool = False, ppo: bool = 
         total = 256 if quick else 16384
         res["ppo_training"] = {kind: ppo_steps_per_second(kind, total, 1 if quick else repeats)
                                for kind in ("dummy", "subproc", "batched", "pendulum_dummy")}
+        res["ppo_shipped"] = ppo_shipped_steps_per_second(2048 if quick else 409_600, 1 if quick else 3,
+                                                          THREAD_SETTINGS[:1] if quick else THREAD_SETTINGS)
     return res
 
 
@@ -176,6 +216,13 @@ def format_report(res: dict) -> str:
         for kind, v in pt.items():
             rate = v["median_env_steps_per_s"]
             lines.append(f"  {names[kind]:<30} {rate:10,.0f}  ({rate / pend:.2f} x Pendulum)")
+    if "ppo_shipped" in res:
+        ps = res["ppo_shipped"]
+        lines.append(f"SB3 PPO, python -m train's configuration ({ps['n_envs']} envs, {ps['hyperparams']}), batched "
+                     f"env, env-steps/s (target >= 25,000; default threads {ps['default']}):")
+        for v in ps["settings"].values():
+            lines.append(f"  numba {v['numba_threads']} / torch {v['torch_threads']} threads {'':<10} "
+                         f"{v['median_env_steps_per_s']:10,.0f}")
     return "\n".join(lines)
 
 
@@ -204,6 +251,15 @@ def markdown(res: dict) -> str:
             rate = pt[kind]["median_env_steps_per_s"]
             rows.append(f"| PPO training, 4 envs, {label}, env-steps/s | {rate:,.0f} ({rate / pend:.2f} x) | "
                         f"Pendulum-v1 DummyVecEnv: {pend:,.0f} | >= 0.8 x |")
+    if "ppo_shipped" in res:
+        ps = res["ppo_shipped"]
+        pend = res["ppo_training"]["pendulum_dummy"]["median_env_steps_per_s"]
+        for name, v in ps["settings"].items():
+            mark = " (default)" if name == ps["default"] else ""
+            rows.append(f"| PPO training, `python -m train` configuration ({ps['n_envs']} envs, batched), numba "
+                        f"{v['numba_threads']} / torch {v['torch_threads']} threads{mark}, env-steps/s | "
+                        f"{v['median_env_steps_per_s']:,.0f} | Pendulum-v1, SB3 PPO defaults: {pend:,.0f} | "
+                        ">= 25,000 |")
     return "\n".join(rows)
 
 

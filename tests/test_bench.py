@@ -19,3 +19,13 @@ def test_bench_quick_reports_every_figure(tmp_path, capsys):
     assert all(v["seconds"] > 0 and v["paper_s"] > v["seconds"] for v in res["solvers"].values())
     out = capsys.readouterr().out
     assert "Pendulum-v1 (reference)" in out and "64 envs" in out
+
+
+def test_ppo_figure_of_the_train_configuration():
+    """The PPO figure trains python -m train's own configuration (the YAML's env count) per thread setting."""
+    from train.train import Args, resolve_args
+
+    res = bench.ppo_shipped_steps_per_second(256, 1, settings=((1, 1),))
+    assert res["n_envs"] == resolve_args(Args())[0].n_envs
+    v = res["settings"]["numba1_torch1"]
+    assert v["median_env_steps_per_s"] > 0 and (v["numba_threads"], v["torch_threads"]) == (1, 1)

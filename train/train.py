@@ -57,7 +57,8 @@ class Args:
     resume: bool = False  # continue from the latest checkpoint in ``out``
     tensorboard: bool = True
     progress_bar: bool = False
-    torch_threads: int = 1
+    torch_threads: int = 1  # threads of torch (1 is fastest here: python -m eval.bench)
+    numba_threads: int | None = None  # threads of the env's compiled kernel (None: numba's default, all cores)
     verbose: int = 0
 
 
@@ -122,7 +123,7 @@ def _check(args: Args) -> None:
     if args.vec_env == "batched" and args.env_id != "iscc_gym/ISCC-v0":
         raise ValueError("vec_env = 'batched' is the ISCC env's own batched env; use dummy or subproc for "
                          f"{args.env_id}")
-    for name in ("total_timesteps", "n_envs", "eval_episodes", "eval_max_steps", "torch_threads"):
+    for name in ("total_timesteps", "n_envs", "eval_episodes", "eval_max_steps", "torch_threads", "numba_threads"):
         if getattr(args, name) is not None and getattr(args, name) < 1:
             raise ValueError(f"{name} = {getattr(args, name)}; use an integer >= 1")
 
@@ -160,6 +161,23 @@ def make_eval_env(args: Args):
     venv = make_vec_env(args.env_id, n_envs=args.eval_episodes, vec_env_cls=DummyVecEnv)
     venv.seed(EVAL_SEED_START)
     return venv
+
+
+def set_numba_threads(n: int | None) -> None:
+    """Threads of the env's compiled kernel: ``n`` (at most numba's ``NUMBA_NUM_THREADS``), or
+    numba's default (all of them) for None.
+
+    Raises
+    ------
+    ValueError
+        ``n`` above the threads numba was started with (set ``NUMBA_NUM_THREADS``).
+    """
+    import numba
+
+    top = numba.config.NUMBA_NUM_THREADS
+    if n is not None and not 1 <= n <= top:
+        raise ValueError(f"numba_threads = {n}; use 1 to {top} (NUMBA_NUM_THREADS={top} caps it)")
+    numba.set_num_threads(top if n is None else n)
 
 
 def _held_out_eval_callback(base):
@@ -229,6 +247,7 @@ def main(args: Args, callback_after_eval=None) -> dict:
         raise ValueError(f"eval_freq = {args.eval_freq} with a callback_after_eval; use eval_freq >= 1")
     args, hp = resolve_args(args)
     torch.set_num_threads(args.torch_threads)
+    set_numba_threads(args.numba_threads)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     algo_cls = {"ppo": PPO, "sac": SAC, "td3": TD3}[args.algo]
@@ -331,8 +350,9 @@ def build_parser() -> argparse.ArgumentParser:
         default = getattr(defaults, f.name)
         if isinstance(default, bool) or f.name == "normalize":
             ap.add_argument(flag, action=argparse.BooleanOptionalAction, default=default)
-        elif default is None:  # a run setting the YAML fills (RUN_KEYS)
-            ap.add_argument(flag, type=int, default=None, help="default: the YAML entry's value")
+        elif default is None:  # a run setting the YAML fills (RUN_KEYS), or numba's default
+            hint = "all cores" if f.name == "numba_threads" else "the YAML entry's value"
+            ap.add_argument(flag, type=int, default=None, help=f"default: {hint}")
         else:
             ap.add_argument(flag, type=type(default), default=default)
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",

@@ -129,3 +129,10 @@ def test_run_settings_come_from_the_yaml_unless_flags_set_them(tmp_path):
     assert "n_envs" not in kw and "n_timesteps" not in kw and kw["n_steps"] == 32
     args, _ = resolve_args(parse_args(["--hyperparams", str(hp), "--n-envs", "3", "--normalize"]))
     assert (args.n_envs, args.total_timesteps, args.normalize) == (3, 200_000, True)
+
+
+def test_set_reads_numbers_in_exponent_notation():
+    args = parse_args(["--set", "learning_rate=5e-5", "--set", "n_steps=64", "--set", "policy=MlpPolicy",
+                       "--env-set", "rate_min_bps=1e6"])
+    assert args.overrides == {"learning_rate": 5e-5, "n_steps": 64, "policy": "MlpPolicy"}
+    assert args.env_overrides == {"rate_min_bps": 1e6}

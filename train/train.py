@@ -31,6 +31,9 @@ VEC_ENVS = ("dummy", "subproc", "batched")
 #: Seeds of the EvalCallback's held-out episodes start here (training seeds are small integers, the
 #: final comparison uses ``eval --seed-start``'s, 10_000 by default).
 EVAL_SEED_START = 1_000_000
+#: Seeds of the behaviour-cloning warm start's missions: INIT_SEED_START + 1000 * seed + i (training
+#: seeds, disjoint from every evaluation seed).
+INIT_SEED_START = 200_000
 
 
 @dataclass
@@ -50,6 +53,12 @@ class Args:
     hyperparams: str = str(HYPERPARAMS)
     overrides: dict = field(default_factory=dict)  # hyperparameter overrides, e.g. {"n_steps": 64}
     normalize: bool | None = None  # VecNormalize of observations and rewards (None: the YAML's, else True)
+    # warm start by behaviour cloning of a scripted policy (agents.make_policy spec; train/pretrain.py);
+    # None: the YAML's init_policy / init_envs / init_steps (steps per env) / init_log_std
+    init_policy: str | None = None
+    init_envs: int | None = None
+    init_steps: int | None = None
+    init_log_std: float | None = None
     eval_freq: int = 500_000  # env steps between evaluations (0: none)
     eval_episodes: int = 8
     eval_max_steps: int = 5000  # slots per eval episode (the full mission by default)
@@ -64,8 +73,13 @@ class Args:
 
 #: Run settings a YAML entry may hold beside the algorithm's hyperparameters (rl-zoo3's names), mapped
 #: to the :class:`Args` field they fill, and the value used when neither the flag nor the YAML sets it.
-RUN_KEYS = {"n_timesteps": "total_timesteps", "n_envs": "n_envs", "normalize": "normalize"}
-RUN_DEFAULTS = {"total_timesteps": 200_000, "n_envs": 4, "normalize": True}
+RUN_KEYS = {"n_timesteps": "total_timesteps", "n_envs": "n_envs", "normalize": "normalize",
+            "init_policy": "init_policy", "init_envs": "init_envs", "init_steps": "init_steps",
+            "init_log_std": "init_log_std"}
+RUN_DEFAULTS = {"total_timesteps": 200_000, "n_envs": 4, "normalize": True, "init_policy": None, "init_envs": 16,
+                "init_steps": 5000, "init_log_std": None}
+_RUN_TYPES = {"total_timesteps": lambda v: int(float(v)), "n_envs": int, "normalize": bool, "init_policy": str,
+              "init_envs": int, "init_steps": int, "init_log_std": float}
 
 
 def load_hyperparams(path: str | os.PathLike, env_id: str, algo: str, overrides: dict | None = None) -> dict:
@@ -95,7 +109,7 @@ def resolve_args(args: Args) -> tuple[Args, dict]:
         value = hp.pop(key, None)
         if getattr(args, name) is None:
             value = RUN_DEFAULTS[name] if value is None else value
-            filled[name] = bool(value) if name == "normalize" else int(float(value))
+            filled[name] = None if value is None else _RUN_TYPES[name](value)
     return dataclasses.replace(args, **filled), hp
 
 
@@ -180,6 +194,30 @@ def set_numba_threads(n: int | None) -> None:
     numba.set_num_threads(top if n is None else n)
 
 
+def _behaviour_clone(model, venv, args: Args) -> dict:
+    """The warm start of :mod:`train.pretrain` (``args.init_policy`` played ``init_steps`` steps per env)."""
+    from agents import make_policy
+    from train.pretrain import behaviour_clone
+
+    if args.algo != "ppo":
+        raise ValueError(f"init_policy = {args.init_policy!r} needs algo = 'ppo' (got {args.algo!r}); "
+                         "unset init_policy for SAC/TD3")
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    from agents.sb3_vec_env import ISCCBatchedVecEnv
+
+    if not isinstance(venv, VecNormalize) or args.vec_env != "batched":
+        raise ValueError("init_policy needs normalize: true and vec_env = 'batched'")
+    policy = make_policy(args.init_policy, args.scenario)
+    play = ISCCBatchedVecEnv(args.init_envs, scenario=args.scenario, **args.env_overrides)
+    play.seed(INIT_SEED_START + 1000 * args.seed)
+    play = VecNormalize(play, gamma=venv.gamma, clip_obs=venv.clip_obs, clip_reward=venv.clip_reward)
+    res = behaviour_clone(model, venv, policy, args.init_steps, collect_env=play, log_std=args.init_log_std,
+                          seed=args.seed, log=print if args.verbose else (lambda *_: None))
+    play.close()
+    return {"policy": args.init_policy, "envs": args.init_envs, "steps_per_env": args.init_steps, **res}
+
+
 def _held_out_eval_callback(base):
     """``base`` (SB3's EvalCallback) re-seeding its env with :data:`EVAL_SEED_START` before every
     evaluation, so every evaluation plays the same held-out missions (a VecEnv forgets its seeds
@@ -252,6 +290,7 @@ def main(args: Args, callback_after_eval=None) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     algo_cls = {"ppo": PPO, "sac": SAC, "td3": TD3}[args.algo]
     venv = make_train_env(args)
+    warm_start = None
     ckpt_dir = out / "checkpoints"
     latest = _latest_checkpoint(ckpt_dir) if args.resume else None
     if args.resume and latest is None:
@@ -269,6 +308,8 @@ def main(args: Args, callback_after_eval=None) -> dict:
         kw = _resolve_policy_kwargs(hp)
         policy = kw.pop("policy", "MlpPolicy")
         model = algo_cls(policy, venv, seed=args.seed, device="cpu", verbose=args.verbose, tensorboard_log=tb, **kw)
+        if args.init_policy and args.init_policy.lower() != "none":
+            warm_start = _behaviour_clone(model, venv, args)
     resolved = {"args": dataclasses.asdict(args), "hyperparams": hp}
     with open(out / "config.yml", "w") as f:
         yaml.safe_dump(resolved, f, sort_keys=False)
@@ -302,9 +343,11 @@ def main(args: Args, callback_after_eval=None) -> dict:
                          strict=True))
     _write_curve(out, curve.rows, evals)
     venv.close()
-    summary = {"out": str(out), "timesteps": int(model.num_timesteps), "wall_time_s": wall,
+    bc_wall = warm_start["wall_time_s"] if warm_start else 0.0
+    summary = {"out": str(out), "timesteps": int(model.num_timesteps), "wall_time_s": wall + bc_wall,
                "env_steps_per_s": (remaining / wall) if remaining > 0 and wall > 0 else None,
-               "evaluations": evals, "resumed_from": str(latest[0]) if latest else None}
+               "evaluations": evals, "resumed_from": str(latest[0]) if latest else None,
+               "warm_start": warm_start}
     with open(out / "summary.yml", "w") as f:
         yaml.safe_dump(summary, f, sort_keys=False)
     return summary
@@ -352,7 +395,8 @@ def build_parser() -> argparse.ArgumentParser:
             ap.add_argument(flag, action=argparse.BooleanOptionalAction, default=default)
         elif default is None:  # a run setting the YAML fills (RUN_KEYS), or numba's default
             hint = "all cores" if f.name == "numba_threads" else "the YAML entry's value"
-            ap.add_argument(flag, type=int, default=None, help=f"default: {hint}")
+            kind = {"init_policy": str, "init_log_std": float}.get(f.name, int)
+            ap.add_argument(flag, type=kind, default=None, help=f"default: {hint}")
         else:
             ap.add_argument(flag, type=type(default), default=default)
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
@@ -374,11 +418,23 @@ def args_from_namespace(ap: argparse.ArgumentParser, ns: argparse.Namespace) -> 
             if "=" not in item:
                 ap.error(f"{flag} {item!r}: use KEY=VALUE")
             k, v = item.split("=", 1)
-            out[k] = yaml.safe_load(v)
+            out[k] = parse_value(v)
         return out
 
     kw = {f.name: getattr(ns, f.name) for f in dataclasses.fields(Args) if f.name not in ("overrides", "env_overrides")}
     return Args(overrides=pairs(ns.set, "--set"), env_overrides=pairs(ns.env_set, "--env-set"), **kw)
+
+
+def parse_value(text: str):
+    """A ``--set`` / ``--env-set`` value: YAML, with numbers YAML 1.1 leaves as strings (``5e-5``,
+    ``1e6``) read as numbers."""
+    value = yaml.safe_load(text)
+    if isinstance(value, str):
+        try:
+            return float(value)
+        except ValueError:
+            pass
+    return value
 
 
 def parse_args(argv: list[str] | None = None) -> Args:

@@ -1,0 +1,43 @@
+"""eval.seeds: per-seed paired differences of trained agents against the scripted baselines."""
+
+import numpy as np
+import pytest
+
+from eval import seeds as eval_seeds
+from eval.evaluate import evaluate, mean_ci
+from train import Args, main
+
+
+@pytest.fixture(scope="module")
+def root(tmp_path_factory):
+    root = tmp_path_factory.mktemp("seeds")
+    for s in (0, 1):
+        main(Args(total_timesteps=128, n_envs=2, seed=s, out=str(root / f"seed_{s}"), eval_freq=0, checkpoint_freq=0,
+                  tensorboard=False, overrides={"n_steps": 64, "batch_size": 64, "n_epochs": 1}))
+    (root / "seed_9").mkdir()  # no model: ignored
+    return root
+
+
+def test_per_seed_differences_are_paired_against_an_independent_evaluation(root):
+    from agents import make_policy
+    from agents.sb3_policy import SB3Policy
+
+    seeds = [10_000, 10_001, 10_002]
+    res = eval_seeds.compare_seeds(root, seeds, scripted=("sca", "margin"), max_steps=40)
+    assert [r["seed"] for r in res["runs"]] == [0, 1]
+    ref = evaluate({"a": SB3Policy.load(root / "seed_1"), "sca": make_policy("sca"), "margin": make_policy("margin")},
+                   seeds, max_steps=40)
+    eps = {k: np.asarray(v["episodes"]["reward"]) for k, v in ref["policies"].items()}
+    best = max(("sca", "margin"), key=lambda k: eps[k].mean())
+    assert res["best_scripted"] == best
+    row = res["runs"][1]
+    assert row["vs_sca"] == pytest.approx(mean_ci(eps["a"] - eps["sca"])[0])
+    assert row["vs_best_ci95"] == pytest.approx(mean_ci(eps["a"] - eps[best])[1])
+    assert "| 1 |" in eval_seeds.markdown(res, "python -m eval.seeds X")
+
+
+def test_missing_runs_are_a_clear_error(tmp_path):
+    with pytest.raises(FileNotFoundError, match="python -m train --seeds"):
+        eval_seeds.seed_runs(tmp_path)
+    with pytest.raises(SystemExit):
+        eval_seeds.main([str(tmp_path / "nope")])

@@ -17,6 +17,7 @@ seeds below 100 and evaluates on seeds from 1,000,000).
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from pathlib import Path
@@ -24,30 +25,76 @@ from pathlib import Path
 import numpy as np
 
 from eval.docs import publish, save_json
-from eval.evaluate import evaluate, format_table
+from eval.evaluate import evaluate, format_table, run_episodes, summarize
 
 #: The trained PPO agent shipped in the repository (produced by ``python -m eval.ship``).
 SHIPPED_AGENT = Path(__file__).resolve().parent.parent / "agents" / "trained" / "ppo_iscc"
 DEFAULT_POLICIES = f"ppo={SHIPPED_AGENT},sca,sca-per-slot,margin,myopic,equal"
 
 
-def build_policies(specs: str, scenario: str = "paper") -> dict:
-    """``{name: policy}`` from a comma-separated list of ``NAME=PATH`` or make_policy specs."""
+def build_policy(item: str, scenario: str = "paper"):
+    """``(name, policy)`` of one ``NAME=PATH`` (a trained agent) or :func:`agents.make_policy` spec."""
     from agents import make_policy
 
-    policies = {}
+    if "=" in item:
+        name, path = item.split("=", 1)
+        from agents.sb3_policy import SB3Policy
+
+        return name, SB3Policy.load(path)
+    return item, make_policy(item, scenario)
+
+
+def build_policies(specs: str, scenario: str = "paper") -> dict:
+    """``{name: policy}`` from a comma-separated list of ``NAME=PATH`` or make_policy specs."""
+    items = _items(specs)
+    return dict(build_policy(item, scenario) for item in items)
+
+
+def _items(specs: str) -> list[str]:
     items = [p.strip() for p in _split_specs(specs) if p.strip()]
     if not items:
         raise ValueError("--policies is empty; e.g. --policies sca,equal")
-    for item in items:
-        if "=" in item:
-            name, path = item.split("=", 1)
-            from agents.sb3_policy import SB3Policy
+    return items
 
-            policies[name] = SB3Policy.load(path)
-        else:
-            policies[item] = make_policy(item, scenario)
-    return policies
+
+#: Specs whose evaluation takes longest (an optimisation every slot): started first by the workers.
+SLOW_SPECS = ("sca-per-slot", "myopic", "grid", "evolutionary")
+
+
+def _worker_init(torch_threads: int) -> None:
+    """A worker process: one numba thread (the workers already use the cores) and ``torch_threads``."""
+    import numba
+
+    numba.set_num_threads(1)
+    if torch_threads:
+        import torch
+
+        torch.set_num_threads(torch_threads)
+
+
+def _run_item(item: str, seeds, scenario: str, max_steps, record: int):
+    name, policy = build_policy(item, scenario)
+    return name, run_episodes(policy, seeds, scenario, max_steps, record)
+
+
+def run_parallel(specs: str, seeds, scenario: str = "paper", max_steps=None, record: int = 0, workers: int = 2,
+                 torch_threads: int = 1) -> dict:
+    """``{name: run_episodes result}`` of every policy of ``specs``, in ``workers`` processes (spawned,
+    one numba thread each); every policy plays the same seeds, so the results are those of one process."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    items = _items(specs)
+    order = sorted(range(len(items)), key=lambda i: items[i].split("=")[0] not in SLOW_SPECS)
+    ctx = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init,
+                             initargs=(torch_threads,)) as pool:
+        futures = {i: pool.submit(_run_item, items[i], list(seeds), scenario, max_steps, record) for i in order}
+        results = [futures[i].result() for i in range(len(items))]
+    names = [n for n, _ in results]
+    if len(set(names)) != len(names):
+        raise ValueError(f"--policies names a policy twice: {names}")
+    return dict(results)
 
 
 def _split_specs(specs: str) -> list[str]:
@@ -165,9 +212,13 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--train-out", default="runs/ppo_main", help="run directory of --train-steps")
     ap.add_argument("--torch-threads", type=int, default=1,
                     help="torch threads of a learned policy's inference (1: fastest for the batch sizes here)")
+    ap.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1),
+                    help="processes playing the policies side by side (default: up to 2; 1: all in this process)")
     ap.add_argument("--write-docs", action="store_true",
                     help="write the comparison into docs/results.md and the README (comparison block)")
     args = ap.parse_args(argv)
+    if args.workers < 1:
+        ap.error(f"--workers {args.workers}: use an integer >= 1")
     specs = args.policies
     if args.train_steps > 0:
         from train import Args
@@ -188,12 +239,18 @@ def main(argv: list[str] | None = None) -> dict:
 
         torch.set_num_threads(args.torch_threads)
     t0 = time.perf_counter()
-    policies = build_policies(specs, args.scenario)
-    reference = args.reference if args.reference in policies else None
-    res = evaluate(policies, seeds, scenario=args.scenario, reference=reference, max_steps=args.max_steps,
-                   record=1 if args.plots else 0)
+    record = 1 if args.plots else 0
+    if args.workers > 1 and len(_items(specs)) > 1:
+        runs = run_parallel(specs, seeds, args.scenario, args.max_steps, record, args.workers, args.torch_threads)
+        reference = args.reference if args.reference in runs else None
+        res = summarize(runs, seeds, reference)
+    else:
+        policies = build_policies(specs, args.scenario)
+        reference = args.reference if args.reference in policies else None
+        res = evaluate(policies, seeds, scenario=args.scenario, reference=reference, max_steps=args.max_steps,
+                       record=record)
     print(format_table(res))
-    print(f"evaluated {len(policies)} policies x {len(seeds)} episodes in {time.perf_counter() - t0:.1f} s")
+    print(f"evaluated {len(res['policies'])} policies x {len(seeds)} episodes in {time.perf_counter() - t0:.1f} s")
     if args.plots:
         from iscc_gym import make_scenario
 

@@ -103,7 +103,7 @@ THREAD_SETTINGS = ((1, 1), (2, 1), (1, 2), (2, 2))
 def ppo_shipped_steps_per_second(total_steps: int, repeats: int, settings=THREAD_SETTINGS) -> dict:
     """Median env-steps/s of ``python -m train``'s default run (the YAML's env count and
     hyperparameters, VecNormalize, the batched env), learning ``total_steps`` steps without
-    evaluations or checkpoints, per (numba threads, torch threads) setting."""
+    evaluations, checkpoints or warm start, per (numba threads, torch threads) setting."""
     import tempfile
 
     import torch
@@ -118,9 +118,10 @@ def ppo_shipped_steps_per_second(total_steps: int, repeats: int, settings=THREAD
                 continue
             rates = []
             for r in range(repeats):
+                # PPO itself: a warm start of the YAML (a fixed cost before learning) is left out
                 summary = main(Args(total_timesteps=total_steps, seed=r, out=f"{tmp}/run", eval_freq=0,
                                     checkpoint_freq=0, tensorboard=False, numba_threads=numba_threads,
-                                    torch_threads=torch_threads))
+                                    torch_threads=torch_threads, init_policy="none"))
                 rates.append(summary["env_steps_per_s"])
             out[f"numba{numba_threads}_torch{torch_threads}"] = {
                 "median_env_steps_per_s": statistics.median(rates), "runs": rates, "numba_threads": numba_threads,

@@ -24,7 +24,7 @@ from scipy import stats
 from iscc_gym.scenario import Scenario, make_scenario
 from iscc_gym.vector import ISCCVectorEnv
 
-__all__ = ["Entry", "evaluate", "run_episodes", "mean_ci", "format_table", "EPISODE_METRICS"]
+__all__ = ["Entry", "evaluate", "summarize", "run_episodes", "mean_ci", "format_table", "EPISODE_METRICS"]
 
 #: Per-episode metrics (means over the episode's slots unless stated).
 EPISODE_METRICS = {
@@ -138,18 +138,25 @@ def evaluate(policies: Mapping[str, Any], seeds: Sequence[int], scenario: str | 
         raise ValueError("policies is empty; pass at least one policy")
     if reference is not None and reference not in policies:
         raise ValueError(f"reference = {reference!r} is not one of the policies {list(policies)}")
-    runs, traces = {}, {}
+    runs = {}
     for name, entry in policies.items():
         entry = entry if isinstance(entry, Entry) else Entry(entry)
         runs[name] = run_episodes(entry.policy, seeds, scenario, max_steps, record, **entry.overrides)
-        if record:
-            traces[name] = runs[name].pop("traces")
+    return summarize(runs, seeds, reference)
+
+
+def summarize(runs: Mapping[str, dict], seeds: Sequence[int], reference: str | None = None) -> dict:
+    """The result of :func:`evaluate` from the :func:`run_episodes` results of every policy (played on
+    ``seeds``, e.g. in separate processes)."""
+    if reference is not None and reference not in runs:
+        raise ValueError(f"reference = {reference!r} is not one of the policies {list(runs)}")
+    traces = {name: run["traces"] for name, run in runs.items() if "traces" in run}
     res: dict[str, Any] = {"seeds": [int(s) for s in seeds], "reference": reference, "policies": {}, "paired": {}}
     for name, run in runs.items():
         summary: dict[str, Any] = {"wall_time_s": run["wall_time_s"], "slots": run["slots"]}
         for metric, vals in run["episodes"].items():
             summary[f"{metric}_mean"], summary[f"{metric}_ci95"] = mean_ci(vals)
-        summary["episodes"] = {m: v.tolist() for m, v in run["episodes"].items()}
+        summary["episodes"] = {m: np.asarray(v).tolist() for m, v in run["episodes"].items()}
         res["policies"][name] = summary
     if reference is not None:
         ref = runs[reference]["episodes"]
@@ -158,10 +165,10 @@ def evaluate(policies: Mapping[str, Any], seeds: Sequence[int], scenario: str | 
                 continue
             pair = {}
             for metric, vals in run["episodes"].items():
-                pair[f"{metric}_diff_mean"], pair[f"{metric}_diff_ci95"] = mean_ci(vals - ref[metric])
+                pair[f"{metric}_diff_mean"], pair[f"{metric}_diff_ci95"] = mean_ci(np.asarray(vals) - ref[metric])
             pair["ci95"] = pair["reward_diff_ci95"]  # the headline: episode reward, name minus reference
             res["paired"][f"{name}_vs_{reference}"] = pair
-    if record:
+    if traces:
         res["traces"] = traces
     return res
 

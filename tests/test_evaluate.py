@@ -97,3 +97,17 @@ def test_eval_write_docs_owns_only_its_sections(tmp_path, monkeypatch):
     assert "keep me" in results and "| equal_vs_sca |" in results
     assert readme.startswith("intro\n") and readme.endswith("outro\n") and "old" not in readme
     assert "`python -m eval --policies sca,equal --episodes 2 --max-steps 20 --write-docs`" in readme
+
+
+def test_eval_cli_in_worker_processes_gives_the_same_results():
+    """Policies played in two spawned processes: every per-episode figure equals the serial run's."""
+    from eval.__main__ import main
+
+    argv = ["--policies", "equal,margin,sca", "--episodes", "3", "--seed-start", "60", "--max-steps", "30"]
+    serial = main([*argv, "--workers", "1"])
+    parallel = main([*argv, "--workers", "2"])
+    assert list(parallel["policies"]) == ["equal", "margin", "sca"]
+    for name in serial["policies"]:
+        assert parallel["policies"][name]["episodes"] == serial["policies"][name]["episodes"]
+    pair = "margin_vs_sca"
+    assert parallel["paired"][pair]["reward_diff_mean"] == serial["paired"][pair]["reward_diff_mean"]

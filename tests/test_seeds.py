@@ -13,7 +13,7 @@ def root(tmp_path_factory):
     root = tmp_path_factory.mktemp("seeds")
     for s in (0, 1):
         main(Args(total_timesteps=128, n_envs=2, seed=s, out=str(root / f"seed_{s}"), eval_freq=0, checkpoint_freq=0,
-                  tensorboard=False, overrides={"n_steps": 64, "batch_size": 64, "n_epochs": 1}))
+                  tensorboard=False, overrides={"n_steps": 64, "batch_size": 64, "n_epochs": 1}, init_policy="none"))
     (root / "seed_9").mkdir()  # no model: ignored
     return root
 

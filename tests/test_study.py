@@ -29,7 +29,8 @@ from train.train import cli, resolve_args
 
 ROOT = Path(__file__).resolve().parents[1]
 ENV_ID = "iscc_gym/ISCC-v0"
-TINY = ["--n-envs", "4", "--set", "n_steps=32", "--set", "n_epochs=1", "--trial-timesteps", "256",
+TINY = ["--init-policy", "none", "--n-envs", "4", "--set", "n_steps=32", "--set", "n_epochs=1",
+        "--trial-timesteps", "256",
         "--eval-episodes", "2", "--eval-max-steps", "50", "--no-tensorboard", "--n-evaluations", "2"]
 
 
@@ -202,7 +203,7 @@ def test_pruned_trial_stops_training_and_is_recorded_as_pruned(tmp_path):
     """A pruner that prunes every report: the first evaluation is reported, training stops early and the
     trial ends PRUNED (optuna.TrialPruned), without a final evaluation."""
     args = Args(n_envs=4, overrides={"n_steps": 32, "n_epochs": 1}, eval_episodes=2, eval_max_steps=50,
-                tensorboard=False, out=str(tmp_path))
+                tensorboard=False, out=str(tmp_path), init_policy="none")
     study = optuna.create_study(direction="maximize", sampler=make_sampler("random", 0),
                                 pruner=optuna.pruners.ThresholdPruner(lower=1e9))
     study.optimize(make_objective(args, StudyArgs(trial_timesteps=512, n_evaluations=4)), n_trials=1)
@@ -214,7 +215,8 @@ def test_pruned_trial_stops_training_and_is_recorded_as_pruned(tmp_path):
 
 
 def test_seeds_trains_each_seed_and_writes_the_summary(tmp_path, capsys):
-    result = cli(["--seeds", "0,1", "--total-timesteps", "256", "--n-envs", "4", "--set", "n_steps=32",
+    result = cli(["--seeds", "0,1", "--init-policy", "none",
+                  "--total-timesteps", "256", "--n-envs", "4", "--set", "n_steps=32",
                   "--set", "batch_size=32", "--set", "n_epochs=1", "--eval-freq", "128", "--eval-episodes", "2",
                   "--eval-max-steps", "50", "--no-tensorboard", "--out", str(tmp_path)])
     summary = yaml.safe_load((tmp_path / "seeds.yml").read_text())

@@ -12,7 +12,7 @@ TINY = {"n_steps": 64, "batch_size": 64, "n_epochs": 1}
 
 def _args(out, **kw):
     base = dict(total_timesteps=256, n_envs=2, eval_freq=128, eval_episodes=2, eval_max_steps=50,
-                checkpoint_freq=128, out=str(out), overrides=dict(TINY), tensorboard=False)
+                checkpoint_freq=128, out=str(out), overrides=dict(TINY), tensorboard=False, init_policy="none")
     base.update(kw)
     return Args(**base)
 
@@ -94,10 +94,13 @@ def test_shipped_agent_loads_and_acts():
     import iscc_gym  # noqa: F401
     from eval.__main__ import SHIPPED_AGENT
     from train.ship import SHIP_ARGS
+    from train.train import resolve_args
 
     policy = SB3Policy.load(SHIPPED_AGENT)
     cfg = yaml.safe_load((SHIPPED_AGENT / "config.yml").read_text())
-    assert cfg["args"]["seed"] == SHIP_ARGS.seed and cfg["args"]["total_timesteps"] == SHIP_ARGS.total_timesteps
+    shipped, _ = resolve_args(SHIP_ARGS)
+    assert cfg["args"]["seed"] == SHIP_ARGS.seed and cfg["args"]["total_timesteps"] == shipped.total_timesteps
+    assert cfg["args"]["n_envs"] == shipped.n_envs and cfg["args"]["init_policy"] == shipped.init_policy
     env = gym.make("iscc_gym/ISCC-v0")
     obs, _ = env.reset(seed=10_000)
     for _ in range(20):

@@ -64,13 +64,14 @@ PPO_SPACE: dict[str, Any] = {
     "n_minibatches": [1, 2, 4, 8, 16, 32],
     "n_epochs": [1, 3, 5, 10, 20],
     "learning_rate": (1e-5, 3e-3, "log"),
-    "gamma": [0.9, 0.95, 0.98, 0.99, 0.995, 0.999],
+    # low discounts too: an allocation acts mostly within the slot (docs/learning.md)
+    "gamma": [0.3, 0.5, 0.7, 0.8, 0.9, 0.95, 0.98, 0.99],
     "gae_lambda": [0.8, 0.9, 0.92, 0.95, 0.98, 0.99, 1.0],
     "clip_range": [0.1, 0.2, 0.3, 0.4],
     "ent_coef": (1e-8, 1e-1, "log"),  # the low end is ~0: no entropy bonus
     "net_width": [32, 64, 128, 256],
     "net_depth": [1, 2, 3],
-    "log_std_init": (-2.0, 0.5, "linear"),
+    "log_std_init": (-4.0, 0.5, "linear"),
 }
 
 #: Ports probed (TCP, with a timeout) before a database URL without one is handed to SQLAlchemy.

@@ -139,3 +139,17 @@ def test_set_reads_numbers_in_exponent_notation():
                        "--env-set", "rate_min_bps=1e6"])
     assert args.overrides == {"learning_rate": 5e-5, "n_steps": 64, "policy": "MlpPolicy"}
     assert args.env_overrides == {"rate_min_bps": 1e6}
+
+
+def test_linear_schedule_as_rl_zoo3_writes_it(tmp_path):
+    from train.train import linear_schedule
+
+    f = linear_schedule("lin_3e-4")
+    assert f(1.0) == pytest.approx(3e-4) and f(0.5) == pytest.approx(1.5e-4) and f(0.0) == 0.0
+    with pytest.raises(ValueError, match="lin_<number>"):
+        linear_schedule("exp_3e-4")
+    with pytest.raises(ValueError, match="learning_rate"):
+        linear_schedule("lin_-1")
+    summary = main(_args(tmp_path, total_timesteps=256, eval_freq=0, checkpoint_freq=0,
+                         overrides={**TINY, "learning_rate": "lin_1e-3"}))
+    assert summary["timesteps"] == 256

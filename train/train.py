@@ -126,7 +126,35 @@ def _resolve_policy_kwargs(hp: dict) -> dict:
         pk["activation_fn"] = names[key]
     if pk:
         hp["policy_kwargs"] = pk
+    for key in ("learning_rate", "clip_range"):
+        if isinstance(hp.get(key), str):
+            hp[key] = linear_schedule(hp[key], key)
     return hp
+
+
+def linear_schedule(text: str, name: str = "learning_rate"):
+    """rl-zoo3's ``lin_<value>``: a schedule falling linearly from ``value`` to 0 over training
+    (SB3 calls it with the remaining progress, 1 -> 0).
+
+    Raises
+    ------
+    ValueError
+        Not ``lin_`` followed by a positive number.
+    """
+    try:
+        if not text.startswith("lin_"):
+            raise ValueError
+        start = float(text[len("lin_"):])
+        if not start > 0:
+            raise ValueError
+    except ValueError:
+        raise ValueError(f"{name} = {text!r}; use a number or 'lin_<number>' (rl-zoo3's linear schedule, "
+                         "e.g. lin_3e-4)") from None
+
+    def schedule(progress_remaining: float) -> float:
+        return progress_remaining * start
+
+    return schedule
 
 
 def _check(args: Args) -> None:

@@ -25,88 +25,12 @@ from pathlib import Path
 import numpy as np
 
 from eval.docs import publish, save_json
-from eval.evaluate import evaluate, format_table, run_episodes, summarize
+from eval.evaluate import evaluate, format_table, summarize
+from eval.policies import _items, _split_specs, build_policies, build_policy, run_parallel  # noqa: F401
 
 #: The trained PPO agent shipped in the repository (produced by ``python -m eval.ship``).
 SHIPPED_AGENT = Path(__file__).resolve().parent.parent / "agents" / "trained" / "ppo_iscc"
 DEFAULT_POLICIES = f"ppo={SHIPPED_AGENT},sca,sca-per-slot,margin,myopic,equal"
-
-
-def build_policy(item: str, scenario: str = "paper"):
-    """``(name, policy)`` of one ``NAME=PATH`` (a trained agent) or :func:`agents.make_policy` spec."""
-    from agents import make_policy
-
-    if "=" in item:
-        name, path = item.split("=", 1)
-        from agents.sb3_policy import SB3Policy
-
-        return name, SB3Policy.load(path)
-    return item, make_policy(item, scenario)
-
-
-def build_policies(specs: str, scenario: str = "paper") -> dict:
-    """``{name: policy}`` from a comma-separated list of ``NAME=PATH`` or make_policy specs."""
-    items = _items(specs)
-    return dict(build_policy(item, scenario) for item in items)
-
-
-def _items(specs: str) -> list[str]:
-    items = [p.strip() for p in _split_specs(specs) if p.strip()]
-    if not items:
-        raise ValueError("--policies is empty; e.g. --policies sca,equal")
-    return items
-
-
-#: Specs whose evaluation takes longest (an optimisation every slot): started first by the workers.
-SLOW_SPECS = ("sca-per-slot", "myopic", "grid", "evolutionary")
-
-
-def _worker_init(torch_threads: int) -> None:
-    """A worker process: one numba thread (the workers already use the cores) and ``torch_threads``."""
-    import numba
-
-    numba.set_num_threads(1)
-    if torch_threads:
-        import torch
-
-        torch.set_num_threads(torch_threads)
-
-
-def _run_item(item: str, seeds, scenario: str, max_steps, record: int):
-    name, policy = build_policy(item, scenario)
-    return name, run_episodes(policy, seeds, scenario, max_steps, record)
-
-
-def run_parallel(specs: str, seeds, scenario: str = "paper", max_steps=None, record: int = 0, workers: int = 2,
-                 torch_threads: int = 1) -> dict:
-    """``{name: run_episodes result}`` of every policy of ``specs``, in ``workers`` processes (spawned,
-    one numba thread each); every policy plays the same seeds, so the results are those of one process."""
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor
-
-    items = _items(specs)
-    order = sorted(range(len(items)), key=lambda i: items[i].split("=")[0] not in SLOW_SPECS)
-    ctx = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init,
-                             initargs=(torch_threads,)) as pool:
-        futures = {i: pool.submit(_run_item, items[i], list(seeds), scenario, max_steps, record) for i in order}
-        results = [futures[i].result() for i in range(len(items))]
-    names = [n for n, _ in results]
-    if len(set(names)) != len(names):
-        raise ValueError(f"--policies names a policy twice: {names}")
-    return dict(results)
-
-
-def _split_specs(specs: str) -> list[str]:
-    """Split on commas, except inside ``fixed:a,b,c`` and ``margin:a,b``."""
-    out, parts = [], specs.split(",")
-    i = 0
-    while i < len(parts):
-        p = parts[i]
-        width = 3 if p.strip().startswith("fixed:") else 2 if p.strip().startswith("margin:") else 1
-        out.append(",".join(parts[i:i + width]))
-        i += width
-    return out
 
 
 def save_plots(res: dict, out_dir: str | Path, dt_s: float = 0.1) -> list[str]:
@@ -182,11 +106,17 @@ def markdown_table(res: dict, command: str) -> str:
             cells.append(f"{fmt.format(p[metric + '_mean'])} [{fmt.format(lo)}, {fmt.format(hi)}]")
         split = " / ".join(f"{p[f'alpha_{k}_mean']:.3f}" for k in ("sen", "ctrl", "comm"))
         lines.append(f"| {name} | " + " | ".join(cells) + f" | {split} |")
+    groups = []
     if res["paired"]:
-        lines += ["", f"Paired differences against {res['reference']} (policy minus {res['reference']}, per mission), "
-                  "mean [95 % CI]:", "", "| pair | episode reward | tracking error (m) | violation fraction |",
+        groups.append(f"Paired differences against {res['reference']} (policy minus {res['reference']}, per "
+                      "mission), mean [95 % CI]:")
+    if res.get("focus_paired"):
+        groups.append(f"Paired differences of {res['focus']} against every other policy ({res['focus']} minus "
+                      "the other, per mission), mean [95 % CI]:")
+    for title, pairs in zip(groups, [p for p in (res["paired"], res.get("focus_paired")) if p], strict=True):
+        lines += ["", title, "", "| pair | episode reward | tracking error (m) | violation fraction |",
                   "|---|---|---|---|"]
-        for pair, d in res["paired"].items():
+        for pair, d in pairs.items():
             cells = [f"{d[m + '_diff_mean']:+.4g} [{d[m + '_diff_ci95'][0]:+.4g}, {d[m + '_diff_ci95'][1]:+.4g}]"
                      for m in ("reward", "tracking_error_m", "violation")]
             lines.append(f"| {pair} | " + " | ".join(cells) + " |")
@@ -203,6 +133,8 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--seeds", help="explicit comma-separated seeds (instead of --episodes/--seed-start)")
     ap.add_argument("--scenario", default="paper", help="scenario preset")
     ap.add_argument("--reference", default="sca", help="policy the paired differences are taken against")
+    ap.add_argument("--focus", default="ppo", help="policy whose paired differences to every other policy are "
+                    "reported too (default: the learned agent, 'ppo')")
     ap.add_argument("--max-steps", type=int, help="slots per episode (default: the whole mission)")
     ap.add_argument("--json", metavar="PATH", help="write the results as JSON")
     ap.add_argument("--plots", metavar="DIR", help="write allocation / error / trajectory plots here")
@@ -243,12 +175,12 @@ def main(argv: list[str] | None = None) -> dict:
     if args.workers > 1 and len(_items(specs)) > 1:
         runs = run_parallel(specs, seeds, args.scenario, args.max_steps, record, args.workers, args.torch_threads)
         reference = args.reference if args.reference in runs else None
-        res = summarize(runs, seeds, reference)
+        res = summarize(runs, seeds, reference, args.focus)
     else:
         policies = build_policies(specs, args.scenario)
         reference = args.reference if args.reference in policies else None
         res = evaluate(policies, seeds, scenario=args.scenario, reference=reference, max_steps=args.max_steps,
-                       record=record)
+                       record=record, focus=args.focus)
     print(format_table(res))
     print(f"evaluated {len(res['policies'])} policies x {len(seeds)} episodes in {time.perf_counter() - t0:.1f} s")
     if args.plots:

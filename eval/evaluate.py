@@ -126,7 +126,8 @@ def mean_ci(x, confidence: float = 0.95) -> tuple[float, list[float]]:
 
 
 def evaluate(policies: Mapping[str, Any], seeds: Sequence[int], scenario: str | Scenario = "paper",
-             reference: str | None = None, max_steps: int | None = None, record: int = 0) -> dict:
+             reference: str | None = None, max_steps: int | None = None, record: int = 0,
+             focus: str | None = None) -> dict:
     """Evaluate every policy (or :class:`Entry`) on the same seeds; paired differences vs ``reference``.
 
     Returns a JSON-able dict: ``policies.<name>`` with ``<metric>_mean``, ``<metric>_ci95`` per
@@ -142,12 +143,14 @@ def evaluate(policies: Mapping[str, Any], seeds: Sequence[int], scenario: str | 
     for name, entry in policies.items():
         entry = entry if isinstance(entry, Entry) else Entry(entry)
         runs[name] = run_episodes(entry.policy, seeds, scenario, max_steps, record, **entry.overrides)
-    return summarize(runs, seeds, reference)
+    return summarize(runs, seeds, reference, focus)
 
 
-def summarize(runs: Mapping[str, dict], seeds: Sequence[int], reference: str | None = None) -> dict:
+def summarize(runs: Mapping[str, dict], seeds: Sequence[int], reference: str | None = None,
+              focus: str | None = None) -> dict:
     """The result of :func:`evaluate` from the :func:`run_episodes` results of every policy (played on
-    ``seeds``, e.g. in separate processes)."""
+    ``seeds``, e.g. in separate processes). With ``focus`` (a policy name), ``focus_paired`` holds
+    its paired differences against every other policy (``<focus>_vs_<name>``)."""
     if reference is not None and reference not in runs:
         raise ValueError(f"reference = {reference!r} is not one of the policies {list(runs)}")
     traces = {name: run["traces"] for name, run in runs.items() if "traces" in run}
@@ -159,18 +162,25 @@ def summarize(runs: Mapping[str, dict], seeds: Sequence[int], reference: str | N
         summary["episodes"] = {m: np.asarray(v).tolist() for m, v in run["episodes"].items()}
         res["policies"][name] = summary
     if reference is not None:
-        ref = runs[reference]["episodes"]
         for name, run in runs.items():
-            if name == reference:
-                continue
-            pair = {}
-            for metric, vals in run["episodes"].items():
-                pair[f"{metric}_diff_mean"], pair[f"{metric}_diff_ci95"] = mean_ci(np.asarray(vals) - ref[metric])
-            pair["ci95"] = pair["reward_diff_ci95"]  # the headline: episode reward, name minus reference
-            res["paired"][f"{name}_vs_{reference}"] = pair
+            if name != reference:
+                res["paired"][f"{name}_vs_{reference}"] = _paired(run["episodes"], runs[reference]["episodes"])
+    if focus is not None and focus in runs:
+        res["focus"] = focus
+        res["focus_paired"] = {f"{focus}_vs_{name}": _paired(runs[focus]["episodes"], run["episodes"])
+                               for name, run in runs.items() if name != focus}
     if traces:
         res["traces"] = traces
     return res
+
+
+def _paired(episodes: Mapping, ref: Mapping) -> dict:
+    """Per-metric mean and 95 % CI of ``episodes - ref`` (per episode); ``ci95`` is the reward's."""
+    pair = {}
+    for metric, vals in episodes.items():
+        pair[f"{metric}_diff_mean"], pair[f"{metric}_diff_ci95"] = mean_ci(np.asarray(vals) - np.asarray(ref[metric]))
+    pair["ci95"] = pair["reward_diff_ci95"]  # the headline: episode reward
+    return pair
 
 
 def format_table(res: dict) -> str:
@@ -188,9 +198,16 @@ def format_table(res: dict) -> str:
             lo, hi = p[f"{metric}_ci95"]
             row += f"{fmt.format(p[metric + '_mean']) + ' [' + fmt.format(lo) + ', ' + fmt.format(hi) + ']':>30}"
         lines.append(row)
+    groups = []
     if res["paired"]:
-        lines.append(f"paired differences vs {res['reference']} (policy minus reference), mean [95% CI]:")
-        for pair, d in res["paired"].items():
+        groups.append((f"paired differences vs {res['reference']} (policy minus reference), mean [95% CI]:",
+                       res["paired"]))
+    if res.get("focus_paired"):
+        groups.append((f"paired differences of {res['focus']} against every other policy, mean [95% CI]:",
+                       res["focus_paired"]))
+    for title, pairs in groups:
+        lines.append(title)
+        for pair, d in pairs.items():
             row = f"{pair:<28}"
             for metric in ("reward", "tracking_error_m", "violation"):
                 lo, hi = d[f"{metric}_diff_ci95"]

@@ -111,3 +111,26 @@ def test_eval_cli_in_worker_processes_gives_the_same_results():
         assert parallel["policies"][name]["episodes"] == serial["policies"][name]["episodes"]
     pair = "margin_vs_sca"
     assert parallel["paired"][pair]["reward_diff_mean"] == serial["paired"][pair]["reward_diff_mean"]
+
+
+def test_python_m_eval_with_workers_runs_as_a_command():
+    """``python -m eval`` runs as ``__main__``: its workers must import what they run from a module."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    out = subprocess.run([sys.executable, "-m", "eval", "--policies", "equal,sca", "--episodes", "2", "--max-steps",
+                          "10", "--workers", "2"], cwd=root, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    assert "paired differences vs sca" in out.stdout
+
+
+def test_focus_pairs_one_policy_against_every_other():
+    pols = {"a": EqualSplitPolicy(), "b": FixedSplitPolicy([0.1, 0.3, 0.6]), "c": FixedSplitPolicy([0.05, 0.25, 0.7])}
+    res = evaluate(pols, seeds=[3, 4, 5], reference="a", focus="b", max_steps=30)
+    assert set(res["focus_paired"]) == {"b_vs_a", "b_vs_c"}
+    rb = np.asarray(res["policies"]["b"]["episodes"]["reward"])
+    rc = np.asarray(res["policies"]["c"]["episodes"]["reward"])
+    assert res["focus_paired"]["b_vs_c"]["reward_diff_mean"] == pytest.approx((rb - rc).mean())
+    assert res["focus_paired"]["b_vs_a"]["reward_diff_ci95"] == res["paired"]["b_vs_a"]["reward_diff_ci95"]

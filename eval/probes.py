@@ -75,8 +75,8 @@ def probes(seeds, scenario: str = "paper", myopic: bool = True) -> list[dict]:
         add(f"control x{boost:g} after a lost command", MarginVariant(margin, s.n_slots, lost_boost=boost), base,
             "margin")
     for gain in (0.1, 0.3):
-        add(f"control x(1 + {gain:g} |predicted error|)", MarginVariant(margin, s.n_slots, error_gain=gain), base,
-            "margin")
+        add(f"control x(1 + {gain:g} x largest predicted position error, symlog)",
+            MarginVariant(margin, s.n_slots, error_gain=gain), base, "margin")
     if myopic:
         ref = run_episodes(MyopicPolicy(s), seeds, s)["episodes"]["reward"]
         rows.append({"probe": "myopic (env weights)", "base": "-", "reward": float(ref.mean()), "diff": 0.0,

@@ -48,8 +48,9 @@ def ship(args: Args = SHIP_ARGS, dest: Path = SHIP_DIR, write_docs: bool = True)
             + (f"; warm start: behaviour cloning of `{ws['policy']}` on {ws['envs']} x {ws['steps_per_env']:,} "
                f"slots ({ws['samples']:,} samples, actor MSE {ws['actor_mse']:.2g}, {ws['wall_time_s']:.0f} s)"
                if (ws := summary.get("warm_start")) else ""),
-            f"- env steps: {summary['timesteps']:,}; wall time: {summary['wall_time_s']:.0f} s, warm start included "
-            f"({summary['env_steps_per_s']:,.0f} env-steps/s in PPO on this machine)",
+            f"- env steps: {summary['timesteps']:,}; wall time: {summary['wall_time_s']:.0f} s"
+            + (" (warm start included)" if summary.get("warm_start") else "")
+            + f" ({summary['env_steps_per_s']:,.0f} env-steps/s in PPO on this machine)",
             f"- held-out evaluation during training (episode reward, mean of {args.eval_episodes} missions, "
             f"seeds from 1,000,000): {evals}",
             "",

@@ -153,3 +153,21 @@ def test_linear_schedule_as_rl_zoo3_writes_it(tmp_path):
     summary = main(_args(tmp_path, total_timesteps=256, eval_freq=0, checkpoint_freq=0,
                          overrides={**TINY, "learning_rate": "lin_1e-3"}))
     assert summary["timesteps"] == 256
+
+
+def test_td3_with_rl_zoo3_noise_keys(tmp_path):
+    from stable_baselines3.common.noise import VectorizedActionNoise
+
+    from train.train import _action_noise
+
+    kw = _action_noise({"noise_type": "normal", "noise_std": 0.2, "batch_size": 64}, 3, 3)
+    assert isinstance(kw["action_noise"], VectorizedActionNoise) and "noise_std" not in kw
+    assert kw["action_noise"]().shape == (3, 3)
+    with pytest.raises(ValueError, match="noise_type"):
+        _action_noise({"noise_type": "pink"}, 1, 3)
+    with pytest.raises(ValueError, match="noise_type"):
+        _action_noise({"noise_std": 0.1}, 1, 3)
+    summary = main(_args(tmp_path, algo="td3", total_timesteps=64, eval_freq=0, checkpoint_freq=0,
+                         overrides={"learning_starts": 16, "batch_size": 16, "noise_type": "normal",
+                                    "noise_std": 0.1}))
+    assert summary["timesteps"] == 64

@@ -132,6 +132,28 @@ def _resolve_policy_kwargs(hp: dict) -> dict:
     return hp
 
 
+def _action_noise(kw: dict, n_envs: int, dim: int) -> dict:
+    """rl-zoo3's ``noise_type`` (``normal`` | ``ornstein-uhlenbeck``) and ``noise_std`` keys as SB3's
+    ``action_noise`` (one independent noise process per env) for SAC/TD3."""
+    kw = dict(kw)
+    kind, std = kw.pop("noise_type", None), kw.pop("noise_std", None)
+    if kind is None:
+        if std is not None:
+            raise ValueError("noise_std is set without noise_type; add noise_type: normal")
+        return kw
+    from stable_baselines3.common.noise import NormalActionNoise, OrnsteinUhlenbeckActionNoise, VectorizedActionNoise
+
+    classes = {"normal": NormalActionNoise, "ornstein-uhlenbeck": OrnsteinUhlenbeckActionNoise}
+    if kind not in classes:
+        raise ValueError(f"noise_type = {kind!r}; use one of {sorted(classes)}")
+    sigma = float(0.1 if std is None else std)
+    if not sigma > 0:
+        raise ValueError(f"noise_std = {std!r}; use a positive number")
+    base = classes[kind](mean=np.zeros(dim), sigma=sigma * np.ones(dim))
+    kw["action_noise"] = VectorizedActionNoise(base, n_envs) if n_envs > 1 else base
+    return kw
+
+
 def linear_schedule(text: str, name: str = "learning_rate"):
     """rl-zoo3's ``lin_<value>``: a schedule falling linearly from ``value`` to 0 over training
     (SB3 calls it with the remaining progress, 1 -> 0).
@@ -334,6 +356,7 @@ def main(args: Args, callback_after_eval=None) -> dict:
         model = algo_cls.load(str(latest[0]), env=venv, device="cpu", tensorboard_log=tb)
     else:
         kw = _resolve_policy_kwargs(hp)
+        kw = _action_noise(kw, venv.num_envs, venv.action_space.shape[0])
         policy = kw.pop("policy", "MlpPolicy")
         model = algo_cls(policy, venv, seed=args.seed, device="cpu", verbose=args.verbose, tensorboard_log=tb, **kw)
         if args.init_policy and args.init_policy.lower() != "none":

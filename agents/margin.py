@@ -16,13 +16,12 @@ evaluation seed; the tuned values, the seeds and the command's output live in
 from __future__ import annotations
 
 import math
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
 from iscc_gym.env import OBS_NAMES
+from iscc_gym.files import write_atomic
 
 from .base import SplitPolicy
 
@@ -122,14 +121,5 @@ def save_tuned(name: str, record: dict, path: str | Path | None = None) -> Path:
     """Write a tuning record atomically (temporary file in the same directory, then rename)."""
     import yaml
 
-    p = Path(path) if path is not None else TUNED_DIR / f"{name}.yml"
-    p.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", dir=p.parent)
-    try:
-        with os.fdopen(fd, "w") as f:
-            yaml.safe_dump(record, f, sort_keys=False)
-        os.replace(tmp, p)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return p
+    return write_atomic(Path(path) if path is not None else TUNED_DIR / f"{name}.yml",
+                        yaml.safe_dump(record, sort_keys=False))

@@ -6,6 +6,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from iscc_gym.files import write_atomic
+
 __all__ = ["write_section", "publish", "save_json", "RESULTS_PATH", "README_PATH"]
 
 RESULTS_PATH = "docs/results.md"
@@ -26,7 +28,7 @@ def write_section(path: str | Path, name: str, text: str) -> None:
         doc = head + block + tail
     else:
         doc = doc.rstrip() + "\n\n" + block + "\n"
-    p.write_text(doc)
+    write_atomic(p, doc)
 
 
 def publish(name: str, title: str, table: str) -> None:
@@ -39,6 +41,5 @@ def publish(name: str, title: str, table: str) -> None:
 
 def save_json(path: str | Path, res: dict) -> None:
     """Write a command's results as JSON."""
-    with open(path, "w") as f:
-        json.dump(res, f, indent=1)
+    write_atomic(path, json.dumps(res, indent=1))
     print(f"wrote {path}")

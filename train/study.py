@@ -36,7 +36,6 @@ import math
 import os
 import socket
 import time
-import uuid
 import warnings
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -46,6 +45,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import yaml
 
+from iscc_gym.files import write_atomic
 from train.train import EVAL_SEED_START, Args, _check, load_hyperparams, main, resolve_args
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -763,18 +763,6 @@ def export_best(s: optuna.Study, env_id: str, algo: str, path: str | os.PathLike
     text = header + yaml.safe_dump(best_entry(best, env_id, algo), sort_keys=False)
     write_atomic(path, text)
     return text
-
-
-def write_atomic(path: str | os.PathLike, text: str) -> None:
-    """Write ``text`` to a unique temporary name beside ``path``, then rename it onto ``path``."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp")
-    try:
-        tmp.write_text(text)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
 
 
 # --- several seeds of one configuration -------------------------------------------------------------------

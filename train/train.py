@@ -25,6 +25,8 @@ from typing import Any
 import numpy as np
 import yaml
 
+from iscc_gym.files import write_atomic
+
 HYPERPARAMS = Path(__file__).with_name("hyperparams.yml")
 ALGOS = ("ppo", "sac", "td3")
 VEC_ENVS = ("dummy", "subproc", "batched")
@@ -362,8 +364,7 @@ def main(args: Args, callback_after_eval=None) -> dict:
         if args.init_policy and args.init_policy.lower() != "none":
             warm_start = _behaviour_clone(model, venv, args)
     resolved = {"args": dataclasses.asdict(args), "hyperparams": hp}
-    with open(out / "config.yml", "w") as f:
-        yaml.safe_dump(resolved, f, sort_keys=False)
+    write_atomic(out / "config.yml", yaml.safe_dump(resolved, sort_keys=False))
     callbacks = [curve := _curve_callback()]
     per_env = max(1, args.n_envs)
     if args.checkpoint_freq > 0:
@@ -399,8 +400,7 @@ def main(args: Args, callback_after_eval=None) -> dict:
                "env_steps_per_s": (remaining / wall) if remaining > 0 and wall > 0 else None,
                "evaluations": evals, "resumed_from": str(latest[0]) if latest else None,
                "warm_start": warm_start}
-    with open(out / "summary.yml", "w") as f:
-        yaml.safe_dump(summary, f, sort_keys=False)
+    write_atomic(out / "summary.yml", yaml.safe_dump(summary, sort_keys=False))
     return summary
 
 

@@ -25,7 +25,7 @@ from iscc_gym.files import write_atomic
 
 from .base import SplitPolicy
 
-__all__ = ["MarginPolicy", "margin_split", "load_tuned", "save_tuned", "TUNED_DIR"]
+__all__ = ["MarginPolicy", "margin_split", "predicted_needs", "load_tuned", "save_tuned", "TUNED_DIR"]
 
 #: Where the tuning commands store their results (package data).
 TUNED_DIR = Path(__file__).resolve().parent / "tuned"
@@ -34,6 +34,13 @@ _CTRL = OBS_NAMES.index("alpha_ctrl_min")
 _COMM = OBS_NAMES.index("alpha_comm_min")
 #: obs[_CTRL] is 10 x the share (see the env's observation table).
 _CTRL_SCALE = 0.1
+
+
+def predicted_needs(obs) -> tuple[np.ndarray, np.ndarray]:
+    """The control and data shares the GBS predicts the slot needs, read from observations (n, 23):
+    ``alpha_ctrl_min`` (obs 18, stored x 10) and ``alpha_comm_min`` (obs 19)."""
+    o = np.asarray(obs, dtype=float)
+    return o[:, _CTRL] * _CTRL_SCALE, o[:, _COMM]
 
 
 def margin_split(ctrl_need, comm_need, m_ctrl: float, m_comm: float, sensing_floor: float):
@@ -89,9 +96,7 @@ class MarginPolicy(SplitPolicy):
         return cls(p["m_ctrl"], p["m_comm"], p["sensing_floor"])
 
     def split_batch(self, obs, state=None, episode_start=None):
-        o = np.asarray(obs, dtype=float)
-        return margin_split(o[:, _CTRL] * _CTRL_SCALE, o[:, _COMM], self.m_ctrl, self.m_comm,
-                            self.sensing_floor), state
+        return margin_split(*predicted_needs(obs), self.m_ctrl, self.m_comm, self.sensing_floor), state
 
     def __repr__(self) -> str:
         return f"MarginPolicy(m_ctrl={self.m_ctrl:g}, m_comm={self.m_comm:g}, sensing_floor={self.sensing_floor:g})"

@@ -25,7 +25,7 @@ import numpy as np
 
 from agents import MarginPolicy, MyopicPolicy
 from agents.base import SplitPolicy
-from agents.margin import _COMM, _CTRL, _CTRL_SCALE, margin_split
+from agents.margin import margin_split, predicted_needs
 from eval.evaluate import mean_ci, run_episodes
 from eval.tune import TUNE_SEED_START, check_tuning_seeds
 from iscc_gym.env import OBS_NAMES
@@ -50,7 +50,7 @@ class MarginVariant(SplitPolicy):
         floor = np.where(slot % self.every == 0, self.burst, self.floor)
         m_ctrl = self.base.m_ctrl * np.where(o[:, _RECEIVED] < 0.5, self.lost_boost, 1.0) \
             * (1.0 + self.error_gain * np.abs(o[:, 0:3]).max(axis=1))
-        return margin_split(o[:, _CTRL] * _CTRL_SCALE, o[:, _COMM], m_ctrl, self.base.m_comm, floor), state
+        return margin_split(*predicted_needs(o), m_ctrl, self.base.m_comm, floor), state
 
 
 def probes(seeds, scenario: str = "paper", myopic: bool = True) -> list[dict]:

@@ -26,7 +26,7 @@ import numpy as np
 from scipy import optimize
 
 from agents.base import SplitPolicy
-from agents.margin import _COMM, _CTRL, _CTRL_SCALE, margin_split, save_tuned
+from agents.margin import margin_split, predicted_needs, save_tuned
 from eval.evaluate import run_episodes
 
 #: First tuning seed (training seeds for the scripted baselines).
@@ -50,9 +50,7 @@ class _RowMargins(SplitPolicy):
         self.m_ctrl, self.m_comm, self.sensing_floor = (np.asarray(v) for v in (m_ctrl, m_comm, sensing_floor))
 
     def split_batch(self, obs, state=None, episode_start=None):
-        o = np.asarray(obs, dtype=float)
-        return margin_split(o[:, _CTRL] * _CTRL_SCALE, o[:, _COMM], self.m_ctrl, self.m_comm,
-                            self.sensing_floor), state
+        return margin_split(*predicted_needs(obs), self.m_ctrl, self.m_comm, self.sensing_floor), state
 
 
 def check_tuning_seeds(seeds) -> list[int]:

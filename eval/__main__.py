@@ -23,10 +23,9 @@ import time
 from pathlib import Path
 
 import numpy as np
-
-from eval.docs import publish, save_json
-from eval.evaluate import evaluate, format_table, summarize
-from eval.policies import _items, _split_specs, build_policies, build_policy, run_parallel  # noqa: F401
+from iscc_gym.eval.docs import publish, save_json
+from iscc_gym.eval.evaluate import evaluate, format_table, summarize
+from iscc_gym.eval.policies import _items, _split_specs, build_policies, build_policy, run_parallel  # noqa: F401
 
 #: The trained PPO agent shipped in the repository (produced by ``python -m eval.ship``).
 SHIPPED_AGENT = Path(__file__).resolve().parent.parent / "agents" / "trained" / "ppo_iscc"
@@ -36,7 +35,7 @@ DEFAULT_POLICIES = f"ppo={SHIPPED_AGENT},sca,sca-per-slot,margin,myopic,equal"
 def save_plots(res: dict, out_dir: str | Path, dt_s: float = 0.1) -> list[str]:
     """Allocation over time, tracking error over time and 3-D trajectories of the first recorded
     episode of every policy, as PNGs."""
-    from eval.figures import new_figure
+    from iscc_gym.eval.figures import new_figure
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -153,8 +152,8 @@ def main(argv: list[str] | None = None) -> dict:
         ap.error(f"--workers {args.workers}: use an integer >= 1")
     specs = args.policies
     if args.train_steps > 0:
-        from train import Args
-        from train import main as train_main
+        from iscc_gym.train import Args
+        from iscc_gym.train import main as train_main
 
         summary = train_main(Args(total_timesteps=args.train_steps, out=args.train_out, scenario=args.scenario,
                                   progress_bar=True))

@@ -27,9 +27,9 @@ import time
 
 import gymnasium as gym
 import numpy as np
+from iscc_gym.eval.docs import publish, save_json
 
 import iscc_gym
-from eval.docs import publish, save_json
 
 
 def env_steps_per_second(env_id: str, n_steps: int, repeats: int, seed: int = 0, **kwargs) -> dict:
@@ -72,11 +72,10 @@ def vector_steps_per_second(num_envs: int, n_steps: int, repeats: int, seed: int
 def ppo_steps_per_second(kind: str, total_steps: int, repeats: int, n_envs: int = 4) -> dict:
     """Median env-steps/s of SB3 PPO (default hyperparameters) learning ``total_steps`` steps."""
     import torch
+    from iscc_gym.agents.sb3_vec_env import ISCCBatchedVecEnv
     from stable_baselines3 import PPO
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecMonitor
-
-    from agents.sb3_vec_env import ISCCBatchedVecEnv
 
     torch.set_num_threads(1)
     rates = []
@@ -107,8 +106,7 @@ def ppo_shipped_steps_per_second(total_steps: int, repeats: int, settings=THREAD
     import tempfile
 
     import torch
-
-    from train.train import Args, main, resolve_args
+    from iscc_gym.train.train import Args, main, resolve_args
 
     out = {}
     with tempfile.TemporaryDirectory() as tmp:
@@ -135,8 +133,8 @@ def ppo_shipped_steps_per_second(total_steps: int, repeats: int, settings=THREAD
 
 def eval_sca_seconds(episodes: int, max_steps: int | None = None) -> dict:
     """Wall time of evaluating static SCA on ``episodes`` full missions (batched, common seeds)."""
-    from agents import make_policy
-    from eval.evaluate import run_episodes
+    from iscc_gym.agents import make_policy
+    from iscc_gym.eval.evaluate import run_episodes
 
     policy = make_policy("sca")
     run_episodes(policy, seeds=[0], max_steps=5)  # warm: kernels and the policy's design loaded
@@ -148,7 +146,8 @@ def eval_sca_seconds(episodes: int, max_steps: int | None = None) -> dict:
 def solver_seconds(quick: bool = False) -> dict:
     """Wall times of the allocation solvers on the paper preset (the shared analytic model built
     first, outside the timing), beside the paper's."""
-    from agents import evolutionary_search, grid_search, sca_allocation
+    from iscc_gym.agents import evolutionary_search, grid_search, sca_allocation
+
     from iscc_gym.analysis import static_model
     from iscc_gym.scenario import make_scenario
 

@@ -1,6 +1,6 @@
 """``python -m eval.evaluator_check``: the analytic steady-state evaluator against env rollouts.
 
-Plays fixed splits in the env (:func:`eval.evaluate.run_episodes`, common random numbers) and sets
+Plays fixed splits in the env (:func:`iscc_gym.eval.evaluate.run_episodes`, common random numbers) and sets
 each beside :meth:`iscc_gym.analysis.StaticModel.evaluate` in its three readings (the exact
 recursion with each position's loss rate, the paper's recursion, one trajectory-averaged loss
 rate). ``--write-docs`` rewrites the ``evaluator-check`` table of ``docs/model.md`` (section 3.1).
@@ -11,10 +11,10 @@ from __future__ import annotations
 import argparse
 
 import numpy as np
+from iscc_gym.agents import FixedSplitPolicy
+from iscc_gym.eval.docs import write_section
+from iscc_gym.eval.evaluate import run_episodes
 
-from agents import FixedSplitPolicy
-from eval.docs import write_section
-from eval.evaluate import run_episodes
 from iscc_gym.analysis import static_model
 from iscc_gym.scenario import make_scenario
 

@@ -223,7 +223,7 @@ def write_all(out_dir: str | Path, s: Scenario, model: StaticModel, traces: dict
     """Write every figure of :data:`FIGURES` into ``out_dir``; returns {file name: path}.
 
     ``traces``: per scheme (``open_loop``, ``gnss``, ``ignore_loss``, ``iscc``) the ``traces`` of
-    :func:`eval.evaluate.evaluate` with ``record=1``; ``splits``: the Table II allocations.
+    :func:`iscc_gym.eval.evaluate.evaluate` with ``record=1``; ``splits``: the Table II allocations.
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

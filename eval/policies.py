@@ -5,18 +5,18 @@ Lives apart from ``eval/__main__.py`` so that spawned worker processes can impor
 
 from __future__ import annotations
 
-from eval.evaluate import run_episodes
+from iscc_gym.eval.evaluate import run_episodes
 
 __all__ = ["build_policy", "build_policies", "run_parallel", "SLOW_SPECS"]
 
 
 def build_policy(item: str, scenario: str = "paper"):
     """``(name, policy)`` of one ``NAME=PATH`` (a trained agent) or :func:`agents.make_policy` spec."""
-    from agents import make_policy
+    from iscc_gym.agents import make_policy
 
     if "=" in item:
         name, path = item.split("=", 1)
-        from agents.sb3_policy import SB3Policy
+        from iscc_gym.agents.sb3_policy import SB3Policy
 
         return name, SB3Policy.load(path)
     return item, make_policy(item, scenario)

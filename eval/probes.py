@@ -22,12 +22,12 @@ import argparse
 import sys
 
 import numpy as np
+from iscc_gym.agents import MarginPolicy, MyopicPolicy
+from iscc_gym.agents.base import SplitPolicy
+from iscc_gym.agents.margin import margin_split, predicted_needs
+from iscc_gym.eval.evaluate import mean_ci, run_episodes
+from iscc_gym.eval.tune import TUNE_SEED_START, check_tuning_seeds
 
-from agents import MarginPolicy, MyopicPolicy
-from agents.base import SplitPolicy
-from agents.margin import margin_split, predicted_needs
-from eval.evaluate import mean_ci, run_episodes
-from eval.tune import TUNE_SEED_START, check_tuning_seeds
 from iscc_gym.env import OBS_NAMES
 
 _TIME_LEFT = OBS_NAMES.index("time_left")
@@ -117,7 +117,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
     table = markdown(rows, cmd, seeds)
     print(table)
     if args.write_docs:
-        from eval.docs import RESULTS_PATH, write_section
+        from iscc_gym.eval.docs import RESULTS_PATH, write_section
 
         write_section(RESULTS_PATH, "probes", "## Non-myopic probes of the scripted rules\n\n" + table)
         print(f"wrote {RESULTS_PATH}")

@@ -13,7 +13,7 @@ fields that hit the paper's reported figures on the same trajectory sample, besi
 values. The scheme level (:mod:`eval.schemes`) measures tracking error, data rate and PEB in the env
 (closed-loop Monte Carlo on fixed seeds) and checks the issue's targets; figures go to
 ``docs/figures`` (:mod:`eval.figures`). ``--write-docs`` regenerates this command's sections of
-``docs/results.md`` and the README's ``reproduce`` block (:func:`eval.docs.write_section`).
+``docs/results.md`` and the README's ``reproduce`` block (:func:`iscc_gym.eval.docs.write_section`).
 """
 
 from __future__ import annotations
@@ -27,10 +27,10 @@ from pathlib import Path
 
 import numpy as np
 import scipy.linalg
+from iscc_gym.eval import schemes as scheme_level
+from iscc_gym.eval.docs import README_PATH, RESULTS_PATH, write_section
 from scipy.optimize import brentq
 
-from eval import schemes as scheme_level
-from eval.docs import README_PATH, RESULTS_PATH, write_section
 from iscc_gym import SCENARIOS, Scenario, loop, make_scenario
 from iscc_gym.analysis import (
     TrajectorySample,
@@ -413,7 +413,7 @@ def write_docs(paper_res: dict, literal_res: dict, results_path: str | Path = RE
 
 
 def scheme_level_figure_title(name: str) -> str:
-    from eval.figures import FIGURES
+    from iscc_gym.eval.figures import FIGURES
 
     return FIGURES.get(name, name)
 

@@ -1,13 +1,13 @@
 """Scheme-level reproduction: the paper's Table II (SCA vs grid vs evolutionary search) and Fig. 9
 (open loop, GNSS feedback, ISCC ignoring packet loss, proposed ISCC), ours beside the paper's.
 
-Part of ``python -m eval.reproduce`` (:func:`eval.reproduce.run` calls :func:`run_schemes`).
+Part of ``python -m eval.reproduce`` (:func:`iscc_gym.eval.reproduce.run` calls :func:`run_schemes`).
 
 * **Optimisers** run on the shared steady-state evaluator (:func:`iscc_gym.analysis.static_model`,
   built and warmed up once and timed separately); each optimiser's own wall time is reported beside
   the paper's.
 * **Tracking error, data rate, PEB** are measured in the env: closed-loop Monte Carlo on the batched
-  vector env through :func:`eval.evaluate.evaluate`, every allocation and scheme on the same fixed
+  vector env through :func:`iscc_gym.eval.evaluate.evaluate`, every allocation and scheme on the same fixed
   list of seeds (common random numbers). **LQG cost** comes from the analytic evaluator (eq:LQG_cost
   at steady state), as the env does not report it.
 * **Schemes** are :class:`eval.evaluate.Entry` objects: a policy plus Scenario overrides. Which split
@@ -26,10 +26,10 @@ from pathlib import Path
 
 import numpy as np
 import scipy.linalg
+from iscc_gym.agents import FixedSplitPolicy, SCAPolicy, evolutionary_search, grid_search
+from iscc_gym.eval.evaluate import Entry, evaluate
 from scipy.optimize import brentq
 
-from agents import FixedSplitPolicy, SCAPolicy, evolutionary_search, grid_search
-from eval.evaluate import Entry, evaluate
 from iscc_gym.analysis import static_model
 from iscc_gym.dynamics import model_matrices
 from iscc_gym.scenario import Scenario
@@ -291,7 +291,7 @@ def run_schemes(s: Scenario, quick: bool = False, seeds=None, max_steps: int | N
         },
     }
     if figures_dir is not None:
-        from eval import figures
+        from iscc_gym.eval import figures
 
         traces = {name: res["traces"]["sca" if name == "iscc" else name] for name in SCHEMES}
         traces_full = {**traces, **lifted["traces"]}  # the diverging schemes over the whole mission

@@ -20,8 +20,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
-
-from eval.evaluate import evaluate, mean_ci
+from iscc_gym.eval.evaluate import evaluate, mean_ci
 
 #: Scripted policies every seed is compared with.
 SCRIPTED = ("sca", "margin", "myopic")
@@ -46,9 +45,8 @@ def seed_runs(root: str | Path) -> dict[int, Path]:
 def compare_seeds(root, seeds, scenario: str = "paper", scripted=SCRIPTED, max_steps: int | None = None) -> dict:
     """Evaluate every seed's agent and the scripted policies on ``seeds``; per-seed paired differences."""
     import torch
-
-    from agents import make_policy
-    from agents.sb3_policy import SB3Policy
+    from iscc_gym.agents import make_policy
+    from iscc_gym.agents.sb3_policy import SB3Policy
 
     torch.set_num_threads(1)
     runs = seed_runs(root)
@@ -103,12 +101,12 @@ def main(argv: list[str] | None = None) -> dict:
     table = markdown(res, cmd)
     print(table)
     if args.write_docs:
-        from eval.docs import RESULTS_PATH, write_section
+        from iscc_gym.eval.docs import RESULTS_PATH, write_section
 
         write_section(RESULTS_PATH, "seeds", "## The shipped configuration over 5 training seeds\n\n" + table)
         print(f"wrote {RESULTS_PATH}")
     if args.json:
-        from eval.docs import save_json
+        from iscc_gym.eval.docs import save_json
 
         save_json(args.json, res)
     return res

@@ -23,11 +23,10 @@ import sys
 import time
 
 import numpy as np
+from iscc_gym.agents.base import SplitPolicy
+from iscc_gym.agents.margin import margin_split, predicted_needs, save_tuned
+from iscc_gym.eval.evaluate import run_episodes
 from scipy import optimize
-
-from agents.base import SplitPolicy
-from agents.margin import margin_split, predicted_needs, save_tuned
-from eval.evaluate import run_episodes
 
 #: First tuning seed (training seeds for the scripted baselines).
 TUNE_SEED_START = 500_000

@@ -6,6 +6,8 @@ Efficient Drone Flight", as pure batched numpy functions (``channel``, ``fbl``, 
 :class:`Scenario`.
 """
 
+import os as _os
+
 import gymnasium as _gym
 
 from .env import REGISTERED_MAX_EPISODE_STEPS, ISCCEnv, action_to_split, split_to_action
@@ -23,3 +25,13 @@ if ENV_ID not in _gym.registry:
                   vector_entry_point="iscc_gym.vector:ISCCVectorEnv",
                   max_episode_steps=REGISTERED_MAX_EPISODE_STEPS)
 __version__ = "0.1.0"
+
+# agents/, train/ and eval/ sit at the top of the repo and install as iscc_gym.agents, iscc_gym.train
+# and iscc_gym.eval (pyproject's package-dir). In a source checkout that is not installed that way
+# (a plain `pip install .` run from the repo root, or no install at all), let this package's path
+# reach the checkout's folders too, so `python -m eval` from the root resolves `iscc_gym.agents`.
+_root = _os.path.dirname(_os.path.dirname(_os.path.abspath(__file__)))
+if (not _os.path.isdir(_os.path.join(_os.path.dirname(_os.path.abspath(__file__)), "agents"))
+        and _os.path.isfile(_os.path.join(_root, "pyproject.toml"))
+        and _os.path.isfile(_os.path.join(_root, "agents", "__init__.py"))):
+    __path__.append(_root)  # noqa: F821 (the package's own __path__)

@@ -9,9 +9,7 @@ import time
 import gymnasium as gym
 import numpy as np
 import pytest
-
-import iscc_gym  # noqa: F401  (registers the env)
-from agents import (
+from iscc_gym.agents import (
     POLICY_SPECS,
     EqualSplitPolicy,
     FixedSplitPolicy,
@@ -23,7 +21,9 @@ from agents import (
     sca_allocation,
     solve_sca,
 )
-from agents.sca import MIN_SHARE, static_problem
+from iscc_gym.agents.sca import MIN_SHARE, static_problem
+
+import iscc_gym  # noqa: F401  (registers the env)
 from iscc_gym import SCENARIOS, analysis
 from iscc_gym.env import OBS_NAMES, action_to_split, split_to_action
 
@@ -94,7 +94,7 @@ def test_sca_converges_to_a_feasible_stationary_point_near_the_grid_optimum(mode
 def test_sca_subproblem_solvers_agree(model):
     prob = static_problem(model)
     x_k = np.array([0.1, 0.25])
-    from agents.sca import _subproblem_kkt, _subproblem_slsqp
+    from iscc_gym.agents.sca import _subproblem_kkt, _subproblem_slsqp
 
     f0 = prob.f_sen(x_k[0])[0]
     g, dg = prob.g_ctrl(x_k[1])

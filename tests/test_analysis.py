@@ -185,7 +185,7 @@ def test_grid_of_splits_is_fast(model):
 # --- the evaluator against rollouts of the env ----------------------------------------------------
 def _rollout_mean(split, seeds):
     """Mean per-slot tracking error, data rate and loss rate of full episodes at a fixed split."""
-    from agents import FixedSplitPolicy
+    from iscc_gym.agents import FixedSplitPolicy
 
     policy = FixedSplitPolicy(split)
     env = gym.make("iscc_gym/ISCC-v0")

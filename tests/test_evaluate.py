@@ -3,11 +3,11 @@
 import gymnasium as gym
 import numpy as np
 import pytest
+from iscc_gym.agents.base import EqualSplitPolicy, FixedSplitPolicy
+from iscc_gym.eval.evaluate import Entry, evaluate, format_table, mean_ci, run_episodes
 from scipy import stats
 
 import iscc_gym  # noqa: F401
-from agents.base import EqualSplitPolicy, FixedSplitPolicy
-from eval.evaluate import Entry, evaluate, format_table, mean_ci, run_episodes
 from iscc_gym.env import split_to_action
 
 
@@ -64,7 +64,7 @@ def test_bad_arguments():
 
 
 def test_eval_cli_writes_json_and_plots(tmp_path, capsys):
-    from eval.__main__ import _split_specs, main
+    from iscc_gym.eval.__main__ import _split_specs, main
 
     assert _split_specs("sca,fixed:0.2,0.2,0.6,equal") == ["sca", "fixed:0.2,0.2,0.6", "equal"]
     path = tmp_path / "out.json"
@@ -85,7 +85,7 @@ def test_eval_cli_writes_json_and_plots(tmp_path, capsys):
 
 
 def test_eval_write_docs_owns_only_its_sections(tmp_path, monkeypatch):
-    from eval.__main__ import main
+    from iscc_gym.eval.__main__ import main
 
     monkeypatch.chdir(tmp_path)
     (tmp_path / "docs").mkdir()
@@ -101,7 +101,7 @@ def test_eval_write_docs_owns_only_its_sections(tmp_path, monkeypatch):
 
 def test_eval_cli_in_worker_processes_gives_the_same_results():
     """Policies played in two spawned processes: every per-episode figure equals the serial run's."""
-    from eval.__main__ import main
+    from iscc_gym.eval.__main__ import main
 
     argv = ["--policies", "equal,margin,sca", "--episodes", "3", "--seed-start", "60", "--max-steps", "30"]
     serial = main([*argv, "--workers", "1"])

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import yaml
+from iscc_gym.agents import MarginPolicy, make_policy
+from iscc_gym.agents.margin import load_tuned, margin_split
+from iscc_gym.eval import tune
 
-from agents import MarginPolicy, make_policy
-from agents.margin import load_tuned, margin_split
-from eval import tune
 from iscc_gym import SCENARIOS, loop
 from iscc_gym.env import OBS_NAMES, action_to_split
 from iscc_gym.stability import scenario_eps_star
@@ -96,7 +96,7 @@ def test_tune_command_picks_the_grid_maximum(tmp_path):
     rec = tune.tune_margin(seeds, grid=grid, refine=False, log=lambda *_: None, scenario="paper")
     rewards = {(a, b): r for a, b, _, r in rec["grid"]}
     assert (rec["params"]["m_ctrl"], rec["params"]["m_comm"]) == max(rewards, key=rewards.get)
-    from eval.evaluate import run_episodes
+    from iscc_gym.eval.evaluate import run_episodes
 
     alone = run_episodes(MarginPolicy(6.0, 1.4, 0.02), seeds, "paper")["episodes"]["reward"].mean()
     assert rewards[(6.0, 1.4)] == pytest.approx(alone, abs=1e-3)  # the record keeps 3 decimals

@@ -6,11 +6,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from iscc_gym.agents import make_policy
+from iscc_gym.agents.myopic import LocalTrackingModel, MyopicPolicy, rician_power_cdf
 from scipy.stats import ncx2
 
 import iscc_gym  # noqa: F401  (registers the env)
-from agents import make_policy
-from agents.myopic import LocalTrackingModel, MyopicPolicy, rician_power_cdf
 from iscc_gym import SCENARIOS
 from iscc_gym.analysis import (
     StaticModel,

@@ -2,8 +2,8 @@
 
 import numpy as np
 import pytest
+from iscc_gym.agents import make_policy
 
-from agents import make_policy
 from iscc_gym.env import action_to_split
 
 
@@ -12,9 +12,8 @@ def _ppo(n_envs=4):
     from stable_baselines3 import PPO
 
     torch.set_num_threads(1)
+    from iscc_gym.agents.sb3_vec_env import ISCCBatchedVecEnv
     from stable_baselines3.common.vec_env import VecNormalize
-
-    from agents.sb3_vec_env import ISCCBatchedVecEnv
 
     venv = VecNormalize(ISCCBatchedVecEnv(n_envs), gamma=0.95)
     venv.seed(3)
@@ -22,7 +21,7 @@ def _ppo(n_envs=4):
 
 
 def test_actor_imitates_the_scripted_policy_on_unseen_missions():
-    from train.pretrain import behaviour_clone
+    from iscc_gym.train.pretrain import behaviour_clone
 
     model, venv = _ppo(48)
     margin = make_policy("margin")
@@ -54,7 +53,7 @@ def test_untrained_actor_is_not_the_rule():
 
 
 def test_warm_start_through_train_main(tmp_path):
-    from train import Args, main
+    from iscc_gym.train import Args, main
 
     summary = main(Args(total_timesteps=256, n_envs=2, out=str(tmp_path), eval_freq=0, checkpoint_freq=0,
                         tensorboard=False, overrides={"n_steps": 64, "batch_size": 64, "n_epochs": 1},

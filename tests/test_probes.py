@@ -1,9 +1,9 @@
 """eval.probes: the variants of the margin rule do what they say."""
 
 import numpy as np
+from iscc_gym.agents import MarginPolicy
+from iscc_gym.eval.probes import MarginVariant, markdown
 
-from agents import MarginPolicy
-from eval.probes import MarginVariant, markdown
 from iscc_gym.env import action_to_split
 from iscc_gym.vector import ISCCVectorEnv
 

@@ -5,9 +5,9 @@ import json
 
 import numpy as np
 import pytest
+from iscc_gym.eval import reproduce, schemes
+from iscc_gym.eval.figures import FIGURES
 
-from eval import reproduce, schemes
-from eval.figures import FIGURES
 from iscc_gym import SCENARIOS
 
 
@@ -182,7 +182,7 @@ def test_format_prints_paper_beside_ours(quick_paper):
 def test_evaluator_check_rows_and_table():
     """The evaluator-vs-env table (tiny budget): env and evaluator errors side by side; the
     evaluator flags a control share below the stability threshold."""
-    from eval import evaluator_check
+    from iscc_gym.eval import evaluator_check
 
     rows = evaluator_check.run(seeds=range(1000, 1002), splits=((0.2, 0.2, 0.6), (0.2, 0.05, 0.75)),
                                max_steps=30)

@@ -2,10 +2,9 @@
 
 import numpy as np
 import pytest
-
-from eval import seeds as eval_seeds
-from eval.evaluate import evaluate, mean_ci
-from train import Args, main
+from iscc_gym.eval import seeds as eval_seeds
+from iscc_gym.eval.evaluate import evaluate, mean_ci
+from iscc_gym.train import Args, main
 
 
 @pytest.fixture(scope="module")
@@ -19,8 +18,8 @@ def root(tmp_path_factory):
 
 
 def test_per_seed_differences_are_paired_against_an_independent_evaluation(root):
-    from agents import make_policy
-    from agents.sb3_policy import SB3Policy
+    from iscc_gym.agents import make_policy
+    from iscc_gym.agents.sb3_policy import SB3Policy
 
     seeds = [10_000, 10_001, 10_002]
     res = eval_seeds.compare_seeds(root, seeds, scripted=("sca", "margin"), max_steps=40)

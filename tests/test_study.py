@@ -15,9 +15,8 @@ import numpy as np
 import optuna
 import pytest
 import yaml
-
-from train import Args, load_hyperparams, main
-from train.study import (
+from iscc_gym.train import Args, load_hyperparams, main
+from iscc_gym.train.study import (
     PPO_SPACE,
     StudyArgs,
     export_best,
@@ -25,7 +24,7 @@ from train.study import (
     make_sampler,
     sample_ppo_params,
 )
-from train.train import cli, resolve_args
+from iscc_gym.train.train import cli, resolve_args
 
 ROOT = Path(__file__).resolve().parents[1]
 ENV_ID = "iscc_gym/ISCC-v0"

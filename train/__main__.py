@@ -1,4 +1,4 @@
-from train.train import cli
+from iscc_gym.train.train import cli
 
 if __name__ == "__main__":
     cli()

@@ -15,8 +15,7 @@ import sys
 from pathlib import Path
 
 import yaml
-
-from train.train import Args, main, resolve_args
+from iscc_gym.train.train import Args, main, resolve_args
 
 ROOT = Path(__file__).resolve().parent.parent
 SHIP_DIR = ROOT / "agents" / "trained" / "ppo_iscc"
@@ -31,7 +30,7 @@ def ship(args: Args = SHIP_ARGS, dest: Path = SHIP_DIR, write_docs: bool = True)
     for name in ARTIFACTS:
         shutil.copy2(Path(args.out) / name, dest / name)
     if write_docs:
-        from eval.docs import RESULTS_PATH, write_section
+        from iscc_gym.eval.docs import RESULTS_PATH, write_section
 
         figures = ROOT / "docs" / "figures"
         figures.mkdir(parents=True, exist_ok=True)

@@ -10,7 +10,7 @@ Usage::
     python -m train --seeds 0,1,2,3,4 --out runs/seeds
 
 Each trial samples PPO hyperparameters (:func:`sample_ppo_params`), trains with
-:func:`train.train.main` into ``OUT/trial_<n>`` and reports every held-out evaluation of the
+:func:`iscc_gym.train.train.main` into ``OUT/trial_<n>`` and reports every held-out evaluation of the
 EvalCallback (mean episode reward on the seeds from :data:`train.train.EVAL_SEED_START`) to Optuna,
 which may prune it. The objective, maximised, is the final model's mean reward on the same held-out
 episodes. The best trial is exported as a ``hyperparams.yml`` entry, ``OUT/best_hyperparams.yml``,
@@ -44,9 +44,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import yaml
+from iscc_gym.train.train import EVAL_SEED_START, Args, _check, load_hyperparams, main, resolve_args
 
 from iscc_gym.files import write_atomic
-from train.train import EVAL_SEED_START, Args, _check, load_hyperparams, main, resolve_args
 
 if TYPE_CHECKING:  # pragma: no cover
     import optuna
@@ -138,7 +138,7 @@ def add_study_arguments(ap: argparse.ArgumentParser) -> None:
     Parameters
     ----------
     ap : argparse.ArgumentParser
-        The parser of :func:`train.train.build_parser`.
+        The parser of :func:`iscc_gym.train.train.build_parser`.
     """
     group = ap.add_argument_group("hyperparameter studies (Optuna) and multi-seed runs")
     group.add_argument("--optimize", action="store_true",
@@ -506,7 +506,7 @@ def _trial_callback(trial: optuna.Trial):
 
     Reports ``parent.last_mean_reward`` at step ``k`` (the k-th evaluation, so trials of different
     ``n_envs`` are compared at the same point of their budget; every evaluation plays the same
-    held-out episodes, :func:`train.train.main` re-seeds them) and stops training, setting
+    held-out episodes, :func:`iscc_gym.train.train.main` re-seeds them) and stops training, setting
     ``pruned``, when the pruner says so.
     """
     from stable_baselines3.common.callbacks import BaseCallback
@@ -547,11 +547,10 @@ def evaluate_run(args: Args) -> tuple[float, float]:
     mean, std : float
         Over the ``args.eval_episodes`` episodes.
     """
+    from iscc_gym.train.train import make_eval_env
     from stable_baselines3 import PPO, SAC, TD3
     from stable_baselines3.common.evaluation import evaluate_policy
     from stable_baselines3.common.vec_env import VecNormalize
-
-    from train.train import make_eval_env
 
     args, _ = resolve_args(args)
     out = Path(args.out)
@@ -728,7 +727,7 @@ def best_entry(trial: optuna.trial.FrozenTrial, env_id: str, algo: str) -> dict:
     Returns
     -------
     dict
-        ``n_timesteps``, ``n_envs``, ``normalize`` (read by :func:`train.train.resolve_args`) and the
+        ``n_timesteps``, ``n_envs``, ``normalize`` (read by :func:`iscc_gym.train.train.resolve_args`) and the
         algorithm's keyword arguments.
     """
     attrs = trial.user_attrs

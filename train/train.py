@@ -200,7 +200,7 @@ def make_train_env(args: Args):
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecMonitor
 
     if args.vec_env == "batched":
-        from agents.sb3_vec_env import ISCCBatchedVecEnv
+        from iscc_gym.agents.sb3_vec_env import ISCCBatchedVecEnv
 
         venv = ISCCBatchedVecEnv(args.n_envs, scenario=args.scenario, **args.env_overrides)
         venv.seed(args.seed)
@@ -217,7 +217,7 @@ def make_eval_env(args: Args):
     from stable_baselines3.common.vec_env import DummyVecEnv, VecMonitor
 
     if args.env_id == "iscc_gym/ISCC-v0":
-        from agents.sb3_vec_env import ISCCBatchedVecEnv
+        from iscc_gym.agents.sb3_vec_env import ISCCBatchedVecEnv
 
         venv = ISCCBatchedVecEnv(args.eval_episodes, scenario=args.scenario, **args.env_overrides)
         if args.eval_max_steps < venv.venv.max_steps:
@@ -248,15 +248,14 @@ def set_numba_threads(n: int | None) -> None:
 
 def _behaviour_clone(model, venv, args: Args) -> dict:
     """The warm start of :mod:`train.pretrain` (``args.init_policy`` played ``init_steps`` steps per env)."""
-    from agents import make_policy
-    from train.pretrain import behaviour_clone
+    from iscc_gym.agents import make_policy
+    from iscc_gym.train.pretrain import behaviour_clone
 
     if args.algo != "ppo":
         raise ValueError(f"init_policy = {args.init_policy!r} needs algo = 'ppo' (got {args.algo!r}); "
                          "unset init_policy for SAC/TD3")
+    from iscc_gym.agents.sb3_vec_env import ISCCBatchedVecEnv
     from stable_baselines3.common.vec_env import VecNormalize
-
-    from agents.sb3_vec_env import ISCCBatchedVecEnv
 
     if not isinstance(venv, VecNormalize) or args.vec_env != "batched":
         raise ValueError("init_policy needs normalize: true and vec_env = 'batched'")
@@ -454,7 +453,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="override a hyperparameter of the YAML, e.g. --set n_steps=256")
     ap.add_argument("--env-set", action="append", default=[], metavar="FIELD=VALUE",
                     help="override a Scenario field of the env, e.g. --env-set observation_source=gnss")
-    from train.study import add_study_arguments
+    from iscc_gym.train.study import add_study_arguments
 
     add_study_arguments(ap)
     return ap
@@ -501,7 +500,7 @@ def cli(argv: list[str] | None = None) -> dict:
     ns = ap.parse_args(argv)
     args = args_from_namespace(ap, ns)
     if ns.optimize or ns.seeds is not None:
-        from train.study import run_cli
+        from iscc_gym.train.study import run_cli
 
         return run_cli(ap, ns, args)
     summary = main(args)

@@ -1,0 +1,106 @@
+"""The installed wheel: everything under the ``iscc_gym`` namespace, light core requirements, console
+scripts that work from any directory, and no shadowing by a user's own ``agents.py``/``train.py``/``eval.py``.
+
+Builds the wheel from a copy of the sources (so the checkout gets no ``build/``), installs it with
+``--no-deps`` into a temporary venv that sees this interpreter's packages, and runs it from a folder
+holding generic modules that would shadow top-level ``agents``/``train``/``eval`` packages.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+import venv
+import zipfile
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+SOURCES = ("pyproject.toml", "README.md", "iscc_gym", "agents", "train", "eval")
+
+
+def _run(cmd, cwd, **kw):
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
+    return subprocess.run(cmd, cwd=cwd, capture_output=True, text=True, timeout=300, env=env, **kw)
+
+
+@pytest.fixture(scope="module")
+def installed(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("install")
+    src = tmp / "src"
+    src.mkdir()
+    ignore = shutil.ignore_patterns("__pycache__", "*.pyc", "*.nbi", "*.nbc")
+    for name in SOURCES:
+        p = ROOT / name
+        if p.is_dir():
+            shutil.copytree(p, src / name, ignore=ignore)
+        else:
+            shutil.copy2(p, src / name)
+    wheels = tmp / "wheels"
+    r = _run([sys.executable, "-m", "pip", "wheel", str(src), "--no-deps", "--no-build-isolation", "-q",
+              "-w", str(wheels)], cwd=tmp)
+    assert r.returncode == 0, r.stderr
+    (wheel,) = wheels.glob("iscc_gym-*.whl")
+    env_dir = tmp / "venv"
+    venv.EnvBuilder(system_site_packages=True, with_pip=False).create(env_dir)
+    py = env_dir / "bin" / "python"
+    r = _run([sys.executable, "-m", "pip", "--python", str(py), "install", "--no-deps", "--no-index", "-q",
+              str(wheel)], cwd=tmp)
+    assert r.returncode == 0, r.stderr
+    purelib = _run([str(py), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"], cwd=tmp)
+    work = tmp / "work"
+    work.mkdir()
+    for name in ("agents", "train", "eval"):  # a user's own generic modules in the working directory
+        (work / f"{name}.py").write_text("raise SystemExit('the user module shadowed iscc_gym')\n")
+    return {"wheel": wheel, "py": py, "bin": env_dir / "bin", "site": Path(purelib.stdout.strip()), "work": work}
+
+
+def test_wheel_holds_only_the_iscc_gym_namespace(installed):
+    names = zipfile.ZipFile(installed["wheel"]).namelist()
+    top = {n.split("/")[0] for n in names}
+    assert {t for t in top if not t.endswith(".dist-info")} == {"iscc_gym"}
+    for needed in ("iscc_gym/agents/trained/ppo_iscc/model.zip", "iscc_gym/agents/trained/ppo_iscc/vecnormalize.pkl",
+                   "iscc_gym/agents/tuned/margin.yml", "iscc_gym/train/hyperparams.yml",
+                   "iscc_gym/eval/__main__.py", "iscc_gym/train/__main__.py"):
+        assert needed in names
+    site = installed["site"]
+    assert (site / "iscc_gym" / "agents" / "__init__.py").is_file()
+    for generic in ("agents", "train", "eval"):
+        assert not (site / generic).exists(), f"{generic}/ installed at the top of site-packages"
+
+
+def test_core_requirements_are_light(installed):
+    """torch, SB3, tensorboard and optuna only with the ``train`` extra."""
+    with zipfile.ZipFile(installed["wheel"]) as z:
+        meta = z.read(next(n for n in z.namelist() if n.endswith(".dist-info/METADATA"))).decode()
+    requires = [line.split(":", 1)[1].strip() for line in meta.splitlines() if line.startswith("Requires-Dist:")]
+    core = [r for r in requires if "extra ==" not in r]
+    heavy = ("torch", "stable-baselines3", "tensorboard", "optuna")
+    assert not [r for r in core if r.split(">")[0].split("=")[0].strip().lower() in heavy], core
+    for h in heavy:
+        assert any(r.lower().startswith(h) and 'extra == "train"' in r for r in requires), h
+
+
+def test_installed_package_is_not_shadowed_by_user_modules(installed):
+    code = ("import iscc_gym, iscc_gym.agents, iscc_gym.eval.evaluate, iscc_gym.train.train\n"
+            "from iscc_gym.agents import make_policy\n"
+            "print(iscc_gym.agents.__file__)\n"
+            "print(make_policy('margin').__class__.__name__)\n")
+    r = _run([str(installed["py"]), "-c", code], cwd=installed["work"])
+    assert r.returncode == 0, r.stderr
+    path, name = r.stdout.split()
+    assert Path(path).resolve().is_relative_to(installed["site"].resolve())
+    assert name == "MarginPolicy"
+
+
+@pytest.mark.parametrize("command", [["iscc-eval", "--help"], ["iscc-train", "--help"],
+                                     ["python", "-m", "iscc_gym.eval", "--help"],
+                                     ["python", "-m", "iscc_gym.train", "--help"]])
+def test_console_commands_run_from_any_directory(installed, command):
+    exe = str(installed["bin"] / command[0])
+    r = _run([exe, *command[1:]], cwd=installed["work"])
+    assert r.returncode == 0, r.stderr
+    assert "usage" in r.stdout.lower()

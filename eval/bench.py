@@ -27,7 +27,8 @@ import time
 
 import gymnasium as gym
 import numpy as np
-from iscc_gym.eval.docs import publish, save_json
+from iscc_gym.eval.docs import README_PATH, RESULTS_PATH, docs_path, publish, save_json
+from iscc_gym.eval.options import Parser, check_writable_file, positive_int, run_console
 
 import iscc_gym
 
@@ -52,12 +53,14 @@ def env_steps_per_second(env_id: str, n_steps: int, repeats: int, seed: int = 0,
     return {"median_steps_per_s": statistics.median(rates), "runs": rates, "n_steps": n_steps}
 
 
-def vector_steps_per_second(num_envs: int, n_steps: int, repeats: int, seed: int = 0) -> dict:
-    """Median env-steps/s of the native vector env (``n_steps`` batched steps per run)."""
+def vector_steps_per_second(num_envs: int, n_steps: int, repeats: int, seed: int = 0, warmup: int = 1) -> dict:
+    """Median env-steps/s of the native vector env (``n_steps`` batched steps per run, after ``warmup``
+    untimed steps: compiled kernels loaded, the ``auto`` kernel choice made)."""
     venv = gym.make_vec(iscc_gym.ENV_ID, num_envs=num_envs, vectorization_mode="vector_entry_point")
     venv.reset(seed=seed)
     actions = np.random.default_rng(seed).uniform(-1, 1, (n_steps, num_envs, 3)).astype(np.float32)
-    venv.step(actions[0])  # compiled kernels loaded
+    for i in range(warmup):
+        venv.step(actions[i % n_steps])
     rates = []
     for _ in range(repeats):
         t0 = time.perf_counter()
@@ -67,6 +70,45 @@ def vector_steps_per_second(num_envs: int, n_steps: int, repeats: int, seed: int
     venv.close()
     return {"median_env_steps_per_s": statistics.median(rates), "runs": rates, "n_steps": n_steps,
             "num_envs": num_envs}
+
+
+#: The vector env's kernel, old default first: parallel from 64 envs, then serial (the default since issue 12).
+PARALLEL_MODES = (True, False)
+
+
+def vector_under_load(sizes=(64, 1024), n_steps: int = 3000, repeats: int = 3) -> dict:
+    """Median env-steps/s of the native vector env per kernel mode (:mod:`iscc_gym.threads`), on a quiet
+    machine and beside a busy process (``python -c "while True: pass"`` spinning on one core).
+
+    ``n_steps`` batched steps per run at the smallest size, scaled down by the batch size for larger ones.
+    """
+    import subprocess
+
+    from iscc_gym import threads
+
+    out: dict = {}
+    mode0 = threads.get_parallel()
+    names = {True: "parallel", False: "serial"}
+    try:
+        for load in ("quiet", "busy"):
+            busy = None
+            if load == "busy":
+                busy = subprocess.Popen([sys.executable, "-c", "while True: pass"])
+                time.sleep(0.5)
+            try:
+                for mode in PARALLEL_MODES:
+                    threads.set_parallel(mode)
+                    for n in sizes:
+                        steps = max(n_steps * min(sizes) // n, 20)
+                        r = vector_steps_per_second(n, steps, repeats, warmup=8)
+                        out.setdefault(load, {}).setdefault(names[mode], {})[str(n)] = r["median_env_steps_per_s"]
+            finally:
+                if busy is not None:
+                    busy.kill()
+                    busy.wait()
+    finally:
+        threads.set_parallel(mode0)
+    return out
 
 
 def ppo_steps_per_second(kind: str, total_steps: int, repeats: int, n_envs: int = 4) -> dict:
@@ -102,22 +144,29 @@ THREAD_SETTINGS = ((1, 1), (2, 1), (1, 2), (2, 2))
 def ppo_shipped_steps_per_second(total_steps: int, repeats: int, settings=THREAD_SETTINGS) -> dict:
     """Median env-steps/s of ``python -m train``'s default run (the YAML's env count and
     hyperparameters, VecNormalize, the batched env), learning ``total_steps`` steps without
-    evaluations, checkpoints or warm start, per (numba threads, torch threads) setting."""
+    evaluations, checkpoints or warm start, per (numba threads, torch threads) setting. Numba threads
+    above 1 mean the env's parallel kernel on that many threads (:func:`iscc_gym.threads.set_parallel`);
+    1 means the serial kernel, the default."""
     import tempfile
 
     import torch
     from iscc_gym.train.train import Args, main, resolve_args
 
+    from iscc_gym import threads
+
     out = {}
+    parallel0 = threads.get_parallel()
     with tempfile.TemporaryDirectory() as tmp:
         resolved, hp = resolve_args(Args())
         for numba_threads, torch_threads in settings:
             if numba_threads > os.cpu_count() or torch_threads > os.cpu_count():
                 continue
             rates = []
+            threads.set_parallel(numba_threads > 1)
             for r in range(repeats):
                 # PPO itself: a warm start of the YAML (a fixed cost before learning) is left out
-                summary = main(Args(total_timesteps=total_steps, seed=r, out=f"{tmp}/run", eval_freq=0,
+                summary = main(Args(total_timesteps=total_steps, seed=r, eval_freq=0,
+                                    out=f"{tmp}/run_numba{numba_threads}_torch{torch_threads}_{r}",
                                     checkpoint_freq=0, tensorboard=False, numba_threads=numba_threads,
                                     torch_threads=torch_threads, init_policy="none"))
                 rates.append(summary["env_steps_per_s"])
@@ -125,10 +174,12 @@ def ppo_shipped_steps_per_second(total_steps: int, repeats: int, settings=THREAD
                 "median_env_steps_per_s": statistics.median(rates), "runs": rates, "numba_threads": numba_threads,
                 "torch_threads": torch_threads}
         torch.set_num_threads(1)
+        threads.set_parallel(parallel0)
     default = Args()
+    numba_default = (default.numba_threads or os.cpu_count()) if parallel0 else 1
     return {"settings": out, "n_envs": resolved.n_envs, "total_steps": total_steps,
             "hyperparams": {k: hp[k] for k in ("n_steps", "batch_size", "n_epochs") if k in hp},
-            "default": f"numba{default.numba_threads or os.cpu_count()}_torch{default.torch_threads}"}
+            "default": f"numba{numba_default}_torch{default.torch_threads}"}
 
 
 def eval_sca_seconds(episodes: int, max_steps: int | None = None) -> dict:
@@ -177,6 +228,7 @@ def run(n_steps: int = 5000, repeats: int = 5, quick: bool = False, ppo: bool = 
                                                        repeats)
                        for n in ((1, 64) if quick else (1, 64, 1024))},
     }
+    res["vector_under_load"] = vector_under_load(n_steps=50 if quick else 3000, repeats=1 if quick else repeats)
     res["eval_static_sca"] = eval_sca_seconds(2 if quick else 100, max_steps=20 if quick else None)
     res["solvers"] = solver_seconds(quick)
     if ppo:
@@ -200,6 +252,13 @@ def format_report(res: dict) -> str:
     ]
     for n, v in res["vector_env"].items():
         lines.append(f"  {n + ' envs':<26} {v['median_env_steps_per_s']:12,.0f} env-steps/s")
+    if "vector_under_load" in res:
+        lines.append("Native vector env per kernel mode (iscc_gym.threads), quiet and beside a busy process, "
+                     "env-steps/s:")
+        for load, modes in res["vector_under_load"].items():
+            for mode, rates in modes.items():
+                cells = "  ".join(f"{n} envs {r:12,.0f}" for n, r in rates.items())
+                lines.append(f"  {load:<6} {mode:<7} {cells}")
     ev = res["eval_static_sca"]
     lines.append(f"Static SCA evaluated on {ev['episodes']} missions ({ev['slots']:,} slots): {ev['seconds']:.2f} s "
                  "(target < 5 s for 100 missions)")
@@ -239,6 +298,14 @@ def markdown(res: dict) -> str:
     for n, v in res["vector_env"].items():
         rows.append(f"| vector env, {n} envs, env-steps/s | {v['median_env_steps_per_s']:,.0f} | | "
                     f"{targets.get(n, '')} |")
+    if "vector_under_load" in res:
+        labels = {"parallel": "parallel from 64 envs (the old default)", "serial": "serial (the default)"}
+        for load, modes in res["vector_under_load"].items():
+            where = "quiet machine" if load == "quiet" else "beside a busy process"
+            for mode, rates in modes.items():
+                for n, r in rates.items():
+                    rows.append(f"| vector env, {n} envs, {where}, kernel {labels[mode]}, env-steps/s | {r:,.0f} | "
+                                "| |")
     ev = res["eval_static_sca"]
     rows.append(f"| static SCA on {ev['episodes']} missions ({ev['slots']:,} slots), s | {ev['seconds']:.2f} | | "
                 "< 5 s for 100 |")
@@ -263,16 +330,27 @@ def markdown(res: dict) -> str:
     return "\n".join(rows)
 
 
-def main(argv: list[str] | None = None) -> dict:
-    ap = argparse.ArgumentParser(prog="python -m eval.bench", description=__doc__.split("\n")[0])
-    ap.add_argument("--steps", type=int, default=5000, help="steps per run")
-    ap.add_argument("--repeats", type=int, default=5, help="runs per figure (median reported)")
-    ap.add_argument("--json", metavar="PATH", help="write the figures as JSON to PATH")
+def build_parser(prog: str = "python -m eval.bench") -> argparse.ArgumentParser:
+    ap = Parser(prog=prog, description=__doc__.split("\n")[0])
+    ap.add_argument("--steps", type=positive_int, default=5000, metavar="N", help="steps per run (default: 5000)")
+    ap.add_argument("--repeats", type=positive_int, default=5, metavar="N",
+                    help="runs per figure, the median reported (default: 5)")
+    ap.add_argument("--json", metavar="PATH", help="write the figures as JSON to PATH (checked before the run)")
     ap.add_argument("--quick", action="store_true", help="tiny sizes (a smoke run, for the tests)")
     ap.add_argument("--skip-ppo", action="store_true", help="skip the PPO training figures")
     ap.add_argument("--write-docs", action="store_true",
-                    help="write the figures into docs/results.md and the README (bench block)")
-    args = ap.parse_args(argv)
+                    help="write the figures into the project's docs/results.md and README.md (bench block; needs "
+                         "a source checkout)")
+    return ap
+
+
+def main(argv: list[str] | None = None, prog: str = "python -m eval.bench") -> dict:
+    args = build_parser(prog).parse_args(argv)
+    if args.json:
+        check_writable_file(args.json, "--json")
+    if args.write_docs:
+        for rel in (RESULTS_PATH, README_PATH):
+            check_writable_file(docs_path(rel), "--write-docs")
     res = run(args.steps, args.repeats, quick=args.quick, ppo=not args.skip_ppo)
     print(format_report(res))
     if args.write_docs:
@@ -283,4 +361,4 @@ def main(argv: list[str] | None = None) -> dict:
 
 
 if __name__ == "__main__":
-    main(sys.argv[1:])
+    sys.exit(run_console(main, None, "python -m eval.bench"))

@@ -6,10 +6,11 @@ import math
 from typing import Any
 
 import gymnasium as gym
+import numba
 import numpy as np
 from gymnasium import spaces
 
-from . import kernel, loop
+from . import kernel, loop, threads
 from .scenario import Scenario, make_scenario
 from .stability import scenario_eps_star
 from .trajectory import sample_reference
@@ -122,8 +123,9 @@ def reward_and_costs(s: Scenario, metrics: dict, n_next):
     return cost_rate, cost_stab, reward, terminated, truncated
 
 
-#: Batches at least this large are stepped on all cores (same results bit for bit).
-PARALLEL_MIN_BATCH = 64
+#: Smaller batches are always stepped serially; larger ones on all cores only when the parallel kernel
+#: is switched on (:mod:`iscc_gym.threads`; the same results bit for bit).
+PARALLEL_MIN_BATCH = threads.PARALLEL_MIN_BATCH
 
 #: Columns of the per-loop output array of :func:`env_step`.
 STEP_COLUMNS = kernel.METRIC_NAMES + kernel.ENV_COLUMNS
@@ -163,7 +165,7 @@ def env_step(s: Scenario, state: loop.LoopState, actions, normals=None, active=N
         z = _NO_NORMALS if normals is None else normals
         args = (c, mats, state.x, state.x_hat, state.p, state.shadow, state.n, state.ref, state.key, actions, z,
                 active)
-        if nb >= PARALLEL_MIN_BATCH:
+        if threads.use_parallel(nb, numba.get_num_threads()):
             kernel.env_step_batch_parallel(*args, *outputs, kernel.parallel_chunk(nb))
         else:
             kernel.env_step_batch(*args, *outputs)

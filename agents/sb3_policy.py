@@ -1,13 +1,99 @@
-"""A trained SB3 agent behind the policy protocol: the model plus its VecNormalize statistics."""
+"""A trained SB3 agent behind the policy protocol: the model plus its VecNormalize statistics.
+
+Model files (``.zip``) and ``vecnormalize.pkl`` are pickles: loading one executes code it holds. Load
+only files you trust; :meth:`SB3Policy.load` opens only the files the path names (and, for a run
+directory, the ones its manifest lists).
+
+A *unit* is a directory holding a model with the statistics it was trained with (``python -m train``
+writes one for the final model, for ``best/`` and for every checkpoint): each file is written under a
+temporary name and renamed, and ``manifest.yml`` is written last with each file's size and SHA-256,
+so a unit whose manifest is missing or does not match its files was interrupted while being written
+(:func:`read_manifest` says so; :meth:`SB3Policy.load` refuses it).
+"""
 
 from __future__ import annotations
 
+import hashlib
 import pickle
+import zipfile
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["SB3Policy"]
+__all__ = ["SB3Policy", "MANIFEST", "write_manifest", "read_manifest", "ALGOS"]
+
+MANIFEST = "manifest.yml"
+ALGOS = ("ppo", "sac", "td3")
+
+
+def _digest(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def write_manifest(directory: str | Path, files: list[str], **meta) -> Path:
+    """Write ``directory/manifest.yml`` (atomically) listing ``files`` (names in ``directory``) with
+    their sizes and SHA-256, and ``meta``; call it after every listed file is written."""
+    import yaml
+
+    from iscc_gym.files import write_atomic
+
+    d = Path(directory)
+    listed = {name: {"bytes": (d / name).stat().st_size, "sha256": _digest(d / name)} for name in files}
+    return write_atomic(d / MANIFEST, yaml.safe_dump({**meta, "files": listed}, sort_keys=False))
+
+
+def read_manifest(directory: str | Path) -> dict:
+    """The manifest of a unit whose files are all there, whole.
+
+    Raises
+    ------
+    FileNotFoundError
+        No manifest (the unit was never completed, or predates manifests).
+    ValueError
+        A listed file missing, of another size or content (an interrupted or partial write).
+    """
+    import yaml
+
+    d = Path(directory)
+    path = d / MANIFEST
+    if not path.exists():
+        raise FileNotFoundError(f"{d}: no {MANIFEST} (incomplete: interrupted while being written)")
+    try:
+        manifest = yaml.safe_load(path.read_text())
+        files = manifest["files"]
+    except (yaml.YAMLError, KeyError, TypeError):
+        raise ValueError(f"{path}: not a manifest written by python -m train") from None
+    for name, want in files.items():
+        p = d / name
+        if not p.exists():
+            raise ValueError(f"{d}: {name} is missing (an interrupted write); its {MANIFEST} lists it")
+        if p.stat().st_size != want["bytes"] or _digest(p) != want["sha256"]:
+            raise ValueError(f"{d}: {name} is not the file its {MANIFEST} lists (truncated, or overwritten by an "
+                             "interrupted write)")
+    return manifest
+
+
+def _load_model(algo: str, path: Path):
+    from stable_baselines3 import PPO, SAC, TD3
+
+    try:
+        return {"ppo": PPO, "sac": SAC, "td3": TD3}[algo].load(str(path), device="cpu")
+    except (zipfile.BadZipFile, EOFError, pickle.UnpicklingError) as e:
+        raise ValueError(f"{path}: not a complete SB3 model file (truncated or corrupt: {e})") from None
+    except KeyError as e:
+        raise ValueError(f"{path}: not an SB3 model file (no {e} in the archive)") from None
+
+
+def _load_vecnormalize(path: Path):
+    try:
+        with open(path, "rb") as f:
+            return pickle.load(f)
+    except (EOFError, pickle.UnpicklingError, AttributeError, ModuleNotFoundError) as e:
+        raise ValueError(f"{path}: not a complete VecNormalize file (truncated or corrupt: {e})") from None
 
 
 class SB3Policy:
@@ -19,45 +105,105 @@ class SB3Policy:
     model : stable_baselines3 BaseAlgorithm
     vecnormalize : stable_baselines3 VecNormalize, optional
         Only its observation statistics are used (``normalize_obs``), never updated.
+
+    Raises
+    ------
+    ValueError
+        The statistics are of another observation size than the model.
     """
 
     def __init__(self, model, vecnormalize=None):
         self.model = model
         self.vecnormalize = vecnormalize
+        self.obs_shape = tuple(model.observation_space.shape)
         if vecnormalize is not None:
             vecnormalize.training = False
+            stats = tuple(np.shape(vecnormalize.obs_rms.mean))
+            if stats != self.obs_shape:
+                raise ValueError(f"the VecNormalize statistics are of observations of shape {stats}, the model's of "
+                                 f"{self.obs_shape}: they come from different runs")
 
     @classmethod
-    def load(cls, path: str | Path, best: bool = False) -> SB3Policy:
+    def load(cls, path: str | Path, best: bool = False, check_env: str | None = "iscc_gym/ISCC-v0") -> SB3Policy:
         """Load a run directory written by ``python -m train`` (``model.zip``, or
-        ``best/best_model.zip`` with ``best=True``, and ``vecnormalize.pkl``), or a model ``.zip``
-        (with a ``vecnormalize.pkl`` beside it, if there is one)."""
+        ``best/best_model.zip`` with ``best=True``, each with the VecNormalize statistics of its own
+        unit), a checkpoint directory, or a model ``.zip`` (with a ``vecnormalize.pkl`` beside it, if
+        there is one). Files are pickles: load only files you trust.
+
+        ``check_env``: the env id whose observation size the model must have (None: no check).
+
+        Raises
+        ------
+        FileNotFoundError
+            No model at the path.
+        ValueError
+            A truncated or corrupt file, a unit whose files do not match its manifest, an unknown
+            algorithm in the run's config, a model of another observation size.
+        """
         import yaml
-        from stable_baselines3 import PPO, SAC, TD3
 
         p = Path(path)
         if p.is_dir():
-            run_dir = p
-            model_path = p / ("best/best_model.zip" if best else "model.zip")
+            unit = p / "best" if best else p
+            model_path = unit / ("best_model.zip" if best else "model.zip")
         else:
-            run_dir, model_path = p.parent, p
+            unit, model_path = p.parent, p
         if not model_path.exists():
             raise FileNotFoundError(f"no SB3 model at {model_path}; train one with `python -m train --out DIR`")
-        algo = "ppo"
-        cfg = run_dir / "config.yml"
-        if cfg.exists():
-            algo = yaml.safe_load(cfg.read_text())["args"]["algo"]
-        model = {"ppo": PPO, "sac": SAC, "td3": TD3}[algo].load(str(model_path), device="cpu")
-        vn_path = run_dir / "vecnormalize.pkl"
+        manifest = None
+        if (unit / MANIFEST).exists():
+            manifest = read_manifest(unit)
+            if model_path.name not in manifest["files"]:
+                raise ValueError(f"{model_path}: not listed in {unit / MANIFEST}; load the unit's own model")
+        run = (manifest or {}).get("run") or {}
+        algo = run.get("algo")
+        if algo is None:
+            for cfg in (unit / "config.yml", unit.parent / "config.yml"):
+                if cfg.exists():
+                    try:
+                        algo = yaml.safe_load(cfg.read_text())["args"]["algo"]
+                    except (yaml.YAMLError, KeyError, TypeError):
+                        raise ValueError(f"{cfg}: not a config.yml written by python -m train") from None
+                    break
+        algo = "ppo" if algo is None else algo
+        if algo not in ALGOS:
+            raise ValueError(f"{unit}: the run's algo is {algo!r}; SB3Policy loads {', '.join(ALGOS)}")
+        model = _load_model(algo, model_path)
+        vn_path = unit / "vecnormalize.pkl"
         vecnormalize = None
-        if vn_path.exists():
-            with open(vn_path, "rb") as f:
-                vecnormalize = pickle.load(f)
-        return cls(model, vecnormalize)
+        if manifest is not None:
+            if "vecnormalize.pkl" in manifest["files"]:
+                vecnormalize = _load_vecnormalize(vn_path)
+            elif run.get("normalize"):
+                raise ValueError(f"{unit}: trained with normalize but {MANIFEST} lists no vecnormalize.pkl")
+        elif vn_path.exists():
+            vecnormalize = _load_vecnormalize(vn_path)
+        elif best:
+            raise ValueError(f"{unit} has no vecnormalize.pkl (a run of an older python -m train kept none with "
+                             "the best model): load the run's final model instead (best=False)")
+        policy = cls(model, vecnormalize)
+        if check_env is not None:
+            want = _obs_shape(check_env)
+            if want is not None and tuple(want) != policy.obs_shape:
+                raise ValueError(f"{model_path}: the model takes observations of shape {policy.obs_shape}, "
+                                 f"{check_env} gives {tuple(want)}: it was trained on another env")
+        return policy
 
     def predict(self, obs, state=None, episode_start=None, deterministic: bool = True):
         """SB3's ``predict`` on raw observations (23,) or (n, 23)."""
         o = np.asarray(obs, dtype=np.float32)
+        if o.shape[-len(self.obs_shape):] != self.obs_shape:
+            raise ValueError(f"observation of shape {o.shape}; the model takes {self.obs_shape} or (n, "
+                             f"{', '.join(map(str, self.obs_shape))})")
         if self.vecnormalize is not None:
             o = self.vecnormalize.normalize_obs(o).astype(np.float32)
         return self.model.predict(o, state=state, episode_start=episode_start, deterministic=deterministic)
+
+
+def _obs_shape(env_id: str):
+    """The observation shape of ``env_id`` (the ISCC env's without building one), or None if unknown."""
+    if env_id == "iscc_gym/ISCC-v0":
+        from iscc_gym.env import OBS_NAMES
+
+        return (len(OBS_NAMES),)
+    return None

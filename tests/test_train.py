@@ -19,14 +19,16 @@ def _args(out, **kw):
 def test_train_writes_every_artifact_and_resume_continues(tmp_path):
     summary = main(_args(tmp_path))
     assert summary["timesteps"] == 256
-    for name in ("model.zip", "vecnormalize.pkl", "config.yml", "learning_curve.csv", "learning_curve.png",
-                 "best/best_model.zip", "checkpoints/model_256_steps.zip", "summary.yml"):
+    for name in ("model.zip", "vecnormalize.pkl", "manifest.yml", "config.yml", "learning_curve.csv",
+                 "learning_curve.png", "best/best_model.zip", "best/vecnormalize.pkl", "best/manifest.yml",
+                 "checkpoints/step_256/model.zip", "checkpoints/step_256/vecnormalize.pkl",
+                 "checkpoints/step_128/manifest.yml", "eval/evaluations.npz", "summary.yml"):
         assert (tmp_path / name).exists(), name
     cfg = yaml.safe_load((tmp_path / "config.yml").read_text())
     assert cfg["hyperparams"]["n_steps"] == 64 and cfg["args"]["algo"] == "ppo"
     assert len(summary["evaluations"]) == 2
     resumed = main(_args(tmp_path, total_timesteps=512, resume=True))
-    assert resumed["resumed_from"].endswith("model_256_steps.zip")
+    assert resumed["resumed_from"].endswith("step_256")
     assert resumed["timesteps"] == 512
 
 

@@ -1,4 +1,6 @@
-from iscc_gym.train.train import cli
+import sys
+
+from iscc_gym.train.train import console
 
 if __name__ == "__main__":
-    cli()
+    sys.exit(console(None, "python -m train"))

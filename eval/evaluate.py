@@ -13,8 +13,10 @@ policy. A policy may come with Scenario overrides (a *scheme*: ``observation_sou
 
 from __future__ import annotations
 
+import functools
+import math
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -24,7 +26,8 @@ from scipy import stats
 from iscc_gym.scenario import Scenario, make_scenario
 from iscc_gym.vector import ISCCVectorEnv
 
-__all__ = ["Entry", "evaluate", "summarize", "run_episodes", "mean_ci", "format_table", "EPISODE_METRICS"]
+__all__ = ["Entry", "evaluate", "summarize", "run_episodes", "mean_ci", "format_table", "markdown_table",
+           "EPISODE_METRICS", "METRIC_RANGES", "PEB_NOTE", "ci_cell", "horizon_slots"]
 
 #: Per-episode metrics (means over the episode's slots unless stated).
 EPISODE_METRICS = {
@@ -45,6 +48,20 @@ EPISODE_METRICS = {
     "alpha_comm": "mean data share",
 }
 
+_FRACTION = (0.0, 1.0)
+_NONNEG = (0.0, math.inf)
+#: The range of every per-episode metric: a confidence interval is clamped to it (a fraction's CI stays
+#: inside [0, 1], an error's or a count's above 0). Metrics not listed (the reward) are unbounded.
+METRIC_RANGES = {
+    "tracking_error_m": _NONNEG, "rate_violation": _FRACTION, "stability_violation": _FRACTION,
+    "violation": _FRACTION, "cost": _NONNEG, "peb_m": _NONNEG, "rate_comm_mbps": _NONNEG, "eps_ctrl": _FRACTION,
+    "packet_loss": _FRACTION, "terminated": _FRACTION, "length": _NONNEG, "alpha_sen": _FRACTION,
+    "alpha_ctrl": _FRACTION, "alpha_comm": _FRACTION,
+}
+
+#: How often (in slots) :func:`run_episodes` reports progress.
+PROGRESS_EVERY = 100
+
 
 @dataclass
 class Entry:
@@ -54,18 +71,31 @@ class Entry:
     overrides: dict = field(default_factory=dict)
 
 
+def horizon_slots(scenario: str | Scenario = "paper", max_steps: int | None = None, **overrides) -> int:
+    """The slots :func:`run_episodes` plays at most per episode: the mission's, or ``max_steps`` if fewer."""
+    s = make_scenario(scenario, **overrides)
+    return s.n_slots if max_steps is None else min(int(max_steps), s.n_slots)
+
+
 def run_episodes(policy, seeds: Sequence[int], scenario: str | Scenario = "paper", max_steps: int | None = None,
-                 record: int = 0, **overrides) -> dict:
+                 record: int = 0, progress: Callable[[int], None] | None = None, **overrides) -> dict:
     """Play one episode per seed, all at once on the batched env, with ``policy.predict``
     (deterministic). Returns per-episode metric arrays (:data:`EPISODE_METRICS`), the wall time,
-    and, if ``record`` > 0, the slot-by-slot traces of the first ``record`` episodes."""
+    and, if ``record`` > 0, the slot-by-slot traces of the first ``record`` episodes.
+
+    ``progress(n)``, if given, is called every :data:`PROGRESS_EVERY` slots with the slots played since
+    its last call; the calls add up to :func:`horizon_slots` (the rest is reported when every episode
+    ended early)."""
     seeds = [int(s) for s in seeds]
     if not seeds:
         raise ValueError("seeds is empty; pass at least one seed")
+    if max_steps is not None and int(max_steps) < 1:
+        raise ValueError(f"max_steps = {max_steps}: play at least one slot (or None: the whole mission)")
     s = make_scenario(scenario, **overrides)
     k = len(seeds)
     venv = ISCCVectorEnv(num_envs=k, scenario=s)
     horizon = s.n_slots if max_steps is None else min(int(max_steps), s.n_slots)
+    reported = 0
     t0 = time.perf_counter()
     obs, _ = venv.reset(seed=seeds)
     alive = np.ones(k, dtype=bool)
@@ -77,7 +107,10 @@ def run_episodes(policy, seeds: Sequence[int], scenario: str | Scenario = "paper
     traces: dict[str, list] = {"alpha": [], "tracking_error_m": [], "pos": [], "ref_pos": []}
     state = None
     episode_start = np.ones(k, dtype=bool)
-    for _ in range(horizon):
+    for t in range(horizon):
+        if progress is not None and t - reported >= PROGRESS_EVERY:
+            progress(t - reported)
+            reported = t
         action, state = policy.predict(obs, state=state, episode_start=episode_start, deterministic=True)
         episode_start = np.zeros(k, dtype=bool)
         obs, reward, term, trunc, info = venv.step(np.asarray(action, dtype=np.float32).reshape(k, 3))
@@ -106,6 +139,8 @@ def run_episodes(policy, seeds: Sequence[int], scenario: str | Scenario = "paper
         if not alive.any():
             break
     wall = time.perf_counter() - t0
+    if progress is not None and horizon > reported:
+        progress(horizon - reported)
     out = {key: (val if key in ("reward", "cost") else val / np.maximum(length, 1)) for key, val in sums.items()}
     out["terminated"] = terminated_any.astype(float)
     out["length"] = length
@@ -115,25 +150,34 @@ def run_episodes(policy, seeds: Sequence[int], scenario: str | Scenario = "paper
     return res
 
 
-def mean_ci(x, confidence: float = 0.95) -> tuple[float, list[float]]:
-    """Mean and the Student-t confidence interval of the mean of samples ``x``."""
+def mean_ci(x, confidence: float = 0.95, bounds: tuple[float, float] | None = None) -> tuple[float, list[float]]:
+    """Mean and the Student-t confidence interval of the mean of samples ``x``, clamped to ``bounds``
+    (``(low, high)``: the metric's range, e.g. ``(0, 1)`` for a fraction; the t interval of a fraction
+    near 0 would otherwise reach below 0)."""
     x = np.asarray(x, dtype=float)
     m = float(x.mean())
     if x.size < 2:
-        return m, [m, m]
-    half = float(stats.t.ppf(0.5 + confidence / 2, x.size - 1) * x.std(ddof=1) / np.sqrt(x.size))
-    return m, [m - half, m + half]
+        lo, hi = m, m
+    else:
+        half = float(stats.t.ppf(0.5 + confidence / 2, x.size - 1) * x.std(ddof=1) / np.sqrt(x.size))
+        lo, hi = m - half, m + half
+    if bounds is not None:
+        low, high = bounds
+        lo, hi = min(max(lo, low), high), min(max(hi, low), high)
+    return m, [lo, hi]
 
 
 def evaluate(policies: Mapping[str, Any], seeds: Sequence[int], scenario: str | Scenario = "paper",
              reference: str | None = None, max_steps: int | None = None, record: int = 0,
-             focus: str | None = None) -> dict:
+             focus: str | None = None, progress: Callable[[int], None] | None = None) -> dict:
     """Evaluate every policy (or :class:`Entry`) on the same seeds; paired differences vs ``reference``.
 
     Returns a JSON-able dict: ``policies.<name>`` with ``<metric>_mean``, ``<metric>_ci95`` per
     metric of :data:`EPISODE_METRICS` (``reward_mean``, ``reward_ci95``, ...), ``episodes`` (the
     per-episode values) and ``wall_time_s``; ``paired.<name>_vs_<reference>`` with
-    ``<metric>_diff_mean`` and ``<metric>_diff_ci95`` (name minus reference, per episode).
+    ``<metric>_diff_mean`` and ``<metric>_diff_ci95`` (name minus reference, per episode). Every
+    interval is clamped to its metric's range (:data:`METRIC_RANGES`). ``progress(n)``: as in
+    :func:`run_episodes`, for every policy in turn.
     """
     if not policies:
         raise ValueError("policies is empty; pass at least one policy")
@@ -142,7 +186,8 @@ def evaluate(policies: Mapping[str, Any], seeds: Sequence[int], scenario: str | 
     runs = {}
     for name, entry in policies.items():
         entry = entry if isinstance(entry, Entry) else Entry(entry)
-        runs[name] = run_episodes(entry.policy, seeds, scenario, max_steps, record, **entry.overrides)
+        runs[name] = run_episodes(entry.policy, seeds, scenario, max_steps, record, progress=progress,
+                                  **entry.overrides)
     return summarize(runs, seeds, reference, focus)
 
 
@@ -158,7 +203,7 @@ def summarize(runs: Mapping[str, dict], seeds: Sequence[int], reference: str | N
     for name, run in runs.items():
         summary: dict[str, Any] = {"wall_time_s": run["wall_time_s"], "slots": run["slots"]}
         for metric, vals in run["episodes"].items():
-            summary[f"{metric}_mean"], summary[f"{metric}_ci95"] = mean_ci(vals)
+            summary[f"{metric}_mean"], summary[f"{metric}_ci95"] = mean_ci(vals, bounds=METRIC_RANGES.get(metric))
         summary["episodes"] = {m: np.asarray(v).tolist() for m, v in run["episodes"].items()}
         res["policies"][name] = summary
     if reference is not None:
@@ -175,42 +220,125 @@ def summarize(runs: Mapping[str, dict], seeds: Sequence[int], reference: str | N
 
 
 def _paired(episodes: Mapping, ref: Mapping) -> dict:
-    """Per-metric mean and 95 % CI of ``episodes - ref`` (per episode); ``ci95`` is the reward's."""
+    """Per-metric mean and 95 % CI of ``episodes - ref`` (per episode), clamped to the range a difference
+    of the metric can take (a difference of fractions inside [-1, 1]); ``ci95`` is the reward's."""
     pair = {}
     for metric, vals in episodes.items():
-        pair[f"{metric}_diff_mean"], pair[f"{metric}_diff_ci95"] = mean_ci(np.asarray(vals) - np.asarray(ref[metric]))
+        low, high = METRIC_RANGES.get(metric, (-math.inf, math.inf))
+        pair[f"{metric}_diff_mean"], pair[f"{metric}_diff_ci95"] = mean_ci(
+            np.asarray(vals) - np.asarray(ref[metric]), bounds=(low - high, high - low))
     pair["ci95"] = pair["reward_diff_ci95"]  # the headline: episode reward
     return pair
 
 
-def format_table(res: dict) -> str:
-    """The comparison as a text table: mean [95 % CI] per policy, then paired differences."""
-    cols = [("reward", "episode reward", "{:.1f}"), ("tracking_error_m", "track err (m)", "{:.4f}"),
-            ("violation", "viol. frac", "{:.4f}"), ("peb_m", "PEB (m)", "{:.4f}"),
-            ("rate_comm_mbps", "rate (Mbps)", "{:.2f}"), ("terminated", "lost track", "{:.2f}")]
-    n = len(res["seeds"])
-    lines = [f"{n} held-out episodes per policy, common random numbers; mean [95% CI]"]
-    header = f"{'policy':<16}" + "".join(f"{title:>30}" for _, title, _ in cols)
-    lines += [header, "-" * len(header)]
-    for name, p in res["policies"].items():
-        row = f"{name:<16}"
-        for metric, _, fmt in cols:
-            lo, hi = p[f"{metric}_ci95"]
-            row += f"{fmt.format(p[metric + '_mean']) + ' [' + fmt.format(lo) + ', ' + fmt.format(hi) + ']':>30}"
-        lines.append(row)
+#: Columns of the comparison tables: (metric, title, number format, which direction is better: "↑" higher, "↓" lower).
+MAIN_COLUMNS = (("reward", "episode reward", "{:.1f}", "↑"), ("tracking_error_m", "tracking error (m)", "{:.4f}", "↓"),
+                ("violation", "violations", "{:.3f}", "↓"), ("terminated", "lost track", "{:.2f}", "↓"),
+                ("peb_m", "PEB (m)", "{:.4f}", "↓"), ("rate_comm_mbps", "data rate (Mbit/s)", "{:.2f}", "↑"))
+DETAIL_COLUMNS = (("rate_violation", "rate violations", "{:.3f}", "↓"),
+                  ("stability_violation", "stability violations", "{:.3f}", "↓"))
+PAIR_COLUMNS = (("reward", "Δ episode reward", "{:+.1f}", "↑"),
+                ("tracking_error_m", "Δ tracking error (m)", "{:+.4f}", "↓"),
+                ("violation", "Δ violations", "{:+.3f}", "↓"))
+SPLIT_TITLE = "mean split: sensing / control / data"
+
+#: The line under the comparison explaining its columns.
+PEB_NOTE = ("PEB: position error bound, the Cramér–Rao bound on the error of the radar's position estimate (m), "
+            "mean over the mission's slots. Violations: fraction of slots with the data rate below R_min or the "
+            "control packet-loss rate above eps* (split into rate and stability violations below); lost track: "
+            "fraction of missions ended by loss of track. ↑: higher is better, ↓: lower is better.")
+
+
+def ci_cell(mean: float, ci, fmt: str = "{:.3f}") -> str:
+    """``mean ±half-width`` of a symmetric interval, ``mean [low, high]`` of one clamped to its metric's range."""
+    lo, hi = ci
+    below, above = mean - lo, hi - mean
+    if abs(below - above) <= 1e-9 * max(1.0, abs(hi - lo)):
+        return f"{fmt.format(mean)} ±{fmt.replace('+', '').format(abs(above))}"
+    return f"{fmt.format(mean)} [{fmt.format(lo)}, {fmt.format(hi)}]"
+
+
+def _split(p: dict) -> str:
+    return " / ".join(f"{p[f'alpha_{k}_mean']:.3f}" for k in ("sen", "ctrl", "comm"))
+
+
+def _pair_groups(res: dict) -> list[tuple[str, dict]]:
     groups = []
-    if res["paired"]:
-        groups.append((f"paired differences vs {res['reference']} (policy minus reference), mean [95% CI]:",
-                       res["paired"]))
+    if res.get("paired"):
+        groups.append((f"Paired differences against {res['reference']} (the policy minus {res['reference']}, "
+                       "per mission)", res["paired"]))
     if res.get("focus_paired"):
-        groups.append((f"paired differences of {res['focus']} against every other policy, mean [95% CI]:",
-                       res["focus_paired"]))
-    for title, pairs in groups:
-        lines.append(title)
+        groups.append((f"Paired differences of {res['focus']} against every other policy ({res['focus']} minus "
+                       "the other, per mission)", res["focus_paired"]))
+    return groups
+
+
+def _pair_name(pair: str) -> str:
+    return pair.replace("_vs_", " vs ", 1)
+
+
+def format_table(res: dict) -> str:
+    """The comparison as a text table for a terminal (about 110 columns): mean ±half-width of the 95 % CI
+    per policy, ↑/↓ marking the better direction, then the paired differences."""
+    n = len(res["seeds"])
+    names = list(res["policies"])
+    w0 = max([len("policy"), *map(len, names)]) + 2
+    lines = [f"{n} held-out episodes per policy, common random numbers; mean ±half-width of the 95% CI",
+             "(↑ higher is better, ↓ lower is better; PEB: the Cramér–Rao position error bound of the radar)"]
+    for cols, extra in ((MAIN_COLUMNS, False), (DETAIL_COLUMNS, True)):
+        cells = {name: [ci_cell(p[f"{m}_mean"], p[f"{m}_ci95"], fmt) for m, _, fmt, _ in cols]
+                 for name, p in res["policies"].items()}
+        titles = [f"{title} {better}" for _, title, _, better in cols]
+        if extra:
+            titles.append(SPLIT_TITLE)
+            for name, p in res["policies"].items():
+                cells[name].append(_split(p))
+        widths = [max(len(t), *(len(c[j]) for c in cells.values())) + 2 for j, t in enumerate(titles)]
+        header = "policy".ljust(w0) + "".join(t.rjust(w) for t, w in zip(titles, widths, strict=True))
+        lines += ["", header, "-" * len(header)]
+        lines += [name.ljust(w0) + "".join(c.rjust(w) for c, w in zip(cells[name], widths, strict=True))
+                  for name in names]
+    for title, pairs in _pair_groups(res):
+        w = max(len(_pair_name(k)) for k in pairs) + 2
+        rows = {k: [ci_cell(d[f"{m}_diff_mean"], d[f"{m}_diff_ci95"], fmt) for m, _, fmt, _ in PAIR_COLUMNS]
+                for k, d in pairs.items()}
+        titles = [f"{t} {b}" for _, t, _, b in PAIR_COLUMNS]
+        widths = [max(len(t), *(len(r[j]) for r in rows.values())) + 2 for j, t in enumerate(titles)]
+        lines += ["", f"{title}:", "pair".ljust(w) + "".join(t.rjust(x) for t, x in zip(titles, widths, strict=True))]
+        lines += [_pair_name(k).ljust(w) + "".join(c.rjust(x) for c, x in zip(r, widths, strict=True))
+                  for k, r in rows.items()]
+    return "\n".join(lines)
+
+
+def markdown_table(res: dict, command: str) -> str:
+    """The comparison as markdown (tables under 120 columns): the main metrics per policy, a line
+    explaining the columns, the violations split and the mean allocation, then the paired differences;
+    mean ±half-width of the 95 % CI, ↑/↓ marking the better direction."""
+    import textwrap
+
+    n = len(res["seeds"])
+    wrap = functools.partial(textwrap.fill, width=118, break_on_hyphens=False)
+    lines = [wrap(f"Generated by `{command} --write-docs`: {n} held-out missions (seeds {res['seeds'][0]}-"
+                  f"{res['seeds'][-1]}), the same for every policy (common random numbers); mean ±half-width of "
+                  "the 95 % confidence interval (mean [low, high] where the interval is cut at the metric's "
+                  "range, e.g. a fraction's at 0)."), ""]
+
+    def table(cols, extra=None):
+        titles = [f"{title} {better}" for _, title, _, better in cols] + ([extra[0]] if extra else [])
+        out = ["| policy | " + " | ".join(titles) + " |", "|---|" + "--:|" * len(titles)]
+        for name, p in res["policies"].items():
+            cells = [ci_cell(p[f"{m}_mean"], p[f"{m}_ci95"], fmt) for m, _, fmt, _ in cols]
+            cells += [extra[1](p)] if extra else []
+            out.append(f"| {name} | " + " | ".join(cells) + " |")
+        return out
+
+    lines += table(MAIN_COLUMNS)
+    lines += ["", wrap(PEB_NOTE), ""]
+    lines += table(DETAIL_COLUMNS, (SPLIT_TITLE, _split))
+    for title, pairs in _pair_groups(res):
+        lines += ["", f"{title}:", "", "| pair | " + " | ".join(f"{t} {b}" for _, t, _, b in PAIR_COLUMNS) + " |",
+                  "|---|" + "--:|" * len(PAIR_COLUMNS)]
         for pair, d in pairs.items():
-            row = f"{pair:<28}"
-            for metric in ("reward", "tracking_error_m", "violation"):
-                lo, hi = d[f"{metric}_diff_ci95"]
-                row += f"  {metric}: {d[metric + '_diff_mean']:+.4g} [{lo:+.4g}, {hi:+.4g}]"
-            lines.append(row)
+            cells = [ci_cell(d[f"{m}_diff_mean"], d[f"{m}_diff_ci95"], fmt) for m, _, fmt, _ in PAIR_COLUMNS]
+            lines.append(f"| {_pair_name(pair)} | " + " | ".join(cells) + " |")
     return "\n".join(lines)

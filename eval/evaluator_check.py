@@ -8,12 +8,13 @@ rate). ``--write-docs`` rewrites the ``evaluator-check`` table of ``docs/model.m
 
 from __future__ import annotations
 
-import argparse
+import sys
 
 import numpy as np
 from iscc_gym.agents import FixedSplitPolicy
-from iscc_gym.eval.docs import write_section
+from iscc_gym.eval.docs import docs_path, write_section
 from iscc_gym.eval.evaluate import run_episodes
+from iscc_gym.eval.options import Parser, check_writable_file, positive_int, run_console
 
 from iscc_gym.analysis import static_model
 from iscc_gym.scenario import make_scenario
@@ -68,19 +69,27 @@ def markdown(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def main(argv: list[str] | None = None) -> list[dict]:
-    parser = argparse.ArgumentParser(prog="python -m eval.evaluator_check", description=__doc__.splitlines()[0])
-    parser.add_argument("--max-steps", type=int, default=None, help="slots per mission (default: whole missions)")
-    parser.add_argument("--write-docs", action="store_true", help=f"rewrite the table in {MODEL_PATH}")
-    args = parser.parse_args(argv)
+def build_parser(prog: str = "python -m eval.evaluator_check") -> Parser:
+    parser = Parser(prog=prog, description=__doc__.splitlines()[0])
+    parser.add_argument("--max-steps", type=positive_int, default=None, metavar="N",
+                        help="slots per mission, >= 1 (default: whole missions)")
+    parser.add_argument("--write-docs", action="store_true",
+                        help=f"rewrite the table in the project's {MODEL_PATH} (needs a source checkout)")
+    return parser
+
+
+def main(argv: list[str] | None = None, prog: str = "python -m eval.evaluator_check") -> list[dict]:
+    args = build_parser(prog).parse_args(argv)
+    if args.write_docs:
+        check_writable_file(docs_path(MODEL_PATH), "--write-docs")
     rows = run(max_steps=args.max_steps)
     table = markdown(rows)
     print(table)
     if args.write_docs:
-        write_section(MODEL_PATH, "evaluator-check", table)
-        print(f"wrote {MODEL_PATH}")
+        write_section(docs_path(MODEL_PATH), "evaluator-check", table)
+        print(f"wrote {docs_path(MODEL_PATH)}")
     return rows
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(run_console(main, None, "python -m eval.evaluator_check"))

@@ -20,7 +20,7 @@ from iscc_gym.fbl import ctrl_bler
 from iscc_gym.scenario import Scenario
 from iscc_gym.stability import scenario_eps_star, spectral_radius, stability_matrix
 
-__all__ = ["write_all", "FIGURES"]
+__all__ = ["write_all", "save_figure", "new_figure", "FIGURES"]
 
 #: File name -> title of every figure :func:`write_all` writes.
 FIGURES = {
@@ -49,6 +49,16 @@ def new_figure(size, dpi: int = 100):
     fig = Figure(figsize=size, dpi=dpi)
     FigureCanvasAgg(fig)
     return fig
+
+
+def save_figure(fig, path: str | Path) -> Path:
+    """Save ``fig`` as a PNG at ``path`` atomically (a temporary name, then a rename): an interrupted run
+    never leaves a truncated figure."""
+    from iscc_gym.files import atomic_target
+
+    with atomic_target(path) as tmp:
+        fig.savefig(tmp, format="png")
+    return Path(path)
 
 
 def _alive(tr):
@@ -85,7 +95,7 @@ def trajectories_3d(path: Path, traces: dict, dt_s: float) -> None:
         ax.set_title(title, fontsize=9)
         ax.legend(fontsize=7, loc="upper left")
     fig.tight_layout()
-    fig.savefig(path)
+    save_figure(fig, path)
 
 
 def tracking_error_vs_time(path: Path, traces: dict, dt_s: float, bound_m: float) -> None:
@@ -105,7 +115,7 @@ def tracking_error_vs_time(path: Path, traces: dict, dt_s: float, bound_m: float
     ax.set_title("One mission, loss-of-track bound lifted so every scheme flies the whole mission", fontsize=9)
     ax.legend(fontsize=7, loc="upper left")
     fig.tight_layout()
-    fig.savefig(path)
+    save_figure(fig, path)
 
 
 def allocation_maps(out: Path, model: StaticModel, splits: dict, n: int) -> None:
@@ -165,7 +175,7 @@ def allocation_maps(out: Path, model: StaticModel, splits: dict, n: int) -> None
         ax.legend(fontsize=7)
         fig.suptitle(f"{label}, steady-state evaluator (alpha_comm = 1 - alpha_sen - alpha_ctrl)", fontsize=9)
         fig.tight_layout()
-        fig.savefig(out / fname)
+        save_figure(fig, out / fname)
 
 
 def peb_veb(path: Path, model: StaticModel) -> None:
@@ -187,7 +197,7 @@ def peb_veb(path: Path, model: StaticModel) -> None:
     ax.set_xlabel("alpha_sen (%)")
     ax.set_ylabel("VEB (m/s), trajectory average")
     fig.tight_layout()
-    fig.savefig(path)
+    save_figure(fig, path)
 
 
 def rho_vs_eps(path: Path, s: Scenario, model: StaticModel) -> None:
@@ -215,7 +225,7 @@ def rho_vs_eps(path: Path, s: Scenario, model: StaticModel) -> None:
     ax.set_ylabel("eps_ctrl")
     ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path)
+    save_figure(fig, path)
 
 
 def write_all(out_dir: str | Path, s: Scenario, model: StaticModel, traces: dict, splits: dict,

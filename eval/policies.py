@@ -5,9 +5,19 @@ Lives apart from ``eval/__main__.py`` so that spawned worker processes can impor
 
 from __future__ import annotations
 
+import importlib.util
+from pathlib import Path
+
 from iscc_gym.eval.evaluate import run_episodes
 
-__all__ = ["build_policy", "build_policies", "run_parallel", "SLOW_SPECS"]
+__all__ = ["build_policy", "build_policies", "run_parallel", "resolve_specs", "check_specs", "policy_name",
+           "SLOW_SPECS", "SHIPPED_AGENT"]
+
+#: The trained PPO agent shipped with the package (``agents/trained/ppo_iscc``; produced by ``python -m train.ship``).
+SHIPPED_AGENT = Path(__file__).resolve().parent.parent / "agents" / "trained" / "ppo_iscc"
+
+#: Specs whose policy is expensive to build (a solve or tables): known valid, so not built to check them.
+_KNOWN_SPECS = ("sca", "sca-per-slot", "sca-ignore-loss", "grid", "evolutionary", "myopic")
 
 
 def build_policy(item: str, scenario: str = "paper"):
@@ -24,54 +34,154 @@ def build_policy(item: str, scenario: str = "paper"):
 
 def build_policies(specs: str, scenario: str = "paper") -> dict:
     """``{name: policy}`` from a comma-separated list of ``NAME=PATH`` or make_policy specs."""
-    items = _items(specs)
-    return dict(build_policy(item, scenario) for item in items)
+    return dict(build_policy(item, scenario) for item in resolve_specs(specs))
 
 
-def _items(specs: str) -> list[str]:
+def policy_name(item: str) -> str:
+    """The name a policy item is reported under: ``NAME`` of ``NAME=PATH``, else the spec itself."""
+    return item.split("=", 1)[0] if "=" in item else item
+
+
+def resolve_specs(specs: str) -> list[str]:
+    """The items of a ``--policies`` value: a bare ``ppo`` becomes the shipped agent (``ppo=`` its path);
+    ``ValueError`` if it is empty or names a policy twice (results are keyed by name)."""
     items = [p.strip() for p in _split_specs(specs) if p.strip()]
     if not items:
-        raise ValueError("--policies is empty; e.g. --policies sca,equal")
+        raise ValueError("--policies is empty; e.g. --policies ppo,sca,equal")
+    items = [f"ppo={SHIPPED_AGENT}" if item.lower() == "ppo" else item for item in items]
+    names = [policy_name(item) for item in items]
+    for item, name in zip(items, names, strict=True):
+        if not name:
+            raise ValueError(f"--policies {item!r}: give the policy a name, NAME=PATH (e.g. ppo=runs/ppo)")
+    dup = [n for n in dict.fromkeys(names) if names.count(n) > 1]
+    if dup:
+        raise ValueError(f"--policies names {dup[0]!r} twice; every policy needs its own name (NAME=PATH for "
+                         "trained agents, e.g. ppo=runs/a,ppo2=runs/b)")
     return items
+
+
+_items = resolve_specs  # the former name
+
+
+def check_specs(items: list[str], scenario: str = "paper") -> None:
+    """Check every item before any episode is played: a trained agent's path holds a model (and torch and
+    SB3 are installed), a scripted spec is one :func:`agents.make_policy` understands. ``OSError`` /
+    ``ValueError`` with one line naming the item otherwise. Builds only the cheap scripted policies."""
+    from iscc_gym.agents import make_policy
+
+    learned = False
+    for item in items:
+        if "=" in item:
+            name, path = item.split("=", 1)
+            p = Path(path).expanduser()
+            model = p / "model.zip" if p.is_dir() else p
+            if not model.is_file():
+                raise FileNotFoundError(f"--policies {name}={path}: no trained agent there (give a run directory "
+                                        "of python -m train holding model.zip, or a model .zip file)")
+            learned = True
+        elif item.strip().lower() not in _KNOWN_SPECS:
+            make_policy(item, scenario)  # cheap for the others; raises ValueError naming the valid specs
+    if learned:
+        missing = [m for m in ("torch", "stable_baselines3") if importlib.util.find_spec(m) is None]
+        if missing:
+            raise ModuleNotFoundError(f"a trained agent needs {' and '.join(missing)}: pip install 'iscc-gym[train]' "
+                                      "(or evaluate scripted policies only, e.g. --policies sca,margin,myopic)")
 
 
 #: Specs whose evaluation takes longest (an optimisation every slot): started first by the workers.
 SLOW_SPECS = ("sca-per-slot", "myopic", "grid", "evolutionary")
 
+_PROGRESS = None  # a worker's queue for progress reports (None: no reports)
 
-def _worker_init(torch_threads: int) -> None:
+
+def _worker_init(torch_threads: int, progress_queue=None) -> None:
     """A worker process: one numba thread (the workers already use the cores) and ``torch_threads``."""
+    global _PROGRESS
     import numba
 
     numba.set_num_threads(1)
-    if torch_threads:
+    if torch_threads and importlib.util.find_spec("torch") is not None:
         import torch
 
         torch.set_num_threads(torch_threads)
+    _PROGRESS = progress_queue
+    if progress_queue is not None:
+        progress_queue.cancel_join_thread()  # a report still in the pipe never holds up the worker's exit
 
 
-def _run_item(item: str, seeds, scenario: str, max_steps, record: int):
+def _run_item(index: int, item: str, seeds, scenario: str, max_steps, record: int):
     name, policy = build_policy(item, scenario)
-    return name, run_episodes(policy, seeds, scenario, max_steps, record)
+    progress = None
+    if _PROGRESS is not None:
+        done = [0]
+
+        def progress(n):
+            done[0] += n
+            _PROGRESS.put((index, done[0]))
+
+    return name, run_episodes(policy, seeds, scenario, max_steps, record, progress=progress)
 
 
 def run_parallel(specs: str, seeds, scenario: str = "paper", max_steps=None, record: int = 0, workers: int = 2,
-                 torch_threads: int = 1) -> dict:
+                 torch_threads: int = 1, progress=None) -> dict:
     """``{name: run_episodes result}`` of every policy of ``specs``, in ``workers`` processes (spawned,
-    one numba thread each); every policy plays the same seeds, so the results are those of one process."""
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor
+    one numba thread each); every policy plays the same seeds, so the results are those of one process.
 
-    items = _items(specs)
+    ``progress(n)``, if given, is called in this process with the slots played since its last call (the
+    workers report through a queue; a policy's calls add up to its horizon when it finishes). The first
+    error of a worker is raised as soon as it happens (the policies not started are cancelled)."""
+    import multiprocessing
+    from concurrent.futures import FIRST_EXCEPTION, ProcessPoolExecutor, wait
+    from queue import Empty
+
+    from iscc_gym.eval.evaluate import horizon_slots
+
+    items = resolve_specs(specs)
     order = sorted(range(len(items)), key=lambda i: items[i].split("=")[0] not in SLOW_SPECS)
     ctx = multiprocessing.get_context("spawn")
+    queue = ctx.Queue() if progress is not None else None
+    horizon = horizon_slots(scenario, max_steps) if progress is not None else 0
+    done = [0] * len(items)
+    reported = 0
+
+    def report(block: bool) -> None:
+        """Read the workers' reports (waiting up to 0.2 s for the first if ``block``), pass on the new slots."""
+        nonlocal reported
+        try:
+            i, n = queue.get(timeout=0.2) if block else queue.get_nowait()
+            while True:
+                done[i] = max(done[i], min(n, horizon))
+                i, n = queue.get_nowait()
+        except Empty:
+            pass
+        for i, f in futures.items():
+            if f.done() and not f.cancelled() and f.exception() is None:
+                done[i] = horizon
+        total = sum(done)
+        if total > reported:
+            progress(total - reported)
+            reported = total
+
     with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init,
-                             initargs=(torch_threads,)) as pool:
-        futures = {i: pool.submit(_run_item, items[i], list(seeds), scenario, max_steps, record) for i in order}
+                             initargs=(torch_threads, queue)) as pool:
+        futures = {i: pool.submit(_run_item, i, items[i], list(seeds), scenario, max_steps, record) for i in order}
+        pending = set(futures.values())
+        try:
+            while pending:
+                finished, pending = wait(pending, timeout=None if queue is None else 0,
+                                         return_when=FIRST_EXCEPTION)
+                for f in finished:
+                    if f.exception() is not None:
+                        raise f.exception()
+                if queue is not None:
+                    report(block=bool(pending))
+        except BaseException:
+            for f in futures.values():
+                f.cancel()
+            raise
         results = [futures[i].result() for i in range(len(items))]
-    names = [n for n, _ in results]
-    if len(set(names)) != len(names):
-        raise ValueError(f"--policies names a policy twice: {names}")
+    if queue is not None:
+        queue.close()
     return dict(results)
 
 
@@ -85,5 +195,3 @@ def _split_specs(specs: str) -> list[str]:
         out.append(",".join(parts[i:i + width]))
         i += width
     return out
-
-

@@ -18,7 +18,6 @@ Example::
 
 from __future__ import annotations
 
-import argparse
 import sys
 
 import numpy as np
@@ -26,6 +25,7 @@ from iscc_gym.agents import MarginPolicy, MyopicPolicy
 from iscc_gym.agents.base import SplitPolicy
 from iscc_gym.agents.margin import margin_split, predicted_needs
 from iscc_gym.eval.evaluate import mean_ci, run_episodes
+from iscc_gym.eval.options import Parser, nonneg_int, positive_int, progress_bar, run_console, show_progress
 from iscc_gym.eval.tune import TUNE_SEED_START, check_tuning_seeds
 
 from iscc_gym.env import OBS_NAMES
@@ -53,17 +53,25 @@ class MarginVariant(SplitPolicy):
         return margin_split(*predicted_needs(o), m_ctrl, self.base.m_comm, floor), state
 
 
-def probes(seeds, scenario: str = "paper", myopic: bool = True) -> list[dict]:
-    """Every probe's mean episode reward and paired difference to its base (see the module)."""
+#: Policies :func:`probes` plays: without and with the myopic probes.
+N_PROBES = (15, 20)
+
+
+def probes(seeds, scenario: str = "paper", myopic: bool = True, progress=None) -> list[dict]:
+    """Every probe's mean episode reward and paired difference to its base (see the module).
+    ``progress(1)``, if given, is called after each policy played (:data:`N_PROBES`)."""
     from iscc_gym.scenario import make_scenario
 
     s = make_scenario(scenario)
     margin = MarginPolicy.tuned()
+    tick = progress or (lambda n: None)
     base = run_episodes(margin, seeds, s)["episodes"]["reward"]
+    tick(1)
     rows = [{"probe": "margin (tuned)", "base": "-", "reward": float(base.mean()), "diff": 0.0, "ci95": [0.0, 0.0]}]
 
     def add(name, policy, ref, ref_name):
         r = run_episodes(policy, seeds, s)["episodes"]["reward"]
+        tick(1)
         d, ci = mean_ci(r - ref)
         rows.append({"probe": name, "base": ref_name, "reward": float(r.mean()), "diff": d, "ci95": ci})
 
@@ -79,6 +87,7 @@ def probes(seeds, scenario: str = "paper", myopic: bool = True) -> list[dict]:
             MarginVariant(margin, s.n_slots, error_gain=gain), base, "margin")
     if myopic:
         ref = run_episodes(MyopicPolicy(s), seeds, s)["episodes"]["reward"]
+        tick(1)
         rows.append({"probe": "myopic (env weights)", "base": "-", "reward": float(ref.mean()), "diff": 0.0,
                      "ci95": [0.0, 0.0]})
         for kw in ({"stability_weight": 5.0}, {"stability_weight": 20.0}, {"rate_weight": 0.7},
@@ -98,31 +107,45 @@ def markdown(rows: list[dict], command: str, seeds) -> str:
     return "\n".join(lines)
 
 
-def main(argv: list[str] | None = None) -> list[dict]:
-    ap = argparse.ArgumentParser(prog="python -m eval.probes", description=__doc__.split("\n")[0])
-    ap.add_argument("--episodes", type=int, default=16)
-    ap.add_argument("--seed-start", type=int, default=TUNE_SEED_START)
+def build_parser(prog: str = "python -m eval.probes") -> Parser:
+    ap = Parser(prog=prog, description=__doc__.split("\n")[0])
+    ap.add_argument("--episodes", type=positive_int, default=16, metavar="N",
+                    help="tuning missions, >= 2 (default: 16)")
+    ap.add_argument("--seed-start", type=nonneg_int, default=TUNE_SEED_START, metavar="SEED",
+                    help=f"first tuning seed, outside the evaluation seeds (default: {TUNE_SEED_START})")
     ap.add_argument("--no-myopic", action="store_true", help="skip the myopic probes (the slow ones)")
-    ap.add_argument("--write-docs", action="store_true", help="write the table into docs/results.md")
-    args = ap.parse_args(argv)
+    ap.add_argument("--write-docs", action="store_true",
+                    help="write the table into the project's docs/results.md (section probes; needs a source "
+                         "checkout)")
+    ap.add_argument("--quiet", action="store_true",
+                    help="no progress bar (there is none either when stderr is not a terminal)")
+    return ap
+
+
+def main(argv: list[str] | None = None, prog: str = "python -m eval.probes") -> list[dict]:
+    args = build_parser(prog).parse_args(argv)
     if args.episodes < 2:
-        ap.error(f"--episodes {args.episodes}: use at least 2")
-    try:
-        seeds = check_tuning_seeds(range(args.seed_start, args.seed_start + args.episodes))
-    except ValueError as e:
-        ap.error(str(e))
-    rows = probes(seeds, myopic=not args.no_myopic)
+        raise ValueError(f"--episodes {args.episodes}: use at least 2 (a confidence interval needs two missions)")
+    seeds = check_tuning_seeds(range(args.seed_start, args.seed_start + args.episodes))
+    if args.write_docs:
+        from iscc_gym.eval.docs import RESULTS_PATH, docs_path
+        from iscc_gym.eval.options import check_writable_file
+
+        check_writable_file(docs_path(RESULTS_PATH), "--write-docs")
+    show = show_progress(args.quiet)
+    with progress_bar(N_PROBES[not args.no_myopic], "python -m eval.probes", unit="policy", enabled=show) as bar:
+        rows = probes(seeds, myopic=not args.no_myopic, progress=bar.update if show else None)
     cmd = " ".join(["python -m eval.probes", *[a for a in (argv if argv is not None else sys.argv[1:])
-                                              if a != "--write-docs"]])
+                                              if a not in ("--write-docs", "--quiet")]])
     table = markdown(rows, cmd, seeds)
     print(table)
     if args.write_docs:
-        from iscc_gym.eval.docs import RESULTS_PATH, write_section
+        from iscc_gym.eval.docs import write_section
 
-        write_section(RESULTS_PATH, "probes", "## Non-myopic probes of the scripted rules\n\n" + table)
-        print(f"wrote {RESULTS_PATH}")
+        write_section(docs_path(RESULTS_PATH), "probes", "## Non-myopic probes of the scripted rules\n\n" + table)
+        print(f"wrote {docs_path(RESULTS_PATH)}")
     return rows
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(run_console(main, None, "python -m eval.probes"))

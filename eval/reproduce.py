@@ -5,20 +5,22 @@ ISCC ignoring packet loss, proposed ISCC).
 Usage::
 
     python -m eval.reproduce [--scenario paper|literal] [--json PATH] [--quick] [--figures DIR]
-                             [--no-figures] [--model-only] [--write-docs]
+                             [--no-figures] [--model-only] [--write-docs] [--quiet]
 
 Every number is computed here from the Scenario; the paper's numbers are quoted from its text (JSON
 key ``paper``). The ``calibration`` block shows the values of the ``paper`` preset's calibration
 fields that hit the paper's reported figures on the same trajectory sample, beside the preset's own
 values. The scheme level (:mod:`eval.schemes`) measures tracking error, data rate and PEB in the env
 (closed-loop Monte Carlo on fixed seeds) and checks the issue's targets; figures go to
-``docs/figures`` (:mod:`eval.figures`). ``--write-docs`` regenerates this command's sections of
-``docs/results.md`` and the README's ``reproduce`` block (:func:`iscc_gym.eval.docs.write_section`).
+``runs/reproduce/figures`` (``--figures DIR``; :mod:`eval.figures`). ``--write-docs`` regenerates the
+project's committed figures in ``docs/figures``, this command's sections of ``docs/results.md`` and the
+README's ``reproduce`` block (:func:`iscc_gym.eval.docs.write_section`); without it nothing under
+``docs/`` is touched.
 """
 
 from __future__ import annotations
 
-import argparse
+import functools
 import json
 import os
 import sys
@@ -28,7 +30,8 @@ from pathlib import Path
 import numpy as np
 import scipy.linalg
 from iscc_gym.eval import schemes as scheme_level
-from iscc_gym.eval.docs import README_PATH, RESULTS_PATH, write_section
+from iscc_gym.eval.docs import README_PATH, RESULTS_PATH, docs_path, write_section
+from iscc_gym.eval.options import Parser, Stages, check_writable_dir, check_writable_file, nonneg_int, show_progress
 from scipy.optimize import brentq
 
 from iscc_gym import SCENARIOS, Scenario, loop, make_scenario
@@ -225,18 +228,26 @@ def choices(s: Scenario, sample: TrajectorySample, quick: bool) -> dict:
     return out
 
 
+#: The stages :func:`run` reports before the scheme level's.
+MODEL_STAGES = 3
+
+
 def run(scenario: str = "paper", quick: bool = False, seed: int = 0, schemes: bool = True,
-        figures_dir: str | Path | None = None) -> dict:
+        figures_dir: str | Path | None = None, stage=None) -> dict:
     """Compute the reproduction for a preset; returns the JSON-able result.
 
     ``schemes=False`` skips the scheme level (Table II and Fig. 9 analogs, :mod:`eval.schemes`);
-    ``figures_dir`` (with ``schemes``) is where its PNG figures go (None: no figures).
+    ``figures_dir`` (with ``schemes``) is where its PNG figures go (None: no figures). ``stage(label)``,
+    if given, is called as each stage starts (a progress display).
     """
+    stage = stage or (lambda label: None)
     s = make_scenario(scenario)
     t0 = time.perf_counter()
+    stage(f"{scenario}: model level")
     sample = sample_positions(s, 4 if quick else 40, seed=seed, stride=50 if quick else 10)
     ours = model_level(s, sample)
     mm = model_matrices(s)
+    stage(f"{scenario}: calibration")
     cal = calibrate(SCENARIOS["paper"], sample, eps_star(mm.a, mm.b, mm.k))
     preset = SCENARIOS["paper"]
     res = {
@@ -248,12 +259,14 @@ def run(scenario: str = "paper", quick: bool = False, seed: int = 0, schemes: bo
             "solved": cal,
             "paper_preset": {k: getattr(preset, k) for k in cal},
         },
-        "choices": choices(s, sample, quick),
         "paper": {**PAPER, **scheme_level.PAPER_SCHEMES},
     }
+    stage(f"{scenario}: modelling choices")
+    res["choices"] = choices(s, sample, quick)
     res["model_level_wall_time_s"] = time.perf_counter() - t0
     if schemes:
-        res.update(scheme_level.run_schemes(s, quick=quick, figures_dir=figures_dir))
+        res.update(scheme_level.run_schemes(s, quick=quick, figures_dir=figures_dir,
+                                            stage=lambda label: stage(f"{scenario}: {label}")))
         res["targets"] = scheme_level.check_targets(res)
     res["wall_time_s"] = time.perf_counter() - t0
     return res
@@ -418,33 +431,79 @@ def scheme_level_figure_title(name: str) -> str:
     return FIGURES.get(name, name)
 
 
-def main(argv: list[str] | None = None) -> dict:
-    ap = argparse.ArgumentParser(prog="python -m eval.reproduce", description=__doc__.split("\n")[0])
-    ap.add_argument("--scenario", default="paper", choices=sorted(SCENARIOS))
-    ap.add_argument("--json", metavar="PATH", help="write the result as JSON to PATH")
+#: Where the figures go without ``--figures`` and ``--write-docs`` (relative to the working directory).
+DEFAULT_FIGURES = Path("runs") / "reproduce" / "figures"
+#: The project's committed figures (in the checkout), rewritten only with ``--write-docs``.
+DOCS_FIGURES = Path("docs") / "figures"
+
+
+def build_parser(prog: str = "python -m eval.reproduce") -> Parser:
+    ap = Parser(prog=prog, description=__doc__.split("\n")[0])
+    ap.add_argument("--scenario", default="paper", choices=sorted(SCENARIOS),
+                    help="scenario preset to reproduce (default: paper)")
+    ap.add_argument("--json", metavar="PATH", help="write the result as JSON to PATH (checked before the run)")
     ap.add_argument("--quick", action="store_true",
                     help="reduced trajectory sample and Monte Carlo (4 missions of 1,500 slots; for tests)")
-    ap.add_argument("--seed", type=int, default=0, help="trajectory sample seed")
-    ap.add_argument("--figures", metavar="DIR", default="docs/figures", help="where the PNG figures go")
+    ap.add_argument("--seed", type=nonneg_int, default=0, help="trajectory sample seed (default: 0)")
+    ap.add_argument("--figures", metavar="DIR",
+                    help=f"where the PNG figures go (default: {DEFAULT_FIGURES}, or the project's committed "
+                         f"{DOCS_FIGURES} with --write-docs)")
     ap.add_argument("--no-figures", action="store_true", help="write no figures")
     ap.add_argument("--model-only", action="store_true", help="skip the scheme level (Table II, Fig. 9)")
     ap.add_argument("--write-docs", action="store_true",
-                    help="also run the other preset (model level) and regenerate this command's sections of "
-                         "docs/results.md and the README's reproduce block")
-    args = ap.parse_args(argv)
-    figures_dir = None if args.no_figures else args.figures
-    res = run(args.scenario, quick=args.quick, seed=args.seed, schemes=not args.model_only,
-              figures_dir=figures_dir)
+                    help="also run the other preset (model level) and regenerate the project's figures in "
+                         "docs/figures, this command's sections of docs/results.md and the README's reproduce "
+                         "block (needs a source checkout)")
+    ap.add_argument("--quiet", action="store_true",
+                    help="no progress bar (there is none either when stderr is not a terminal)")
+    return ap
+
+
+def figures_dir_of(args) -> Path | None:
+    """Where ``args`` send the figures: none with ``--no-figures`` (or ``--model-only``), ``--figures``,
+    the checkout's ``docs/figures`` with ``--write-docs``, else :data:`DEFAULT_FIGURES`."""
+    if args.no_figures or args.model_only:
+        return None
+    if args.figures:
+        return Path(args.figures)
+    return docs_path(DOCS_FIGURES) if args.write_docs else DEFAULT_FIGURES
+
+
+def main(argv: list[str] | None = None, prog: str = "python -m eval.reproduce") -> dict:
+    args = build_parser(prog).parse_args(argv)
+    # every output is checked before the run
+    if args.write_docs:
+        for rel in (RESULTS_PATH, README_PATH):
+            check_writable_file(docs_path(rel), "--write-docs")
+    figures_dir = figures_dir_of(args)
+    if figures_dir is not None:
+        check_writable_dir(figures_dir, "--figures")
+    if args.json:
+        check_writable_file(args.json, "--json")
+    other_name = "literal" if args.scenario == "paper" else "paper"
+    other_schemes = other_name == "paper" and not args.model_only
+
+    def n_stages(scenario_schemes, figures):
+        return MODEL_STAGES + (scheme_level.STAGES - (figures is None) if scenario_schemes else 0)
+
+    total = n_stages(not args.model_only, figures_dir)
+    if args.write_docs:
+        total += n_stages(other_schemes, figures_dir)
+    with Stages(total, "python -m eval.reproduce", enabled=show_progress(args.quiet)) as stages:
+        res = run(args.scenario, quick=args.quick, seed=args.seed, schemes=not args.model_only,
+                  figures_dir=figures_dir, stage=stages.next)
+        other = None
+        if args.write_docs:
+            other = run(other_name, quick=args.quick, seed=args.seed, schemes=other_schemes,
+                        figures_dir=figures_dir, stage=stages.next)
     print(format_table(res))
     if res.get("figures"):
         print("wrote figures: " + ", ".join(res["figures"].values()))
     if args.write_docs:
-        other_name = "literal" if args.scenario == "paper" else "paper"
-        other = run(other_name, quick=args.quick, seed=args.seed,
-                    schemes=other_name == "paper" and not args.model_only, figures_dir=figures_dir)
         pair = (res, other) if args.scenario == "paper" else (other, res)
-        write_docs(*pair)
-        print(f"wrote {RESULTS_PATH} (sections reproduce, reproduce-schemes) and the README reproduction block")
+        write_docs(*pair, results_path=docs_path(RESULTS_PATH), readme_path=docs_path(README_PATH))
+        print(f"wrote {docs_path(RESULTS_PATH)} (sections reproduce, reproduce-schemes) and the README reproduction "
+              "block")
     if args.json:
         write_atomic(args.json, json.dumps(res, indent=2))
         print(f"wrote {args.json}")
@@ -452,5 +511,12 @@ def main(argv: list[str] | None = None) -> dict:
     return res
 
 
+def console(argv: list[str] | None = None, prog: str = "python -m eval.reproduce") -> int:
+    """``python -m eval.reproduce``: :func:`main` with exit codes (:func:`iscc_gym.cli.run`)."""
+    from iscc_gym.cli import run as run_cli
+
+    return run_cli(functools.partial(main, prog=prog), argv, prog)
+
+
 if __name__ == "__main__":
-    main(sys.argv[1:])
+    sys.exit(console())

@@ -183,24 +183,32 @@ def _env_summary(p: dict) -> dict:
     }
 
 
+#: The stages :func:`run_schemes` reports (the last only with figures).
+STAGES = 5
+
+
 def run_schemes(s: Scenario, quick: bool = False, seeds=None, max_steps: int | None = None,
-                figures_dir: str | Path | None = None) -> dict:
+                figures_dir: str | Path | None = None, stage=None) -> dict:
     """Table II and Fig. 9 analogs for scenario ``s``; JSON-able.
 
     Returns ``allocation.<sca|grid|evolutionary>``, ``schemes.<open_loop|gnss|ignore_loss|iscc>``,
     ``iscc_over_gnss``, ``scheme_level`` (seeds, timing, splits) and ``figures`` (paths written, if
-    ``figures_dir``). Targets are added by :func:`check_targets`.
+    ``figures_dir``). Targets are added by :func:`check_targets`. ``stage(label)``, if given, is called as
+    each of its :data:`STAGES` starts (a progress display).
     """
+    stage = stage or (lambda label: None)
     t_start = time.perf_counter()
     seeds = list(seeds if seeds is not None else (QUICK_SEEDS if quick else SEEDS))
     if max_steps is None and quick:
         max_steps = QUICK_MAX_STEPS
     # --- the shared evaluator, warmed up (loss-rate table, Kalman spline), timed on its own
+    stage("steady-state evaluator")
     t0 = time.perf_counter()
     model = static_model(s)
     model.evaluate(np.array([1.0, 1.0, 1.0]) / 3.0)
     shared_s = time.perf_counter() - t0
     # --- the three optimisers
+    stage("SCA, grid and evolutionary search")
     t0 = time.perf_counter()
     sca = SCAPolicy(s, mode="static", model=model)
     t_sca = time.perf_counter() - t0
@@ -213,6 +221,7 @@ def run_schemes(s: Scenario, quick: bool = False, seeds=None, max_steps: int | N
     a_ctrl = float(sca.split[1])
     gnss_split = np.array([0.0, a_ctrl, 1.0 - a_ctrl])
     # --- closed-loop Monte Carlo, common random numbers
+    stage("closed-loop Monte Carlo")
     t0 = time.perf_counter()
     entries = {
         "sca": sca,
@@ -223,6 +232,7 @@ def run_schemes(s: Scenario, quick: bool = False, seeds=None, max_steps: int | N
         "ignore_loss": ignore,
     }
     res = evaluate(entries, seeds, s, reference="sca", max_steps=max_steps, record=1)
+    stage("Monte Carlo without the loss-of-track bound")
     lifted = evaluate({
         "open_loop": Entry(sca, {"control_mode": "open_loop", "max_tracking_error_m": LIFTED_BOUND_M}),
         "ignore_loss": Entry(ignore, {"max_tracking_error_m": LIFTED_BOUND_M}),
@@ -295,6 +305,7 @@ def run_schemes(s: Scenario, quick: bool = False, seeds=None, max_steps: int | N
 
         traces = {name: res["traces"]["sca" if name == "iscc" else name] for name in SCHEMES}
         traces_full = {**traces, **lifted["traces"]}  # the diverging schemes over the whole mission
+        stage("figures")
         t0 = time.perf_counter()
         out["figures"] = figures.write_all(figures_dir, s, model, traces_full, splits, quick=quick,
                                            bound_m=s.max_tracking_error_m)

@@ -14,13 +14,22 @@ Example::
 
 from __future__ import annotations
 
-import argparse
 import re
 import sys
 from pathlib import Path
 
 import numpy as np
-from iscc_gym.eval.evaluate import evaluate, mean_ci
+from iscc_gym.eval.evaluate import evaluate, horizon_slots, mean_ci
+from iscc_gym.eval.options import (
+    PICKLE_WARNING,
+    Parser,
+    check_writable_file,
+    nonneg_int,
+    positive_int,
+    progress_bar,
+    run_console,
+    show_progress,
+)
 
 #: Scripted policies every seed is compared with.
 SCRIPTED = ("sca", "margin", "myopic")
@@ -42,8 +51,10 @@ def seed_runs(root: str | Path) -> dict[int, Path]:
     return runs
 
 
-def compare_seeds(root, seeds, scenario: str = "paper", scripted=SCRIPTED, max_steps: int | None = None) -> dict:
-    """Evaluate every seed's agent and the scripted policies on ``seeds``; per-seed paired differences."""
+def compare_seeds(root, seeds, scenario: str = "paper", scripted=SCRIPTED, max_steps: int | None = None,
+                  progress=None) -> dict:
+    """Evaluate every seed's agent and the scripted policies on ``seeds``; per-seed paired differences.
+    ``progress(n)``: slots played, as in :func:`iscc_gym.eval.evaluate.evaluate`."""
     import torch
     from iscc_gym.agents import make_policy
     from iscc_gym.agents.sb3_policy import SB3Policy
@@ -52,7 +63,7 @@ def compare_seeds(root, seeds, scenario: str = "paper", scripted=SCRIPTED, max_s
     runs = seed_runs(root)
     policies = {name: make_policy(name, scenario) for name in scripted}
     policies.update({f"seed_{s}": SB3Policy.load(p) for s, p in runs.items()})
-    res = evaluate(policies, seeds, scenario=scenario, max_steps=max_steps)
+    res = evaluate(policies, seeds, scenario=scenario, max_steps=max_steps, progress=progress)
     eps = {name: np.asarray(p["episodes"]["reward"]) for name, p in res["policies"].items()}
     best = max(scripted, key=lambda n: eps[n].mean())
     rows = []
@@ -81,30 +92,53 @@ def markdown(res: dict, command: str) -> str:
     return "\n".join(lines)
 
 
-def main(argv: list[str] | None = None) -> dict:
-    ap = argparse.ArgumentParser(prog="python -m eval.seeds", description=__doc__.split("\n")[0])
-    ap.add_argument("root", help="directory of python -m train --seeds (holding seed_<s>/)")
-    ap.add_argument("--episodes", type=int, default=20)
-    ap.add_argument("--seed-start", type=int, default=10_000)
-    ap.add_argument("--scenario", default="paper")
-    ap.add_argument("--write-docs", action="store_true", help="write the table into docs/results.md (section seeds)")
-    ap.add_argument("--json", metavar="PATH")
-    args = ap.parse_args(argv)
+def build_parser(prog: str = "python -m eval.seeds") -> Parser:
+    ap = Parser(prog=prog, description=__doc__.split("\n")[0], epilog=PICKLE_WARNING)
+    ap.add_argument("root", help="directory of python -m train --seeds (holding seed_<s>/model.zip and "
+                                 "vecnormalize.pkl: pickles, loaded and so executed; only runs you trust)")
+    ap.add_argument("--episodes", type=positive_int, default=20, metavar="N",
+                    help="held-out missions, >= 2 (default: 20)")
+    ap.add_argument("--seed-start", type=nonneg_int, default=10_000, metavar="SEED",
+                    help="seed of the first mission (default: 10000)")
+    ap.add_argument("--scenario", default="paper", help="scenario preset (default: paper)")
+    ap.add_argument("--max-steps", type=positive_int, metavar="N",
+                    help="slots per mission, >= 1 (default: the whole mission)")
+    ap.add_argument("--write-docs", action="store_true",
+                    help="write the table into the project's docs/results.md (section seeds; needs a source "
+                         "checkout)")
+    ap.add_argument("--json", metavar="PATH", help="write the results as JSON to PATH (checked before the run)")
+    ap.add_argument("--quiet", action="store_true",
+                    help="no progress bar (there is none either when stderr is not a terminal)")
+    return ap
+
+
+def main(argv: list[str] | None = None, prog: str = "python -m eval.seeds") -> dict:
+    args = build_parser(prog).parse_args(argv)
     if args.episodes < 2:
-        ap.error(f"--episodes {args.episodes}: use at least 2 (a confidence interval needs two missions)")
-    try:
-        res = compare_seeds(args.root, range(args.seed_start, args.seed_start + args.episodes), args.scenario)
-    except FileNotFoundError as e:
-        ap.error(str(e))
+        raise ValueError(f"--episodes {args.episodes}: use at least 2 (a confidence interval needs two missions)")
+    runs = seed_runs(args.root)  # FileNotFoundError with one line: the exit code 2 of iscc_gym.cli.run
+    from iscc_gym.eval.docs import RESULTS_PATH, docs_path
+
+    if args.json:
+        check_writable_file(args.json, "--json")
+    if args.write_docs:
+        check_writable_file(docs_path(RESULTS_PATH), "--write-docs")
+    show = show_progress(args.quiet)
+    n_policies = len(SCRIPTED) + len(runs)
+    with progress_bar(n_policies * horizon_slots(args.scenario, args.max_steps), "python -m eval.seeds",
+                      unit="slot", enabled=show, unit_scale=True) as bar:
+        res = compare_seeds(args.root, range(args.seed_start, args.seed_start + args.episodes), args.scenario,
+                            max_steps=args.max_steps, progress=bar.update if show else None)
     cmd = " ".join(["python -m eval.seeds", *[a for a in (argv if argv is not None else sys.argv[1:])
-                                             if a != "--write-docs"]])
+                                             if a not in ("--write-docs", "--quiet")]])
     table = markdown(res, cmd)
     print(table)
     if args.write_docs:
-        from iscc_gym.eval.docs import RESULTS_PATH, write_section
+        from iscc_gym.eval.docs import write_section
 
-        write_section(RESULTS_PATH, "seeds", "## The shipped configuration over 5 training seeds\n\n" + table)
-        print(f"wrote {RESULTS_PATH}")
+        write_section(docs_path(RESULTS_PATH), "seeds", "## The shipped configuration over 5 training seeds\n\n"
+                      + table)
+        print(f"wrote {docs_path(RESULTS_PATH)}")
     if args.json:
         from iscc_gym.eval.docs import save_json
 
@@ -113,4 +147,4 @@ def main(argv: list[str] | None = None) -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(run_console(main, None, "python -m eval.seeds"))

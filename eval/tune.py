@@ -18,7 +18,6 @@ Examples::
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 
@@ -26,6 +25,15 @@ import numpy as np
 from iscc_gym.agents.base import SplitPolicy
 from iscc_gym.agents.margin import margin_split, predicted_needs, save_tuned
 from iscc_gym.eval.evaluate import run_episodes
+from iscc_gym.eval.options import (
+    Parser,
+    check_writable_file,
+    nonneg_int,
+    positive_int,
+    progress_bar,
+    run_console,
+    show_progress,
+)
 from scipy import optimize
 
 #: First tuning seed (training seeds for the scripted baselines).
@@ -69,10 +77,16 @@ def check_tuning_seeds(seeds) -> list[int]:
 MAX_BATCH = 1024
 
 
-def margin_rewards(points, seeds, scenario="paper") -> np.ndarray:
+def n_batches(n_points: int, n_seeds: int) -> int:
+    """Batches :func:`margin_rewards` plays ``n_points`` points on ``n_seeds`` seeds in."""
+    per = max(1, MAX_BATCH // n_seeds)
+    return -(-n_points // per)
+
+
+def margin_rewards(points, seeds, scenario="paper", progress=None) -> np.ndarray:
     """Mean episode reward over ``seeds`` of each (m_ctrl, m_comm, sensing_floor) in ``points``
     (k, 3), played in batches of up to :data:`MAX_BATCH` loops (common random numbers: every point
-    on the same seeds)."""
+    on the same seeds). ``progress(1)``, if given, is called after each batch."""
     pts = np.asarray(points, dtype=float).reshape(-1, 3)
     n = len(seeds)
     per = max(1, MAX_BATCH // n)
@@ -82,18 +96,26 @@ def margin_rewards(points, seeds, scenario="paper") -> np.ndarray:
         run = run_episodes(_RowMargins(rows[:, 0], rows[:, 1], rows[:, 2]), list(seeds) * (len(rows) // n),
                            scenario)
         out.append(run["episodes"]["reward"].reshape(-1, n).mean(axis=1))
+        if progress is not None:
+            progress(1)
     return np.concatenate(out)
 
 
-def tune_margin(seeds=TUNE_SEEDS, grid=None, scenario: str = "paper", refine: bool = True, log=print) -> dict:
+#: Most Nelder-Mead evaluations of :func:`tune_margin`.
+MAX_REFINE = 40
+
+
+def tune_margin(seeds=TUNE_SEEDS, grid=None, scenario: str = "paper", refine: bool = True, log=print,
+                progress=None) -> dict:
     """Grid over (m_ctrl, m_comm, sensing_floor), then Nelder-Mead from the best point, on the
-    tuning seeds; returns the tuning record (see the module)."""
+    tuning seeds; returns the tuning record (see the module). ``progress(1)``, if given, is called
+    after each batch of the grid (:func:`n_batches`) and each Nelder-Mead evaluation."""
     seeds = check_tuning_seeds(seeds)
     grid = grid or MARGIN_GRID
     t0 = time.perf_counter()
     axes = [np.asarray(grid[k], float) for k in PARAMS]
     points = np.stack([g.ravel() for g in np.meshgrid(*axes, indexing="ij")], axis=1)
-    rewards = margin_rewards(points, seeds, scenario)
+    rewards = margin_rewards(points, seeds, scenario, progress)
     best = int(np.argmax(rewards))
     log(f"grid: {len(points)} points x {len(seeds)} missions in {time.perf_counter() - t0:.1f} s; best "
         + _fmt(points[best]) + f": {rewards[best]:.1f}")
@@ -102,13 +124,13 @@ def tune_margin(seeds=TUNE_SEEDS, grid=None, scenario: str = "paper", refine: bo
         def neg(x):
             if np.any(x < 0) or x[2] >= 1:
                 return 1e12
-            r = float(margin_rewards(x[None], seeds, scenario)[0])
+            r = float(margin_rewards(x[None], seeds, scenario, progress)[0])
             evals.append([float(v) for v in x] + [r])
             return -r
 
         simplex = [x_best, x_best * [1.1, 1, 1], x_best * [1, 1.1, 1], x_best * [1, 1, 1.2]]
         res = optimize.minimize(neg, x_best, method="Nelder-Mead",
-                                options={"xatol": 0.01, "fatol": 1.0, "maxfev": 40, "initial_simplex": simplex})
+                                options={"xatol": 0.01, "fatol": 1.0, "maxfev": MAX_REFINE, "initial_simplex": simplex})
         if -res.fun > r_best:
             x_best, r_best = res.x, float(-res.fun)
         log(f"Nelder-Mead: {len(evals)} evaluations; best " + _fmt(x_best) + f": {r_best:.1f}")
@@ -131,27 +153,40 @@ def _fmt(x) -> str:
     return ", ".join(f"{k} = {v:.4g}" for k, v in zip(PARAMS, x, strict=True))
 
 
-def main(argv: list[str] | None = None) -> dict:
-    ap = argparse.ArgumentParser(prog="python -m eval.tune", description=__doc__.split("\n")[0])
+def build_parser(prog: str = "python -m eval.tune") -> Parser:
+    ap = Parser(prog=prog, description=__doc__.split("\n")[0])
     ap.add_argument("policy", choices=["margin"], help="the baseline to tune")
-    ap.add_argument("--episodes", type=int, default=len(TUNE_SEEDS), help="tuning missions")
-    ap.add_argument("--seed-start", type=int, default=TUNE_SEED_START, help="first tuning seed")
-    ap.add_argument("--scenario", default="paper")
+    ap.add_argument("--episodes", type=positive_int, default=len(TUNE_SEEDS), metavar="N",
+                    help=f"tuning missions (default: {len(TUNE_SEEDS)})")
+    ap.add_argument("--seed-start", type=nonneg_int, default=TUNE_SEED_START, metavar="SEED",
+                    help=f"first tuning seed, outside the evaluation seeds (default: {TUNE_SEED_START})")
+    ap.add_argument("--scenario", default="paper", help="scenario preset (default: paper)")
     ap.add_argument("--no-refine", action="store_true", help="grid only (no Nelder-Mead)")
-    ap.add_argument("--out", help="where to write the record (default agents/tuned/<policy>.yml)")
-    args = ap.parse_args(argv)
-    if args.episodes < 1:
-        ap.error(f"--episodes {args.episodes}: use an integer >= 1")
-    seeds = list(range(args.seed_start, args.seed_start + args.episodes))
-    try:
-        record = tune_margin(seeds, scenario=args.scenario, refine=not args.no_refine)
-    except ValueError as e:
-        ap.error(str(e))
-    record["command"] = " ".join(["python -m eval.tune", *(argv if argv is not None else sys.argv[1:])])
+    ap.add_argument("--out", metavar="PATH",
+                    help="where to write the record (default: the package's agents/tuned/<policy>.yml, which "
+                         "make_policy reads; checked before the run)")
+    ap.add_argument("--quiet", action="store_true",
+                    help="no progress bar (there is none either when stderr is not a terminal)")
+    return ap
+
+
+def main(argv: list[str] | None = None, prog: str = "python -m eval.tune") -> dict:
+    args = build_parser(prog).parse_args(argv)
+    seeds = check_tuning_seeds(range(args.seed_start, args.seed_start + args.episodes))
+    if args.out:
+        check_writable_file(args.out, "--out")
+    show = show_progress(args.quiet)
+    total = n_batches(int(np.prod([len(v) for v in MARGIN_GRID.values()])), len(seeds))
+    total += 0 if args.no_refine else MAX_REFINE
+    with progress_bar(total, "python -m eval.tune", unit="batch", enabled=show) as bar:
+        record = tune_margin(seeds, scenario=args.scenario, refine=not args.no_refine,
+                             log=bar.write if show else print, progress=bar.update if show else None)
+    record["command"] = " ".join(["python -m eval.tune", *[a for a in (argv if argv is not None else sys.argv[1:])
+                                                          if a != "--quiet"]])
     path = save_tuned(args.policy, record, args.out)
     print(f"wrote {path}: {record['params']}")
     return record
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(run_console(main, None, "python -m eval.tune"))

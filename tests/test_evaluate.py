@@ -40,7 +40,7 @@ def test_identical_policies_pair_to_exactly_zero_and_schemes_differ():
     # GNSS feedback (3 m) tracks worse than ISAC at this split, on every paired episode
     assert res["paired"]["gnss_vs_a"]["tracking_error_m_diff_ci95"][0] > 0
     assert set(res["policies"]) == {"a", "b", "gnss", "equal"}
-    assert "equal_vs_a" in format_table(res)
+    assert "equal vs a" in format_table(res)
 
 
 def test_mean_ci_matches_scipy_t_interval():
@@ -80,32 +80,67 @@ def test_eval_cli_writes_json_and_plots(tmp_path, capsys):
     assert pair["ci95"] == pair["reward_diff_ci95"] and len(pair["ci95"]) == 2
     for png in ("allocation.png", "tracking_error.png", "trajectories.png"):
         assert (tmp_path / "figs" / png).stat().st_size > 1000
-    assert "paired differences vs sca" in capsys.readouterr().out
+    assert "Paired differences against sca" in capsys.readouterr().out
     assert res["reference"] == "sca"
 
 
-def test_eval_write_docs_owns_only_its_sections(tmp_path, monkeypatch):
+def fake_checkout(root):
+    """A project checkout at ``root`` (pyproject, README with a comparison block, docs/results.md); returns
+    the ``PACKAGE_DIR`` of its ``eval/``."""
+    (root / "eval").mkdir(parents=True)
+    (root / "docs").mkdir()
+    (root / "pyproject.toml").write_text('[project]\nname = "iscc-gym"\n')
+    (root / "docs" / "results.md").write_text("# Results\n\n<!-- bench:start -->\nkeep me\n<!-- bench:end -->\n")
+    (root / "README.md").write_text("intro\n<!-- comparison:start -->\nold\n<!-- comparison:end -->\noutro\n")
+    return root / "eval"
+
+
+def test_eval_write_docs_owns_only_its_sections_of_the_checkout(tmp_path, monkeypatch):
+    """--write-docs writes the checkout's README and docs (found from the package), not the working directory's."""
+    from iscc_gym.eval import docs
     from iscc_gym.eval.__main__ import main
 
-    monkeypatch.chdir(tmp_path)
-    (tmp_path / "docs").mkdir()
-    (tmp_path / "docs" / "results.md").write_text("# Results\n\n<!-- bench:start -->\nkeep me\n<!-- bench:end -->\n")
-    (tmp_path / "README.md").write_text("intro\n<!-- comparison:start -->\nold\n<!-- comparison:end -->\noutro\n")
-    main(["--policies", "sca,equal", "--episodes", "2", "--max-steps", "20", "--write-docs"])
-    results = (tmp_path / "docs" / "results.md").read_text()
-    readme = (tmp_path / "README.md").read_text()
-    assert "keep me" in results and "| equal_vs_sca |" in results
+    repo = tmp_path / "repo"
+    monkeypatch.setattr(docs, "PACKAGE_DIR", fake_checkout(repo))
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)
+    main(["--policies", "sca,equal", "--episodes", "2", "--max-steps", "20", "--write-docs", "--quiet"])
+    assert list(elsewhere.iterdir()) == []
+    results = (repo / "docs" / "results.md").read_text()
+    readme = (repo / "README.md").read_text()
+    assert "keep me" in results and "| equal vs sca |" in results
     assert readme.startswith("intro\n") and readme.endswith("outro\n") and "old" not in readme
     assert "`python -m eval --policies sca,equal --episodes 2 --max-steps 20 --write-docs`" in readme
 
 
-def test_eval_cli_in_worker_processes_gives_the_same_results():
-    """Policies played in two spawned processes: every per-episode figure equals the serial run's."""
-    from iscc_gym.eval.__main__ import main
+class FakeBar:
+    """Stands in for the tqdm bar: records the progress reported."""
 
+    def __init__(self, total, *args, **kwargs):
+        self.total, self.n = total, 0
+        FakeBar.last = self
+
+    def update(self, n=1):
+        self.n += n
+
+    def close(self):
+        pass
+
+
+def test_eval_cli_in_worker_processes_gives_the_same_results(monkeypatch):
+    """Policies played in two spawned processes: every per-episode figure equals the serial run's; on a
+    terminal the progress reported (through the workers' queue, or directly) adds up to every slot played."""
+    import iscc_gym.eval.__main__ as cli
+
+    monkeypatch.setattr(cli, "show_progress", lambda quiet: True)
+    monkeypatch.setattr(cli, "progress_bar", FakeBar)
+    main = cli.main
     argv = ["--policies", "equal,margin,sca", "--episodes", "3", "--seed-start", "60", "--max-steps", "30"]
     serial = main([*argv, "--workers", "1"])
+    assert FakeBar.last.total == FakeBar.last.n == 3 * 30
     parallel = main([*argv, "--workers", "2"])
+    assert FakeBar.last.total == FakeBar.last.n == 3 * 30
     assert list(parallel["policies"]) == ["equal", "margin", "sca"]
     for name in serial["policies"]:
         assert parallel["policies"][name]["episodes"] == serial["policies"][name]["episodes"]
@@ -123,7 +158,7 @@ def test_python_m_eval_with_workers_runs_as_a_command():
     out = subprocess.run([sys.executable, "-m", "eval", "--policies", "equal,sca", "--episodes", "2", "--max-steps",
                           "10", "--workers", "2"], cwd=root, capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr
-    assert "paired differences vs sca" in out.stdout
+    assert "Paired differences against sca" in out.stdout
 
 
 def test_focus_pairs_one_policy_against_every_other():
@@ -134,3 +169,68 @@ def test_focus_pairs_one_policy_against_every_other():
     rc = np.asarray(res["policies"]["c"]["episodes"]["reward"])
     assert res["focus_paired"]["b_vs_c"]["reward_diff_mean"] == pytest.approx((rb - rc).mean())
     assert res["focus_paired"]["b_vs_a"]["reward_diff_ci95"] == res["paired"]["b_vs_a"]["reward_diff_ci95"]
+
+
+def test_confidence_intervals_are_clamped_to_each_metric_range():
+    """A fraction's CI stays inside [0, 1], a non-negative metric's above 0, a difference of fractions inside
+    [-1, 1]; the reward's is the plain t interval."""
+    from iscc_gym.eval.evaluate import METRIC_RANGES, summarize
+
+    assert mean_ci([0, 0, 0, 1], bounds=(0, 1))[1][0] == 0.0 and mean_ci([0, 0, 0, 1])[1][0] < 0
+    assert mean_ci([1, 1, 1, 0], bounds=(0, 1))[1][1] == 1.0 and mean_ci([1, 1, 1, 0])[1][1] > 1
+    few = {m: np.array([0.0, 0.0, 0.0, 1.0]) for m in METRIC_RANGES}
+    many = {m: np.array([1.0, 1.0, 1.0, 0.0]) for m in METRIC_RANGES}
+    for eps in (few, many):
+        eps["reward"] = np.array([-10.0, -12.0, -9.0, -30.0])
+    run = {"wall_time_s": 0.0, "slots": 4}
+    res = summarize({"a": {**run, "episodes": few}, "b": {**run, "episodes": many}}, [1, 2, 3, 4], reference="a")
+    for name in ("a", "b"):
+        p = res["policies"][name]
+        for metric, (low, high) in METRIC_RANGES.items():
+            lo, hi = p[f"{metric}_ci95"]
+            assert low <= lo <= p[f"{metric}_mean"] <= hi <= high, (name, metric)
+        assert p["reward_ci95"] == mean_ci(p["episodes"]["reward"])[1]
+    d = res["paired"]["b_vs_a"]
+    assert d["violation_diff_ci95"][1] == 1.0 and d["violation_diff_ci95"][0] >= -1.0
+
+
+def _result_of(n_policies=6):
+    """A comparison result from synthetic episodes (no env): the shape of python -m eval's."""
+    from iscc_gym.eval.evaluate import METRIC_RANGES, summarize
+
+    rng = np.random.default_rng(0)
+    names = ["ppo", "sca", "sca-per-slot", "margin", "myopic", "equal"][:n_policies]
+    runs = {}
+    for k, name in enumerate(names):
+        eps = {m: rng.uniform(0.0, 0.4, 20) for m in METRIC_RANGES}
+        eps["terminated"] = np.zeros(20)
+        eps["stability_violation"] = np.r_[np.zeros(19), 0.01]  # its t interval reaches below 0
+        eps["reward"] = rng.normal(-2600.0 - 100 * k, 300.0, 20)
+        runs[name] = {"episodes": eps, "wall_time_s": 1.0, "slots": 100}
+    return summarize(runs, list(range(10_000, 10_020)), reference="sca", focus="ppo")
+
+
+def test_comparison_markdown_fits_120_columns_and_says_what_is_better():
+    from iscc_gym.eval.evaluate import markdown_table
+
+    text = markdown_table(_result_of(), "python -m eval")
+    lines = text.splitlines()
+    assert max(map(len, lines)) <= 120, max(lines, key=len)
+    header = next(line for line in lines if line.startswith("| policy |"))
+    assert "episode reward ↑" in header and "tracking error (m) ↓" in header and "PEB (m) ↓" in header
+    for line in lines:
+        if line.startswith("| policy |") or line.startswith("| pair |"):
+            titles = [t.strip() for t in line.strip("|").split("|")][1:]
+            assert all(t.endswith(("↑", "↓")) or t.startswith("mean split") for t in titles), line
+    note = " ".join(lines[lines.index(header) + 9:lines.index(header) + 13])
+    assert "PEB: position error bound, the Cramér–Rao bound" in note and "(m)" in note
+    assert "| ppo | " in text and " ±" in text and "| ppo vs sca |" in text
+    # the stability violations of every policy: 0.0005 [0.000, 0.002] (cut at 0), never a negative bound
+    row = next(line for line in lines if line.startswith("| sca |") and "/" in line)
+    assert "[0.000, " in row and "-0.0" not in row
+
+
+def test_comparison_text_table_fits_a_terminal():
+    text = format_table(_result_of())
+    assert max(map(len, text.splitlines())) <= 120
+    assert "↑" in text and "↓" in text

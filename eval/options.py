@@ -1,0 +1,162 @@
+"""What every ``python -m eval...`` command shares on its command line: one-line errors, checked numbers,
+seeds and output paths (checked before any work starts), and progress bars on a terminal.
+
+The checks raise ``ValueError``/``OSError`` with one line naming the flag; :func:`iscc_gym.cli.run` turns
+them into ``PROG: error: MESSAGE`` and exit code 2, and Python callers get the exception.
+"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+__all__ = ["Parser", "PICKLE_WARNING", "positive_int", "nonneg_int", "parse_seeds", "check_writable_file",
+           "check_writable_dir", "show_progress", "progress_bar", "Stages", "run_console"]
+
+#: Said in ``--help`` wherever a path to a trained model is accepted.
+PICKLE_WARNING = ("A model .zip and its vecnormalize.pkl are pickles: loading them executes code they contain, so "
+                  "load only files you trust.")
+
+
+class Parser(argparse.ArgumentParser):
+    """An ``ArgumentParser`` whose errors are one line, ``PROG: error: MESSAGE (see --help)``, exit code 2."""
+
+    def error(self, message: str):  # noqa: D102 (argparse's hook)
+        self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
+
+
+def positive_int(text: str) -> int:
+    """An argparse ``type``: an integer >= 1."""
+    return _int_at_least(text, 1)
+
+
+def nonneg_int(text: str) -> int:
+    """An argparse ``type``: an integer >= 0."""
+    return _int_at_least(text, 0)
+
+
+def _int_at_least(text: str, low: int) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if value < low:
+        raise argparse.ArgumentTypeError(f"{value}: use an integer >= {low}")
+    return value
+
+
+def parse_seeds(text: str, flag: str = "--seeds") -> list[int]:
+    """Comma-separated distinct non-negative integer seeds; ``ValueError`` naming the flag otherwise."""
+    parts = [p.strip() for p in str(text).split(",")]
+    if not parts or any(p == "" for p in parts):
+        raise ValueError(f"{flag} {text!r}: give comma-separated integers, e.g. {flag} 10000,10001")
+    try:
+        seeds = [int(p) for p in parts]
+    except ValueError:
+        raise ValueError(f"{flag} {text!r}: give comma-separated integers, e.g. {flag} 10000,10001") from None
+    negative = [s for s in seeds if s < 0]
+    if negative:
+        raise ValueError(f"{flag}: seed {negative[0]} is negative; seeds are integers >= 0")
+    dup = sorted({s for s in seeds if seeds.count(s) > 1})
+    if dup:
+        raise ValueError(f"{flag}: seed {dup[0]} is given twice; every mission must be a different seed")
+    return seeds
+
+
+def _nearest_existing(path: Path) -> Path:
+    p = path.absolute()
+    while not p.exists() and p != p.parent:
+        p = p.parent
+    return p
+
+
+def _probe_dir(directory: Path, flag: str, path: Path) -> None:
+    """``OSError`` unless a file can be created in the existing directory ``directory``."""
+    try:
+        with tempfile.TemporaryFile(dir=directory):
+            pass
+    except OSError as e:
+        raise OSError(f"{flag} {path}: cannot write in {directory} ({e.strerror or e})") from None
+
+
+def check_writable_file(path: str | os.PathLike, flag: str) -> Path:
+    """Check, before any work, that a file can be written at ``path`` (its missing parent directories
+    would be created); ``OSError`` naming ``flag`` otherwise. Creates nothing."""
+    p = Path(path)
+    if p.is_dir():
+        raise OSError(f"{flag} {p}: is a directory; give a file name")
+    base = _nearest_existing(p.parent)
+    if not base.is_dir():
+        raise OSError(f"{flag} {p}: {base} is a file, not a directory")
+    _probe_dir(base, flag, p)
+    return p
+
+
+def check_writable_dir(path: str | os.PathLike, flag: str) -> Path:
+    """Check, before any work, that files can be written into directory ``path`` (created if missing);
+    ``OSError`` naming ``flag`` otherwise. Creates nothing."""
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        raise OSError(f"{flag} {p}: is a file, not a directory")
+    base = _nearest_existing(p)
+    if not base.is_dir():
+        raise OSError(f"{flag} {p}: {base} is a file, not a directory")
+    _probe_dir(base, flag, p)
+    return p
+
+
+def show_progress(quiet: bool = False) -> bool:
+    """Progress bars are shown on a terminal (stderr a TTY) unless ``quiet``."""
+    if quiet:
+        return False
+    try:
+        return sys.stderr.isatty()
+    except (AttributeError, ValueError):
+        return False
+
+
+def progress_bar(total: float, desc: str, unit: str = "it", enabled: bool = True, **kw):
+    """A tqdm bar on stderr (a disabled one, which does nothing, if not ``enabled``)."""
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, desc=desc, unit=unit, disable=not enabled, file=sys.stderr, dynamic_ncols=True,
+                leave=False, **kw)
+
+
+class Stages:
+    """A progress bar over the named stages of a long command: ``st.next("model level")`` marks the
+    previous stage done and shows the new one's name. A no-op when not ``enabled``."""
+
+    def __init__(self, total: int, desc: str, enabled: bool = True):
+        self.bar = progress_bar(total, desc, unit="stage", enabled=enabled,
+                                bar_format="{desc}: {n_fmt}/{total_fmt} stages |{bar}| {elapsed} {postfix}")
+        self.started = False
+
+    def next(self, label: str) -> None:
+        if self.started:
+            self.bar.update(1)
+        self.started = True
+        self.bar.set_postfix_str(label)
+
+    def close(self) -> None:
+        if self.started and self.bar.n < self.bar.total:
+            self.bar.update(1)
+        self.bar.close()
+
+    def __enter__(self) -> Stages:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def run_console(main, argv: list[str] | None, prog: str) -> int:
+    """``main(argv, prog=prog)`` ended with an exit code (:func:`iscc_gym.cli.run`): 0 on success, 2 after
+    a one-line error for a user's mistake, 130 on Ctrl-C. For ``sys.exit`` in a command's ``__main__``."""
+    from iscc_gym.cli import run
+
+    return run(functools.partial(main, prog=prog), argv, prog)

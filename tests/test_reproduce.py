@@ -2,6 +2,7 @@
 scheme level (Table II and Fig. 9 analogs), figures and the generated docs sections."""
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -192,3 +193,29 @@ def test_evaluator_check_rows_and_table():
     assert unstable["evaluator_exact_m"] is None and unstable["evaluator_eps_ctrl"] > ok["evaluator_eps_ctrl"]
     table = evaluator_check.markdown(rows)
     assert "| 0.2, 0.2, 0.6 |" in table and "unstable" in table
+
+
+def test_figures_go_to_the_output_directory_unless_write_docs(tmp_path, monkeypatch):
+    """Without --write-docs the committed docs/figures are never the target: runs/reproduce/figures (relative
+    to the working directory) or --figures; with it, the checkout's docs/figures."""
+    from iscc_gym.eval import docs
+
+    seen = []
+
+    def fake_run(scenario, quick=False, seed=0, schemes=True, figures_dir=None, stage=None):
+        seen.append(figures_dir)
+        return {"wall_time_s": 0.0}
+
+    monkeypatch.setattr(reproduce, "run", fake_run)
+    monkeypatch.setattr(reproduce, "format_table", lambda res: "")
+    monkeypatch.setattr(reproduce, "write_docs", lambda *a, **k: None)
+    monkeypatch.chdir(tmp_path)
+    reproduce.main(["--quick", "--quiet"])
+    assert seen[-1] == reproduce.DEFAULT_FIGURES == Path("runs/reproduce/figures")
+    reproduce.main(["--quick", "--quiet", "--figures", "out"])
+    assert seen[-1] == Path("out")
+    reproduce.main(["--quick", "--quiet", "--no-figures"])
+    assert seen[-1] is None
+    reproduce.main(["--quick", "--quiet", "--write-docs"])
+    assert seen[-2:] == [docs.project_root() / "docs" / "figures"] * 2
+    assert not (tmp_path / "docs").exists() and list(tmp_path.iterdir()) == []

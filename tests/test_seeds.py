@@ -38,5 +38,6 @@ def test_per_seed_differences_are_paired_against_an_independent_evaluation(root)
 def test_missing_runs_are_a_clear_error(tmp_path):
     with pytest.raises(FileNotFoundError, match="python -m train --seeds"):
         eval_seeds.seed_runs(tmp_path)
-    with pytest.raises(SystemExit):
+    with pytest.raises(FileNotFoundError, match="is not a directory"):
         eval_seeds.main([str(tmp_path / "nope")])
+    assert eval_seeds.main.__module__ and eval_seeds.build_parser().parse_args(["x"]).quiet is False

@@ -1,0 +1,183 @@
+"""The eval commands as a user meets them: exit codes, one-line errors raised before any episode is played,
+help for every flag, progress only on a terminal, --write-docs into the checkout only, atomic figures."""
+
+import argparse
+import io
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from iscc_gym.eval import __main__ as cli
+from iscc_gym.eval import bench, docs, evaluator_check, probes, reproduce, seeds, tune
+from iscc_gym.eval.options import parse_seeds, show_progress
+from iscc_gym.eval.policies import SHIPPED_AGENT, check_specs, resolve_specs
+
+ROOT = Path(__file__).resolve().parents[1]
+PARSERS = {"eval": cli.build_parser, "reproduce": reproduce.build_parser, "seeds": seeds.build_parser,
+           "tune": tune.build_parser, "probes": probes.build_parser, "bench": bench.build_parser,
+           "evaluator_check": evaluator_check.build_parser}
+
+
+@pytest.fixture
+def no_episodes(monkeypatch):
+    """Playing any episode fails the test: the error must come before the evaluation."""
+    def played(*args, **kwargs):
+        raise AssertionError("an evaluation ran before the mistake was reported")
+
+    monkeypatch.setattr(cli, "evaluate", played)
+    monkeypatch.setattr(cli, "run_parallel", played)
+
+
+@pytest.mark.parametrize("command", sorted(PARSERS))
+def test_every_flag_has_a_help_text(command):
+    parser = PARSERS[command]()
+    for action in parser._actions:
+        if isinstance(action, argparse._HelpAction):
+            continue
+        assert action.help and action.help != argparse.SUPPRESS and len(action.help) > 10, (command, action.dest)
+
+
+@pytest.mark.parametrize("command", ["eval", "seeds"])
+def test_help_says_model_files_are_pickles(command):
+    text = " ".join(PARSERS[command]().format_help().split())
+    assert "vecnormalize.pkl" in text and "pickles" in text and "trust" in text
+
+
+def test_output_paths_are_checked_before_any_episode(tmp_path, no_episodes):
+    a_file = tmp_path / "file.txt"
+    a_file.write_text("x")
+    base = ["--policies", "sca,equal", "--episodes", "2", "--max-steps", "5", "--quiet"]
+    with pytest.raises(OSError, match="--json"):
+        cli.main([*base, "--json", str(a_file / "out.json")])
+    with pytest.raises(OSError, match="--json .*directory"):
+        cli.main([*base, "--json", str(tmp_path)])
+    with pytest.raises(OSError, match="--plots .*not a directory"):
+        cli.main([*base, "--plots", str(a_file)])
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["file.txt"]  # nothing created
+
+
+@pytest.mark.parametrize(("args", "match"), [
+    (["--policies", "sca,sca"], "'sca' twice"),
+    (["--policies", f"ppo,ppo={SHIPPED_AGENT}"], "'ppo' twice"),
+    (["--seeds", "5,5"], "seed 5 is given twice"),
+    (["--seeds", "5,x"], "comma-separated integers"),
+    (["--seeds", "-1"], "negative"),
+    (["--policies", "sca,equal", "--reference", "margin"], "--reference 'margin'"),
+    (["--policies", "ppo=/no/such/run"], "no trained agent"),
+    (["--policies", "bogus"], "unknown policy spec"),
+    (["--policies", "fixed:0.5,0.5,0.5"], "fixed:0.5,0.5,0.5"),
+    (["--scenario", "nope"], "--scenario 'nope'"),
+])
+def test_user_mistakes_are_one_line_errors_before_any_episode(args, match, no_episodes, capsys):
+    with pytest.raises((ValueError, OSError), match=match):
+        cli.main([*args, "--max-steps", "5", "--quiet"])
+    assert cli.console([*args, "--max-steps", "5", "--quiet"], prog="iscc-eval") == 2
+    err = capsys.readouterr().err
+    assert err.startswith("iscc-eval: error: ") and err.count("\n") == 1 and "Traceback" not in err
+
+
+@pytest.mark.parametrize("args", [["--max-steps", "0"], ["--episodes", "0"], ["--workers", "0"],
+                                  ["--torch-threads", "-1"], ["--max-steps", "abc"]])
+def test_bad_numbers_exit_2_with_one_line(args, no_episodes, capsys):
+    with pytest.raises(SystemExit) as e:
+        cli.main(args)
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and args[0] in err and "usage" not in err
+
+
+def test_zero_slots_is_an_error_not_an_all_zero_table():
+    from iscc_gym.agents import EqualSplitPolicy
+    from iscc_gym.eval.evaluate import run_episodes
+
+    with pytest.raises(ValueError, match="max_steps"):
+        run_episodes(EqualSplitPolicy(), [1, 2], max_steps=0)
+
+
+def test_seed_lists():
+    assert parse_seeds("7, 9,8") == [7, 9, 8]
+    for bad in ("", "1,,2", "1.5", "3,3"):
+        with pytest.raises(ValueError, match="--seeds"):
+            parse_seeds(bad)
+
+
+def test_bare_ppo_is_the_shipped_agent():
+    items = resolve_specs("ppo, sca,fixed:0.2,0.2,0.6")
+    assert items == [f"ppo={SHIPPED_AGENT}", "sca", "fixed:0.2,0.2,0.6"]
+    assert (SHIPPED_AGENT / "model.zip").is_file()
+    check_specs(items)  # a valid list passes (nothing expensive is built)
+
+
+def test_write_docs_is_refused_outside_a_checkout(tmp_path, monkeypatch, no_episodes):
+    installed = tmp_path / "site-packages" / "iscc_gym" / "eval"
+    installed.mkdir(parents=True)
+    monkeypatch.setattr(docs, "PACKAGE_DIR", installed)
+    with pytest.raises(OSError, match="not in a source checkout"):
+        cli.main(["--policies", "sca,equal", "--write-docs", "--quiet"])
+    with pytest.raises(OSError, match="not in a source checkout"):
+        reproduce.main(["--model-only", "--write-docs", "--quiet"])
+    monkeypatch.setattr(docs, "PACKAGE_DIR", ROOT / "eval")
+    assert docs.project_root() == ROOT
+
+
+def test_console_exit_codes(capsys, tmp_path):
+    assert cli.console(["--policies", "equal,fixed:0.3,0.2,0.5", "--episodes", "2", "--max-steps", "3",
+                        "--workers", "1", "--quiet"], prog="iscc-eval") == 0
+    out = capsys.readouterr()
+    assert "equal" in out.out and out.err == ""
+    a_file = tmp_path / "f"
+    a_file.write_text("")
+    for console, args in ((seeds.main, [str(tmp_path / "no-runs")]), (tune.main, ["margin", "--seed-start", "10000"]),
+                          (probes.main, ["--episodes", "1"]), (reproduce.main, ["--json", str(a_file / "x")]),
+                          (bench.main, ["--json", str(tmp_path)]),
+                          (evaluator_check.main, ["--max-steps", "0"])):
+        from iscc_gym.eval.options import run_console
+
+        try:
+            code = run_console(console, args, "cmd")
+        except SystemExit as e:  # argparse's own exit passes through iscc_gym.cli.run
+            code = e.code
+        assert code == 2, console.__module__
+        err = capsys.readouterr().err
+        assert err.startswith("cmd: error: ") and err.count("\n") == 1, err
+
+
+def test_progress_only_on_a_terminal(monkeypatch):
+    assert show_progress(quiet=True) is False
+    monkeypatch.setattr(sys, "stderr", io.StringIO())
+    assert show_progress() is False
+
+    class Tty(io.StringIO):
+        def isatty(self):
+            return True
+
+    monkeypatch.setattr(sys, "stderr", Tty())
+    assert show_progress() is True and show_progress(quiet=True) is False
+
+
+def test_python_m_eval_exits_2_with_one_line_on_a_mistake():
+    out = subprocess.run([sys.executable, "-m", "eval", "--seeds", "5,5"], cwd=ROOT, capture_output=True, text=True,
+                         timeout=120)
+    assert out.returncode == 2
+    assert out.stderr == "python -m eval: error: --seeds: seed 5 is given twice; every mission must be a different " \
+                         "seed\n"
+
+
+def test_figures_are_written_atomically(tmp_path):
+    from iscc_gym.eval.figures import new_figure, save_figure
+
+    fig = new_figure((2, 2), dpi=30)
+    fig.add_subplot(1, 1, 1).plot([0, 1])
+    path = save_figure(fig, tmp_path / "sub" / "a.png")
+    assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and [p.name for p in path.parent.iterdir()] == ["a.png"]
+    before = path.read_bytes()
+
+    def broken(target, **kw):
+        Path(target).write_bytes(b"half a png")
+        raise OSError("disk full")
+
+    fig.savefig = broken
+    with pytest.raises(OSError, match="disk full"):
+        save_figure(fig, path)
+    assert path.read_bytes() == before and [p.name for p in path.parent.iterdir()] == ["a.png"]

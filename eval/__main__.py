@@ -186,6 +186,12 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> dict:
     focus = _pick(args.focus, "ppo", names, "--focus")
     check_specs([it for it in items if not (args.train_steps > 0 and policy_name(it) == "ppo")], args.scenario)
     # every output is checked before the (long) run
+    if args.train_steps > 0:
+        out = Path(args.train_out)
+        if out.exists() and (not out.is_dir() or any(out.iterdir())):
+            raise FileExistsError(f"--train-out {out}: not an empty directory (a previous run?); train into a "
+                                  "new --train-out, or evaluate that run with --policies ppo=" + str(out))
+        check_writable_dir(out, "--train-out")
     if args.json:
         check_writable_file(args.json, "--json")
     if args.plots:

@@ -77,6 +77,12 @@ def test_user_mistakes_are_one_line_errors_before_any_episode(args, match, no_ep
     assert err.startswith("iscc-eval: error: ") and err.count("\n") == 1 and "Traceback" not in err
 
 
+def test_train_steps_refuse_a_used_run_directory_first(tmp_path, no_episodes):
+    (tmp_path / "model.zip").write_text("")
+    with pytest.raises(FileExistsError, match="--train-out"):
+        cli.main(["--train-steps", "64", "--train-out", str(tmp_path), "--policies", "sca", "--quiet"])
+
+
 @pytest.mark.parametrize("args", [["--max-steps", "0"], ["--episodes", "0"], ["--workers", "0"],
                                   ["--torch-threads", "-1"], ["--max-steps", "abc"]])
 def test_bad_numbers_exit_2_with_one_line(args, no_episodes, capsys):

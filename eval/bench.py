@@ -182,6 +182,27 @@ def ppo_shipped_steps_per_second(total_steps: int, repeats: int, settings=THREAD
             "default": f"numba{numba_default}_torch{default.torch_threads}"}
 
 
+def render_ms(frames: int = 50, steps_before: int = 300) -> dict:
+    """Median milliseconds per ``rgb_array`` frame (a step and a render each), after ``steps_before``
+    slots; the first frame (the figure built) is timed apart."""
+    env = gym.make(iscc_gym.ENV_ID, render_mode="rgb_array")
+    env.reset(seed=0)
+    actions = np.random.default_rng(0).uniform(-1, 1, (steps_before + frames, 3)).astype(np.float32)
+    for a in actions[:steps_before]:
+        env.step(a)
+    t0 = time.perf_counter()
+    env.render()
+    first = time.perf_counter() - t0
+    times = []
+    for a in actions[steps_before:]:
+        env.step(a)
+        t0 = time.perf_counter()
+        env.render()
+        times.append(time.perf_counter() - t0)
+    env.close()
+    return {"median_ms": 1e3 * statistics.median(times), "first_ms": 1e3 * first, "frames": frames}
+
+
 def eval_sca_seconds(episodes: int, max_steps: int | None = None) -> dict:
     """Wall time of evaluating static SCA on ``episodes`` full missions (batched, common seeds)."""
     from iscc_gym.agents import make_policy
@@ -229,6 +250,7 @@ def run(n_steps: int = 5000, repeats: int = 5, quick: bool = False, ppo: bool = 
                        for n in ((1, 64) if quick else (1, 64, 1024))},
     }
     res["vector_under_load"] = vector_under_load(n_steps=50 if quick else 3000, repeats=1 if quick else repeats)
+    res["render"] = render_ms(5 if quick else 50)
     res["eval_static_sca"] = eval_sca_seconds(2 if quick else 100, max_steps=20 if quick else None)
     res["solvers"] = solver_seconds(quick)
     if ppo:
@@ -259,6 +281,10 @@ def format_report(res: dict) -> str:
             for mode, rates in modes.items():
                 cells = "  ".join(f"{n} envs {r:12,.0f}" for n, r in rates.items())
                 lines.append(f"  {load:<6} {mode:<7} {cells}")
+    if "render" in res:
+        r = res["render"]
+        lines.append(f"rgb_array frame: {r['median_ms']:.1f} ms (first frame {r['first_ms']:.0f} ms; "
+                     "before issue 12: ~90-160 ms every frame)")
     ev = res["eval_static_sca"]
     lines.append(f"Static SCA evaluated on {ev['episodes']} missions ({ev['slots']:,} slots): {ev['seconds']:.2f} s "
                  "(target < 5 s for 100 missions)")
@@ -306,6 +332,10 @@ def markdown(res: dict) -> str:
                 for n, r in rates.items():
                     rows.append(f"| vector env, {n} envs, {where}, kernel {labels[mode]}, env-steps/s | {r:,.0f} | "
                                 "| |")
+    if "render" in res:
+        r = res["render"]
+        rows.append(f"| `rgb_array` frame, ms (first frame: {r['first_ms']:.0f}) | {r['median_ms']:.1f} | "
+                    "before issue 12: 90-160 | |")
     ev = res["eval_static_sca"]
     rows.append(f"| static SCA on {ev['episodes']} missions ({ev['slots']:,} slots), s | {ev['seconds']:.2f} | | "
                 "< 5 s for 100 |")

@@ -11,6 +11,7 @@ import numpy as np
 from gymnasium import spaces
 
 from . import kernel, loop, threads
+from .render import Renderer
 from .scenario import Scenario, make_scenario
 from .stability import scenario_eps_star
 from .trajectory import sample_reference
@@ -315,7 +316,9 @@ class ISCCEnv(gym.Env):
     ``overrides`` are Scenario fields, e.g. ``observation_source="gnss"`` (GNSS feedback, 3 m and
     0.2 m/s), ``control_mode="open_loop"`` (reference acceleration, no feedback),
     ``reference_feedforward=True``. Unknown keywords raise ``TypeError``.
-    ``render_mode="rgb_array"`` renders the reference and actual paths and the error so far.
+    ``render_mode="rgb_array"`` renders the plan view and altitude of the reference and flown paths,
+    and over the last 200 slots the split, the rate and stability violations, the tracking error and
+    the PEB (:mod:`iscc_gym.render`).
 
     ## Version History
 
@@ -348,7 +351,7 @@ class ISCCEnv(gym.Env):
         self._state: loop.LoopState | None = None
         self._last_received = True
         self._last_peb = 0.0
-        self._history: dict[str, list] = {}
+        self._renderer = Renderer(self.scenario.dt_s, self.scenario.gbs_height_m) if render_mode else None
 
     # --- Gymnasium API -------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict | None = None):
@@ -358,7 +361,8 @@ class ISCCEnv(gym.Env):
         # a batch of one: bit-identical to the same drone in any batch (the vector env)
         self._state = loop.init_state(s, [ref], [self.np_random])
         self._last_received, self._last_peb = True, 0.0
-        self._history = {"pos": [self._state.x[0, :3].copy()], "err": []}
+        if self._renderer is not None:
+            self._renderer.reset(self._state.ref[0], self._state.x[0])
         return self._observation(), self._reset_info()
 
     def step(self, action):
@@ -378,9 +382,8 @@ class ISCCEnv(gym.Env):
          al_comm, cost_rate, cost_stab, reward, terminated, truncated) = out[0].tolist()
         self._last_received, self._last_peb = received == 1.0, peb
         n = int(self._state.n[0])
-        if self.render_mode is not None:
-            self._history["pos"].append(self._state.x[0, :3].copy())
-            self._history["err"].append(err)
+        if self._renderer is not None:
+            self._renderer.record(self._state.x[0], err, peb, (al_sen, al_ctrl, al_comm), cost_rate, cost_stab)
         info = {
             "tracking_error_m": err,
             "cost_rate": cost_rate,
@@ -406,7 +409,7 @@ class ISCCEnv(gym.Env):
             return None
         if self._state is None:
             raise RuntimeError("render() called before reset()")
-        return _render_rgb(self._state, self._history, self.scenario)
+        return self._renderer.frame()
 
     # --- helpers ---------------------------------------------------------------------------------
     def _reset_info(self) -> dict:
@@ -414,30 +417,3 @@ class ISCCEnv(gym.Env):
 
     def _observation(self) -> np.ndarray:
         return observe(self.scenario, self._state, self._last_received, self._last_peb)[0]
-
-
-def _render_rgb(state: loop.LoopState, history: dict, s: Scenario) -> np.ndarray:
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(9, 4), dpi=80)
-    canvas = FigureCanvasAgg(fig)
-    ax = fig.add_subplot(1, 2, 1, projection="3d")
-    ref = state.ref[0, :, :3]
-    pos = np.array(history["pos"])
-    ax.plot(ref[:, 0], ref[:, 1], ref[:, 2], "k--", lw=1, label="reference")
-    ax.plot(pos[:, 0], pos[:, 1], pos[:, 2], "C0", lw=1.5, label="drone")
-    ax.scatter([0], [0], [s.gbs_height_m], c="C3", marker="^", label="GBS")
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("y (m)")
-    ax.set_zlabel("z (m)")
-    ax.legend(loc="upper left", fontsize=7)
-    ax2 = fig.add_subplot(1, 2, 2)
-    err = np.array(history["err"])
-    ax2.plot(np.arange(len(err)) * s.dt_s, err, "C1")
-    ax2.set_xlabel("time (s)")
-    ax2.set_ylabel("tracking error (m)")
-    ax2.set_xlim(0, s.mission_duration_s)
-    fig.tight_layout()
-    canvas.draw()
-    return np.asarray(canvas.buffer_rgba())[..., :3].copy()

@@ -104,3 +104,27 @@ def test_console_commands_run_from_any_directory(installed, command):
     r = _run([exe, *command[1:]], cwd=installed["work"])
     assert r.returncode == 0, r.stderr
     assert "usage" in r.stdout.lower()
+
+
+def test_env_and_scripted_policies_work_without_the_train_extra():
+    """What a core install (no torch, SB3, Optuna, TensorBoard, rich) offers: the env, the physics and
+    the scripted policies, evaluated."""
+    code = """
+import sys
+class Block:
+    def find_spec(self, name, path=None, target=None):
+        if name.split('.')[0] in ('torch', 'stable_baselines3', 'optuna', 'tensorboard', 'rich'):
+            raise ImportError('not installed: ' + name)
+sys.meta_path.insert(0, Block())
+import gymnasium as gym, iscc_gym
+from iscc_gym.agents import make_policy
+from iscc_gym.eval.evaluate import run_episodes
+env = gym.make(iscc_gym.ENV_ID)
+env.reset(seed=0)
+env.step(env.action_space.sample())
+res = run_episodes(make_policy('margin'), seeds=[0], max_steps=3)
+print(res['slots'])
+"""
+    r = _run([sys.executable, "-c", code], cwd=ROOT)
+    assert r.returncode == 0, r.stderr
+    assert int(r.stdout.split()[-1]) == 3

@@ -84,6 +84,11 @@ def _load_model(algo: str, path: Path):
         return {"ppo": PPO, "sac": SAC, "td3": TD3}[algo].load(str(path), device="cpu")
     except (zipfile.BadZipFile, EOFError, pickle.UnpicklingError) as e:
         raise ValueError(f"{path}: not a complete SB3 model file (truncated or corrupt: {e})") from None
+    except ValueError as e:  # SB3's "wasn't a zip-file" around a BadZipFile
+        if isinstance(e.__cause__, zipfile.BadZipFile | EOFError):
+            raise ValueError(f"{path}: not a complete SB3 model file (truncated or corrupt: "
+                             f"{e.__cause__})") from None
+        raise
     except KeyError as e:
         raise ValueError(f"{path}: not an SB3 model file (no {e} in the archive)") from None
 
@@ -155,32 +160,30 @@ class SB3Policy:
             manifest = read_manifest(unit)
             if model_path.name not in manifest["files"]:
                 raise ValueError(f"{model_path}: not listed in {unit / MANIFEST}; load the unit's own model")
-        run = (manifest or {}).get("run") or {}
-        algo = run.get("algo")
-        if algo is None:
+        run = dict((manifest or {}).get("run") or {})
+        if not run:
             for cfg in (unit / "config.yml", unit.parent / "config.yml"):
                 if cfg.exists():
                     try:
-                        algo = yaml.safe_load(cfg.read_text())["args"]["algo"]
+                        args = yaml.safe_load(cfg.read_text())["args"]
+                        run = {"algo": args["algo"], "normalize": args.get("normalize")}
                     except (yaml.YAMLError, KeyError, TypeError):
                         raise ValueError(f"{cfg}: not a config.yml written by python -m train") from None
                     break
-        algo = "ppo" if algo is None else algo
+        algo = run.get("algo") or "ppo"
         if algo not in ALGOS:
             raise ValueError(f"{unit}: the run's algo is {algo!r}; SB3Policy loads {', '.join(ALGOS)}")
-        model = _load_model(algo, model_path)
         vn_path = unit / "vecnormalize.pkl"
-        vecnormalize = None
         if manifest is not None:
-            if "vecnormalize.pkl" in manifest["files"]:
-                vecnormalize = _load_vecnormalize(vn_path)
-            elif run.get("normalize"):
-                raise ValueError(f"{unit}: trained with normalize but {MANIFEST} lists no vecnormalize.pkl")
-        elif vn_path.exists():
-            vecnormalize = _load_vecnormalize(vn_path)
-        elif best:
-            raise ValueError(f"{unit} has no vecnormalize.pkl (a run of an older python -m train kept none with "
-                             "the best model): load the run's final model instead (best=False)")
+            has_vn = "vecnormalize.pkl" in manifest["files"]
+        else:  # an older run, or a model copied elsewhere: a stale file of a run without normalisation is left
+            has_vn = vn_path.exists() and run.get("normalize") is not False
+        if run.get("normalize") and not has_vn:
+            raise ValueError(f"{unit}: the run was trained with VecNormalize but {unit} holds no statistics for "
+                             f"{model_path.name} (older python -m train runs kept none in best/): load the run's "
+                             "final model.zip instead")
+        model = _load_model(algo, model_path)
+        vecnormalize = _load_vecnormalize(vn_path) if has_vn else None
         policy = cls(model, vecnormalize)
         if check_env is not None:
             want = _obs_shape(check_env)

@@ -21,7 +21,7 @@ import numpy as np
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv
 
 from iscc_gym.scenario import Scenario
-from iscc_gym.vector import ISCCVectorEnv
+from iscc_gym.vector import INFO_KEYS, ISCCVectorEnv
 
 __all__ = ["ISCCBatchedVecEnv"]
 
@@ -31,6 +31,15 @@ class ISCCBatchedVecEnv(VecEnv):
 
     def __init__(self, num_envs: int, scenario: str | Scenario = "paper", info_keys: Sequence[str] = (),
                  **overrides: Any):
+        if isinstance(info_keys, str):
+            raise ValueError(f"info_keys = {info_keys!r}; use a sequence of keys, e.g. ({info_keys!r},)")
+        unknown = [k for k in info_keys if k not in INFO_KEYS]
+        if unknown:
+            import difflib
+
+            near = {k: difflib.get_close_matches(k, INFO_KEYS, n=1) for k in unknown}
+            hints = "; ".join(f"{k!r}" + (f" (did you mean {m[0]!r}?)" if m else "") for k, m in near.items())
+            raise ValueError(f"info_keys: unknown {hints}; the env's info keys are {', '.join(INFO_KEYS)}")
         self.venv = ISCCVectorEnv(num_envs=num_envs, scenario=scenario, autoreset_mode="SameStep",
                                   **overrides)
         self.info_keys = tuple(info_keys)

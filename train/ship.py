@@ -17,24 +17,35 @@ from pathlib import Path
 import yaml
 from iscc_gym.train.train import Args, main, resolve_args
 
+from iscc_gym.files import atomic_target
+
 ROOT = Path(__file__).resolve().parent.parent
 SHIP_DIR = ROOT / "agents" / "trained" / "ppo_iscc"
-SHIP_ARGS = Args(seed=0, out="runs/ship_ppo", checkpoint_freq=0, tensorboard=False)
-ARTIFACTS = ("model.zip", "vecnormalize.pkl", "config.yml", "summary.yml", "learning_curve.csv", "learning_curve.png")
+# overwrite: every ship trains afresh into runs/ship_ppo
+SHIP_ARGS = Args(seed=0, out="runs/ship_ppo", checkpoint_freq=0, tensorboard=False, overwrite=True)
+ARTIFACTS = ("model.zip", "vecnormalize.pkl", "manifest.yml", "config.yml", "summary.yml", "learning_curve.csv",
+             "learning_curve.png")
+
+
+def _copy(src: Path, dst: Path) -> None:
+    """Copy under a temporary name, then rename: an interrupted copy never leaves a truncated ``dst``."""
+    with atomic_target(dst) as tmp:
+        shutil.copy2(src, tmp)
 
 
 def ship(args: Args = SHIP_ARGS, dest: Path = SHIP_DIR, write_docs: bool = True) -> dict:
     summary = main(args)
     args, _ = resolve_args(args)
     dest.mkdir(parents=True, exist_ok=True)
-    for name in ARTIFACTS:
-        shutil.copy2(Path(args.out) / name, dest / name)
+    # the statistics and the rest before the model, the manifest (sizes and SHA-256 of both) last
+    for name in sorted(ARTIFACTS, key=lambda n: (n == "manifest.yml", n == "model.zip")):
+        _copy(Path(args.out) / name, dest / name)
     if write_docs:
         from iscc_gym.eval.docs import RESULTS_PATH, write_section
 
         figures = ROOT / "docs" / "figures"
         figures.mkdir(parents=True, exist_ok=True)
-        shutil.copy2(Path(args.out) / "learning_curve.png", figures / "ppo_learning_curve.png")
+        _copy(Path(args.out) / "learning_curve.png", figures / "ppo_learning_curve.png")
         evals = "; ".join(f"{t:,}: {r:.1f}" for t, r in summary["evaluations"])
         text = "\n".join([
             "## The shipped PPO agent",
@@ -61,13 +72,22 @@ def ship(args: Args = SHIP_ARGS, dest: Path = SHIP_DIR, write_docs: bool = True)
 
 
 def cli(argv: list[str] | None = None) -> dict:
-    ap = argparse.ArgumentParser(prog="python -m train.ship", description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m train.ship", description=__doc__.split("\n")[0],
+                                 epilog="Trains into runs/ship_ppo (deleting a previous ship run there) and replaces "
+                                        f"the files of {SHIP_DIR.relative_to(ROOT)}. Model files and "
+                                        "vecnormalize.pkl are pickles: load only files you trust.")
     ap.add_argument("--no-docs", action="store_true", help="do not write docs/results.md")
+    ap.add_argument("--quiet", action="store_true", help="no progress bar and no closing line")
     ns = ap.parse_args(argv)
-    summary = ship(write_docs=not ns.no_docs)
-    print(f"shipped {SHIP_DIR} ({summary['timesteps']:,} steps, {summary['wall_time_s']:.0f} s)")
+    from dataclasses import replace
+
+    summary = ship(replace(SHIP_ARGS, quiet=ns.quiet), write_docs=not ns.no_docs)
+    if not ns.quiet:
+        print(f"shipped {SHIP_DIR} ({summary['timesteps']:,} steps, {summary['wall_time_s']:.0f} s)")
     return summary
 
 
 if __name__ == "__main__":
-    cli(sys.argv[1:])
+    from iscc_gym.cli import run
+
+    sys.exit(run(cli, None, "python -m train.ship"))

@@ -44,7 +44,16 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import yaml
-from iscc_gym.train.train import EVAL_SEED_START, Args, _check, load_hyperparams, main, resolve_args
+from iscc_gym.train.train import (
+    EVAL_SEED_START,
+    Args,
+    _check,
+    _resolve_policy_kwargs,
+    check_hyperparams,
+    load_hyperparams,
+    main,
+    resolve_args,
+)
 
 from iscc_gym.files import write_atomic
 
@@ -223,6 +232,8 @@ def _check_study(args: Args, study: StudyArgs) -> None:
         raise StudyConfigError("--resume: a study starts every trial afresh; drop --resume")
     try:
         _check(args)
+        _, hp = resolve_args(args)
+        check_hyperparams(args.algo, _resolve_policy_kwargs(hp))
     except ValueError as e:
         raise StudyConfigError(str(e)) from None
 
@@ -683,10 +694,16 @@ def optimize(args: Args, study: StudyArgs) -> dict:
     stops the worker.
     """
     import optuna
+    from iscc_gym.train.train import _progress
 
     s, shown = open_study(args, study)
-    s.optimize(make_objective(args, study), n_trials=study.n_trials, catch=(ValueError, FloatingPointError),
-               gc_after_trial=True)
+    bar = _progress(args)  # trials done / total (each trial's own bar is off)
+    if args.quiet:
+        optuna.logging.set_verbosity(optuna.logging.WARNING)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
+        s.optimize(make_objective(dataclasses.replace(args, progress_bar=False), study), n_trials=study.n_trials,
+                   catch=(ValueError, FloatingPointError), gc_after_trial=True, show_progress_bar=bar)
     states = [t.state for t in s.get_trials(deepcopy=False)]
     counts = ", ".join(f"{sum(x == st for x in states)} {st.name.lower()}" for st in
                        (optuna.trial.TrialState.COMPLETE, optuna.trial.TrialState.PRUNED,
@@ -715,25 +732,31 @@ def best_trial(s: optuna.Study) -> optuna.trial.FrozenTrial | None:
 
 
 def best_entry(trial: optuna.trial.FrozenTrial, env_id: str, algo: str) -> dict:
-    """The ``{env_id: {algo: {...}}}`` hyperparams.yml entry of a completed trial.
+    """The hyperparams.yml content of a completed trial, in rl-zoo3's layout.
 
     Parameters
     ----------
     trial : optuna.trial.FrozenTrial
         A trial run by :func:`make_objective` (its user attributes hold the configuration).
     env_id, algo : str
-        The keys of the entry.
+        The env id of the entry and the algorithm (named under ``iscc_gym.train.algo``).
 
     Returns
     -------
     dict
-        ``n_timesteps``, ``n_envs``, ``normalize`` (read by :func:`iscc_gym.train.train.resolve_args`) and the
-        algorithm's keyword arguments.
+        ``{env_id: entry, "iscc_gym.train": {"algo": algo}}``: the entry holds ``n_timesteps``, ``n_envs``,
+        ``normalize`` (read by :func:`iscc_gym.train.train.resolve_args` and by rl-zoo3) and the
+        algorithm's keyword arguments, ``policy_kwargs`` as rl-zoo3's ``dict(...)`` string.
     """
+    from iscc_gym.train.train import OWN_SECTION, format_policy_kwargs
+
     attrs = trial.user_attrs
+    hp = dict(attrs["hyperparams"])
+    if hp.get("policy_kwargs"):
+        hp["policy_kwargs"] = format_policy_kwargs(hp["policy_kwargs"])
     entry = {"n_timesteps": int(attrs["n_timesteps"]), "n_envs": int(attrs["n_envs"]),
-             "normalize": bool(attrs["normalize"]), **attrs["hyperparams"]}
-    return {env_id: {algo: entry}}
+             "normalize": bool(attrs["normalize"]), **hp}
+    return {env_id: entry, OWN_SECTION: {"algo": algo}}
 
 
 def export_best(s: optuna.Study, env_id: str, algo: str, path: str | os.PathLike) -> str:
@@ -758,7 +781,9 @@ def export_best(s: optuna.Study, env_id: str, algo: str, path: str | os.PathLike
         raise ValueError(f"study {s.study_name!r} has no completed trial to export yet")
     header = (f"# Best trial #{best.number} of Optuna study {s.study_name!r}: final held-out mean episode reward "
               f"{best.value:.4f}\n# ({len(s.trials)} trials in the study when exported). Train it with:\n"
-              f"#   python -m train --hyperparams {path}\n")
+              f"#   python -m train --hyperparams {path}\n"
+              f"# or rl-zoo3 (its layout): python -m rl_zoo3.train --algo {algo} --env {env_id} "
+              f"--gym-packages iscc_gym -conf {path}\n")
     text = header + yaml.safe_dump(best_entry(best, env_id, algo), sort_keys=False)
     write_atomic(path, text)
     return text
@@ -790,6 +815,7 @@ def run_seeds(args: Args, seeds: list[int]) -> dict:
     try:
         _check(args)
         resolved, hp = resolve_args(args)
+        check_hyperparams(args.algo, _resolve_policy_kwargs(hp))
     except ValueError as e:
         raise StudyConfigError(str(e)) from None
     rows = []

@@ -693,15 +693,27 @@ def _curve_callback(rows: list[dict] | None = None):
     return _Curve()
 
 
-def _checkpoint_callback(every_calls: int, save):
-    """Calls ``save(model)`` every ``every_calls`` steps of the VecEnv."""
+def _checkpoint_callback(every_calls: int, save, at_rollout_end: bool = False):
+    """Calls ``save(model)`` every ``every_calls`` steps of the VecEnv; ``at_rollout_end``: at the end of
+    the rollout of that step (SAC/TD3: after the step's transitions are in the replay buffer, which
+    happens after the step's callbacks)."""
     from stable_baselines3.common.callbacks import BaseCallback
 
     class Checkpoints(BaseCallback):
+        due = False
+
         def _on_step(self) -> bool:
             if self.n_calls % every_calls == 0:
-                save(self.model)
+                if at_rollout_end:
+                    self.due = True
+                else:
+                    save(self.model)
             return True
+
+        def _on_rollout_end(self) -> None:
+            if self.due:
+                self.due = False
+                save(self.model)
 
     return Checkpoints()
 
@@ -783,7 +795,7 @@ def main(args: Args, callback_after_eval=None) -> dict:
     callbacks = [curve := _curve_callback(rows)]
     per_env = max(1, args.n_envs)
     if args.checkpoint_freq > 0:
-        callbacks.append(_checkpoint_callback(max(1, args.checkpoint_freq // per_env), checkpoint))
+        callbacks.append(_checkpoint_callback(max(1, args.checkpoint_freq // per_env), checkpoint, off_policy))
     eval_cb = None
     if args.eval_freq > 0:
         eval_env = make_eval_env(args)
@@ -848,7 +860,7 @@ def _write_curve(out: Path, rows: list[dict], evals: list[tuple[int, float]]) ->
 
 
 PICKLE_WARNING = ("Model files (.zip) and vecnormalize.pkl are pickles: loading one executes code it holds. "
-                  "Resume from, load and share only files you trust.")
+                  "Load only files you trust (and --resume only runs of your own).")
 
 
 def build_parser(prog: str = "python -m train") -> argparse.ArgumentParser:

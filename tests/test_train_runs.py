@@ -150,6 +150,13 @@ def test_a_non_empty_out_is_refused_without_resume_or_overwrite(run_256, tmp_pat
     main(_args(out, normalize=False, overwrite=True, checkpoint_freq=0, eval_freq=0))
     assert not (out / "vecnormalize.pkl").exists() and not (out / "checkpoints").exists()
     assert not (out / "best").exists() and SB3Policy.load(out).vecnormalize is None
+    # a directory that is not a run is never emptied (e.g. --out . in the repository)
+    other = tmp_path / "project"
+    (other / "eval").mkdir(parents=True)
+    (other / "eval" / "code.py").write_text("x = 1")
+    with pytest.raises(FileExistsError, match=r"holds no run of python -m train \(.*\); nothing deleted"):
+        main(_args(other, overwrite=True))
+    assert (other / "eval" / "code.py").exists()
 
 
 @pytest.mark.parametrize("change, message", [
@@ -335,6 +342,7 @@ def test_ship_copies_a_unit(tmp_path, monkeypatch):
     args = _args(tmp_path / "ship_run", eval_freq=0, checkpoint_freq=0, total_timesteps=128, overwrite=True)
     (tmp_path / "ship_run").mkdir()
     (tmp_path / "ship_run" / "model.zip").write_text("a previous ship run")
+    (tmp_path / "ship_run" / "config.yml").write_text("args: {}\n")
     ship(args, dest=tmp_path / "dest", write_docs=False)
     assert {p.name for p in (tmp_path / "dest").iterdir()} == set(ARTIFACTS)
     assert SB3Policy.load(tmp_path / "dest").vecnormalize is not None and read_manifest(tmp_path / "dest")

@@ -549,6 +549,17 @@ def latest_checkpoint(ckpt_dir: str | os.PathLike) -> tuple[Path | None, dict | 
     return None, None, skipped
 
 
+def _is_run_dir(out: Path) -> bool:
+    """Whether ``out`` holds a run of python -m train (its config.yml or manifest), so ``overwrite`` may delete."""
+    for name, key in (("config.yml", "args"), (MANIFEST, "files")):
+        try:
+            if key in yaml.safe_load((out / name).read_text()):
+                return True
+        except (OSError, yaml.YAMLError, TypeError):
+            continue
+    return False
+
+
 def _prepare_out(args: Args) -> tuple[Path | None, dict | None]:
     """Check ``args.out`` for the run: new or empty, or ``overwrite`` (its run files deleted), or
     ``resume`` from its newest complete checkpoint with the same :data:`IDENTITY`. Returns the
@@ -576,6 +587,9 @@ def _prepare_out(args: Args) -> tuple[Path | None, dict | None]:
         if not args.overwrite:
             raise FileExistsError(f"out {out} is not empty (a previous run?); pass --resume to continue it, "
                                   "--overwrite to start afresh (deletes its run files), or another --out")
+        if not _is_run_dir(out):
+            raise FileExistsError(f"--overwrite: {out} holds no run of python -m train (no config.yml or "
+                                  f"{MANIFEST} of one); nothing deleted: choose another --out")
         for name in RUN_FILES:
             p = out / name
             if p.is_dir() and not p.is_symlink():

@@ -574,8 +574,10 @@ def _prepare_out(args: Args) -> tuple[Path | None, dict | None]:
         for why in skipped:
             print(f"resume: skipped an incomplete checkpoint: {why}")
         if ckpt is None:
+            older = " (model_<N>_steps.zip files of an older python -m train carry no manifest: retrain)" if list(
+                (out / "checkpoints").glob("model_*_steps.zip")) else ""
             raise FileNotFoundError(f"resume: no complete checkpoint in {out / 'checkpoints'}"
-                                    + (f" ({len(skipped)} incomplete)" if skipped else "")
+                                    + (f" ({len(skipped)} incomplete)" if skipped else "") + older
                                     + "; train without --resume first (with --checkpoint-freq > 0)")
         was, now = manifest.get("run") or {}, run_identity(args)
         diff = [f"{k} {was.get(k)!r} -> {now[k]!r}" for k in now if was.get(k) != now[k]]

@@ -133,7 +133,7 @@ class Stages:
 
     def __init__(self, total: int, desc: str, enabled: bool = True):
         self.bar = progress_bar(total, desc, unit="stage", enabled=enabled,
-                                bar_format="{desc}: {n_fmt}/{total_fmt} stages |{bar}| {elapsed} {postfix}")
+                                bar_format="{desc}: {n_fmt}/{total_fmt} stages |{bar}| {elapsed}{postfix}")
         self.started = False
 
     def next(self, label: str) -> None:

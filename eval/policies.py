@@ -176,13 +176,26 @@ def run_parallel(specs: str, seeds, scenario: str = "paper", max_steps=None, rec
                 if queue is not None:
                     report(block=bool(pending))
         except BaseException:
-            for f in futures.values():
-                f.cancel()
+            _stop(pool)  # the error is reported now, not after the policies still being played
             raise
         results = [futures[i].result() for i in range(len(items))]
     if queue is not None:
         queue.close()
     return dict(results)
+
+
+def _stop(pool) -> None:
+    """Cancel what a pool has not started and end its worker processes (Python 3.14's ``terminate_workers``,
+    else each process of the pool)."""
+    terminate = getattr(pool, "terminate_workers", None)
+    if terminate is not None:
+        terminate()
+        return
+    processes = list((getattr(pool, "_processes", None) or {}).values())  # shutdown forgets them
+    pool.shutdown(wait=False, cancel_futures=True)
+    for proc in processes:
+        if proc.is_alive():
+            proc.terminate()
 
 
 def _split_specs(specs: str) -> list[str]:

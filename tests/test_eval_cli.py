@@ -187,3 +187,21 @@ def test_figures_are_written_atomically(tmp_path):
     with pytest.raises(OSError, match="disk full"):
         save_figure(fig, path)
     assert path.read_bytes() == before and [p.name for p in path.parent.iterdir()] == ["a.png"]
+
+
+def test_a_failing_worker_stops_the_others_at_once():
+    """A policy failing in one worker is reported at once: the policy still being played in the other worker
+    (myopic over 20 whole missions, ~30 s) is ended, not waited for."""
+    import multiprocessing
+    import time
+
+    from iscc_gym.eval.policies import run_parallel
+
+    t0 = time.perf_counter()
+    with pytest.raises(ValueError, match="unknown policy spec 'bogus'"):
+        run_parallel("myopic,bogus", list(range(10_000, 10_020)), workers=2)
+    deadline = time.perf_counter() + 5
+    while any(p.is_alive() for p in multiprocessing.active_children()) and time.perf_counter() < deadline:
+        time.sleep(0.05)
+    assert not [p for p in multiprocessing.active_children() if p.is_alive()]
+    assert time.perf_counter() - t0 < 20

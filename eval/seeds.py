@@ -117,6 +117,9 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.seeds") -> d
     if args.episodes < 2:
         raise ValueError(f"--episodes {args.episodes}: use at least 2 (a confidence interval needs two missions)")
     runs = seed_runs(args.root)  # FileNotFoundError with one line: the exit code 2 of iscc_gym.cli.run
+    from iscc_gym.eval.policies import check_specs
+
+    check_specs([f"seed_{s}={p}" for s, p in runs.items()], args.scenario)  # torch and SB3 installed
     from iscc_gym.eval.docs import RESULTS_PATH, docs_path
 
     if args.json:

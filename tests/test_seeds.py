@@ -41,3 +41,14 @@ def test_missing_runs_are_a_clear_error(tmp_path):
     with pytest.raises(FileNotFoundError, match="is not a directory"):
         eval_seeds.main([str(tmp_path / "nope")])
     assert eval_seeds.main.__module__ and eval_seeds.build_parser().parse_args(["x"]).quiet is False
+
+
+def test_command_writes_json_and_checks_its_outputs_first(root, tmp_path, capsys):
+    import json
+
+    path = tmp_path / "seeds.json"
+    res = eval_seeds.main([str(root), "--episodes", "2", "--max-steps", "5", "--quiet", "--json", str(path)])
+    assert json.loads(path.read_text())["runs"] == json.loads(json.dumps(res["runs"]))
+    assert "| 0 |" in capsys.readouterr().out
+    with pytest.raises(OSError, match="--json"):
+        eval_seeds.main([str(root), "--episodes", "2", "--max-steps", "5", "--json", str(path / "x.json")])

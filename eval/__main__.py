@@ -8,12 +8,15 @@ Examples::
     python -m eval --train-steps 300000             # train a fresh PPO agent first, then compare
 
 Policies are ``NAME=PATH`` (a run directory of ``python -m train`` or a model ``.zip``; a bare ``ppo`` is
-the shipped agent) or a spec of
-:func:`agents.make_policy` (``sca``, ``sca-per-slot``, ``sca-ignore-loss``, ``equal``,
-``fixed:0.2,0.2,0.6``, ``grid``, ``evolutionary``, ``margin``, ``margin:4,1.3``, ``myopic``).
-Episodes are seeded ``--seed-start``,
-``--seed-start + 1``, ... (or ``--seeds``): held out from training (``python -m train`` trains on
-seeds below 100 and evaluates on seeds from 1,000,000).
+the shipped agent) or a spec of :func:`agents.make_policy` (``sca``, ``sca-per-slot``, ``sca-ignore-loss``,
+``equal``, ``fixed:0.2,0.2,0.6``, ``grid``, ``evolutionary``, ``margin``, ``margin:4,1.3``, ``myopic``).
+Episodes are seeded ``--seed-start``, ``--seed-start + 1``, ... (or ``--seeds``): held out from training
+(``python -m train`` trains on seeds below 100 and evaluates on seeds from 1,000,000).
+
+Exit code 0 on success; a user's mistake (a bad path, spec, seed or number) exits 2 with one line, before
+any episode is played. A progress bar shows on a terminal (not with ``--quiet`` or a redirected stderr).
+Model ``.zip`` files and ``vecnormalize.pkl`` are pickles, which execute code when loaded: load only
+files you trust.
 """
 
 from __future__ import annotations
@@ -215,8 +218,9 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> dict:
     progress = bar.update if show else None
     try:
         if args.workers > 1 and len(items) > 1:
+            learned = any("=" in it for it in items)  # else the workers need not import torch
             runs = run_parallel(specs, seeds, args.scenario, args.max_steps, record, args.workers,
-                                args.torch_threads, progress=progress)
+                                args.torch_threads if learned else 0, progress=progress)
             res = summarize(runs, seeds, reference, focus)
         else:
             if any("=" in it for it in items):

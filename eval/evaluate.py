@@ -236,7 +236,7 @@ MAIN_COLUMNS = (("reward", "episode reward", "{:.1f}", "↑"), ("tracking_error_
                 ("violation", "violations", "{:.3f}", "↓"), ("terminated", "lost track", "{:.2f}", "↓"),
                 ("peb_m", "PEB (m)", "{:.4f}", "↓"), ("rate_comm_mbps", "data rate (Mbit/s)", "{:.2f}", "↑"))
 DETAIL_COLUMNS = (("rate_violation", "rate violations", "{:.3f}", "↓"),
-                  ("stability_violation", "stability violations", "{:.3f}", "↓"))
+                  ("stability_violation", "stability violations", "{:.4f}", "↓"))
 PAIR_COLUMNS = (("reward", "Δ episode reward", "{:+.1f}", "↑"),
                 ("tracking_error_m", "Δ tracking error (m)", "{:+.4f}", "↓"),
                 ("violation", "Δ violations", "{:+.3f}", "↓"))

@@ -225,9 +225,9 @@ def test_comparison_markdown_fits_120_columns_and_says_what_is_better():
     note = " ".join(lines[lines.index(header) + 9:lines.index(header) + 13])
     assert "PEB: position error bound, the Cramér–Rao bound" in note and "(m)" in note
     assert "| ppo | " in text and " ±" in text and "| ppo vs sca |" in text
-    # the stability violations of every policy: 0.0005 [0.000, 0.002] (cut at 0), never a negative bound
+    # the stability violations of every policy: 0.0005 [0.0000, 0.0015] (cut at 0), never a negative bound
     row = next(line for line in lines if line.startswith("| sca |") and "/" in line)
-    assert "[0.000, " in row and "-0.0" not in row
+    assert "[0.0000, " in row and "-0.0" not in row
 
 
 def test_comparison_text_table_fits_a_terminal():

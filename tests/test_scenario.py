@@ -328,3 +328,52 @@ def test_gnss_update_period_in_slots():
     assert Scenario(gnss_update_period_s=0.26).gnss_update_slots == 3  # rounded to whole slots
     assert Scenario(gnss_update_period_s=0.01).gnss_update_slots == 1  # at least every slot
     assert SCENARIOS["paper"].gnss_update_slots == 10 and SCENARIOS["literal"].gnss_update_slots == 1
+
+
+# --- upper bounds and what a reset can achieve (issue 12) -----------------------------------------
+
+
+@pytest.mark.parametrize("name,bad", [
+    ("tx_power_dbm", 1e15), ("noise_psd_dbm_hz", -1e15), ("comm_snr_offset_db", 1e15),
+    ("sensing_snr_offset_db", -1e15), ("rician_k_db", 1e15), ("shadowing_a_db", 1e15),
+    ("n_x", 2**63), ("n_y", 2**40), ("n_symbols", 2**63), ("ctrl_packet_bits", 2**63),
+    ("ctrl_blocklength", 2**63), ("comm_blocklength", 2**63), ("carrier_freq_ghz", 1e300),
+    ("bandwidth_hz", 1e300), ("initial_vel_std_mps", 1e6), ("initial_pos_std_m", 1e9),
+    ("w_rate", 1e300), ("w_stab", 1e300), ("max_tracking_error_m", 1e300), ("lqg_q_pos", 1e300),
+    ("lqg_r", 1e300), ("coverage_radius_m", 1e300), ("gnss_pos_std_m", 1e300),
+    ("sensing_prior_var_m2", 1e300), ("rate_min_bps", 1e300), ("waypoint_intensity_per_km3", 1e300),
+])
+def test_values_beyond_the_physical_range_rejected_naming_the_range(name, bad):
+    with pytest.raises(ValueError, match=_msg(name) + r".*must be (an integer )?in [\[(]"):
+        Scenario().replace(**{name: bad})
+
+
+def test_mission_too_long_for_memory_rejected():
+    # 1e6 s at 1e-3 s: 1e9 slots, 72 GB of reference per loop
+    with pytest.raises(ValueError, match=_msg("mission_duration_s") + ".*slots"):
+        Scenario(mission_duration_s=1e6, dt_s=1e-3, ctrl_deadline_s=1e-4)
+    assert Scenario(mission_duration_s=1e5, dt_s=0.1).n_slots == 1_000_000  # the cap itself is allowed
+
+
+def test_expected_waypoint_count_bounded():
+    # the default region (0.6 km^3) at 1e4 per km^3 expects ~6,000 waypoints
+    with pytest.raises(ValueError, match=_msg("waypoint_intensity_per_km3") + ".*expected waypoints"):
+        Scenario(waypoint_intensity_per_km3=1e4)
+    assert Scenario(waypoint_intensity_per_km3=1000.0).waypoint_intensity_per_km3 == 1000.0  # ~600
+
+
+def test_coverage_region_must_fill_part_of_its_box():
+    # a 0.1 mm band just below the top of the hemisphere fills ~1e-7 of its bounding box
+    with pytest.raises(ValueError, match=_msg("altitude_min_m") + ".*bounding box"):
+        Scenario(altitude_min_m=999.9998, altitude_max_m=999.9999)
+
+
+@pytest.mark.parametrize("name", [n for n in NUMERIC if n not in ("altitude_max_m",)])
+def test_presets_inside_every_range(name):
+    from iscc_gym.scenario import _RANGES
+
+    for preset in SCENARIOS.values():
+        v = getattr(preset, name)
+        if name in _RANGES:
+            lo, hi, _ = _RANGES[name]
+            assert lo <= v <= hi

@@ -235,3 +235,87 @@ def test_sample_reference_seed_determinism():
         np.testing.assert_array_equal(getattr(r1, name), getattr(r2, name))
     assert not np.array_equal(r1.pos_m, r3.pos_m)
 
+
+
+# --- scenarios whose condition is rare: bounded redraws (issue 12) -------------------------------
+
+
+class _Deadline:
+    """Fail (instead of hanging) when the body runs longer than ``seconds`` (SIGALRM, main thread)."""
+
+    def __init__(self, seconds):
+        self.seconds = seconds
+
+    def __enter__(self):
+        import signal
+
+        def fail(*_):
+            raise TimeoutError(f"did not return within {self.seconds} s")
+
+        self._old = signal.signal(signal.SIGALRM, fail)
+        signal.setitimer(signal.ITIMER_REAL, self.seconds)
+
+    def __exit__(self, *exc):
+        import signal
+
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, self._old)
+
+
+@pytest.mark.parametrize("overrides", [
+    {"min_waypoints": 50},                                       # P(N >= 50) ~ 1e-18 at mean 9
+    {"waypoint_intensity_per_km3": 0.01},                        # mean 0.006 points, at least 4
+    {"altitude_min_m": 100.0, "altitude_max_m": 100.001},        # a 1 mm band: mean 5e-5 points
+], ids=["min50", "sparse", "1mm-band"])
+def test_rare_waypoint_condition_returns_the_conditioned_count(overrides):
+    s = S.replace(**overrides)
+    mu = s.waypoint_intensity_per_km3 * coverage_volume_km3(s)
+    assert stats.poisson.sf(s.min_waypoints - 1, mu) < 1e-9  # the plain redraw loop: hours or more
+    rng = np.random.default_rng(5)
+    with _Deadline(5.0):
+        draws = [sample_waypoints(s, rng) for _ in range(5)]
+    for pts in draws:
+        assert len(pts) >= s.min_waypoints
+        if mu < 0.01:  # the law conditioned on N >= m puts all but mu / m of its mass on m itself
+            assert len(pts) == s.min_waypoints
+        assert np.all(in_coverage(s, pts))
+
+
+def test_conditioned_count_follows_the_truncated_poisson_law():
+    from iscc_gym.trajectory import _conditioned_poisson
+
+    mu, m = 6.0, 8
+    rng = np.random.default_rng(11)
+    counts = np.array([_conditioned_poisson(mu, m, rng) for _ in range(4000)])
+    assert counts.min() >= m
+    ks = np.arange(m, m + 6)
+    expected = stats.poisson.pmf(ks, mu) / stats.poisson.sf(m - 1, mu)
+    observed = np.array([np.mean(counts == k) for k in ks])
+    assert np.all(np.abs(observed - expected) < 4 * np.sqrt(expected * (1 - expected) / len(counts)) + 1e-3)
+
+
+def test_default_waypoint_draws_are_those_of_the_plain_redraw_loop():
+    """The bound changes nothing where the condition is common: same draws as the unbounded loop."""
+
+    def plain(s, rng):  # the algorithm of the paper's Sec. V-A as first written
+        mean = s.waypoint_intensity_per_km3 * coverage_volume_km3(s)
+        n = 0
+        while n < s.min_waypoints:
+            n = int(rng.poisson(mean))
+        r = s.coverage_radius_m
+        lo, hi = np.array([-r, -r, s.altitude_min_m]), np.array([r, r, s.altitude_max_m])
+        pts = np.empty((0, 3))
+        while len(pts) < n:
+            cand = rng.uniform(lo, hi, size=(2 * n, 3))
+            pts = np.vstack([pts, cand[in_coverage(s, cand)]])
+        return pts[:n]
+
+    for s in (S, S.replace(waypoint_intensity_per_km3=1.0, min_waypoints=5)):
+        a, b = np.random.default_rng(9), np.random.default_rng(9)
+        for _ in range(50):
+            np.testing.assert_array_equal(sample_waypoints(s, a), plain(s, b))
+
+
+def test_sample_reference_gives_up_with_an_error_naming_the_fields():
+    with pytest.raises(ValueError, match="altitude_min_m.*altitude_max_m.*coverage_radius_m.*min_waypoints"):
+        sample_reference(S, np.random.default_rng(0), max_tries=0)

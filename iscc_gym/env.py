@@ -81,6 +81,12 @@ def observe(s: Scenario, state: loop.LoopState, last_received, last_peb_m):
 
 def observe_reference(s: Scenario, state: loop.LoopState, last_received, last_peb_m):
     """:func:`observe` in numpy (one loop or a batch): the readable definition of the observation."""
+    return _observe_and_check(s, state, last_received, last_peb_m)[0]
+
+
+def _observe_and_check(s: Scenario, state: loop.LoopState, last_received, last_peb_m):
+    """``(obs, evaluable)``: :func:`observe_reference`, and where the observation could be evaluated
+    (no NaN entry, a finite estimate); where not, the episode ends (:func:`reward_and_costs`)."""
     pv = loop.preview(s, state, scenario_eps_star(s))
     ref = loop.reference_at(state)
     cos_az, sin_az, _, sin_el = pv["trig"]
@@ -99,24 +105,35 @@ def observe_reference(s: Scenario, state: loop.LoopState, last_received, last_pe
     obs[..., 20] = last_received
     obs[..., 21] = _symlog(last_peb_m, 0.05)
     obs[..., 22] = 1.0 - state.n * (1.0 / s.n_slots)
-    # every entry is finite by construction (floors in min_shares, prior in the CRLB); the clip
-    # keeps divergent states inside the box
-    return np.minimum(np.maximum(obs, -OBS_BOUND), OBS_BOUND).astype(np.float32)
+    # every entry is finite in the region the model describes (floors in min_shares, prior in the
+    # CRLB); far outside it (an estimate below ground, a diverged filter) an entry can be NaN: it reads
+    # 0 and the episode ends (loss of track). The clip keeps divergent states inside the box.
+    nan = np.isnan(obs)
+    evaluable = ~nan.any(axis=-1) & np.isfinite(state.shadow) & np.isfinite(state.x_hat).all(axis=-1) \
+        & np.isfinite(p).all(axis=(-2, -1))
+    if nan.any():
+        obs = np.where(nan, 0.0, obs)
+    return np.minimum(np.maximum(obs, -OBS_BOUND), OBS_BOUND).astype(np.float32), evaluable
 
 
-def reward_and_costs(s: Scenario, metrics: dict, n_next):
+def reward_and_costs(s: Scenario, metrics: dict, n_next, evaluable=True):
     """Costs, reward and episode end of a slot from :func:`iscc_gym.loop.step`'s metrics (numpy,
     any batch shape): ``(cost_rate, cost_stability, reward, terminated, truncated)``.
 
     Reward and penalty as in :class:`ISCCEnv`'s docstring; ``n_next`` is the slot index after the step.
+    ``evaluable`` is False where the next observation could not be evaluated (see
+    :func:`observe_reference`): loss of track, like a tracking error above the bound. A rate or a loss
+    probability that is NaN (an SNR overflowing far outside the region) counts as a violation, so the
+    reward stays finite.
     """
     err, rate, eps = metrics["tracking_error_m"], metrics["rate_comm_bps"], metrics["eps_ctrl"]
     if s.rate_min_bps > 0:
         cost_rate = np.maximum(0.0, s.rate_min_bps - rate) / s.rate_min_bps
+        cost_rate = np.where(np.isnan(rate), 1.0, cost_rate)
     else:
         cost_rate = np.zeros_like(rate)
-    cost_stab = (eps > scenario_eps_star(s)).astype(float)
-    terminated = np.asarray(metrics["diverged"], dtype=bool)
+    cost_stab = ((eps > scenario_eps_star(s)) | np.isnan(eps)).astype(float)
+    terminated = np.asarray(metrics["diverged"], dtype=bool) | ~np.asarray(evaluable, dtype=bool)
     reward = -np.where(err <= s.max_tracking_error_m, err, s.max_tracking_error_m) \
         - s.w_rate * cost_rate - s.w_stab * cost_stab
     reward = reward - np.where(terminated, s.max_tracking_error_m * (s.n_slots - n_next), 0.0)
@@ -202,11 +219,11 @@ def env_step_reference(s: Scenario, state: loop.LoopState, actions, z):
     """:func:`env_step` in numpy from pre-drawn normals ``z`` (B, N_DRAWS): the readable definition."""
     alpha = action_to_split(actions)
     new, m = loop.step_reference(s, state, alpha, None, z=z)
-    costs = reward_and_costs(s, m, new.n)
     cols = [np.asarray(m[k], dtype=float) for k in kernel.METRIC_NAMES]
+    obs, evaluable = _observe_and_check(s, new, cols[7], cols[4])
+    costs = reward_and_costs(s, m, new.n, evaluable)
     cols += [alpha[:, 0], alpha[:, 1], alpha[:, 2]] + [np.asarray(v, dtype=float) for v in costs]
     out = np.stack(cols, axis=-1)
-    obs = observe_reference(s, new, out[:, 7], out[:, 4])
     return new, out, obs
 
 

@@ -142,7 +142,8 @@ def _symlog(x, scale):
 
 @njit(cache=True, error_model="numpy")
 def _observe_one(c, x_hat, p, shadow, n, ref, last_received, last_peb, out):
-    """env.observe_reference for one drone (loop.preview + the observation table)."""
+    """env.observe_reference for one drone (loop.preview + the observation table); returns False where
+    an entry could not be evaluated (NaN, written as 0) or the estimate is not finite (env.lost_track)."""
     dist, gx, gy, gz, ct, st, cp, sp = _direction(c, x_hat[0], x_hat[1], x_hat[2])
     shadow_db = c[_SF_A] * math.exp(-c[_SF_B] * x_hat[2]) * shadow
     snr = _large_scale_snr(c, dist, shadow_db)
@@ -165,8 +166,18 @@ def _observe_one(c, x_hat, p, shadow, n, ref, last_received, last_peb, out):
     out[20] = last_received
     out[21] = _symlog(last_peb, 0.05)
     out[22] = 1.0 - n * (1.0 / c[_N_SLOTS])
+    ok = math.isfinite(shadow)
+    for j in range(6):
+        ok = ok and math.isfinite(x_hat[j])
+        for k in range(6):
+            ok = ok and math.isfinite(p[j, k])
     for j in range(23):
-        out[j] = min(max(out[j], -10.0), 10.0)
+        v = out[j]
+        if v != v:  # NaN: the model cannot evaluate this entry (a state far outside the region)
+            v = 0.0
+            ok = False
+        out[j] = min(max(v, -10.0), 10.0)
+    return ok
 
 
 @njit(cache=True, error_model="numpy")
@@ -428,21 +439,27 @@ def _env_rows(c, mats, x, x_hat, p, shadow, n, ref, key, action, z, active, lo, 
             zi = z[i]
         shadow_next[i] = _step_one(c, mats, x[i], x_hat[i], p[i], shadow[i], n[i], ref[i], a0, a1, a2,
                                    zi, x_next[i], x_hat_next[i], p_next[i], mt, work)
-        # env.reward_and_costs
+        n_next = n[i] + 1
+        evaluable = _observe_one(c, x_hat_next[i], p_next[i], shadow_next[i], n_next, ref[i], mt[7], mt[4],
+                                 obs[i])
+        # env.reward_and_costs (a rate or loss probability that is NaN counts as a violation)
         err, rate, eps = mt[0], mt[8], mt[6]
         rate_min = c[_RATE_MIN]
-        cost_rate = max(0.0, rate_min - rate) / rate_min if rate_min > 0.0 else 0.0
-        cost_stab = 1.0 if eps > c[_EPS_STAR] else 0.0
-        n_next = n[i] + 1
+        if rate_min <= 0.0:
+            cost_rate = 0.0
+        elif rate != rate:
+            cost_rate = 1.0
+        else:
+            cost_rate = max(0.0, rate_min - rate) / rate_min
+        cost_stab = 1.0 if (eps > c[_EPS_STAR] or eps != eps) else 0.0
         reward = -(err if err <= max_err else max_err) - c[_W_RATE] * cost_rate - c[_W_STAB] * cost_stab
-        terminated = mt[10] == 1.0
+        terminated = mt[10] == 1.0 or not evaluable
         if terminated:
             reward -= max_err * (n_slots - n_next)
         mt[11], mt[12], mt[13] = a0, a1, a2
         mt[14], mt[15], mt[16] = cost_rate, cost_stab, reward
         mt[17] = 1.0 if terminated else 0.0
         mt[18] = 1.0 if (not terminated and n_next >= n_slots) else 0.0
-        _observe_one(c, x_hat_next[i], p_next[i], shadow_next[i], n_next, ref[i], mt[7], mt[4], obs[i])
 
 
 @njit(cache=True, error_model="numpy")

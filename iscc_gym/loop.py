@@ -285,7 +285,7 @@ def step_reference(s: Scenario, state: LoopState, alpha, rng=None, z=None):
         if s.reference_feedforward:
             u_cmd = u_cmd + ref_n[..., 6:]
         received = (eps < 1.0) & (q_func(-z[..., _DROP]) >= eps)  # Phi(z) >= eps: P = 1 - eps
-        u_applied = u_cmd * np.asarray(received)[..., None]
+        u_applied = np.where(np.asarray(received)[..., None], u_cmd, 0.0)  # a lost command applies nothing
     else:  # open loop: the reference acceleration is stored on board, no link involved
         received = np.ones(x.shape[:-1], dtype=bool)
         u_applied = ref_n[..., 6:]

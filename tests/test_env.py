@@ -595,6 +595,50 @@ def test_unstable_split_terminates_with_finite_values_numpy_path():
     assert math.isfinite(reward)
 
 
+def _below_ground(env, z=-1592.0, shadow=-1.0):
+    """Put the drone and its estimate ``-z`` m below the ground with a negative shadowing state: the
+    shadowing std a exp(-b z) there is ~1.7e5 dB, so the SNR overflows (issue 12's NaN observation)."""
+    st = env.unwrapped._state
+    x, x_hat = st.x.copy(), st.x_hat.copy()
+    x[0, 2] = x_hat[0, 2] = z
+    env.unwrapped._state = st._replace(x=x, x_hat=x_hat, shadow=np.full_like(st.shadow, shadow))
+
+
+@pytest.mark.parametrize("beamforming", ["matched", "broadside"], ids=["kernel", "numpy"])
+def test_state_the_model_cannot_evaluate_ends_the_episode_with_finite_values(beamforming):
+    """Far outside the region (lifted loss-of-track bound, drone 1.6 km below ground) the SNR
+    overflows and the filter's update is NaN: the observation is still finite and in the box (NaN
+    entries read 0), the reward finite, and the episode ends as a loss of track."""
+    env = make(max_tracking_error_m=1e12, beamforming=beamforming)
+    s = env.unwrapped.scenario
+    env.reset(seed=0)
+    _below_ground(env)
+    with np.errstate(all="ignore"):  # the numpy path meets the overflow itself
+        obs, reward, terminated, truncated, info = env.step(np.zeros(3, np.float32))
+    assert_obs_ok(env, obs)
+    assert math.isfinite(reward)
+    assert terminated is True and truncated is False
+    # the tracking error is below the lifted bound: the episode ends because the estimate is lost
+    assert info["tracking_error_m"] < s.max_tracking_error_m
+    # a NaN rate and loss probability count as violations; the loss-of-track penalty applies
+    assert info["cost_rate"] == 1.0 and info["cost_stability"] == 1.0
+    expected = (-info["tracking_error_m"] - s.w_rate - s.w_stab - s.max_tracking_error_m * (s.n_slots - 1))
+    assert reward == pytest.approx(expected, rel=1e-12)
+
+
+def test_largest_initial_velocity_error_stays_finite_at_the_terminal_step():
+    env = make(initial_vel_std_mps=1e3, mission_duration_s=1.0)  # the validator's upper bound
+    for seed in range(3):
+        obs, _ = env.reset(seed=seed)
+        assert_obs_ok(env, obs)
+        done = False
+        while not done:
+            obs, reward, terminated, truncated, _ = env.step(env.action_space.sample())
+            assert_obs_ok(env, obs)
+            assert math.isfinite(reward)
+            done = terminated or truncated
+
+
 # --- info -----------------------------------------------------------------------------------------
 
 

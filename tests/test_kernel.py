@@ -199,3 +199,33 @@ def test_sequential_update_keeps_covariance_symmetric_psd_at_extreme_precision()
         assert np.array_equal(state.p, state.p.transpose(0, 2, 1))
         assert np.all(np.linalg.eigvalsh(state.p) > 0)
         ref_state = state  # step both from the kernel's state: compare one slot at a time
+
+
+def test_kernel_matches_reference_where_the_model_cannot_evaluate_the_state():
+    """Estimate below ground with an overflowing SNR, a NaN estimate, a healthy drone: both paths
+    give the same finite observation (NaN entries read 0), the same costs, reward and termination."""
+    s = make_scenario("paper", max_tracking_error_m=1e12)
+    state = _batch(s, 3)
+    x, x_hat, shadow = state.x.copy(), state.x_hat.copy(), state.shadow.copy()
+    x[0, 2] = x_hat[0, 2] = -1592.0
+    shadow[0] = -1.0
+    x_hat[1, 0] = np.nan
+    state = state.replace(x=x, x_hat=x_hat, shadow=shadow)
+    z = loop.standard_normals([np.random.default_rng(i) for i in range(3)], 3)
+    acts = np.zeros((3, 3))
+    with np.errstate(all="ignore"):
+        _, ref_out, ref_obs = E.env_step_reference(s, state, acts, z)
+        _, out, obs = E.env_step(s, state, acts, z)
+    col = {name: j for j, name in enumerate(E.STEP_COLUMNS)}
+    assert np.all(np.isfinite(obs)) and np.all(np.abs(obs) <= E.OBS_BOUND)
+    assert np.all(np.isfinite(out[:, col["reward"]]))
+    assert list(out[:, col["terminated"]]) == [1.0, 1.0, 0.0]
+    np.testing.assert_array_equal(out[:, col["terminated"]], ref_out[:, col["terminated"]])
+    for name in ("cost_rate", "cost_stability", "reward", "truncated"):
+        np.testing.assert_allclose(out[:, col[name]], ref_out[:, col[name]], rtol=1e-9)
+    np.testing.assert_allclose(obs, ref_obs, rtol=1e-6, atol=1e-6)
+    # and the observation of such a state alone (reset / observe) is finite on both paths too
+    for fn in (E.observe, E.observe_reference):
+        with np.errstate(all="ignore"):
+            o = fn(s, state, np.ones(3), np.zeros(3))
+        assert np.all(np.isfinite(o))

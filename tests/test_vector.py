@@ -159,3 +159,19 @@ def test_parallel_kernel_equals_serial_kernel_bit_for_bit():
         kernel.env_step_batch_parallel(*args, *parallel, chunk)
         for a, b_ in zip(serial, parallel, strict=True):
             assert np.array_equal(a, b_)
+
+
+def test_a_sub_env_the_model_cannot_evaluate_ends_alone_with_finite_values():
+    venv = ISCCVectorEnv(3, max_tracking_error_m=1e12)
+    venv.reset(seed=0)
+    st = venv._state
+    x, x_hat, shadow = st.x.copy(), st.x_hat.copy(), st.shadow.copy()
+    x[1, 2] = x_hat[1, 2] = -1592.0  # 1.6 km below ground: the SNR overflows
+    shadow[1] = -1.0
+    venv._state = st._replace(x=x, x_hat=x_hat, shadow=shadow)
+    obs, reward, terminated, truncated, _ = venv.step(np.zeros((3, 3), np.float32))
+    assert np.all(np.isfinite(obs)) and np.all(np.abs(obs) <= E.OBS_BOUND)
+    assert np.all(np.isfinite(reward))
+    assert list(terminated) == [False, True, False] and not truncated.any()
+    obs, reward, terminated, truncated, _ = venv.step(np.zeros((3, 3), np.float32))  # NextStep: 1 resets
+    assert reward[1] == 0.0 and venv._state.n[1] == 0 and np.all(np.isfinite(obs))

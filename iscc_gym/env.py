@@ -16,7 +16,7 @@ from .scenario import Scenario, make_scenario
 from .stability import scenario_eps_star
 from .trajectory import sample_reference
 
-__all__ = ["ISCCEnv", "action_to_split", "split_to_action", "observe", "OBS_NAMES", "OBS_BOUND"]
+__all__ = ["ISCCEnv", "action_to_split", "split_to_action", "observe", "OBS_NAMES", "OBS_BOUND", "check_seed"]
 
 #: Names of the observation entries, in order (see :class:`ISCCEnv`).
 OBS_NAMES = (
@@ -227,6 +227,26 @@ def env_step_reference(s: Scenario, state: loop.LoopState, actions, z):
     return new, out, obs
 
 
+def check_seed(seed, name: str = "seed"):
+    """``seed`` as Gymnasium's generator takes it (None or a Python int >= 0), or a clear error.
+
+    Raises
+    ------
+    TypeError
+        Not None and not an integer (a float, a string, a bool).
+    ValueError
+        A negative integer.
+    """
+    if seed is None:
+        return None
+    if isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)):
+        raise TypeError(f"{name} = {seed!r} ({type(seed).__name__}): pass an integer >= 0, or None for a fresh "
+                        "seed from the operating system")
+    if seed < 0:
+        raise ValueError(f"{name} = {seed}: pass an integer >= 0, or None for a fresh seed from the operating system")
+    return int(seed)
+
+
 #: The registered ``max_episode_steps`` of ``iscc_gym/ISCC-v0`` (the paper's mission: 500 s / 0.1 s).
 REGISTERED_MAX_EPISODE_STEPS = 5000
 
@@ -321,10 +341,18 @@ class ISCCEnv(gym.Env):
 
     ## Episode End
 
-    * Termination: loss of track, the tracking error exceeds ``max_tracking_error_m`` (100 m); the
-      observation stays finite.
+    * Termination: loss of track, the tracking error exceeds ``max_tracking_error_m`` (100 m), or
+      the state has left the range the model can evaluate (far outside the coverage region, e.g. an
+      estimate below ground where the shadowing overflows the SNR, or a non-finite Kalman estimate).
+      Observations and rewards stay finite: an observation entry that cannot be evaluated (NaN)
+      reads 0, every entry is clipped to [-10, 10], and a NaN rate or loss probability counts as a
+      violation (cost 1).
     * Truncation: the mission ends after ``n_slots`` = T_m / dt = 5000 slots (also the registered
-      ``max_episode_steps``).
+      ``max_episode_steps``). A shorter episode on the same mission: ``gymnasium.make(...,
+      max_episode_steps=k)`` truncates after k slots and changes nothing else (``mission_duration_s``
+      instead sets the length of the flight itself, and so its speed).
+    * After either, ``step`` raises ``RuntimeError`` until ``reset`` (the vector env resets ended
+      sub-envs itself, per its autoreset mode).
 
     ## Arguments
 
@@ -366,14 +394,17 @@ class ISCCEnv(gym.Env):
         self.action_space = spaces.Box(-1.0, 1.0, (3,), np.float32)
         self.observation_space = spaces.Box(-OBS_BOUND, OBS_BOUND, (len(OBS_NAMES),), np.float32)
         self._state: loop.LoopState | None = None
+        self._ended = False  # the episode terminated: step() needs a reset first
         self._last_received = True
         self._last_peb = 0.0
         self._renderer = Renderer(self.scenario.dt_s, self.scenario.gbs_height_m) if render_mode else None
 
     # --- Gymnasium API -------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict | None = None):
+        seed = check_seed(seed, "seed")  # before anything changes: a rejected seed leaves the env as it was
         super().reset(seed=seed)
         s = self.scenario
+        self._state, self._ended = None, False  # a reset that fails (see sample_reference) leaves no episode
         ref = sample_reference(s, self.np_random)
         # a batch of one: bit-identical to the same drone in any batch (the vector env)
         self._state = loop.init_state(s, [ref], [self.np_random])
@@ -392,11 +423,14 @@ class ISCCEnv(gym.Env):
         if not (math.isfinite(a0) and math.isfinite(a1) and math.isfinite(a2)):
             raise ValueError(f"action {a.tolist()} contains NaN or inf; pass finite values in [-1, 1]")
         s = self.scenario
+        if self._ended:
+            raise RuntimeError("the episode has ended (terminated: loss of track); call reset() before step()")
         if self._state.n[0] >= s.n_slots:
             raise RuntimeError("the mission is over (truncated); call reset() before step()")
         self._state, out, obs = env_step(s, self._state, a[None])
         (err, est, snr_db, snr_ls_db, peb, veb, eps, received, rate, rate_ctrl, _, al_sen, al_ctrl,
          al_comm, cost_rate, cost_stab, reward, terminated, truncated) = out[0].tolist()
+        self._ended = terminated == 1.0
         self._last_received, self._last_peb = received == 1.0, peb
         n = int(self._state.n[0])
         if self._renderer is not None:

@@ -639,6 +639,80 @@ def test_largest_initial_velocity_error_stays_finite_at_the_terminal_step():
             done = terminated or truncated
 
 
+def test_step_after_termination_without_reset_raises():
+    """Issue 12: a terminated episode must not keep going (and charge the penalty again)."""
+    env = make()
+    (_, reward, terminated, _, _), n = run_held_split(env, UNSTABLE, seed=3)
+    assert terminated and n < N_SLOTS
+    before = snapshot(env)
+    for _ in range(2):
+        with pytest.raises(RuntimeError, match="terminated.*reset"):
+            env.step(split_to_action(HEALTHY))
+    assert_snapshot_equal(snapshot(env), before)
+    obs, _ = env.reset(seed=3)  # reset revives it
+    assert_obs_ok(env, obs)
+    assert len(env.step(split_to_action(HEALTHY))) == 5
+
+
+@pytest.mark.parametrize("bad,error", [
+    (1.5, TypeError), ("7", TypeError), (True, TypeError), ([7], TypeError), (-1, ValueError),
+])
+def test_reset_rejects_bad_seeds_and_leaves_env_unchanged(bad, error):
+    env = make()
+    env.reset(seed=0)
+    env.step(split_to_action(HEALTHY))
+    before = snapshot(env)
+    with pytest.raises(error, match="seed"):
+        env.reset(seed=bad)
+    after = snapshot(env)
+    # (Gymnasium's TimeLimit zeroes its step count before it calls the env's reset: not the env's state)
+    before.pop("elapsed"), after.pop("elapsed")
+    assert_snapshot_equal(after, before)
+    assert len(env.step(split_to_action(HEALTHY))) == 5  # the episode goes on
+    a, _ = env.reset(seed=np.int64(4))  # numpy integers are seeds too
+    b, _ = make().reset(seed=4)
+    assert np.array_equal(a, b)
+
+
+def test_reset_returns_for_scenarios_with_a_rare_waypoint_condition():
+    """Issue 12: these passed validation and reset never returned (an unbounded Poisson redraw)."""
+    import signal
+
+    def fail(*_):
+        raise TimeoutError("reset did not return within 20 s")
+
+    old = signal.signal(signal.SIGALRM, fail)
+    signal.setitimer(signal.ITIMER_REAL, 20.0)
+    try:
+        for overrides in ({"waypoint_intensity_per_km3": 0.01}, {"altitude_max_m": 100.001}):
+            env = make(**overrides)
+            obs, _ = env.reset(seed=0)
+            assert_obs_ok(env, obs)
+            assert len(env.unwrapped._state.ref[0]) == env.unwrapped.scenario.n_slots + 1
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, old)
+
+
+def test_max_episode_steps_shortens_the_episode_not_the_flight():
+    """Issue 12 item 9: ``mission_duration_s`` sets the length of the flight (the whole tour in T_m,
+    so a shorter mission flies faster); ``max_episode_steps`` ends the episode early on the same flight."""
+    full, short = make(), make(max_episode_steps=20)
+    o1, _ = full.reset(seed=5)
+    o2, _ = short.reset(seed=5)
+    np.testing.assert_array_equal(full.unwrapped._state.ref, short.unwrapped._state.ref)
+    a = split_to_action(HEALTHY)
+    for k in range(20):
+        r1, r2 = full.step(a), short.step(a)
+        np.testing.assert_array_equal(r1[0], r2[0])
+        assert r2[3] == (k == 19) and not r1[3]
+    # the squeezed mission: same waypoints, a tenth of the time: ten times the speed
+    fast = make(mission_duration_s=50.0)
+    fast.reset(seed=5)
+    speed = [np.linalg.norm(e.unwrapped._state.ref[0, :, 3:6], axis=1).mean() for e in (full, fast)]
+    assert speed[1] / speed[0] == pytest.approx(10.0, rel=0.05)
+
+
 # --- info -----------------------------------------------------------------------------------------
 
 

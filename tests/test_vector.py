@@ -175,3 +175,49 @@ def test_a_sub_env_the_model_cannot_evaluate_ends_alone_with_finite_values():
     assert list(terminated) == [False, True, False] and not truncated.any()
     obs, reward, terminated, truncated, _ = venv.step(np.zeros((3, 3), np.float32))  # NextStep: 1 resets
     assert reward[1] == 0.0 and venv._state.n[1] == 0 and np.all(np.isfinite(obs))
+
+
+@pytest.mark.parametrize("kwargs,error,match", [
+    ({"seed": [7, -1]}, ValueError, r"seed\[1\] = -1"),
+    ({"seed": [7, 1.5]}, TypeError, r"seed\[1\]"),
+    ({"seed": 1.5}, TypeError, "seed = 1.5"),
+    ({"seed": "12"}, TypeError, "seed = '12'"),
+    ({"seed": -3}, ValueError, "seed = -3"),
+    ({"seed": [1, 2, 3]}, ValueError, "list of 2 seeds"),
+    ({"options": {"reset_mask": "ab"}}, TypeError, "reset_mask"),
+    ({"options": {"reset_mask": [1, 0]}}, TypeError, "reset_mask"),
+    ({"options": {"reset_mask": [True, False, True]}}, ValueError, r"reset_mask.*shape \(2,\)"),
+    ({"seed": [7, -1], "options": {"reset_mask": [True, False]}}, ValueError, r"seed\[1\]"),
+])
+def test_rejected_reset_leaves_every_sub_env_untouched(kwargs, error, match):
+    """Issue 12: reset(seed=[7, -1]) had reseeded sub-env 0 before rejecting seed 1."""
+    venv = ISCCVectorEnv(2)
+    venv.reset(seed=0)
+    venv.step(np.zeros((2, 3), np.float32))
+    x, n = venv._state.x.copy(), venv._state.n.copy()
+    rng_states = [r.bit_generator.state for r in venv._rngs]
+    with pytest.raises(error, match=match):
+        venv.reset(**kwargs)
+    assert np.array_equal(venv._state.x, x) and np.array_equal(venv._state.n, n)
+    assert [r.bit_generator.state for r in venv._rngs] == rng_states
+
+
+def test_too_many_sub_envs_for_the_memory_rejected_up_front():
+    with pytest.raises(ValueError, match="num_envs = 10000000 needs about"):
+        ISCCVectorEnv(num_envs=10_000_000)  # ~15 TB of episodes
+
+
+def test_terminated_sub_env_is_reset_not_charged_again():
+    """A sub-env that lost track is reset by the next step (NextStep autoreset): reward 0, slot 0; it
+    never keeps flying (and paying the loss-of-track penalty) without a reset."""
+    venv = ISCCVectorEnv(2)
+    venv.reset(seed=[3, 4])
+    acts = np.stack([UNSTABLE, split_to_action([0.2, 0.2, 0.6])])
+    for _ in range(5000):
+        _, reward, terminated, _, _ = venv.step(acts)
+        if terminated[0]:
+            break
+    assert terminated[0] and reward[0] < -1000.0
+    _, reward, terminated, truncated, info = venv.step(acts)
+    assert reward[0] == 0.0 and not terminated[0] and not truncated[0] and info["slot"][0] == 0
+    assert not info["_tracking_error_m"][0]

@@ -2,7 +2,11 @@
 
 Table I of the paper gives most values; the rest are quantities the paper leaves open. Each field
 states its unit in its name and its meaning in the docstring below. Variants are made with
-:func:`dataclasses.replace`, which re-runs the validation.
+:func:`dataclasses.replace`, which re-runs the validation: every numeric field must lie in its
+physical range (``_RANGES``; e.g. dB values within +-100 or +-300 dB, at most 1,000,000 slots per
+mission), and the cross-field conditions below must hold (including what a reset can achieve: at
+most 1,000 expected waypoints, a coverage region filling at least 1e-3 of its bounding box). A
+violation raises ``ValueError`` naming the field and its allowed range.
 
 Two presets live in :data:`SCENARIOS`:
 
@@ -121,7 +125,11 @@ class Scenario:
     symbol_duration_s : float
         OFDM symbol duration including cyclic prefix, T_S in s (Table I: 12.5 us).
     mission_duration_s : float
-        Flight duration T_m in s (Table I: 500).
+        Flight duration T_m in s (Table I: 500): the reference visits all its waypoints in T_m, so a
+        shorter mission flies the same tour faster (about 10 m/s at 500 s, 100+ m/s at 50 s). It is
+        not an episode-length knob: to end episodes early on the same flight, pass
+        ``max_episode_steps`` to ``gymnasium.make`` / ``make_vec`` (truncation after that many slots).
+        At most 1,000,000 slots (``mission_duration_s / dt_s``).
     dt_s : float
         Slot (control period) Delta t in s (Table I: 0.1).
     lqg_q_pos : float

@@ -71,7 +71,7 @@ def fly_splits(s: Scenario, splits, n_missions: int, seed: int = 0, n_slots: int
     ref = loop.stack_references([sample_reference(s, rng) for _ in range(m)])
     b = k * m
     state = loop.init_state(s, np.broadcast_to(ref[None], (k,) + ref.shape).reshape((b,) + ref.shape[1:]).copy(),
-                            [np.random.default_rng([seed, j]) for j in range(m)] * k)
+                            [np.random.default_rng([seed, j]) for _ in range(k) for j in range(m)])
     alpha = np.repeat(al, m, axis=0)  # drone i flies split i // m on mission i % m
     b_pinv = np.linalg.pinv(mm.b)
     q_diag, r_diag = np.diag(mm.q), np.diag(mm.r)

@@ -323,6 +323,8 @@ def run(scenario: str = "paper", quick: bool = False, seed: int = 0, schemes: bo
 def other_module(name: str):
     """The module ``iscc_gym.eval.<name>`` if it exists (None if not); errors inside it propagate."""
     full = f"iscc_gym.eval.{name}"
+    if full in sys.modules:
+        return sys.modules[full]
     try:
         spec = importlib.util.find_spec(full)
     except ModuleNotFoundError:

@@ -115,6 +115,7 @@ def ppo_steps_per_second(kind: str, total_steps: int, repeats: int, n_envs: int 
     """Median env-steps/s of SB3 PPO (default hyperparameters) learning ``total_steps`` steps."""
     import torch
     from iscc_gym.agents.sb3_vec_env import ISCCBatchedVecEnv
+    from iscc_gym.train.train import stdout_logger
     from stable_baselines3 import PPO
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecMonitor
@@ -129,6 +130,7 @@ def ppo_steps_per_second(kind: str, total_steps: int, repeats: int, n_envs: int 
             cls = SubprocVecEnv if kind == "subproc" else DummyVecEnv
             venv = make_vec_env(env_id, n_envs=n_envs, seed=r, vec_env_cls=cls)
         model = PPO("MlpPolicy", venv, seed=r, device="cpu", n_steps=min(2048, total_steps // n_envs))
+        model.set_logger(stdout_logger(0))  # SB3's default logger leaves a folder in $TMPDIR per run
         t0 = time.perf_counter()
         model.learn(total_steps)
         rates.append(total_steps / (time.perf_counter() - t0))

@@ -346,3 +346,16 @@ def test_ship_copies_a_unit(tmp_path, monkeypatch):
     ship(args, dest=tmp_path / "dest", write_docs=False)
     assert {p.name for p in (tmp_path / "dest").iterdir()} == set(ARTIFACTS)
     assert SB3Policy.load(tmp_path / "dest").vecnormalize is not None and read_manifest(tmp_path / "dest")
+
+
+def test_a_run_leaves_nothing_in_the_temporary_directory(tmp_path, monkeypatch):
+    """SB3's default logger makes an empty $TMPDIR/SB3-<date> folder per learn() without TensorBoard."""
+    import tempfile
+
+    tmp = tmp_path / "tmpdir"
+    tmp.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp))
+    monkeypatch.delenv("SB3_LOGDIR", raising=False)
+    main(_args(tmp_path / "run", total_timesteps=128, eval_freq=0, checkpoint_freq=0))
+    assert (tmp_path / "run" / "model.zip").is_file()
+    assert sorted(p.name for p in tmp.iterdir() if not p.name.startswith("torchinductor")) == []

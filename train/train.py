@@ -744,6 +744,19 @@ def _progress(args: Args) -> bool:
     return bool(on) and all(importlib.util.find_spec(m) is not None for m in ("tqdm", "rich"))
 
 
+
+def stdout_logger(verbose: int):
+    """An SB3 logger that writes to stdout (``verbose`` >= 1) or nowhere, and creates no folder.
+
+    Without TensorBoard, SB3's own default (``configure(None, ...)``) makes an empty
+    ``$TMPDIR/SB3-<date>`` folder per ``learn`` call; a run of this project leaves nothing behind.
+    """
+    import sys
+
+    from stable_baselines3.common.logger import HumanOutputFormat, Logger
+
+    return Logger(folder=None, output_formats=[HumanOutputFormat(sys.stdout)] if verbose >= 1 else [])
+
 def main(args: Args, callback_after_eval=None) -> dict:
     """Train, save everything into ``args.out``; returns a summary (paths, steps, wall time).
 
@@ -798,6 +811,8 @@ def main(args: Args, callback_after_eval=None) -> dict:
         model = algo_cls(policy, venv, seed=args.seed, device="cpu", verbose=args.verbose, tensorboard_log=tb, **kw)
         if args.init_policy and args.init_policy.lower() != "none":
             warm_start = _behaviour_clone(model, venv, args)
+    if tb is None:
+        model.set_logger(stdout_logger(args.verbose))
     resolved = {"args": dataclasses.asdict(args), "hyperparams": hp}
     write_atomic(out / "config.yml", yaml.safe_dump(resolved, sort_keys=False))
     vecnormalize = venv if args.normalize else None

@@ -61,10 +61,9 @@ def lqr_gain(a, b, q, r):
 
 class ModelMatrices:
     """The constant matrices of one scenario: A, B, K, P (DARE), Q, R, Sigma_omega, A - BK, and the
-    constants of the slot transition (GBS antenna position, matched beam gain, GNSS noise)."""
+    constants of the slot transition (GBS antenna position, Cholesky factor of Sigma_omega, GNSS whitening)."""
 
-    __slots__ = ("a", "b", "k", "p", "q", "r", "sigma_w", "a_cl", "chol_w", "gbs_pos",
-                 "eye6", "gnss_std", "gnss_cov", "gnss_whiten")
+    __slots__ = ("a", "b", "k", "p", "q", "r", "sigma_w", "a_cl", "chol_w", "gbs_pos", "gnss_whiten")
 
     def __init__(self, s: Scenario):
         self.a, self.b = system_matrices(s.dt_s)
@@ -75,12 +74,10 @@ class ModelMatrices:
         self.chol_w = np.sqrt(np.diag(self.sigma_w))
         # constants of the slot transition (loop.step)
         self.gbs_pos = np.array([0.0, 0.0, s.gbs_height_m])
-        self.eye6 = np.eye(6)
-        self.gnss_std = np.array([s.gnss_pos_std_m] * 3 + [s.gnss_vel_std_mps] * 3)
-        self.gnss_cov = np.diag(self.gnss_std**2)
-        self.gnss_whiten = np.diag(1.0 / self.gnss_std)
+        gnss_std = np.array([s.gnss_pos_std_m] * 3 + [s.gnss_vel_std_mps] * 3)
+        self.gnss_whiten = np.diag(1.0 / gnss_std)
         for v in (self.a, self.b, self.k, self.p, self.q, self.r, self.sigma_w, self.a_cl,
-                  self.chol_w, self.gbs_pos, self.eye6, self.gnss_std, self.gnss_cov, self.gnss_whiten):
+                  self.chol_w, self.gbs_pos, self.gnss_whiten):
             v.setflags(write=False)
 
 

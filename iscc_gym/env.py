@@ -13,20 +13,13 @@ from gymnasium import spaces
 from . import kernel, loop, threads
 from .render import Renderer
 from .scenario import Scenario, make_scenario
+from .schema import METRIC_NAMES, N_DRAWS, OBS_BOUND, OBS_NAMES, OBS_SCALING, STEP_COLUMNS
 from .stability import scenario_eps_star
 from .trajectory import sample_reference
 
-__all__ = ["ISCCEnv", "action_to_split", "split_to_action", "observe", "OBS_NAMES", "OBS_BOUND", "check_seed"]
+__all__ = ["ISCCEnv", "action_to_split", "split_to_action", "observe", "decode_observation", "OBS_NAMES", "OBS_BOUND",
+           "STEP_COLUMNS", "check_seed"]
 
-#: Names of the observation entries, in order (see :class:`ISCCEnv`).
-OBS_NAMES = (
-    "pos_err_x", "pos_err_y", "pos_err_z", "vel_err_x", "vel_err_y", "vel_err_z",
-    "ref_vel_x", "ref_vel_y", "ref_vel_z", "ref_acc_x", "ref_acc_y", "ref_acc_z",
-    "est_pos_std", "snr_db", "range", "sin_elevation", "cos_azimuth", "sin_azimuth",
-    "alpha_ctrl_min", "alpha_comm_min", "last_packet_received", "last_peb", "time_left",
-)
-#: Every observation entry is clipped to [-OBS_BOUND, OBS_BOUND].
-OBS_BOUND = 10.0
 
 
 def action_to_split(action):
@@ -116,6 +109,48 @@ def _observe_and_check(s: Scenario, state: loop.LoopState, last_received, last_p
     return np.minimum(np.maximum(obs, -OBS_BOUND), OBS_BOUND).astype(np.float32), evaluable
 
 
+def decode_observation(obs, s: Scenario) -> dict:
+    """Named physical values of observations (any leading batch shape), inverting the scalings of
+    :data:`iscc_gym.schema.OBS_SCALING` (the table of :class:`ISCCEnv`).
+
+    Entries at the clip bound (+-``OBS_BOUND``) decode to the bound's value, not the true one.
+
+    Returns
+    -------
+    dict of ndarray
+        ``pos_err_m``, ``vel_err_mps`` (predicted estimate minus reference), ``ref_vel_mps``,
+        ``ref_acc_mps2`` (shape (..., 3)); ``est_pos_std_m``, ``snr_db`` (predicted large-scale SNR),
+        ``range_m``, ``sin_elevation``, ``cos_azimuth``, ``sin_azimuth``, ``alpha_ctrl_min``,
+        ``alpha_comm_min``, ``last_packet_received`` (bool), ``last_peb_m``, ``slot`` (the slot index
+        n, float) (shape (...)).
+    """
+    o = np.asarray(obs, dtype=float)
+    if o.shape[-1] != len(OBS_NAMES):
+        raise ValueError(f"obs must have {len(OBS_NAMES)} entries along the last axis, got shape {o.shape}")
+    val = {}
+    for j, name in enumerate(OBS_NAMES):
+        kind, k = OBS_SCALING[name]
+        y = o[..., j]
+        if kind == "symlog":
+            val[name] = np.sign(y) * k * np.expm1(np.abs(y))
+        elif kind == "linear":
+            val[name] = y / k
+        elif kind == "range":
+            val[name] = y * s.coverage_radius_m
+        else:  # time_left = 1 - n / n_slots
+            val[name] = (1.0 - y) * s.n_slots
+
+    def vec(prefix):
+        return np.stack([val[prefix + ax] for ax in "xyz"], -1)
+
+    return {"pos_err_m": vec("pos_err_"), "vel_err_mps": vec("vel_err_"), "ref_vel_mps": vec("ref_vel_"),
+            "ref_acc_mps2": vec("ref_acc_"), "est_pos_std_m": val["est_pos_std"], "snr_db": val["snr_db"],
+            "range_m": val["range"], "sin_elevation": val["sin_elevation"], "cos_azimuth": val["cos_azimuth"],
+            "sin_azimuth": val["sin_azimuth"], "alpha_ctrl_min": val["alpha_ctrl_min"],
+            "alpha_comm_min": val["alpha_comm_min"], "last_packet_received": val["last_packet_received"] > 0.5,
+            "last_peb_m": val["last_peb"], "slot": val["time_left"]}
+
+
 def reward_and_costs(s: Scenario, metrics: dict, n_next, evaluable=True):
     """Costs, reward and episode end of a slot from :func:`iscc_gym.loop.step`'s metrics (numpy,
     any batch shape): ``(cost_rate, cost_stability, reward, terminated, truncated)``.
@@ -144,9 +179,6 @@ def reward_and_costs(s: Scenario, metrics: dict, n_next, evaluable=True):
 #: Smaller batches are always stepped serially; larger ones on all cores only when the parallel kernel
 #: is switched on (:mod:`iscc_gym.threads`; the same results bit for bit).
 PARALLEL_MIN_BATCH = threads.PARALLEL_MIN_BATCH
-
-#: Columns of the per-loop output array of :func:`env_step`.
-STEP_COLUMNS = kernel.METRIC_NAMES + kernel.ENV_COLUMNS
 
 
 def env_step(s: Scenario, state: loop.LoopState, actions, normals=None, active=None):
@@ -202,7 +234,7 @@ def env_step(s: Scenario, state: loop.LoopState, actions, normals=None, active=N
 
 
 _ALL_ACTIVE: dict[int, np.ndarray] = {}
-_NO_NORMALS = np.empty((0, loop.N_DRAWS))  # the kernel's "draw from the keys" signal
+_NO_NORMALS = np.empty((0, N_DRAWS))  # the kernel's "draw from the keys" signal
 
 
 def _all_active(nb: int) -> np.ndarray:
@@ -219,7 +251,7 @@ def env_step_reference(s: Scenario, state: loop.LoopState, actions, z):
     """:func:`env_step` in numpy from pre-drawn normals ``z`` (B, N_DRAWS): the readable definition."""
     alpha = action_to_split(actions)
     new, m = loop.step_reference(s, state, alpha, None, z=z)
-    cols = [np.asarray(m[k], dtype=float) for k in kernel.METRIC_NAMES]
+    cols = [np.asarray(m[k], dtype=float) for k in METRIC_NAMES]
     obs, evaluable = _observe_and_check(s, new, cols[7], cols[4])
     costs = reward_and_costs(s, m, new.n, evaluable)
     cols += [alpha[:, 0], alpha[:, 1], alpha[:, 2]] + [np.asarray(v, dtype=float) for v in costs]
@@ -428,8 +460,11 @@ class ISCCEnv(gym.Env):
         if self._state.n[0] >= s.n_slots:
             raise RuntimeError("the mission is over (truncated); call reset() before step()")
         self._state, out, obs = env_step(s, self._state, a[None])
-        (err, est, snr_db, snr_ls_db, peb, veb, eps, received, rate, rate_ctrl, _, al_sen, al_ctrl,
-         al_comm, cost_rate, cost_stab, reward, terminated, truncated) = out[0].tolist()
+        row = dict(zip(STEP_COLUMNS, out[0].tolist(), strict=True))
+        err, peb, reward = row["tracking_error_m"], row["peb_m"], row["reward"]
+        cost_rate, cost_stab = row["cost_rate"], row["cost_stability"]
+        al_sen, al_ctrl, al_comm = row["alpha_sen"], row["alpha_ctrl"], row["alpha_comm"]
+        terminated, truncated, received = row["terminated"], row["truncated"], row["packet_received"]
         self._ended = terminated == 1.0
         self._last_received, self._last_peb = received == 1.0, peb
         n = int(self._state.n[0])
@@ -440,15 +475,15 @@ class ISCCEnv(gym.Env):
             "cost_rate": cost_rate,
             "cost_stability": cost_stab,
             "cost": cost_rate + cost_stab,
-            "snr_db": snr_db,
-            "snr_large_scale_db": snr_ls_db,
+            "snr_db": row["snr_db"],
+            "snr_large_scale_db": row["snr_large_scale_db"],
             "peb_m": peb,
-            "veb_mps": veb,
-            "eps_ctrl": eps,
+            "veb_mps": row["veb_mps"],
+            "eps_ctrl": row["eps_ctrl"],
             "packet_received": self._last_received,
-            "rate_comm_bps": rate,
-            "rate_ctrl_bps": rate_ctrl,
-            "estimation_error_m": est,
+            "rate_comm_bps": row["rate_comm_bps"],
+            "rate_ctrl_bps": row["rate_ctrl_bps"],
+            "estimation_error_m": row["estimation_error_m"],
             "alpha": np.array((al_sen, al_ctrl, al_comm)),
             "action": a.astype(np.float32),
             "slot": n,

@@ -8,7 +8,7 @@ from scipy.special import erfc, ndtri
 from .scenario import Scenario, per_scenario
 
 __all__ = ["dispersion", "q_func", "q_inv", "link_terms", "fbl_rate_bps", "comm_rate_bps",
-           "ctrl_rate_bps", "ctrl_bler", "slot_link", "min_shares", "min_ctrl_share", "min_comm_share"]
+           "ctrl_rate_bps", "ctrl_bler", "slot_link", "min_shares", "min_ctrl_share"]
 
 _LOG2E = float(np.log2(np.e))
 _LOG2E_SQ = _LOG2E**2
@@ -129,10 +129,5 @@ def min_shares(s: Scenario, snr, eps_max, rate_bps):
 
 
 def min_ctrl_share(s: Scenario, snr, eps_max):
-    """The control share of :func:`min_shares`."""
+    """The control share of :func:`min_shares` (kept for ``agents/myopic.py``)."""
     return min_shares(s, snr, eps_max, 0.0)[0]
-
-
-def min_comm_share(s: Scenario, snr, rate_bps):
-    """The data share of :func:`min_shares`."""
-    return min_shares(s, snr, 0.5, rate_bps)[1]

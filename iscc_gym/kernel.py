@@ -34,18 +34,15 @@ from numba import njit, prange
 from .channel import _rician_constants, _snr_constant, matched_gain
 from .dynamics import model_matrices
 from .fbl import _link_constants, q_inv
-from .noise import N_DRAWS, fill_slot_normals
+from .noise import fill_slot_normals
 from .scenario import SPEED_OF_LIGHT_MPS, Scenario, per_scenario
+from .schema import ENV_COLUMNS, METRIC_NAMES, N_DRAWS, N_STEP_COLUMNS
 from .sensing import _echo_constant, _fim_constants, _index_moments
 from .stability import scenario_eps_star
 
 __all__ = ["supported", "kernel_constants", "step_batch", "env_step_batch", "observe_batch", "METRIC_NAMES",
            "ENV_COLUMNS"]
 
-#: Columns of the metrics array returned by :func:`step_batch` (see :func:`iscc_gym.loop.step`).
-METRIC_NAMES = ("tracking_error_m", "estimation_error_m", "snr_db", "snr_large_scale_db", "peb_m",
-                "veb_mps", "eps_ctrl", "packet_received", "rate_comm_bps", "rate_ctrl_bps", "diverged")
-N_METRICS = len(METRIC_NAMES)
 
 # indices into the constants vector
 (_H, _SF_A, _SF_B, _NEG_INV_DECORR, _RIC_LOS, _RIC_SCAT, _SNR_K, _BEAM_G, _ECHO_K, _M_OVER_SIG2,
@@ -402,10 +399,7 @@ def step_batch(c, mats, x, x_hat, p, shadow, n, ref, alpha, z, x_next, x_hat_nex
                                    metrics[i], work)
 
 
-#: Extra columns of :func:`env_step_batch`'s metrics after :data:`METRIC_NAMES`.
-ENV_COLUMNS = ("alpha_sen", "alpha_ctrl", "alpha_comm", "cost_rate", "cost_stability", "reward",
-               "terminated", "truncated")
-N_ENV_COLUMNS = N_METRICS + len(ENV_COLUMNS)
+N_ENV_COLUMNS = N_STEP_COLUMNS
 
 
 @njit(cache=True, error_model="numpy")

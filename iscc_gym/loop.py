@@ -31,17 +31,17 @@ from .channel import (
 from .dynamics import model_matrices
 from .fbl import min_shares, q_func, slot_link
 from .kalman import kf_predict, kf_update
-from .noise import N_DRAWS, draw_keys, slot_normals, standard_normals
+from .noise import draw_keys, slot_normals, standard_normals
 from .scenario import Scenario
+from .schema import METRIC_NAMES, N_DRAWS, N_METRICS, Z_DROP, Z_FADE_COMM, Z_FADE_SEN, Z_MEAS, Z_PROC, Z_SHADOW
 from .sensing import crlb_local, whitened_observation_matrix
 from .trajectory import Reference
 
 __all__ = ["LoopState", "N_DRAWS", "init_state", "step", "step_reference", "preview", "reference_at",
            "standard_normals", "stack_references", "reference_array", "slot_noise"]
 
-# The layout of each slot's N_DRAWS standard normals: fading (4), measurement (6), drop (1),
-# process noise (6), shadowing (1).
-_FADE, _MEAS, _DROP, _PROC, _SHAD = slice(0, 4), slice(4, 10), 10, slice(11, 17), 17
+# The layout of each slot's N_DRAWS standard normals (iscc_gym.schema.DRAWS)
+_MEAS, _DROP, _PROC, _SHAD = slice(Z_MEAS, Z_MEAS + 6), Z_DROP, slice(Z_PROC, Z_PROC + 6), Z_SHADOW
 
 
 class LoopState(NamedTuple):
@@ -188,7 +188,7 @@ def step(s: Scenario, state: LoopState, alpha, rng=None):
     _check_step(s, state, alpha)
     z = slot_noise(state, rng)
     nb = 1 if batch is None else batch
-    x_n, xh_n, p_n, sh_n, met, _ = kernel.new_outputs(nb, kernel.N_METRICS)
+    x_n, xh_n, p_n, sh_n, met, _ = kernel.new_outputs(nb, N_METRICS)
     if batch is None:  # a batch of one, squeezed back
         kernel.step_batch(*kernel.kernel_constants(s), x[None], state.x_hat[None], state.p[None],
                           state.shadow[None], state.n[None], state.ref[None], alpha[None], z[None],
@@ -197,7 +197,7 @@ def step(s: Scenario, state: LoopState, alpha, rng=None):
     else:
         kernel.step_batch(*kernel.kernel_constants(s), x, state.x_hat, state.p, state.shadow, state.n,
                           state.ref, alpha, z, x_n, xh_n, p_n, sh_n, met)
-    metrics = dict(zip(kernel.METRIC_NAMES, met.T, strict=True))
+    metrics = dict(zip(METRIC_NAMES, met.T, strict=True))
     metrics["packet_received"] = metrics["packet_received"] > 0.5
     metrics["diverged"] = metrics["diverged"] > 0.5
     return state._replace(x=x_n, x_hat=xh_n, p=p_n, shadow=sh_n, n=state.n + 1), metrics
@@ -260,15 +260,15 @@ def step_reference(s: Scenario, state: LoopState, alpha, rng=None, z=None):
     trig = direction_trig(los)
     shadow_db = shadowing_std_db(s, pos[..., 2]) * state.shadow
     snr_ls = link_snr(s, dist, shadow_db, beam_gain(s, trig))
-    snr = rician_power_gain(s, z[..., 0], z[..., 1]) * snr_ls
+    snr = rician_power_gain(s, z[..., Z_FADE_COMM], z[..., Z_FADE_COMM + 1]) * snr_ls
 
     # --- sensing (CRLB in the local range/azimuth/elevation frame) and Kalman measurement update
     m_r, m_tt, m_tp, m_pp, crlb_vr = crlb_local(s, a_sen, dist, trig, shadow_db,
-                                                rician_power_gain(s, z[..., 2], z[..., 3]))
+                                                rician_power_gain(s, z[..., Z_FADE_SEN], z[..., Z_FADE_SEN + 1]))
     if s.observation_source == "isac":
         # eq:observation_model, whitened: W y = W C x + z with W C from the CRLBs, z ~ N(0, I4)
         c = whitened_observation_matrix(los, trig, m_r, m_tt, m_tp, m_pp, crlb_vr)
-        y = (c @ x[..., None])[..., 0] + z[..., 4:8]
+        y = (c @ x[..., None])[..., 0] + z[..., Z_MEAS:Z_MEAS + 4]
     else:  # GNSS: position and velocity with independent Gaussian errors, whitened likewise
         c = mm.gnss_whiten
         y = (c @ x[..., None])[..., 0] + z[..., _MEAS]

@@ -24,11 +24,10 @@ from collections.abc import Sequence
 import numpy as np
 from numba import njit
 
+from .schema import N_DRAWS  # the layout of a slot's draws: iscc_gym.schema.DRAWS
+
 __all__ = ["N_DRAWS", "draw_keys", "slot_normals", "standard_normals", "ZIGGURAT_R"]
 
-#: Standard normals per drone per slot: fading (4), measurement (6), drop (1), process noise (6),
-#: shadowing (1) (the layout :mod:`iscc_gym.loop` reads).
-N_DRAWS = 18
 
 #: Right edge of the ziggurat's base layer (NumPy's and Marsaglia & Tsang's 256-layer value).
 ZIGGURAT_R = 3.6541528853610088

@@ -16,21 +16,19 @@ from gymnasium.vector.utils import batch_space
 
 from . import loop
 from .env import (
-    OBS_BOUND,
-    OBS_NAMES,
     REGISTERED_MAX_EPISODE_STEPS,
-    STEP_COLUMNS,
     check_seed,
     env_step,
     observe,
     warn_time_limit,
 )
 from .scenario import Scenario, make_scenario
+from .schema import COL as _COL
+from .schema import OBS_BOUND, OBS_NAMES
 from .trajectory import sample_reference
 
 __all__ = ["ISCCVectorEnv", "check_memory", "reset_bytes", "available_memory_bytes"]
 
-_COL = {name: j for j, name in enumerate(STEP_COLUMNS)}
 #: info keys of a step, from the columns of :func:`iscc_gym.env.env_step` (``alpha`` and ``cost`` added).
 INFO_KEYS = ("tracking_error_m", "cost_rate", "cost_stability", "cost", "snr_db", "snr_large_scale_db",
              "peb_m", "veb_mps", "eps_ctrl", "packet_received", "rate_comm_bps", "rate_ctrl_bps",

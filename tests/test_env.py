@@ -920,3 +920,30 @@ def test_random_action_sequences(seed, acts, scenario):
         assert np.all(np.linalg.eigvalsh(p) >= -1e-12 * np.abs(p).max())
         if terminated or truncated:
             break
+
+
+def test_decode_observation_inverts_the_scalings():
+    """decode_observation gives the physical values the observation was built from (issue 14)."""
+    from iscc_gym import loop
+    from iscc_gym.env import decode_observation
+    from iscc_gym.stability import scenario_eps_star
+
+    env = gym.make(iscc_gym.ENV_ID)
+    obs, _ = env.reset(seed=3)
+    for _ in range(20):
+        obs, *_ = env.step(np.array([0.2, 0.5, -0.1], np.float32))
+    inner = env.unwrapped
+    s, state = inner.scenario, inner._state
+    d = decode_observation(obs, s)
+    ref = loop.reference_at(state)[0]
+    pv = loop.preview(s, state, scenario_eps_star(s))
+    np.testing.assert_allclose(d["pos_err_m"], state.x_hat[0, :3] - ref[:3], rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(d["ref_vel_mps"], ref[3:6], rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(d["range_m"], pv["dist_m"][0], rtol=1e-5)
+    np.testing.assert_allclose(d["snr_db"], pv["snr_db"][0], rtol=1e-5)
+    np.testing.assert_allclose(d["alpha_ctrl_min"], pv["alpha_ctrl_min"][0], rtol=1e-5)
+    np.testing.assert_allclose(d["last_peb_m"], inner._last_peb, rtol=1e-5)
+    assert d["slot"] == pytest.approx(20.0, abs=1e-3)
+    assert d["last_packet_received"] == inner._last_received
+    batch = decode_observation(np.stack([obs, obs]), s)
+    assert batch["pos_err_m"].shape == (2, 3) and batch["snr_db"].shape == (2,)

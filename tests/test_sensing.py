@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import oracle_sensing as so
 import pytest
 
 from iscc_gym import channel as ch
@@ -141,9 +142,9 @@ def _definition_fim(s, pos, shadow_db, fading, steps=STEPS):
     for i in range(4):
         e = np.zeros(4)
         e[i] = steps[i]
-        dmu.append((se.echo_mean(s, xi + e, K_SEN, w, amp)
-                    - se.echo_mean(s, xi - e, K_SEN, w, amp)) / (2.0 * steps[i]))
-    return se.fim_from_definition(dmu, se.sensing_noise_var_w(s))
+        dmu.append((so.echo_mean(s, xi + e, K_SEN, w, amp)
+                    - so.echo_mean(s, xi - e, K_SEN, w, amp)) / (2.0 * steps[i]))
+    return so.fim_from_definition(dmu, se.sensing_noise_var_w(s))
 
 
 def _sum_sq(n):
@@ -265,7 +266,7 @@ def _fd_jacobian(s, p):
 def test_position_jacobian_finite_difference():
     s = Scenario()
     pos = _coverage_positions(s, 8, seed=3)
-    ups = se.position_jacobian(s, pos)
+    ups = so.position_jacobian(s, pos)
     assert ups.shape == (8, 3, 3)
     for i in range(8):
         fd = _fd_jacobian(s, pos[i])
@@ -297,7 +298,7 @@ def test_crlb_matches_eq_crlb_pos(orientation):
     alpha = 0.15
     crlb_p, crlb_vr = se.crlb(s, alpha, pos, shadow, fading)
     j_tau, j_nu, j_ang = se.fim(s, alpha, pos, shadow, fading)
-    from_jac = se.crlb_position_from_jacobian(s, pos, j_tau, j_ang)
+    from_jac = so.crlb_position_from_jacobian(s, pos, j_tau, j_ang)
     assert crlb_p.shape == from_jac.shape == (10, 3, 3)
     for i in range(10):
         ups = _fd_jacobian(s, pos[i])
@@ -419,7 +420,7 @@ def test_crlb_local_frame_equals_inverse_of_position_information(orientation):
                            rng.uniform(101, 300, 40)])
     crlb_p, _ = se.crlb(s, 0.15, pos, 0.3, 0.8)
     j_tau, _, j_ang = se.fim(s, 0.15, pos, 0.3, 0.8)
-    info = se.position_information(s, pos, j_tau, j_ang) + np.eye(3) / s.sensing_prior_var_m2
+    info = so.position_information(s, pos, j_tau, j_ang) + np.eye(3) / s.sensing_prior_var_m2
     ref = np.linalg.inv(info)
     np.testing.assert_allclose(crlb_p, ref, rtol=1e-7, atol=1e-12 * s.sensing_prior_var_m2)
 

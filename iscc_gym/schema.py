@@ -1,0 +1,74 @@
+"""One schema for a slot's inputs and outputs: metric and env columns, observation entries, noise draws.
+
+Everything that names or positions a number crossing the step boundary is defined here once and
+read by the compiled kernel (:mod:`iscc_gym.kernel`), the numpy transition (:mod:`iscc_gym.loop`),
+the single env, the vector env and the agents. Plain Python: the module imports nothing from the
+package, so every layer can use it (the integer positions are module constants numba freezes at
+compile time).
+"""
+
+from __future__ import annotations
+
+__all__ = ["METRIC_NAMES", "ENV_COLUMNS", "STEP_COLUMNS", "COL", "N_METRICS", "N_STEP_COLUMNS", "OBS_NAMES",
+           "OBS", "N_OBS", "OBS_BOUND", "OBS_SCALING", "N_DRAWS", "DRAWS"]
+
+#: Columns of a slot's metrics (:func:`iscc_gym.loop.step`), in order.
+METRIC_NAMES = ("tracking_error_m", "estimation_error_m", "snr_db", "snr_large_scale_db", "peb_m",
+                "veb_mps", "eps_ctrl", "packet_received", "rate_comm_bps", "rate_ctrl_bps", "diverged")
+#: Columns an env step adds after :data:`METRIC_NAMES`: the applied split, costs, reward, episode end (0/1).
+ENV_COLUMNS = ("alpha_sen", "alpha_ctrl", "alpha_comm", "cost_rate", "cost_stability", "reward",
+               "terminated", "truncated")
+#: Columns of the per-loop output array of an env step (:func:`iscc_gym.env.env_step`).
+STEP_COLUMNS = METRIC_NAMES + ENV_COLUMNS
+#: Position of each column of :data:`STEP_COLUMNS` by name.
+COL = {name: j for j, name in enumerate(STEP_COLUMNS)}
+N_METRICS = len(METRIC_NAMES)
+N_STEP_COLUMNS = len(STEP_COLUMNS)
+
+#: Names of the observation entries, in order (table in :class:`iscc_gym.env.ISCCEnv`).
+OBS_NAMES = (
+    "pos_err_x", "pos_err_y", "pos_err_z", "vel_err_x", "vel_err_y", "vel_err_z",
+    "ref_vel_x", "ref_vel_y", "ref_vel_z", "ref_acc_x", "ref_acc_y", "ref_acc_z",
+    "est_pos_std", "snr_db", "range", "sin_elevation", "cos_azimuth", "sin_azimuth",
+    "alpha_ctrl_min", "alpha_comm_min", "last_packet_received", "last_peb", "time_left",
+)
+#: Position of each observation entry by name.
+OBS = {name: j for j, name in enumerate(OBS_NAMES)}
+N_OBS = len(OBS_NAMES)
+#: Every observation entry is clipped to [-OBS_BOUND, OBS_BOUND].
+OBS_BOUND = 10.0
+#: How each entry is scaled from its physical value: ``("symlog", c)`` is sign(x) ln(1 + |x|/c),
+#: ``("linear", k)`` is k x; ``"range"`` divides by the coverage radius, ``"time_left"`` is
+#: 1 - n / n_slots (both scenario-dependent). :func:`iscc_gym.env.decode_observation` inverts them.
+OBS_SCALING = {
+    **{name: ("symlog", 0.1) for name in OBS_NAMES[0:6]},
+    **{name: ("linear", 0.1) for name in OBS_NAMES[6:9]},
+    **{name: ("linear", 1.0) for name in OBS_NAMES[9:12]},
+    "est_pos_std": ("symlog", 0.1),
+    "snr_db": ("linear", 0.1),
+    "range": ("range", None),
+    "sin_elevation": ("linear", 1.0),
+    "cos_azimuth": ("linear", 1.0),
+    "sin_azimuth": ("linear", 1.0),
+    "alpha_ctrl_min": ("linear", 10.0),
+    "alpha_comm_min": ("linear", 1.0),
+    "last_packet_received": ("linear", 1.0),
+    "last_peb": ("symlog", 0.05),
+    "time_left": ("time_left", None),
+}
+
+#: Standard normals per loop per slot.
+N_DRAWS = 18
+#: The layout of a slot's :data:`N_DRAWS` normals: first index and count of each group. Fading:
+#: (re, im) of the communication link, then of the sensing echo; measurement: 4 whitened ISAC rows
+#: or 6 GNSS entries; drop: the control packet's Bernoulli draw (delivered iff Phi(z) >= eps);
+#: process: the 6 process-noise entries; shadowing: the AR(1) innovation.
+DRAWS = {"fading_comm": (0, 2), "fading_sensing": (2, 2), "measurement": (4, 6), "drop": (10, 1),
+         "process": (11, 6), "shadowing": (17, 1)}
+Z_FADE_COMM = DRAWS["fading_comm"][0]
+Z_FADE_SEN = DRAWS["fading_sensing"][0]
+Z_MEAS = DRAWS["measurement"][0]
+Z_DROP = DRAWS["drop"][0]
+Z_PROC = DRAWS["process"][0]
+Z_SHADOW = DRAWS["shadowing"][0]
+assert sum(n for _, n in DRAWS.values()) == N_DRAWS

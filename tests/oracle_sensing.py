@@ -1,0 +1,100 @@
+"""Test oracles of the sensing model: the FIM from its definition (the echo's derivatives), the
+printed eq:CRLB_pos through the Jacobian, and the position information in the global frame.
+
+Independent numpy paths kept out of the library (issue 14): the tests check :mod:`iscc_gym.sensing`'s
+closed forms against them.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from iscc_gym.channel import array_response, geometry
+from iscc_gym.scenario import SPEED_OF_LIGHT_MPS, Scenario
+
+
+def position_jacobian(s: Scenario, pos_m):
+    """Jacobian :math:`\\Upsilon_\\mathbf p = \\partial\\mathbf p/\\partial\\boldsymbol\\xi_\\mathbf p`,
+    eq:Jacobian, shape (..., 3, 3), columns :math:`(\\tau_S, \\theta, \\varphi)`."""
+    dist, th, ph, _ = geometry(s, pos_m)
+    tau = 2.0 * dist / SPEED_OF_LIGHT_MPS
+    st, ct, sp, cp = np.sin(th), np.cos(th), np.sin(ph), np.cos(ph)
+    zero = np.zeros_like(st)
+    rows = [
+        np.stack([cp * ct, -tau * cp * st, -tau * sp * ct], -1),
+        np.stack([cp * st, tau * cp * ct, -tau * sp * st], -1),
+        np.stack([sp, zero, tau * cp], -1),
+    ]
+    return 0.5 * SPEED_OF_LIGHT_MPS * np.stack(rows, -2)
+
+
+def position_information(s: Scenario, pos_m, j_tau, j_ang):
+    """Position-domain Fisher information :math:`\\Upsilon^{-T}\\mathbf J_\\mathbf p\\Upsilon^{-1}`, (..., 3, 3).
+
+    Written with :math:`\\partial\\boldsymbol\\xi_\\mathbf p/\\partial\\mathbf p` in closed form
+    (:math:`\\partial\\tau/\\partial\\mathbf p = 2\\mathbf g/c`,
+    :math:`\\partial\\theta/\\partial\\mathbf p = [-\\sin\\theta, \\cos\\theta, 0]/(l\\cos\\varphi)`,
+    :math:`\\partial\\varphi/\\partial\\mathbf p = [-\\sin\\varphi\\cos\\theta, -\\sin\\varphi\\sin\\theta,
+    \\cos\\varphi]/l`), so it stays finite where :math:`\\mathbf J_\\mathbf p` is singular.
+    """
+    dist, th, ph, los = geometry(s, pos_m)
+    st, ct, sp, cp = np.sin(th), np.cos(th), np.sin(ph), np.cos(ph)
+    cp_safe = np.maximum(cp, 1e-9)
+    zero = np.zeros_like(st)
+    d_th = np.stack([-st, ct, zero], -1) / (dist * cp_safe)[..., None]
+    d_ph = np.stack([-sp * ct, -sp * st, cp], -1) / dist[..., None]
+    t = np.stack([d_th, d_ph], -2)  # (..., 2, 3)
+    g = 2.0 / SPEED_OF_LIGHT_MPS * los
+    return (np.asarray(j_tau)[..., None, None] * g[..., :, None] * g[..., None, :]
+            + np.einsum("...ai,...ab,...bj->...ij", t, j_ang, t))
+
+
+def crlb_position_from_jacobian(s: Scenario, pos_m, j_tau, j_ang):
+    """eq:CRLB_pos exactly as printed, :math:`\\Upsilon_\\mathbf p\\mathbf J_\\mathbf p^{-1}
+    \\Upsilon_\\mathbf p^T` (no prior); an independent path used by the tests."""
+    jp = np.zeros(np.shape(j_tau) + (3, 3))
+    jp[..., 0, 0] = j_tau
+    jp[..., 1:, 1:] = j_ang
+    ups = position_jacobian(s, pos_m)
+    return ups @ np.linalg.inv(jp) @ np.swapaxes(ups, -1, -2)
+
+
+def echo_mean(s: Scenario, xi, n_sen_subcarriers: int, w, amp_sq: float):
+    """Noise-free echo :math:`\\mu_{m,k}` of eq:sensing_vector_model for one target, shape (M, K_sen, N).
+
+    .. math::
+        \\boldsymbol\\mu_{m,k} = \\sqrt{P_k\\beta_S}\\, g_S\\, \\boldsymbol\\eta(\\theta,\\varphi)\\,
+        e^{-jA_k\\tau_S} e^{jB_m\\nu_S},\\quad A_k = 2\\pi k\\Delta f,\\ B_m = 2\\pi m T_S
+
+    with :math:`d_{m,k}=1`, :math:`k = 0..K_\\mathrm{sen}-1`, :math:`m = 0..\\mathcal M-1`,
+    :math:`\\boldsymbol\\eta = \\mathbf a(\\mathbf a^H \\mathbf w)` and ``amp_sq`` =
+    :math:`P_k\\beta_S|g_S|^2`. Used to evaluate the FIM from its definition.
+
+    Parameters
+    ----------
+    xi : sequence of 4 floats
+        :math:`(\\tau_S, \\theta, \\varphi, \\nu_S)`.
+    w : ndarray, shape (N,)
+        Beamformer, held fixed.
+    """
+    tau, th, ph, nu = (float(v) for v in xi)
+    a, _, _ = array_response(s, th, ph)
+    eta = a * np.vdot(a, w)
+    k = np.arange(n_sen_subcarriers)
+    m = np.arange(s.n_symbols)
+    phase = (np.exp(-2j * np.pi * k * s.subcarrier_spacing_hz * tau)[None, :]
+             * np.exp(2j * np.pi * m * s.symbol_duration_s * nu)[:, None])
+    return np.sqrt(amp_sq) * phase[:, :, None] * eta[None, None, :]
+
+
+def fim_from_definition(dmu, noise_var_w: float):
+    """FIM from its definition, :math:`[\\mathbf J]_{ij} = \\frac{2}{\\sigma^2}\\sum_{m,k}
+    \\Re\\{\\partial_i\\boldsymbol\\mu_{m,k}^H\\partial_j\\boldsymbol\\mu_{m,k}\\}`.
+
+    Parameters
+    ----------
+    dmu : sequence of ndarray
+        Derivatives of :func:`echo_mean` with respect to each parameter (any common shape).
+    """
+    flat = np.stack([np.ravel(d) for d in dmu])
+    return 2.0 / noise_var_w * np.real(np.conj(flat) @ flat.T)

@@ -5,7 +5,10 @@ All functions broadcast over leading batch axes: positions have shape ``(..., 3)
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
+from numba import njit
 
 from .scenario import Scenario, per_scenario
 from .units import db_to_lin, dbm_to_w
@@ -27,6 +30,13 @@ __all__ = [
     "beamforming_gain",
     "noise_power_w",
     "large_scale_snr",
+    "rician_constants",
+    "snr_constant",
+    "direction_one",
+    "shadowing_db_one",
+    "link_snr_one",
+    "rician_gain_one",
+    "shadowing_step_one",
 ]
 
 
@@ -110,14 +120,15 @@ def rician_power_gain(s: Scenario, z_re, z_im):
     (``rician_k_db``), the paper's :math:`g_{C,m,k}` and :math:`g_{S,m,k}`, one draw per slot.
     ``z_re`` and ``z_im`` are standard normal draws.
     """
-    los, scat = _rician_constants(s)
+    los, scat = rician_constants(s)
     re = los + scat * z_re
     im = scat * z_im
     return re * re + im * im
 
 
 @per_scenario
-def _rician_constants(s: Scenario):
+def rician_constants(s: Scenario):
+    """``(los, scat)``: :math:`\\sqrt{K/(K+1)}` and :math:`\\sqrt{1/(2(K+1))}` of :func:`rician_power_gain`."""
     k = float(db_to_lin(s.rician_k_db))
     return float(np.sqrt(k / (k + 1.0))), float(np.sqrt(0.5 / (k + 1.0)))
 
@@ -275,14 +286,63 @@ def link_snr(s: Scenario, dist_m, shadow_db, gain):
     The dB budget :math:`P - \\mathcal L(l) - \\varepsilon + \\Delta - N_0B` in linear form,
     :math:`\\kappa\\, G\\, l^{-2.2}\\, 10^{-\\varepsilon/10}`, with the constant :math:`\\kappa` cached.
     """
-    return _snr_constant(s) * gain * dist_m ** -2.2 * 10.0 ** (-0.1 * shadow_db)
+    return snr_constant(s) * gain * dist_m ** -2.2 * 10.0 ** (-0.1 * shadow_db)
 
 
 @per_scenario
-def _snr_constant(s: Scenario) -> float:
+def snr_constant(s: Scenario) -> float:
+    """The range-independent factor :math:`\\kappa` of :func:`link_snr` (transmit power over noise,
+    path loss at 1 m and the carrier, calibration offset)."""
     p_w = float(dbm_to_w(s.tx_power_dbm))
     if s.snr_convention == "per_subcarrier_power":
         p_w /= s.n_subcarriers
     # path_loss_db(l) = 28 + 20 log10 f_c + 22 log10 l: the l-independent part goes here
     fixed_db = float(path_loss_db(s, 1.0)) - s.comm_snr_offset_db
     return p_w / noise_power_w(s) * 10.0 ** (-0.1 * fixed_db)
+
+
+# --- compiled scalar forms: one drone, composed by the slot kernel (iscc_gym.loop.step_one) ---------
+# ``inline="always"``: numba inlines them into the caller's IR, so they compile with the caller's flags.
+
+_LN10_OVER_10 = math.log(10.0) / 10.0
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def direction_one(h_gbs, px, py, pz):
+    """:func:`geometry` and :func:`direction_trig` of one position: ``(dist, gx, gy, gz, cos_az, sin_az,
+    cos_el, sin_el)`` (range in m, LoS unit vector, cosines and sines of azimuth and elevation)."""
+    rx, ry, rz = px, py, pz - h_gbs
+    dist = math.sqrt(rx * rx + ry * ry + rz * rz)
+    gx, gy, gz = rx / dist, ry / dist, rz / dist
+    cp = math.sqrt(gx * gx + gy * gy)
+    zenith = 1.0 if cp < 1e-12 else 0.0
+    inv = 1.0 / max(cp, 1e-12)
+    return dist, gx, gy, gz, gx * inv + zenith, gy * inv, cp, gz
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def shadowing_db_one(sf_a, sf_b, altitude_m, shadow_norm):
+    """Shadowing in dB, :func:`shadowing_std_db` times the unit-variance state."""
+    return sf_a * math.exp(-sf_b * altitude_m) * shadow_norm
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def link_snr_one(snr_k, gain, dist_m, shadow_db):
+    """:func:`link_snr`, :math:`\\kappa G l^{-2.2} 10^{-\\varepsilon/10}`, as one exp of a log (two
+    powers cost more than the rest of the slot)."""
+    return snr_k * gain * math.exp(-2.2 * math.log(dist_m) - _LN10_OVER_10 * shadow_db)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def rician_gain_one(los, scat, z_re, z_im):
+    """:func:`rician_power_gain` of one draw (``los``, ``scat`` from :func:`rician_constants`)."""
+    re = los + scat * z_re
+    im = scat * z_im
+    return re * re + im * im
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def shadowing_step_one(neg_inv_decorr, shadow_norm, moved_m, z):
+    """:func:`shadowing_step` of one loop (``neg_inv_decorr`` = -1 / shadowing_decorrelation_m)."""
+    rho = math.exp(moved_m * neg_inv_decorr)
+    return rho * shadow_norm + math.sqrt(1.0 - rho * rho) * z

@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import control
 import numpy as np
+from numba import njit
 
 from .scenario import Scenario, per_scenario
 
-__all__ = ["system_matrices", "process_noise_cov", "lqg_weights", "lqr_gain", "model_matrices"]
+__all__ = ["system_matrices", "process_noise_cov", "lqg_weights", "lqr_gain", "model_matrices", "lqg_command_one",
+           "input_one", "propagate_one"]
 
 
 def system_matrices(dt_s: float):
@@ -85,3 +87,40 @@ class ModelMatrices:
 def model_matrices(s: Scenario) -> ModelMatrices:
     """Cached :class:`ModelMatrices` of a (hashable, frozen) scenario."""
     return ModelMatrices(s)
+
+
+# --- compiled scalar forms: one drone, composed by the slot kernel (iscc_gym.loop.step_one) ---------
+# ``inline="always"``: numba inlines them into the caller's IR, so they compile with the caller's flags.
+
+@njit(cache=True, error_model="numpy", inline="always")
+def lqg_command_one(k_mat, x_hat, ref_row, feedforward, u):
+    """eq:LQG_control_input of one drone, :math:`\\mathbf u = -\\mathbf K(\\hat{\\mathbf x} -
+    \\mathbf x_\\mathrm{ref})` (plus the reference acceleration ``ref_row[6:9]`` with ``feedforward``),
+    written into ``u`` (3)."""
+    for j in range(3):
+        acc = 0.0
+        for k in range(6):
+            acc += k_mat[j, k] * (x_hat[k] - ref_row[k])
+        u[j] = -acc
+        if feedforward:
+            u[j] += ref_row[6 + j]
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def input_one(b_mat, u, bu):
+    """:math:`\\mathbf B\\mathbf u` of one drone into ``bu`` (6)."""
+    for j in range(6):
+        acc = 0.0
+        for k in range(3):
+            acc += b_mat[j, k] * u[k]
+        bu[j] = acc
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def propagate_one(dt, x, bu, chol_w, z, z0, x_next):
+    """eq:state of one drone, :math:`\\mathbf x_{n+1} = \\mathbf A\\mathbf x_n + \\mathbf B\\mathbf u_n
+    + \\omega_n` with A = [[I, dt I], [0, I]] and :math:`\\omega_n` = ``chol_w * z[z0:z0 + 6]``
+    (Sigma_omega is diagonal), into ``x_next`` (6)."""
+    for j in range(6):
+        ax = x[j] + dt * x[j + 3] if j < 3 else x[j]
+        x_next[j] = ax + bu[j] + chol_w[j] * z[z0 + j]

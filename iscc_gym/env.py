@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import operator
 from typing import Any
 
 import gymnasium as gym
@@ -13,7 +14,7 @@ from gymnasium import spaces
 from . import kernel, loop, threads
 from .render import Renderer
 from .scenario import Scenario, make_scenario
-from .schema import METRIC_NAMES, N_DRAWS, OBS_BOUND, OBS_NAMES, OBS_SCALING, STEP_COLUMNS
+from .schema import COL, METRIC_NAMES, N_DRAWS, OBS_BOUND, OBS_NAMES, OBS_SCALING, STEP_COLUMNS
 from .stability import scenario_eps_star
 from .trajectory import sample_reference
 
@@ -181,6 +182,13 @@ def reward_and_costs(s: Scenario, metrics: dict, n_next, evaluable=True):
 PARALLEL_MIN_BATCH = threads.PARALLEL_MIN_BATCH
 
 
+#: The columns :meth:`ISCCEnv.step` reads, in the order it unpacks them (one C call per step).
+_STEP_FIELDS = ("tracking_error_m", "estimation_error_m", "snr_db", "snr_large_scale_db", "peb_m", "veb_mps",
+                "eps_ctrl", "packet_received", "rate_comm_bps", "rate_ctrl_bps", "alpha_sen", "alpha_ctrl",
+                "alpha_comm", "cost_rate", "cost_stability", "reward", "terminated", "truncated")
+_read_step = operator.itemgetter(*(COL[name] for name in _STEP_FIELDS))
+
+
 def env_step(s: Scenario, state: loop.LoopState, actions, normals=None, active=None):
     """One env step of a batch of loops: action map, slot transition, reward, costs, next observation.
 
@@ -215,7 +223,8 @@ def env_step(s: Scenario, state: loop.LoopState, actions, normals=None, active=N
         z = _NO_NORMALS if normals is None else normals
         args = (c, mats, state.x, state.x_hat, state.p, state.shadow, state.n, state.ref, state.key, actions, z,
                 active)
-        if threads.use_parallel(nb, numba.get_num_threads()):
+        # numba.get_num_threads() costs ~0.5 us: asked only for a batch the parallel kernel could take
+        if nb >= PARALLEL_MIN_BATCH and threads.use_parallel(nb, numba.get_num_threads()):
             kernel.env_step_batch_parallel(*args, *outputs, kernel.parallel_chunk(nb))
         else:
             kernel.env_step_batch(*args, *outputs)
@@ -460,11 +469,8 @@ class ISCCEnv(gym.Env):
         if self._state.n[0] >= s.n_slots:
             raise RuntimeError("the mission is over (truncated); call reset() before step()")
         self._state, out, obs = env_step(s, self._state, a[None])
-        row = dict(zip(STEP_COLUMNS, out[0].tolist(), strict=True))
-        err, peb, reward = row["tracking_error_m"], row["peb_m"], row["reward"]
-        cost_rate, cost_stab = row["cost_rate"], row["cost_stability"]
-        al_sen, al_ctrl, al_comm = row["alpha_sen"], row["alpha_ctrl"], row["alpha_comm"]
-        terminated, truncated, received = row["terminated"], row["truncated"], row["packet_received"]
+        (err, est, snr_db, snr_ls_db, peb, veb, eps, received, rate, rate_ctrl, al_sen, al_ctrl, al_comm,
+         cost_rate, cost_stab, reward, terminated, truncated) = _read_step(out[0].tolist())  # _STEP_FIELDS
         self._ended = terminated == 1.0
         self._last_received, self._last_peb = received == 1.0, peb
         n = int(self._state.n[0])
@@ -475,15 +481,15 @@ class ISCCEnv(gym.Env):
             "cost_rate": cost_rate,
             "cost_stability": cost_stab,
             "cost": cost_rate + cost_stab,
-            "snr_db": row["snr_db"],
-            "snr_large_scale_db": row["snr_large_scale_db"],
+            "snr_db": snr_db,
+            "snr_large_scale_db": snr_ls_db,
             "peb_m": peb,
-            "veb_mps": row["veb_mps"],
-            "eps_ctrl": row["eps_ctrl"],
+            "veb_mps": veb,
+            "eps_ctrl": eps,
             "packet_received": self._last_received,
-            "rate_comm_bps": row["rate_comm_bps"],
-            "rate_ctrl_bps": row["rate_ctrl_bps"],
-            "estimation_error_m": row["estimation_error_m"],
+            "rate_comm_bps": rate,
+            "rate_ctrl_bps": rate_ctrl,
+            "estimation_error_m": est,
             "alpha": np.array((al_sen, al_ctrl, al_comm)),
             "action": a.astype(np.float32),
             "slot": n,

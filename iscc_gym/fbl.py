@@ -2,13 +2,17 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
+from numba import njit
 from scipy.special import erfc, ndtri
 
 from .scenario import Scenario, per_scenario
 
 __all__ = ["dispersion", "q_func", "q_inv", "link_terms", "fbl_rate_bps", "comm_rate_bps",
-           "ctrl_rate_bps", "ctrl_bler", "slot_link", "min_shares", "min_ctrl_share"]
+           "ctrl_rate_bps", "ctrl_bler", "slot_link", "min_shares", "min_ctrl_share", "link_constants",
+           "link_terms_one", "ctrl_bler_one", "rate_one", "delivered_one", "min_ctrl_share_one", "min_comm_share_one"]
 
 _LOG2E = float(np.log2(np.e))
 _LOG2E_SQ = _LOG2E**2
@@ -64,7 +68,7 @@ def _rate(alpha, bandwidth_hz, cap, sqrt_v, back_off):
 
 
 @per_scenario
-def _link_constants(s: Scenario):
+def link_constants(s: Scenario):
     """(comm back-off Q^-1(eps)/sqrt(L), ctrl back-off, S / (T_d B), sqrt(L_ctrl))."""
     return (float(q_inv(s.comm_target_bler)) / np.sqrt(s.comm_blocklength),
             float(q_inv(s.ctrl_target_bler)) / np.sqrt(s.ctrl_blocklength),
@@ -101,7 +105,7 @@ def slot_link(s: Scenario, alpha_ctrl, alpha_comm, snr):
     :func:`link_terms`. Floors (alpha >= 1e-30, sqrt(V) >= 1e-150) keep alpha = 0 and
     gamma = 0 finite (eps -> 1) without overflow or division warnings.
     """
-    k_comm, k_ctrl, bits_per_hz, sqrt_l = _link_constants(s)
+    k_comm, k_ctrl, bits_per_hz, sqrt_l = link_constants(s)
     cap, sqrt_v = link_terms(np.asarray(snr, dtype=float))
     need = bits_per_hz / np.maximum(alpha_ctrl, 1e-30)
     eps = q_func(sqrt_l / np.maximum(sqrt_v, 1e-150) * (cap - need))
@@ -121,7 +125,7 @@ def min_shares(s: Scenario, snr, eps_max, rate_bps):
 
     Where a bracket is not positive (unreachable at any share) the result is at least 1e12.
     """
-    k_comm, _, bits_per_hz, sqrt_l = _link_constants(s)
+    k_comm, _, bits_per_hz, sqrt_l = link_constants(s)
     cap, sqrt_v = link_terms(np.asarray(snr, dtype=float))
     ctrl = bits_per_hz / np.maximum(cap - float(q_inv(eps_max)) / sqrt_l * sqrt_v, 1e-12 * bits_per_hz)
     comm = (rate_bps / s.bandwidth_hz) / np.maximum(cap - k_comm * sqrt_v, 1e-12)
@@ -131,3 +135,49 @@ def min_shares(s: Scenario, snr, eps_max, rate_bps):
 def min_ctrl_share(s: Scenario, snr, eps_max):
     """The control share of :func:`min_shares` (kept for ``agents/myopic.py``)."""
     return min_shares(s, snr, eps_max, 0.0)[0]
+
+
+# --- compiled scalar forms: one drone, composed by the slot kernel (iscc_gym.loop.step_one) ---------
+# ``inline="always"``: numba inlines them into the caller's IR, so they compile with the caller's flags.
+
+_INV_SQRT2_F = 0.7071067811865476
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def link_terms_one(snr):
+    """:func:`link_terms` of one SNR: ``(log2(1 + snr), sqrt(V(snr)))``."""
+    g1 = 1.0 + snr
+    return math.log2(g1), 1.4426950408889634 * math.sqrt(snr * (2.0 + snr)) / g1
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def ctrl_bler_one(cap, sqrt_v, sqrt_l, bits_per_hz, alpha_ctrl):
+    """eq:ctrl_bler of one slot from :func:`link_terms_one` (``sqrt_l``, ``bits_per_hz`` of
+    :func:`link_constants`); the floors of :func:`slot_link`."""
+    need = bits_per_hz / max(alpha_ctrl, 1e-30)
+    return 0.5 * math.erfc(sqrt_l / max(sqrt_v, 1e-150) * (cap - need) * _INV_SQRT2_F)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def rate_one(alpha, bandwidth_hz, cap, sqrt_v, back_off):
+    """eq:rate_equation of one slot (``back_off`` = Q^-1(eps)/sqrt(L), :func:`link_constants`), >= 0."""
+    return alpha * bandwidth_hz * max(cap - sqrt_v * back_off, 0.0)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def delivered_one(eps, z):
+    """Whether the control packet arrives: :math:`\\Phi(z) \\ge \\varepsilon` for a standard normal z
+    (probability 1 - eps; never at eps = 1)."""
+    return eps < 1.0 and 0.5 * math.erfc(-z * _INV_SQRT2_F) >= eps
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def min_ctrl_share_one(cap, sqrt_v, bits_per_hz, q_back):
+    """The control share of :func:`min_shares` (``q_back`` = Q^-1(eps_max)/sqrt(L_ctrl))."""
+    return bits_per_hz / max(cap - q_back * sqrt_v, 1e-12 * bits_per_hz)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def min_comm_share_one(cap, sqrt_v, rate_bps, bandwidth_hz, k_comm):
+    """The data share of :func:`min_shares`."""
+    return (rate_bps / bandwidth_hz) / max(cap - k_comm * sqrt_v, 1e-12)

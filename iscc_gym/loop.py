@@ -14,31 +14,51 @@ Generator, so a batch reproduces single runs bit for bit).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import NamedTuple
 
 import numpy as np
+from numba import njit
 
-from . import kernel
 from .channel import (
     beam_gain,
+    direction_one,
     direction_trig,
     link_snr,
+    link_snr_one,
+    rician_gain_one,
     rician_power_gain,
+    shadowing_db_one,
     shadowing_std_db,
     shadowing_step,
+    shadowing_step_one,
 )
-from .dynamics import model_matrices
-from .fbl import min_shares, q_func, slot_link
-from .kalman import kf_predict, kf_update
+from .dynamics import input_one, lqg_command_one, model_matrices, propagate_one
+from .fbl import ctrl_bler_one, delivered_one, link_terms_one, min_shares, q_func, rate_one, slot_link
+from .kalman import kf_predict, kf_predict_one, kf_update, kf_update_whitened_one
 from .noise import draw_keys, slot_normals, standard_normals
+from .params import MATS, slot_params
 from .scenario import Scenario
-from .schema import METRIC_NAMES, N_DRAWS, N_METRICS, Z_DROP, Z_FADE_COMM, Z_FADE_SEN, Z_MEAS, Z_PROC, Z_SHADOW
-from .sensing import crlb_local, whitened_observation_matrix
+from .schema import (
+    COL,
+    METRIC_NAMES,
+    N_DRAWS,
+    N_METRICS,
+    N_OBS,
+    Z_DROP,
+    Z_FADE_COMM,
+    Z_FADE_SEN,
+    Z_MEAS,
+    Z_PROC,
+    Z_SHADOW,
+)
+from .sensing import crlb_local, crlb_local_one, whitened_observation_matrix, whitened_rows_one
 from .trajectory import Reference
 
 __all__ = ["LoopState", "N_DRAWS", "init_state", "step", "step_reference", "preview", "reference_at",
-           "standard_normals", "stack_references", "reference_array", "slot_noise"]
+           "standard_normals", "stack_references", "reference_array", "slot_noise", "supported", "step_one",
+           "step_batch", "new_outputs"]
 
 # The layout of each slot's N_DRAWS standard normals (iscc_gym.schema.DRAWS)
 _MEAS, _DROP, _PROC, _SHAD = slice(Z_MEAS, Z_MEAS + 6), Z_DROP, slice(Z_PROC, Z_PROC + 6), Z_SHADOW
@@ -172,15 +192,20 @@ def _norm(v):
     return np.sqrt((v[..., None, :] @ v[..., :, None])[..., 0, 0])
 
 
+def supported(s: Scenario) -> bool:
+    """Whether the compiled slot (:func:`step_one`) covers this scenario: the matched beamformer
+    (``beamforming="broadside"`` is evaluated by :func:`step_reference` in numpy)."""
+    return s.beamforming == "matched"
+
+
 def step(s: Scenario, state: LoopState, alpha, rng=None):
     """Advance every loop by one slot.
 
-    Evaluates :func:`step_reference`'s equations with the compiled kernel
-    (:mod:`iscc_gym.kernel`) where it covers the scenario, else with numpy; the two agree to
-    rounding (``tests/test_kernel.py``). Parameters, returns and randomness as
-    :func:`step_reference`.
+    Evaluates :func:`step_reference`'s equations with the compiled slot (:func:`step_batch`) where it
+    covers the scenario, else with numpy; the two agree to rounding (``tests/test_kernel.py``).
+    Parameters, returns and randomness as :func:`step_reference`.
     """
-    if not kernel.supported(s):
+    if not supported(s):
         return step_reference(s, state, alpha, rng)
     alpha = np.asarray(alpha, dtype=float)
     x = state.x
@@ -188,15 +213,14 @@ def step(s: Scenario, state: LoopState, alpha, rng=None):
     _check_step(s, state, alpha)
     z = slot_noise(state, rng)
     nb = 1 if batch is None else batch
-    x_n, xh_n, p_n, sh_n, met, _ = kernel.new_outputs(nb, N_METRICS)
+    x_n, xh_n, p_n, sh_n, met, _ = new_outputs(nb, N_METRICS)
     if batch is None:  # a batch of one, squeezed back
-        kernel.step_batch(*kernel.kernel_constants(s), x[None], state.x_hat[None], state.p[None],
-                          state.shadow[None], state.n[None], state.ref[None], alpha[None], z[None],
-                          x_n, xh_n, p_n, sh_n, met)
+        step_batch(*slot_params(s), x[None], state.x_hat[None], state.p[None], state.shadow[None], state.n[None],
+                   state.ref[None], alpha[None], z[None], x_n, xh_n, p_n, sh_n, met)
         x_n, xh_n, p_n, sh_n, met = x_n[0], xh_n[0], p_n[0], sh_n[0], met[0]
     else:
-        kernel.step_batch(*kernel.kernel_constants(s), x, state.x_hat, state.p, state.shadow, state.n,
-                          state.ref, alpha, z, x_n, xh_n, p_n, sh_n, met)
+        step_batch(*slot_params(s), x, state.x_hat, state.p, state.shadow, state.n, state.ref, alpha, z,
+                   x_n, xh_n, p_n, sh_n, met)
     metrics = dict(zip(METRIC_NAMES, met.T, strict=True))
     metrics["packet_received"] = metrics["packet_received"] > 0.5
     metrics["diverged"] = metrics["diverged"] > 0.5
@@ -334,3 +358,122 @@ def preview(s: Scenario, state: LoopState, eps_max: float) -> dict:
     ctrl_min, comm_min = min_shares(s, snr, eps_max, s.rate_min_bps)
     return {"dist_m": dist, "trig": trig, "snr_db": 10.0 * np.log10(snr),
             "alpha_ctrl_min": ctrl_min, "alpha_comm_min": comm_min}
+
+
+# --- the compiled slot: step_reference's equations composed from the physics modules' scalar forms ---
+# Evaluated one drone at a time (a slot is ~200 small numpy operations on 6 x 6 matrices; at a batch of
+# one numpy's per-call overhead dominates). Only the floating-point evaluation differs from
+# step_reference: the Kalman measurement update takes the whitened rows one at a time
+# (kalman.kf_update_whitened_one), products use the structure of A = [[I, dt I], [0, I]], and the slot
+# may reassociate sums and fuse multiply-adds (fastmath {"reassoc", "contract"}: no assumption about
+# NaN or inf). Drone i of a batch goes through the same machine code whatever the batch size, so a
+# batch reproduces single runs bit for bit.
+
+_A, _B, _K, _SIGMA_W, _DIAGS = MATS["a"], MATS["b"], MATS["k"], MATS["sigma_w"], MATS["diags"]
+(_ERR, _EST, _SNR, _SNR_LS, _PEB, _VEB, _EPS, _RX, _RATE_COMM, _RATE_CTRL, _DIVERGED) = (
+    COL[name] for name in METRIC_NAMES)
+
+
+@njit(cache=True, error_model="numpy", fastmath={"reassoc", "contract"})
+def step_one(c, mats, xi, x_hat, p, shadow, ni, ref, a_sen, a_ctrl, a_comm, zi,
+             x_next, x_hat_next, p_next, mt, work):
+    """:func:`step_reference` for one drone (``c``, ``mats``: :func:`iscc_gym.params.slot_params`);
+    writes the next state and the metrics row ``mt`` (:data:`iscc_gym.schema.METRIC_NAMES`); returns
+    the next shadowing state. ``zi``: the slot's normals (:data:`iscc_gym.schema.DRAWS`)."""
+    w4, w6, y, x_post, p_post, u, bu, pa, h = work
+    px, py, pz = xi[0], xi[1], xi[2]
+    # channel: geometry, large-scale SNR, fading
+    dist, gx, gy, gz, ct, st, cp, sp = direction_one(c.h_gbs, px, py, pz)
+    shadow_db = shadowing_db_one(c.sf_a, c.sf_b, pz, shadow)
+    snr_ls = link_snr_one(c.snr_k, c.beam_g, dist, shadow_db)
+    snr = rician_gain_one(c.ric_los, c.ric_scat, zi[Z_FADE_COMM], zi[Z_FADE_COMM + 1]) * snr_ls
+    m_r, m_tt, m_tp, m_pp, crlb_vr = crlb_local_one(
+        c, a_sen, dist, ct, st, cp, sp, shadow_db,
+        rician_gain_one(c.ric_los, c.ric_scat, zi[Z_FADE_SEN], zi[Z_FADE_SEN + 1]))
+    # measurement, whitened (ISAC or GNSS), and the Kalman measurement update
+    if c.gnss == 1.0:
+        w = w6
+        for j in range(6):
+            w[j, j] = mats[_DIAGS, 1, j]
+            y[j] = w[j, j] * xi[j] + zi[Z_MEAS + j]
+    else:
+        w = w4
+        whitened_rows_one(gx, gy, gz, ct, st, cp, sp, m_r, m_tt, m_tp, m_pp, crlb_vr, w)
+        for j in range(4):
+            acc = 0.0
+            for k in range(6):
+                acc += w[j, k] * xi[k]
+            y[j] = acc + zi[Z_MEAS + j]
+    m = w.shape[0]
+    if c.gnss == 1.0 and ni % int(c.gnss_every) != 0:  # no GNSS fix this slot: prediction only
+        m = 0
+    kf_update_whitened_one(x_hat, p, y[:m], w[:m], x_post, p_post, h)
+    # control command and its FBL delivery
+    cap, sqrt_v = link_terms_one(snr)
+    eps = ctrl_bler_one(cap, sqrt_v, c.sqrt_l, c.bits_per_hz, a_ctrl)
+    rate_ctrl = rate_one(a_ctrl, c.bw, cap, sqrt_v, c.k_ctrl)
+    rate_comm = rate_one(a_comm, c.bw, cap, sqrt_v, c.k_comm)
+    if c.open_loop == 1.0:  # the reference acceleration stored on board
+        received = True
+        for j in range(3):
+            u[j] = ref[ni, 6 + j]
+    else:
+        received = delivered_one(eps, zi[Z_DROP])
+        lqg_command_one(mats[_K], x_post, ref[ni], c.feedforward == 1.0, u)
+        if not received:  # a lost command applies nothing
+            for j in range(3):
+                u[j] = 0.0
+    # drone dynamics, Kalman time update, shadowing
+    input_one(mats[_B], u, bu)
+    dt = mats[_A, 0, 3]
+    propagate_one(dt, xi, bu, mats[_DIAGS, 0], zi, Z_PROC, x_next)
+    kf_predict_one(dt, x_post, p_post, bu, mats[_SIGMA_W], x_hat_next, p_next, pa)
+    dx, dy, dz = x_next[0] - px, x_next[1] - py, x_next[2] - pz
+    shadow_next = shadowing_step_one(c.neg_inv_decorr, shadow, math.sqrt(dx * dx + dy * dy + dz * dz), zi[Z_SHADOW])
+    ex = x_next[0] - ref[ni + 1, 0]
+    ey = x_next[1] - ref[ni + 1, 1]
+    ez = x_next[2] - ref[ni + 1, 2]
+    err = math.sqrt(ex * ex + ey * ey + ez * ez)
+    dx, dy, dz = x_post[0] - px, x_post[1] - py, x_post[2] - pz
+    mt[_ERR] = err
+    mt[_EST] = math.sqrt(dx * dx + dy * dy + dz * dz)
+    mt[_SNR] = 10.0 * math.log10(snr)
+    mt[_SNR_LS] = 10.0 * math.log10(snr_ls)
+    mt[_PEB] = math.sqrt(m_r + m_tt + m_pp)
+    mt[_VEB] = math.sqrt(crlb_vr)
+    mt[_EPS] = eps
+    mt[_RX] = 1.0 if received else 0.0
+    mt[_RATE_COMM] = rate_comm
+    mt[_RATE_CTRL] = rate_ctrl
+    mt[_DIVERGED] = 0.0 if err <= c.max_err else 1.0
+    return shadow_next
+
+
+@njit(cache=True, error_model="numpy")
+def work_space():
+    """Scratch space of one drone's slot, carved out of one allocation (zeros where only some
+    entries are written: the observation matrices)."""
+    buf = np.zeros(4 * 36 + 27)
+    mats = buf[:4 * 36].reshape(4, 6, 6)
+    vec = buf[4 * 36:]
+    return (mats[0, :4], mats[1], vec[0:6], vec[6:12], mats[2], vec[12:15], vec[15:21], mats[3], vec[21:27])
+
+
+@njit(cache=True, error_model="numpy")
+def step_batch(cp, mats, x, x_hat, p, shadow, n, ref, alpha, z, x_next, x_hat_next, p_next, shadow_next, metrics):
+    """:func:`step_one` over a batch, written into the output arrays (next x, x_hat, p, shadow and the
+    metrics (B, N_METRICS)); outputs are passed in because returning fresh arrays from compiled code
+    costs more than the slot itself at small batches. ``cp``: the parameter record array (1,)."""
+    c = cp[0]
+    work = work_space()
+    for i in range(x.shape[0]):
+        shadow_next[i] = step_one(c, mats, x[i], x_hat[i], p[i], shadow[i], n[i], ref[i], alpha[i, 0],
+                                  alpha[i, 1], alpha[i, 2], z[i], x_next[i], x_hat_next[i], p_next[i],
+                                  metrics[i], work)
+
+
+def new_outputs(nb: int, columns: int):
+    """Fresh output arrays for the compiled batch functions: next x, x_hat, p, shadow, the columns
+    array, and the float32 observation."""
+    return (np.empty((nb, 6)), np.empty((nb, 6)), np.empty((nb, 6, 6)), np.empty(nb), np.empty((nb, columns)),
+            np.empty((nb, N_OBS), np.float32))

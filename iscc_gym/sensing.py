@@ -6,7 +6,10 @@ Every function broadcasts over leading batch axes.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
+from numba import njit
 
 from .channel import (
     array_response,
@@ -33,6 +36,11 @@ __all__ = [
     "whitened_observation_matrix",
     "peb",
     "veb",
+    "echo_constant",
+    "index_moments",
+    "fim_constants",
+    "crlb_local_one",
+    "whitened_rows_one",
 ]
 
 
@@ -63,11 +71,13 @@ def echo_amplitude_sq(s: Scenario, dist_m, shadow_db, fading_gain):
     :math:`P_k \\beta_S |g_S|^2`, in W (with :math:`P_k = P_t/\\mathcal K`), times the calibration
     ``sensing_snr_offset_db``."""
     # sensing_path_loss_db(l) = L_S(1 m) + 44 log10 l: the l-independent part is cached
-    return _echo_constant(s) * dist_m ** -4.4 * 10.0 ** (-0.1 * shadow_db) * fading_gain
+    return echo_constant(s) * dist_m ** -4.4 * 10.0 ** (-0.1 * shadow_db) * fading_gain
 
 
 @per_scenario
-def _echo_constant(s: Scenario) -> float:
+def echo_constant(s: Scenario) -> float:
+    """The range-independent factor of :func:`echo_amplitude_sq` (power per subcarrier, radar path
+    loss at 1 m, calibration offset)."""
     p_k = float(dbm_to_w(s.tx_power_dbm)) / s.n_subcarriers
     return p_k * 10.0 ** (-0.1 * (float(sensing_path_loss_db(s, 1.0)) - s.sensing_snr_offset_db))
 
@@ -112,7 +122,8 @@ def signature_derivatives(s: Scenario, azimuth_rad, elevation_rad, w=None):
 
 
 @per_scenario
-def _index_moments(s: Scenario):
+def index_moments(s: Scenario):
+    """``(sxx, syy, eta_sq)`` of :func:`matched_signature_terms`."""
     # N k^2 times the sums over the grid of the squared centred element indices along each axis,
     # and ||eta||^2 = N^2 of the matched beamformer
     ix = np.arange(s.n_x) - 0.5 * (s.n_x - 1)
@@ -137,7 +148,7 @@ def matched_signature_terms(s: Scenario, ct, st, cp, sp):
     (:math:`\\sum ij = 0`). Arguments are cos/sin of azimuth and elevation.
     """
     _, (tx, ty), (px, py) = direction_cosines_trig(s, ct, st, cp, sp)
-    sxx, syy, eta_sq = _index_moments(s)
+    sxx, syy, eta_sq = index_moments(s)
     return (eta_sq + 0.0 * tx, sxx * (tx * tx) + syy * (ty * ty), sxx * (px * px) + syy * (py * py),
             sxx * (tx * px) + syy * (ty * py))
 
@@ -182,7 +193,8 @@ def fim(s: Scenario, alpha_sen, pos_m, shadow_db, fading_gain=1.0):
 
 
 @per_scenario
-def _fim_constants(s: Scenario):
+def fim_constants(s: Scenario):
+    """``(M / sigma^2, 8 (pi Delta f)^2 / 3, 8 (pi T_S)^2 M^2 / 3)``: the factors of :func:`fim_terms`."""
     m = s.n_symbols
     return (m / sensing_noise_var_w(s), (8.0 / 3.0) * (np.pi * s.subcarrier_spacing_hz) ** 2,
             (8.0 / 3.0) * (np.pi * s.symbol_duration_s) ** 2 * m * m)
@@ -195,7 +207,7 @@ def fim_terms(s: Scenario, alpha_sen, dist_m, shadow_db, fading_gain, signature)
     """
     eta_sq, d_tt, d_pp, d_tp = signature
     amp = echo_amplitude_sq(s, dist_m, shadow_db, fading_gain)
-    m_over_sig2, c_tau, c_nu = _fim_constants(s)
+    m_over_sig2, c_tau, c_nu = fim_constants(s)
     k_sen = alpha_sen * s.n_subcarriers
     base = amp * m_over_sig2 * k_sen
     common = base * eta_sq
@@ -322,3 +334,66 @@ def peb(crlb_p):
 def veb(crlb_vr):
     """Velocity error bound :math:`\\mathrm{VEB} = \\sqrt{\\mathrm{CRLB}_{v_r}}` in m/s."""
     return np.sqrt(crlb_vr)
+
+
+# --- compiled scalar forms: one drone, composed by the slot kernel (iscc_gym.loop.step_one) ---------
+
+_LN10_OVER_10 = math.log(10.0) / 10.0
+
+
+@njit(cache=True, error_model="numpy")
+def crlb_local_one(c, a_sen, dist, ct, st, cp, sp, shadow_db, fading):
+    """:func:`crlb_local` of one drone with the matched beamformer (:func:`matched_signature_terms`,
+    :func:`fim_terms`, :func:`echo_amplitude_sq`), returning ``(m_r, m_tt, m_tp, m_pp, crlb_vr)``.
+
+    ``c`` is the scenario's :data:`iscc_gym.params.SLOT_PARAMS` record (fields ``orient``, ``sxx``,
+    ``syy``, ``echo_k``, ``n_sub``, ``m_over_sig2``, ``eta_sq``, ``c_tau``, ``c_nu``, ``fim_printed``,
+    ``prior``, ``two_over_c_sq``, ``lam_half_sq``)."""
+    orient = c.orient
+    if orient == 0.0:  # channel.direction_cosines_trig, horizontal
+        tx, ty, qx, qy = -cp * st, cp * ct, -sp * ct, -sp * st
+    elif orient == 1.0:  # printed
+        tx, ty, qx, qy = ct * cp, ct * sp, -st * sp, st * cp
+    else:  # vertical
+        tx, ty, qx, qy = cp * ct, 0.0, -sp * st, cp
+    sxx, syy = c.sxx, c.syy
+    d_tt = sxx * (tx * tx) + syy * (ty * ty)
+    d_pp = sxx * (qx * qx) + syy * (qy * qy)
+    d_tp = sxx * (tx * qx) + syy * (ty * qy)
+    amp = c.echo_k * math.exp(-4.4 * math.log(dist) - _LN10_OVER_10 * shadow_db) * fading
+    k_sen = a_sen * c.n_sub
+    base = amp * c.m_over_sig2 * k_sen
+    common = base * c.eta_sq
+    j_tau = common * c.c_tau * (k_sen * k_sen)
+    j_nu = common * c.c_nu
+    ang = 0.5 * common if c.fim_printed == 1.0 else 2.0 * base
+    j_tt, j_pp, j_tp = ang * d_tt, ang * d_pp, ang * d_tp
+    prior = c.prior
+    inv_l = 1.0 / dist
+    inv_lc = inv_l / max(cp, 1e-9)
+    a = j_tt * inv_lc * inv_lc + prior
+    b = j_tp * inv_lc * inv_l
+    d = j_pp * inv_l * inv_l + prior
+    inv_det = 1.0 / (a * d - b * b)
+    m_r = 1.0 / (j_tau * c.two_over_c_sq + prior)
+    lam = c.lam_half_sq
+    crlb_vr = lam / (j_nu + lam * prior)
+    return m_r, d * inv_det, -b * inv_det, a * inv_det, crlb_vr
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def whitened_rows_one(gx, gy, gz, ct, st, cp, sp, m_r, m_tt, m_tp, m_pp, crlb_vr, w):
+    """:func:`whitened_observation_matrix` of one drone, written into the non-zero entries of ``w``
+    (4, 6) (the others must be zero)."""
+    l11 = math.sqrt(m_tt)
+    l21 = m_tp / l11
+    inv_l22 = 1.0 / math.sqrt(m_pp - l21 * l21)
+    kk = l21 / l11
+    inv_sr = 1.0 / math.sqrt(m_r)
+    inv_sv = 1.0 / math.sqrt(crlb_vr)
+    w[0, 0], w[0, 1], w[0, 2] = gx * inv_sr, gy * inv_sr, gz * inv_sr
+    w[1, 0], w[1, 1] = -st / l11, ct / l11
+    w[2, 0] = (-sp * ct + kk * st) * inv_l22
+    w[2, 1] = (-sp * st - kk * ct) * inv_l22
+    w[2, 2] = cp * inv_l22
+    w[3, 3], w[3, 4], w[3, 5] = gx * inv_sv, gy * inv_sv, gz * inv_sv

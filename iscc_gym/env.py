@@ -154,7 +154,8 @@ def decode_observation(obs, s: Scenario) -> dict:
 
 def reward_and_costs(s: Scenario, metrics: dict, n_next, evaluable=True):
     """Costs, reward and episode end of a slot from :func:`iscc_gym.loop.step`'s metrics (numpy,
-    any batch shape): ``(cost_rate, cost_stability, reward, terminated, truncated)``.
+    any batch shape): ``(cost_rate, cost_stability, reward, terminated, truncated)``. The reward is
+    :func:`iscc_gym.kernel.reward_one` (written once, also what the compiled env step uses).
 
     Reward and penalty as in :class:`ISCCEnv`'s docstring; ``n_next`` is the slot index after the step.
     ``evaluable`` is False where the next observation could not be evaluated (see
@@ -162,18 +163,14 @@ def reward_and_costs(s: Scenario, metrics: dict, n_next, evaluable=True):
     probability that is NaN (an SNR overflowing far outside the region) counts as a violation, so the
     reward stays finite.
     """
-    err, rate, eps = metrics["tracking_error_m"], metrics["rate_comm_bps"], metrics["eps_ctrl"]
-    if s.rate_min_bps > 0:
-        cost_rate = np.maximum(0.0, s.rate_min_bps - rate) / s.rate_min_bps
-        cost_rate = np.where(np.isnan(rate), 1.0, cost_rate)
-    else:
-        cost_rate = np.zeros_like(rate)
-    cost_stab = ((eps > scenario_eps_star(s)) | np.isnan(eps)).astype(float)
     terminated = np.asarray(metrics["diverged"], dtype=bool) | ~np.asarray(evaluable, dtype=bool)
-    reward = -np.where(err <= s.max_tracking_error_m, err, s.max_tracking_error_m) \
-        - s.w_rate * cost_rate - s.w_stab * cost_stab
-    reward = reward - np.where(terminated, s.max_tracking_error_m * (s.n_slots - n_next), 0.0)
-    truncated = ~terminated & (n_next >= s.n_slots)
+    err, rate, eps, term, n1 = np.broadcast_arrays(*(np.asarray(metrics[k], dtype=float) for k in (
+        "tracking_error_m", "rate_comm_bps", "eps_ctrl")), terminated, np.asarray(n_next, dtype=np.int64))
+    cost_rate, cost_stab, reward = (np.empty(err.shape) for _ in range(3))
+    kernel.reward_batch(kernel.kernel_constants(s)[0], err.ravel(), rate.ravel(), eps.ravel(), term.ravel(),
+                        n1.ravel(), cost_rate.reshape(-1), cost_stab.reshape(-1), reward.reshape(-1))
+    terminated = term.copy()
+    truncated = ~terminated & (n1 >= s.n_slots)
     return cost_rate, cost_stab, reward, terminated, truncated
 
 

@@ -31,7 +31,8 @@ from .params import slot_params
 from .schema import COL, ENV_COLUMNS, METRIC_NAMES, N_DRAWS, N_OBS, N_STEP_COLUMNS, OBS, OBS_BOUND
 
 __all__ = ["supported", "kernel_constants", "env_step_batch", "env_step_batch_parallel", "observe_batch",
-           "observe_one", "reward_one", "split_one", "parallel_chunk", "new_outputs", "METRIC_NAMES", "ENV_COLUMNS"]
+           "observe_one", "reward_one", "reward_batch", "split_one", "parallel_chunk", "new_outputs", "METRIC_NAMES",
+           "ENV_COLUMNS"]
 
 #: The scenario's compiled constants ``(c, mats)`` (the name the env and tests use).
 kernel_constants = slot_params
@@ -134,6 +135,14 @@ def reward_one(c, err, rate, eps, terminated, n_next):
     if terminated:
         reward -= max_err * (c.n_slots - n_next)
     return cost_rate, cost_stab, reward
+
+
+@njit(cache=True, error_model="numpy")
+def reward_batch(cp, err, rate, eps, terminated, n_next, cost_rate, cost_stab, reward):
+    """:func:`reward_one` over flat arrays (the numpy API :func:`iscc_gym.env.reward_and_costs`)."""
+    c = cp[0]
+    for i in range(err.shape[0]):
+        cost_rate[i], cost_stab[i], reward[i] = reward_one(c, err[i], rate[i], eps[i], terminated[i], n_next[i])
 
 
 @njit(cache=True, error_model="numpy")

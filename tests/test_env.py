@@ -947,3 +947,28 @@ def test_decode_observation_inverts_the_scalings():
     assert d["last_packet_received"] == inner._last_received
     batch = decode_observation(np.stack([obs, obs]), s)
     assert batch["pos_err_m"].shape == (2, 3) and batch["snr_db"].shape == (2,)
+
+
+@pytest.mark.parametrize("overrides", [{}, {"rate_min_bps": 0.0}])
+def test_reward_and_costs_match_the_numpy_oracle(overrides):
+    """The reward written once (kernel.reward_one) against its formula in numpy, NaN and ends included."""
+    import oracle_env
+
+    from iscc_gym.env import reward_and_costs
+
+    s = iscc_gym.make_scenario("paper", **overrides)
+    rng = np.random.default_rng(4)
+    shape = (5, 40)
+    m = {"tracking_error_m": rng.uniform(0, 2 * s.max_tracking_error_m, shape),
+         "rate_comm_bps": rng.uniform(0, 2 * max(s.rate_min_bps, 1.0), shape),
+         "eps_ctrl": rng.uniform(0, 2 * 0.05, shape)}
+    m["rate_comm_bps"][0, :5] = np.nan
+    m["eps_ctrl"][1, :5] = np.nan
+    m["diverged"] = m["tracking_error_m"] > s.max_tracking_error_m
+    n_next = rng.integers(1, s.n_slots + 1, shape)
+    evaluable = rng.uniform(size=shape) > 0.1
+    got = reward_and_costs(s, m, n_next, evaluable)
+    want = oracle_env.reward_and_costs(s, m, n_next, evaluable)
+    for g, w in zip(got, want, strict=True):
+        assert g.shape == shape
+        np.testing.assert_array_equal(g, w)

@@ -1,0 +1,29 @@
+"""Test oracle of the env's reward: the formula of :class:`iscc_gym.env.ISCCEnv` (Rewards) in plain numpy.
+
+The library computes it once (:func:`iscc_gym.kernel.reward_one`, also behind
+:func:`iscc_gym.env.reward_and_costs`); this independent path checks it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from iscc_gym.scenario import Scenario
+from iscc_gym.stability import scenario_eps_star
+
+
+def reward_and_costs(s: Scenario, metrics: dict, n_next, evaluable=True):
+    """``(cost_rate, cost_stability, reward, terminated, truncated)`` of a slot's metrics."""
+    err, rate, eps = metrics["tracking_error_m"], metrics["rate_comm_bps"], metrics["eps_ctrl"]
+    if s.rate_min_bps > 0:
+        cost_rate = np.maximum(0.0, s.rate_min_bps - rate) / s.rate_min_bps
+        cost_rate = np.where(np.isnan(rate), 1.0, cost_rate)
+    else:
+        cost_rate = np.zeros_like(rate)
+    cost_stab = ((eps > scenario_eps_star(s)) | np.isnan(eps)).astype(float)
+    terminated = np.asarray(metrics["diverged"], dtype=bool) | ~np.asarray(evaluable, dtype=bool)
+    reward = -np.where(err <= s.max_tracking_error_m, err, s.max_tracking_error_m) \
+        - s.w_rate * cost_rate - s.w_stab * cost_stab
+    reward = reward - np.where(terminated, s.max_tracking_error_m * (s.n_slots - n_next), 0.0)
+    truncated = ~terminated & (n_next >= s.n_slots)
+    return cost_rate, cost_stab, reward, terminated, truncated

@@ -5,14 +5,15 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from numba import njit, vectorize
 from scipy.special import erfc, ndtri
 
 from .scenario import Scenario, per_scenario
 
 __all__ = ["dispersion", "q_func", "q_inv", "link_terms", "fbl_rate_bps", "comm_rate_bps",
            "ctrl_rate_bps", "ctrl_bler", "slot_link", "min_shares", "min_ctrl_share", "link_constants",
-           "link_terms_one", "ctrl_bler_one", "rate_one", "delivered_one", "min_ctrl_share_one", "min_comm_share_one"]
+           "link_terms_one", "ctrl_bler_one", "rate_one", "delivered_one", "min_ctrl_share_one", "min_comm_share_one",
+           "LINK_PARAMS", "link_params", "ctrl_bler_ufunc", "ctrl_bler_compiled"]
 
 _LOG2E = float(np.log2(np.e))
 _LOG2E_SQ = _LOG2E**2
@@ -181,3 +182,36 @@ def min_ctrl_share_one(cap, sqrt_v, bits_per_hz, q_back):
 def min_comm_share_one(cap, sqrt_v, rate_bps, bandwidth_hz, k_comm):
     """The data share of :func:`min_shares`."""
     return (rate_bps / bandwidth_hz) / max(cap - k_comm * sqrt_v, 1e-12)
+
+
+#: The link constants of a scenario the compiled forms read (float64 fields of one record).
+LINK_PARAMS = np.dtype([(name, np.float64) for name in (
+    "k_comm", "k_ctrl", "bits_per_hz", "sqrt_l",  # link_constants
+    "bw",  # bandwidth B, Hz
+)])
+
+
+@per_scenario
+def link_params(s: Scenario):
+    """The :data:`LINK_PARAMS` record of a scenario, a read-only structured array of shape (1,)."""
+    c = np.zeros(1, LINK_PARAMS)
+    r = c[0]
+    r["k_comm"], r["k_ctrl"], r["bits_per_hz"], r["sqrt_l"] = link_constants(s)
+    r["bw"] = s.bandwidth_hz
+    c.setflags(write=False)
+    return c
+
+
+@vectorize(["float64(float64, float64, float64, float64)"], cache=True)
+def ctrl_bler_ufunc(alpha_ctrl, snr, sqrt_l, bits_per_hz):
+    """eq:ctrl_bler as a numpy ufunc of (alpha_ctrl, linear SNR, sqrt(L_ctrl), S / (T_d B)) from the
+    compiled :func:`link_terms_one` and :func:`ctrl_bler_one`: the env's loss probability, bit for bit."""
+    cap, sqrt_v = link_terms_one(snr)
+    return ctrl_bler_one(cap, sqrt_v, sqrt_l, bits_per_hz, alpha_ctrl)
+
+
+def ctrl_bler_compiled(s: Scenario, alpha_ctrl, snr):
+    """:func:`ctrl_bler` by the compiled scalar form (:func:`ctrl_bler_ufunc`), for arrays of any
+    broadcastable shapes. Agrees with :func:`ctrl_bler` to rounding (libm's erfc, not scipy's)."""
+    r = link_params(s)[0]
+    return ctrl_bler_ufunc(alpha_ctrl, snr, r["sqrt_l"], r["bits_per_hz"])

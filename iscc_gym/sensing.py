@@ -41,6 +41,9 @@ __all__ = [
     "fim_constants",
     "crlb_local_one",
     "whitened_rows_one",
+    "SENSING_PARAMS",
+    "sensing_params",
+    "crlb_local_compiled",
 ]
 
 
@@ -346,9 +349,8 @@ def crlb_local_one(c, a_sen, dist, ct, st, cp, sp, shadow_db, fading):
     """:func:`crlb_local` of one drone with the matched beamformer (:func:`matched_signature_terms`,
     :func:`fim_terms`, :func:`echo_amplitude_sq`), returning ``(m_r, m_tt, m_tp, m_pp, crlb_vr)``.
 
-    ``c`` is the scenario's :data:`iscc_gym.params.SLOT_PARAMS` record (fields ``orient``, ``sxx``,
-    ``syy``, ``echo_k``, ``n_sub``, ``m_over_sig2``, ``eta_sq``, ``c_tau``, ``c_nu``, ``fim_printed``,
-    ``prior``, ``two_over_c_sq``, ``lam_half_sq``)."""
+    ``c``: a record with the fields of :data:`SENSING_PARAMS` (:func:`sensing_params`, or the slot's
+    :data:`iscc_gym.params.SLOT_PARAMS`, which holds them too)."""
     orient = c.orient
     if orient == 0.0:  # channel.direction_cosines_trig, horizontal
         tx, ty, qx, qy = -cp * st, cp * ct, -sp * ct, -sp * st
@@ -397,3 +399,61 @@ def whitened_rows_one(gx, gy, gz, ct, st, cp, sp, m_r, m_tt, m_tp, m_pp, crlb_vr
     w[2, 1] = (-sp * st - kk * ct) * inv_l22
     w[2, 2] = cp * inv_l22
     w[3, 3], w[3, 4], w[3, 5] = gx * inv_sv, gy * inv_sv, gz * inv_sv
+
+
+#: The sensing constants of a scenario :func:`crlb_local_one` reads (float64 fields of one record).
+SENSING_PARAMS = np.dtype([(name, np.float64) for name in (
+    "orient",         # array orientation: 0 horizontal, 1 printed, 2 vertical
+    "sxx", "syy", "eta_sq",              # index_moments
+    "echo_k",                            # echo_constant
+    "m_over_sig2", "c_tau", "c_nu",      # fim_constants
+    "n_sub",          # subcarriers K
+    "fim_printed",    # 1.0 with fim_angle_convention="printed"
+    "prior",          # 1 / sensing_prior_var_m2
+    "two_over_c_sq",  # (2 / c)^2
+    "lam_half_sq",    # (lambda / 2)^2
+)])
+_ORIENTATIONS = {"horizontal": 0.0, "printed": 1.0, "vertical": 2.0}
+
+
+@per_scenario
+def sensing_params(s: Scenario):
+    """The :data:`SENSING_PARAMS` record of a scenario, a read-only structured array of shape (1,)."""
+    c = np.zeros(1, SENSING_PARAMS)
+    r = c[0]
+    r["orient"] = _ORIENTATIONS[s.array_orientation]
+    r["sxx"], r["syy"], r["eta_sq"] = index_moments(s)
+    r["echo_k"] = echo_constant(s)
+    r["m_over_sig2"], r["c_tau"], r["c_nu"] = fim_constants(s)
+    r["n_sub"] = s.n_subcarriers
+    r["fim_printed"] = float(s.fim_angle_convention == "printed")
+    r["prior"] = 1.0 / s.sensing_prior_var_m2
+    r["two_over_c_sq"] = (2.0 / SPEED_OF_LIGHT_MPS) ** 2
+    r["lam_half_sq"] = (0.5 * s.wavelength_m) ** 2
+    c.setflags(write=False)
+    return c
+
+
+@njit(cache=True, error_model="numpy")
+def _crlb_local_loop(cp, a_sen, dist, ct, st, cp_, sp, shadow_db, fading, out):
+    c = cp[0]
+    for i in range(a_sen.shape[0]):
+        out[0, i], out[1, i], out[2, i], out[3, i], out[4, i] = crlb_local_one(
+            c, a_sen[i], dist[i], ct[i], st[i], cp_[i], sp[i], shadow_db[i], fading[i])
+
+
+def crlb_local_compiled(s: Scenario, alpha_sen, dist_m, trig, shadow_db, fading_gain=1.0):
+    """:func:`crlb_local` evaluated by the compiled :func:`crlb_local_one` (the env's CRLB, bit for
+    bit), for numpy arrays of any broadcastable shapes; matched beamformer only.
+
+    Returns ``(m_r, m_tt, m_tp, m_pp, crlb_vr)`` as :func:`crlb_local`; agrees with it to rounding.
+    """
+    if s.beamforming != "matched":
+        raise ValueError(f"crlb_local_compiled covers beamforming='matched' only, got {s.beamforming!r}; "
+                         "use crlb_local")
+    args = np.broadcast_arrays(*(np.asarray(v, dtype=float) for v in (alpha_sen, dist_m, *trig, shadow_db,
+                                                                       fading_gain)))
+    shape = args[0].shape
+    out = np.empty((5, args[0].size))
+    _crlb_local_loop(sensing_params(s), *(np.ascontiguousarray(a).reshape(-1) for a in args), out)
+    return tuple(o.reshape(shape) for o in out)

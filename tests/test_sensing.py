@@ -446,3 +446,23 @@ def test_whitened_observation_carries_the_same_information():
     info = np.swapaxes(c, -1, -2) @ np.linalg.inv(sig) @ c
     got = np.swapaxes(wc, -1, -2) @ wc
     np.testing.assert_allclose(got, info, rtol=1e-6, atol=1e-9 * np.max(np.abs(info)))
+
+
+@pytest.mark.parametrize("overrides", [{}, {"array_orientation": "printed", "fim_angle_convention": "printed"},
+                                       {"array_orientation": "vertical"}])
+def test_compiled_crlb_local_is_the_numpy_one_to_rounding(overrides):
+    """sensing.crlb_local_compiled (the env's compiled CRLB) against the numpy crlb_local."""
+    s = Scenario(**overrides)
+    rng = np.random.default_rng(2)
+    pos = rng.uniform([-400, -400, 20], [400, 400, 200], (7, 3))
+    dist, _, _, los = ch.geometry(s, pos)
+    trig = ch.direction_trig(los)
+    alpha = rng.uniform(0, 1, 7)
+    shadow, fading = rng.normal(0, 3, 7), rng.exponential(1.0, 7)
+    got = se.crlb_local_compiled(s, alpha, dist, trig, shadow, fading)
+    want = se.crlb_local(s, alpha, dist, trig, shadow, fading)
+    for g, w in zip(got, want, strict=True):
+        assert g.shape == (7,)
+        np.testing.assert_allclose(g, w, rtol=1e-10)
+    with pytest.raises(ValueError, match="matched"):
+        se.crlb_local_compiled(Scenario(beamforming="broadside"), alpha, dist, trig, shadow)

@@ -8,28 +8,47 @@ from numba import njit
 
 from .scenario import Scenario, per_scenario
 
-__all__ = ["system_matrices", "process_noise_cov", "lqg_weights", "lqr_gain", "model_matrices", "lqg_command_one",
-           "input_one", "propagate_one"]
+__all__ = ["axis_matrices", "system_matrices", "process_noise_cov", "lqg_weights", "lqr_gain", "model_matrices",
+           "lqg_command_one", "input_one", "propagate_one"]
+
+
+def axis_matrices(dt_s: float):
+    r"""Per-axis state transition and input matrices of the double integrator (eq:AB_matrices, one axis).
+
+    .. math::
+        \mathbf A_1 = \begin{bmatrix}1 & \Delta t\\ 0 & 1\end{bmatrix},\qquad
+        \mathbf B_1 = \begin{bmatrix}\tfrac12\Delta t^2\\ \Delta t\end{bmatrix}
+
+    The three axes are decoupled: :func:`system_matrices` is :math:`\mathbf A_1\otimes\mathbf I_3`,
+    :math:`\mathbf B_1\otimes\mathbf I_3`.
+
+    Returns
+    -------
+    A1 : ndarray, shape (2, 2)
+    B1 : ndarray, shape (2, 1)
+    """
+    return np.array([[1.0, dt_s], [0.0, 1.0]]), np.array([[0.5 * dt_s * dt_s], [dt_s]])
 
 
 def system_matrices(dt_s: float):
-    """State transition and input matrices of the discretised double integrator, eq:AB_matrices.
+    r"""State transition and input matrices of the discretised double integrator, eq:AB_matrices.
 
     .. math::
-        \\mathbf A = \\begin{bmatrix}\\mathbf I_3 & \\Delta t\\,\\mathbf I_3\\\\ \\mathbf 0_3 &
-        \\mathbf I_3\\end{bmatrix},\\qquad
-        \\mathbf B = \\begin{bmatrix}\\tfrac12\\Delta t^2\\,\\mathbf I_3\\\\ \\Delta t\\,\\mathbf I_3
-        \\end{bmatrix}
+        \mathbf A = \begin{bmatrix}\mathbf I_3 & \Delta t\,\mathbf I_3\\ \mathbf 0_3 &
+        \mathbf I_3\end{bmatrix},\qquad
+        \mathbf B = \begin{bmatrix}\tfrac12\Delta t^2\,\mathbf I_3\\ \Delta t\,\mathbf I_3
+        \end{bmatrix}
+
+    for the state [p, v] (m, m/s): :func:`axis_matrices` of each axis, stacked.
 
     Returns
     -------
     A : ndarray, shape (6, 6)
     B : ndarray, shape (6, 3)
     """
-    eye, zero = np.eye(3), np.zeros((3, 3))
-    a = np.block([[eye, dt_s * eye], [zero, eye]])
-    b = np.vstack([0.5 * dt_s**2 * eye, dt_s * eye])
-    return a, b
+    a1, b1 = axis_matrices(dt_s)
+    eye = np.eye(3)
+    return np.kron(a1, eye), np.kron(b1, eye)
 
 
 def process_noise_cov(s: Scenario):

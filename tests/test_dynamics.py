@@ -182,3 +182,18 @@ def test_model_matrices_read_only():
     # the cached object must not accept new attributes either (__slots__)
     with pytest.raises(AttributeError):
         mm.extra = 1
+
+
+def test_axis_matrices_are_one_axis_of_the_system_matrices():
+    """A1, B1 written once (dynamics.axis_matrices); A, B are their Kronecker products with I3."""
+    from iscc_gym.dynamics import axis_matrices, system_matrices
+
+    dt = 0.1
+    a1, b1 = axis_matrices(dt)
+    np.testing.assert_array_equal(a1, [[1.0, dt], [0.0, 1.0]])
+    np.testing.assert_array_equal(b1, [[0.5 * dt**2], [dt]])
+    a, b = system_matrices(dt)
+    for ax in range(3):
+        idx = [ax, ax + 3]
+        np.testing.assert_array_equal(a[np.ix_(idx, idx)], a1)
+        np.testing.assert_array_equal(b[idx, ax:ax + 1], b1)

@@ -14,7 +14,21 @@ from gymnasium import spaces
 from . import kernel, loop, threads
 from .render import Renderer
 from .scenario import Scenario, make_scenario
-from .schema import COL, METRIC_NAMES, N_DRAWS, OBS_BOUND, OBS_NAMES, OBS_SCALING, STEP_COLUMNS
+from .schema import (
+    COL,
+    CTRL_SHARE_SCALE,
+    ERR_SCALE,
+    METRIC_NAMES,
+    N_DRAWS,
+    OBS_BOUND,
+    OBS_NAMES,
+    OBS_SCALING,
+    PEB_SCALE,
+    REF_ACC_SCALE,
+    REF_VEL_SCALE,
+    SNR_SCALE,
+    STEP_COLUMNS,
+)
 from .stability import scenario_eps_star
 from .trajectory import sample_reference
 
@@ -53,7 +67,7 @@ def _symlog(x, scale):
 
 
 #: Per-entry scale of the linear part of the observation (entries 6-11: reference motion).
-_REF_SCALE = np.array([0.1, 0.1, 0.1, 1.0, 1.0, 1.0])
+_REF_SCALE = np.array([REF_VEL_SCALE] * 3 + [REF_ACC_SCALE] * 3)
 
 
 def observe(s: Scenario, state: loop.LoopState, last_received, last_peb_m):
@@ -86,18 +100,18 @@ def _observe_and_check(s: Scenario, state: loop.LoopState, last_received, last_p
     cos_az, sin_az, _, sin_el = pv["trig"]
     p = state.p
     obs = np.empty(state.x.shape[:-1] + (len(OBS_NAMES),))
-    obs[..., 0:6] = _symlog(state.x_hat - ref[..., :6], 0.1)
+    obs[..., 0:6] = _symlog(state.x_hat - ref[..., :6], ERR_SCALE)
     obs[..., 6:12] = ref[..., 3:9] * _REF_SCALE
-    obs[..., 12] = _symlog(np.sqrt(p[..., 0, 0] + p[..., 1, 1] + p[..., 2, 2]), 0.1)
-    obs[..., 13] = pv["snr_db"] * 0.1
+    obs[..., 12] = _symlog(np.sqrt(p[..., 0, 0] + p[..., 1, 1] + p[..., 2, 2]), ERR_SCALE)
+    obs[..., 13] = pv["snr_db"] * SNR_SCALE
     obs[..., 14] = pv["dist_m"] * (1.0 / s.coverage_radius_m)
     obs[..., 15] = sin_el
     obs[..., 16] = cos_az
     obs[..., 17] = sin_az
-    obs[..., 18] = 10.0 * pv["alpha_ctrl_min"]
+    obs[..., 18] = CTRL_SHARE_SCALE * pv["alpha_ctrl_min"]
     obs[..., 19] = pv["alpha_comm_min"]
     obs[..., 20] = last_received
-    obs[..., 21] = _symlog(last_peb_m, 0.05)
+    obs[..., 21] = _symlog(last_peb_m, PEB_SCALE)
     obs[..., 22] = 1.0 - state.n * (1.0 / s.n_slots)
     # every entry is finite in the region the model describes (floors in min_shares, prior in the
     # CRLB); far outside it (an estimate below ground, a diverged filter) an entry can be NaN: it reads

@@ -28,7 +28,22 @@ from .fbl import link_terms_one, min_comm_share_one, min_ctrl_share_one
 from .loop import new_outputs, step_one, supported, work_space
 from .noise import fill_slot_normals
 from .params import slot_params
-from .schema import COL, ENV_COLUMNS, METRIC_NAMES, N_DRAWS, N_OBS, N_STEP_COLUMNS, OBS, OBS_BOUND
+from .schema import (
+    COL,
+    CTRL_SHARE_SCALE,
+    ENV_COLUMNS,
+    ERR_SCALE,
+    METRIC_NAMES,
+    N_DRAWS,
+    N_OBS,
+    N_STEP_COLUMNS,
+    OBS,
+    OBS_BOUND,
+    PEB_SCALE,
+    REF_ACC_SCALE,
+    REF_VEL_SCALE,
+    SNR_SCALE,
+)
 
 __all__ = ["supported", "kernel_constants", "env_step_batch", "env_step_batch_parallel", "observe_batch",
            "observe_one", "reward_one", "reward_batch", "split_one", "parallel_chunk", "new_outputs", "METRIC_NAMES",
@@ -69,19 +84,19 @@ def observe_one(c, x_hat, p, shadow, n, ref, last_received, last_peb, out):
     ctrl_min = min_ctrl_share_one(cap, sqrt_v, c.bits_per_hz, c.q_back)
     comm_min = min_comm_share_one(cap, sqrt_v, c.rate_min, c.bw, c.k_comm)
     for j in range(6):
-        out[_O_POS + j] = _symlog(x_hat[j] - ref[n, j], 0.1)
+        out[_O_POS + j] = _symlog(x_hat[j] - ref[n, j], ERR_SCALE)
     for j in range(6):
-        out[_O_REF + j] = ref[n, 3 + j] * (0.1 if j < 3 else 1.0)
-    out[_O_STD] = _symlog(math.sqrt(p[0, 0] + p[1, 1] + p[2, 2]), 0.1)
-    out[_O_SNR] = 10.0 * math.log10(snr) * 0.1
+        out[_O_REF + j] = ref[n, 3 + j] * (REF_VEL_SCALE if j < 3 else REF_ACC_SCALE)
+    out[_O_STD] = _symlog(math.sqrt(p[0, 0] + p[1, 1] + p[2, 2]), ERR_SCALE)
+    out[_O_SNR] = 10.0 * math.log10(snr) * SNR_SCALE
     out[_O_RANGE] = dist * (1.0 / c.coverage_r)
     out[_O_SIN_EL] = sp
     out[_O_COS_AZ] = ct
     out[_O_SIN_AZ] = st
-    out[_O_CTRL] = 10.0 * ctrl_min
+    out[_O_CTRL] = CTRL_SHARE_SCALE * ctrl_min
     out[_O_COMM] = comm_min
     out[_O_RX] = last_received
-    out[_O_PEB] = _symlog(last_peb, 0.05)
+    out[_O_PEB] = _symlog(last_peb, PEB_SCALE)
     out[_O_TIME] = 1.0 - n * (1.0 / c.n_slots)
     ok = math.isfinite(shadow)
     for j in range(6):

@@ -10,7 +10,8 @@ compile time).
 from __future__ import annotations
 
 __all__ = ["METRIC_NAMES", "ENV_COLUMNS", "STEP_COLUMNS", "COL", "N_METRICS", "N_STEP_COLUMNS", "OBS_NAMES",
-           "OBS", "N_OBS", "OBS_BOUND", "OBS_SCALING", "N_DRAWS", "DRAWS"]
+           "OBS", "N_OBS", "OBS_BOUND", "OBS_SCALING", "N_DRAWS", "DRAWS", "ERR_SCALE", "REF_VEL_SCALE",
+           "REF_ACC_SCALE", "SNR_SCALE", "CTRL_SHARE_SCALE", "PEB_SCALE"]
 
 #: Columns of a slot's metrics (:func:`iscc_gym.loop.step`), in order.
 METRIC_NAMES = ("tracking_error_m", "estimation_error_m", "snr_db", "snr_large_scale_db", "peb_m",
@@ -37,23 +38,30 @@ OBS = {name: j for j, name in enumerate(OBS_NAMES)}
 N_OBS = len(OBS_NAMES)
 #: Every observation entry is clipped to [-OBS_BOUND, OBS_BOUND].
 OBS_BOUND = 10.0
+#: Scales of the observation entries (module constants: the compiled observation reads them too).
+ERR_SCALE = 0.1          # symlog scale of the predicted errors (m, m/s) and of the estimate's std (m)
+REF_VEL_SCALE = 0.1      # reference velocity, per m/s
+REF_ACC_SCALE = 1.0      # reference acceleration, per m/s^2
+SNR_SCALE = 0.1          # predicted SNR, per dB
+CTRL_SHARE_SCALE = 10.0  # control share at eps*
+PEB_SCALE = 0.05         # symlog scale of the last PEB, m
 #: How each entry is scaled from its physical value: ``("symlog", c)`` is sign(x) ln(1 + |x|/c),
 #: ``("linear", k)`` is k x; ``"range"`` divides by the coverage radius, ``"time_left"`` is
 #: 1 - n / n_slots (both scenario-dependent). :func:`iscc_gym.env.decode_observation` inverts them.
 OBS_SCALING = {
-    **{name: ("symlog", 0.1) for name in OBS_NAMES[0:6]},
-    **{name: ("linear", 0.1) for name in OBS_NAMES[6:9]},
-    **{name: ("linear", 1.0) for name in OBS_NAMES[9:12]},
-    "est_pos_std": ("symlog", 0.1),
-    "snr_db": ("linear", 0.1),
+    **{name: ("symlog", ERR_SCALE) for name in OBS_NAMES[0:6]},
+    **{name: ("linear", REF_VEL_SCALE) for name in OBS_NAMES[6:9]},
+    **{name: ("linear", REF_ACC_SCALE) for name in OBS_NAMES[9:12]},
+    "est_pos_std": ("symlog", ERR_SCALE),
+    "snr_db": ("linear", SNR_SCALE),
     "range": ("range", None),
     "sin_elevation": ("linear", 1.0),
     "cos_azimuth": ("linear", 1.0),
     "sin_azimuth": ("linear", 1.0),
-    "alpha_ctrl_min": ("linear", 10.0),
+    "alpha_ctrl_min": ("linear", CTRL_SHARE_SCALE),
     "alpha_comm_min": ("linear", 1.0),
     "last_packet_received": ("linear", 1.0),
-    "last_peb": ("symlog", 0.05),
+    "last_peb": ("symlog", PEB_SCALE),
     "time_left": ("time_left", None),
 }
 

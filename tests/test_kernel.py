@@ -229,3 +229,27 @@ def test_kernel_matches_reference_where_the_model_cannot_evaluate_the_state():
         with np.errstate(all="ignore"):
             o = fn(s, state, np.ones(3), np.zeros(3))
         assert np.all(np.isfinite(o))
+
+
+def test_core_imports_run_one_way():
+    """Issue 14: loop does not import the env's kernel, env takes its columns from the schema, and no
+    core module imports a private name of another (the compiled slot composes public functions)."""
+    import ast
+    import pathlib
+
+    import iscc_gym
+
+    root = pathlib.Path(iscc_gym.__file__).parent
+    core = ("schema", "channel", "fbl", "sensing", "kalman", "dynamics", "noise", "params", "loop", "kernel", "task",
+            "env", "vector")
+    order = {name: i for i, name in enumerate(core)}
+    for name in core:
+        tree = ast.parse((root / f"{name}.py").read_text())
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom) and node.level == 1:
+                mods = [node.module] if node.module else [a.name for a in node.names]
+                for mod in mods:
+                    assert order.get(mod, -1) < order[name], f"{name} imports {mod} (against the direction)"
+                if node.module:
+                    private = [a.name for a in node.names if a.name.startswith("_")]
+                    assert not private, f"{name} imports private {private} from {node.module}"

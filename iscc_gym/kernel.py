@@ -46,8 +46,8 @@ from .schema import (
 )
 
 __all__ = ["supported", "kernel_constants", "env_step_batch", "env_step_batch_parallel", "observe_batch",
-           "observe_one", "reward_one", "reward_batch", "split_one", "parallel_chunk", "new_outputs", "METRIC_NAMES",
-           "ENV_COLUMNS"]
+           "observe_one", "reward_one", "reward_batch", "split_one", "split_batch", "parallel_chunk", "new_outputs",
+           "METRIC_NAMES", "ENV_COLUMNS"]
 
 #: The scenario's compiled constants ``(c, mats)`` (the name the env and tests use).
 kernel_constants = slot_params
@@ -130,6 +130,14 @@ def split_one(a0, a1, a2):
     if total <= 1e-12:
         return 1.0 / 3.0, 1.0 / 3.0, 1.0 / 3.0
     return w0 / total, w1 / total, w2 / total
+
+
+@njit(cache=True, error_model="numpy")
+def split_batch(action, alpha):
+    """:func:`split_one` over the rows of ``action`` (n, 3) into ``alpha`` (n, 3) (the numpy API
+    :func:`iscc_gym.task.action_to_split`)."""
+    for i in range(action.shape[0]):
+        alpha[i, 0], alpha[i, 1], alpha[i, 2] = split_one(action[i, 0], action[i, 1], action[i, 2])
 
 
 @njit(cache=True, error_model="numpy", inline="always")

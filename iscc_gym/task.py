@@ -35,12 +35,15 @@ def action_to_split(action):
     .. math:: w_i = (\\mathrm{clip}(a_i, -1, 1) + 1)/2,\\qquad \\alpha_i = w_i / \\textstyle\\sum_j w_j
 
     and the equal split where every w_i = 0. Every split is reachable (see :func:`split_to_action`),
-    including zero shares: there is no minimum share. Broadcasts over leading axes.
+    including zero shares: there is no minimum share. Broadcasts over leading axes (shape (..., 3)).
+    Evaluated by :func:`iscc_gym.kernel.split_one`, the map the compiled env step applies.
     """
-    w = (np.minimum(np.maximum(np.asarray(action, dtype=float), -1.0), 1.0) + 1.0) * 0.5
-    total = w.sum(axis=-1, keepdims=True)
-    empty = total <= 1e-12
-    return np.where(empty, 1.0 / 3.0, w / np.where(empty, 1.0, total)) if empty.any() else w / total
+    a = np.asarray(action, dtype=float)
+    if a.ndim == 0 or a.shape[-1] != 3:
+        raise ValueError(f"action must have shape (..., 3), got {a.shape}")
+    out = np.empty(a.shape)
+    kernel.split_batch(np.ascontiguousarray(a).reshape(-1, 3), out.reshape(-1, 3))
+    return out
 
 
 def split_to_action(alpha):

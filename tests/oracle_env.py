@@ -1,7 +1,9 @@
-"""Test oracle of the env's reward: the formula of :class:`iscc_gym.env.ISCCEnv` (Rewards) in plain numpy.
+"""Test oracles of the env's task in plain numpy: the reward (:class:`iscc_gym.env.ISCCEnv`, Rewards) and
+the action map.
 
-The library computes it once (:func:`iscc_gym.kernel.reward_one`, also behind
-:func:`iscc_gym.env.reward_and_costs`); this independent path checks it.
+The library computes each once (:func:`iscc_gym.kernel.reward_one`, :func:`iscc_gym.kernel.split_one`,
+also behind :func:`iscc_gym.env.reward_and_costs` and :func:`iscc_gym.env.action_to_split`); these
+independent paths check them.
 """
 
 from __future__ import annotations
@@ -27,3 +29,11 @@ def reward_and_costs(s: Scenario, metrics: dict, n_next, evaluable=True):
     reward = reward - np.where(terminated, s.max_tracking_error_m * (s.n_slots - n_next), 0.0)
     truncated = ~terminated & (n_next >= s.n_slots)
     return cost_rate, cost_stab, reward, terminated, truncated
+
+
+def action_to_split(action):
+    """w_i = (clip(a_i, -1, 1) + 1) / 2, alpha = w / sum(w); the equal split where every w_i = 0."""
+    w = (np.minimum(np.maximum(np.asarray(action, dtype=float), -1.0), 1.0) + 1.0) * 0.5
+    total = w.sum(axis=-1, keepdims=True)
+    empty = total <= 1e-12
+    return np.where(empty, 1.0 / 3.0, w / np.where(empty, 1.0, total)) if empty.any() else w / total

@@ -972,3 +972,22 @@ def test_reward_and_costs_match_the_numpy_oracle(overrides):
     for g, w in zip(got, want, strict=True):
         assert g.shape == shape
         np.testing.assert_array_equal(g, w)
+
+
+def test_action_to_split_matches_the_numpy_oracle_bit_for_bit():
+    """The action map written once (kernel.split_one) against its numpy formula, inf/NaN included."""
+    import oracle_env
+
+    rng = np.random.default_rng(0)
+    a = rng.uniform(-1.5, 1.5, (4, 500, 3))
+    a[:, ::7, 0] = -1.0
+    a[:, ::11] = -3.0
+    a[:, ::13, 1] = np.inf
+    a[:, ::17, 2] = -np.inf
+    a[0, 5] = [np.nan, 0.0, 0.0]
+    got, want = action_to_split(a), oracle_env.action_to_split(a)
+    assert got.shape == a.shape
+    np.testing.assert_array_equal(got, want)
+    np.testing.assert_array_equal(action_to_split(a[1, 3]), oracle_env.action_to_split(a[1, 3]))
+    with pytest.raises(ValueError, match="shape"):
+        action_to_split(np.zeros(4))

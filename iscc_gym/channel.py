@@ -37,6 +37,9 @@ __all__ = [
     "link_snr_one",
     "rician_gain_one",
     "shadowing_step_one",
+    "upa_terms_one",
+    "broadside_sums_one",
+    "beam_gain_one",
 ]
 
 
@@ -346,3 +349,61 @@ def shadowing_step_one(neg_inv_decorr, shadow_norm, moved_m, z):
     """:func:`shadowing_step` of one loop (``neg_inv_decorr`` = -1 / shadowing_decorrelation_m)."""
     rho = math.exp(moved_m * neg_inv_decorr)
     return rho * shadow_norm + math.sqrt(1.0 - rho * rho) * z
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def upa_terms_one(orient, ct, st, cp, sp):
+    """:func:`direction_cosines_trig` of one direction, ``(ux, uy, dux_dth, duy_dth, dux_dph, duy_dph)``;
+    ``orient`` 0 horizontal, 1 printed, 2 vertical (``Scenario.array_orientation``)."""
+    if orient == 0.0:
+        return cp * ct, cp * st, -cp * st, cp * ct, -sp * ct, -sp * st
+    if orient == 1.0:
+        return st * cp, st * sp, ct * cp, ct * sp, -st * sp, st * cp
+    return cp * st, sp, cp * ct, 0.0, -sp * st, cp
+
+
+@njit(cache=True, error_model="numpy")
+def broadside_sums_one(kd, n_x, n_y, ux, uy, tx, ty, qx, qy):
+    r"""Sums over the UPA of the broadside beamformer :math:`\mathbf w = \mathbf 1/\sqrt N` in one
+    direction (element phases :math:`\phi_i = k(i_x u_x + i_y u_y)` on the centred grid, ``kd`` =
+    :math:`k = 2\pi d/\lambda`, ``(tx, ty)``, ``(qx, qy)`` the derivatives of (u_x, u_y) in azimuth and
+    elevation). Returns ``(t, d_th, d_ph, s_tt, s_pp, s_tp)``:
+
+    .. math::
+        t = \mathbf a^H\mathbf w = \tfrac{1}{\sqrt N}\sum_i\cos\phi_i,\quad
+        \partial_a\mathbf a^H\mathbf w = -\tfrac{1}{\sqrt N}\sum_i\psi_{a,i}\sin\phi_i,\quad
+        s_{ab} = \sum_i\psi_{a,i}\psi_{b,i}
+
+    with :math:`\psi_{a,i} = \partial_a\phi_i`; the grid's point symmetry makes t and the derivatives
+    real (the sine sums of t and the cosine sums of its derivatives vanish).
+    """
+    t = d_th = d_ph = s_tt = s_pp = s_tp = 0.0
+    cx, cy = 0.5 * (n_x - 1), 0.5 * (n_y - 1)
+    for i in range(n_x):
+        ix = i - cx
+        for j in range(n_y):
+            iy = j - cy
+            phi = kd * (ix * ux + iy * uy)
+            c, s = math.cos(phi), math.sin(phi)
+            p_th = kd * (ix * tx + iy * ty)
+            p_ph = kd * (ix * qx + iy * qy)
+            t += c
+            d_th += p_th * s
+            d_ph += p_ph * s
+            s_tt += p_th * p_th
+            s_pp += p_ph * p_ph
+            s_tp += p_th * p_ph
+    inv = 1.0 / math.sqrt(n_x * n_y)
+    return t * inv, -d_th * inv, -d_ph * inv, s_tt, s_pp, s_tp
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def beam_gain_one(c, ct, st, cp, sp):
+    """:func:`beam_gain` of one direction: ``c.beam_g`` (= N) for the matched beamformer, else the
+    broadside gain :math:`|\\mathbf a^H\\mathbf w|^2` (:func:`broadside_sums_one`). ``c``: a record with
+    ``broadside``, ``beam_g``, ``orient``, ``kd``, ``n_x``, ``n_y`` (:data:`iscc_gym.params.SLOT_PARAMS`)."""
+    if c.broadside == 0.0:
+        return c.beam_g
+    ux, uy, tx, ty, qx, qy = upa_terms_one(c.orient, ct, st, cp, sp)
+    t = broadside_sums_one(c.kd, int(c.n_x), int(c.n_y), ux, uy, tx, ty, qx, qy)[0]
+    return t * t

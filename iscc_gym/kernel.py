@@ -23,7 +23,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from .channel import direction_one, link_snr_one, shadowing_db_one
+from .channel import beam_gain_one, direction_one, link_snr_one, shadowing_db_one
 from .fbl import link_terms_one, min_comm_share_one, min_ctrl_share_one
 from .loop import new_outputs, step_one, supported, work_space
 from .noise import fill_slot_normals
@@ -79,7 +79,7 @@ def observe_one(c, x_hat, p, shadow, n, ref, last_received, last_peb, out):
     estimate is not finite."""
     dist, gx, gy, gz, ct, st, cp, sp = direction_one(c.h_gbs, x_hat[0], x_hat[1], x_hat[2])
     shadow_db = shadowing_db_one(c.sf_a, c.sf_b, x_hat[2], shadow)
-    snr = link_snr_one(c.snr_k, c.beam_g, dist, shadow_db)
+    snr = link_snr_one(c.snr_k, beam_gain_one(c, ct, st, cp, sp), dist, shadow_db)
     cap, sqrt_v = link_terms_one(snr)
     ctrl_min = min_ctrl_share_one(cap, sqrt_v, c.bits_per_hz, c.q_back)
     comm_min = min_comm_share_one(cap, sqrt_v, c.rate_min, c.bw, c.k_comm)

@@ -23,6 +23,7 @@ from numba import njit
 
 from .channel import (
     beam_gain,
+    beam_gain_one,
     direction_one,
     direction_trig,
     link_snr,
@@ -193,9 +194,9 @@ def _norm(v):
 
 
 def supported(s: Scenario) -> bool:
-    """Whether the compiled slot (:func:`step_one`) covers this scenario: the matched beamformer
-    (``beamforming="broadside"`` is evaluated by :func:`step_reference` in numpy)."""
-    return s.beamforming == "matched"
+    """Whether the compiled slot (:func:`step_one`) covers this scenario (every beamformer of
+    ``Scenario.beamforming``: the matched one in closed form, broadside by sums over the array)."""
+    return s.beamforming in ("matched", "broadside")
 
 
 def step(s: Scenario, state: LoopState, alpha, rng=None):
@@ -385,7 +386,7 @@ def step_one(c, mats, xi, x_hat, p, shadow, ni, ref, a_sen, a_ctrl, a_comm, zi,
     # channel: geometry, large-scale SNR, fading
     dist, gx, gy, gz, ct, st, cp, sp = direction_one(c.h_gbs, px, py, pz)
     shadow_db = shadowing_db_one(c.sf_a, c.sf_b, pz, shadow)
-    snr_ls = link_snr_one(c.snr_k, c.beam_g, dist, shadow_db)
+    snr_ls = link_snr_one(c.snr_k, beam_gain_one(c, ct, st, cp, sp), dist, shadow_db)
     snr = rician_gain_one(c.ric_los, c.ric_scat, zi[Z_FADE_COMM], zi[Z_FADE_COMM + 1]) * snr_ls
     m_r, m_tt, m_tp, m_pp, crlb_vr = crlb_local_one(
         c, a_sen, dist, ct, st, cp, sp, shadow_db,

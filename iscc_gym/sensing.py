@@ -14,10 +14,12 @@ from numba import njit
 from .channel import (
     array_response,
     beamformer,
+    broadside_sums_one,
     direction_cosines_trig,
     direction_trig,
     geometry,
     path_loss_db,
+    upa_terms_one,
 )
 from .scenario import SPEED_OF_LIGHT_MPS, Scenario, per_scenario
 from .units import dbm_to_w
@@ -346,26 +348,38 @@ _LN10_OVER_10 = math.log(10.0) / 10.0
 
 @njit(cache=True, error_model="numpy")
 def crlb_local_one(c, a_sen, dist, ct, st, cp, sp, shadow_db, fading):
-    """:func:`crlb_local` of one drone with the matched beamformer (:func:`matched_signature_terms`,
-    :func:`fim_terms`, :func:`echo_amplitude_sq`), returning ``(m_r, m_tt, m_tp, m_pp, crlb_vr)``.
+    """:func:`crlb_local` of one drone (:func:`matched_signature_terms`, or the broadside beamformer's
+    :func:`signature_derivatives` by :func:`iscc_gym.channel.broadside_sums_one`; :func:`fim_terms`,
+    :func:`echo_amplitude_sq`), returning ``(m_r, m_tt, m_tp, m_pp, crlb_vr)``.
 
     ``c``: a record with the fields of :data:`SENSING_PARAMS` (:func:`sensing_params`, or the slot's
     :data:`iscc_gym.params.SLOT_PARAMS`, which holds them too)."""
-    orient = c.orient
-    if orient == 0.0:  # channel.direction_cosines_trig, horizontal
-        tx, ty, qx, qy = -cp * st, cp * ct, -sp * ct, -sp * st
-    elif orient == 1.0:  # printed
-        tx, ty, qx, qy = ct * cp, ct * sp, -st * sp, st * cp
-    else:  # vertical
-        tx, ty, qx, qy = cp * ct, 0.0, -sp * st, cp
-    sxx, syy = c.sxx, c.syy
-    d_tt = sxx * (tx * tx) + syy * (ty * ty)
-    d_pp = sxx * (qx * qx) + syy * (qy * qy)
-    d_tp = sxx * (tx * qx) + syy * (ty * qy)
+    if c.broadside == 0.0:  # matched_signature_terms
+        orient = c.orient
+        if orient == 0.0:  # channel.direction_cosines_trig, horizontal
+            tx, ty, qx, qy = -cp * st, cp * ct, -sp * ct, -sp * st
+        elif orient == 1.0:  # printed
+            tx, ty, qx, qy = ct * cp, ct * sp, -st * sp, st * cp
+        else:  # vertical
+            tx, ty, qx, qy = cp * ct, 0.0, -sp * st, cp
+        sxx, syy = c.sxx, c.syy
+        d_tt = sxx * (tx * tx) + syy * (ty * ty)
+        d_pp = sxx * (qx * qx) + syy * (qy * qy)
+        d_tp = sxx * (tx * qx) + syy * (ty * qy)
+        eta_sq = c.eta_sq
+    else:  # signature_derivatives of the broadside beamformer (eta = a t, d eta = da t + a dt, t real)
+        ux, uy, tx, ty, qx, qy = upa_terms_one(c.orient, ct, st, cp, sp)
+        t, d_th, d_ph, s_tt, s_pp, s_tp = broadside_sums_one(c.kd, int(c.n_x), int(c.n_y), ux, uy, tx, ty, qx, qy)
+        n_ant = c.n_x * c.n_y
+        t2 = t * t
+        eta_sq = n_ant * t2
+        d_tt = t2 * s_tt + n_ant * (d_th * d_th)
+        d_pp = t2 * s_pp + n_ant * (d_ph * d_ph)
+        d_tp = t2 * s_tp + n_ant * (d_th * d_ph)
     amp = c.echo_k * math.exp(-4.4 * math.log(dist) - _LN10_OVER_10 * shadow_db) * fading
     k_sen = a_sen * c.n_sub
     base = amp * c.m_over_sig2 * k_sen
-    common = base * c.eta_sq
+    common = base * eta_sq
     j_tau = common * c.c_tau * (k_sen * k_sen)
     j_nu = common * c.c_nu
     ang = 0.5 * common if c.fim_printed == 1.0 else 2.0 * base
@@ -404,6 +418,8 @@ def whitened_rows_one(gx, gy, gz, ct, st, cp, sp, m_r, m_tt, m_tp, m_pp, crlb_vr
 #: The sensing constants of a scenario :func:`crlb_local_one` reads (float64 fields of one record).
 SENSING_PARAMS = np.dtype([(name, np.float64) for name in (
     "orient",         # array orientation: 0 horizontal, 1 printed, 2 vertical
+    "broadside",      # 1.0 with beamforming="broadside", 0.0 matched
+    "kd", "n_x", "n_y",                  # 2 pi d / lambda, UPA size
     "sxx", "syy", "eta_sq",              # index_moments
     "echo_k",                            # echo_constant
     "m_over_sig2", "c_tau", "c_nu",      # fim_constants
@@ -422,6 +438,8 @@ def sensing_params(s: Scenario):
     c = np.zeros(1, SENSING_PARAMS)
     r = c[0]
     r["orient"] = _ORIENTATIONS[s.array_orientation]
+    r["broadside"] = float(s.beamforming == "broadside")
+    r["kd"], r["n_x"], r["n_y"] = 2.0 * np.pi * s.antenna_spacing_wavelengths, s.n_x, s.n_y
     r["sxx"], r["syy"], r["eta_sq"] = index_moments(s)
     r["echo_k"] = echo_constant(s)
     r["m_over_sig2"], r["c_tau"], r["c_nu"] = fim_constants(s)
@@ -444,13 +462,10 @@ def _crlb_local_loop(cp, a_sen, dist, ct, st, cp_, sp, shadow_db, fading, out):
 
 def crlb_local_compiled(s: Scenario, alpha_sen, dist_m, trig, shadow_db, fading_gain=1.0):
     """:func:`crlb_local` evaluated by the compiled :func:`crlb_local_one` (the env's CRLB, bit for
-    bit), for numpy arrays of any broadcastable shapes; matched beamformer only.
+    bit), for numpy arrays of any broadcastable shapes.
 
     Returns ``(m_r, m_tt, m_tp, m_pp, crlb_vr)`` as :func:`crlb_local`; agrees with it to rounding.
     """
-    if s.beamforming != "matched":
-        raise ValueError(f"crlb_local_compiled covers beamforming='matched' only, got {s.beamforming!r}; "
-                         "use crlb_local")
     args = np.broadcast_arrays(*(np.asarray(v, dtype=float) for v in (alpha_sen, dist_m, *trig, shadow_db,
                                                                        fading_gain)))
     shape = args[0].shape

@@ -30,6 +30,10 @@ Three readings are needed to make this well posed (``docs/model.md`` Sec. 3.2):
   :math:`\\varepsilon_\\mathrm{ctrl}` below eq:omega_tilde_cov; ``"local"`` (default) requires it at every
   sampled position. The mean SNR is dominated by the near positions, so ``"mean_snr"``'s threshold
   is far too small for the far ones: the env diverges at its allocation.
+* **Trust.** Whatever the reading, the threshold is at least the analytic evaluator's trust edge
+  (every sampled position's loss rate at most 0.4 eps*, ``iscc_gym.analysis.TRUST_LOSS_FRACTION``;
+  ``enforce_trust=False`` drops it): below it the env loses track on some missions although the
+  loop is mean-square stable on paper (``eval.fading``).
 * **L(b)** (eq:Lb) is degenerate as printed (``rate_cost_determinant="printed"`` gives 0 bits); with
   the pseudo-determinant it is below 2 bits per slot against :math:`10^5` bits per slot that even the
   smallest stable control share carries, so cons:rate_cost never binds. It is kept as written.
@@ -368,7 +372,7 @@ def _check_choice(name, value, choices):
 
 
 def static_problem(model: StaticModel, loss_model: str = "local", loss_design_fraction: float = 0.1,
-                   ignore_loss: bool = False) -> SCAProblem:
+                   ignore_loss: bool = False, enforce_trust: bool = True) -> SCAProblem:
     """The reformulated problem on a trajectory sample (the paper's static design).
 
     Parameters
@@ -381,7 +385,13 @@ def static_problem(model: StaticModel, loss_model: str = "local", loss_design_fr
         Design loss rate as a fraction of eps*.
     ignore_loss : bool
         Design as if every command arrived: eps_ctrl = 0 in g and L(b), no stability threshold
-        (rho(M(0)) < 1 for any share), only the floor.
+        (rho(M(0)) < 1 for any share), only the floor (the paper's failing baseline: no trust bound).
+    enforce_trust : bool
+        The stability threshold is at least the evaluator's trust edge
+        (:meth:`iscc_gym.analysis.StaticModel.alpha_ctrl_trusted`: every sampled position's loss rate
+        at most :data:`iscc_gym.analysis.TRUST_LOSS_FRACTION` x eps*), so that no reading of the
+        threshold (``"mean_snr"``, ``"trajectory"``, a design fraction above 0.4) gives a split
+        the env cannot hold. ``False``: the reading alone (e.g. the paper's literal alpha_ctrl*).
 
     Raises
     ------
@@ -423,10 +433,14 @@ def static_problem(model: StaticModel, loss_model: str = "local", loss_design_fr
         a_star = model.alpha_ctrl_for_loss(eps_design, local=(loss_model == "local"))
     if ignore_loss:
         a_star = 0.0
-    elif not math.isfinite(a_star):
-        a_star = 1.0  # no share is enough: the problem is infeasible
     else:
-        a_star *= 1.0 + 1e-9  # the strict inequality alpha_ctrl > alpha_ctrl*
+        if enforce_trust:
+            a_trust = model.alpha_ctrl_trusted()
+            a_star = max(a_star, a_trust) if math.isfinite(a_trust) else math.nan
+        if not math.isfinite(a_star):
+            a_star = 1.0  # no share is enough: the problem is infeasible
+        else:
+            a_star *= 1.0 + 1e-9  # the strict inequality alpha_ctrl > alpha_ctrl*
 
     def rate_cost(a_s, a_c):
         return model.rate_cost_bits(float(a_s), loss(float(a_c)))
@@ -438,7 +452,8 @@ def static_problem(model: StaticModel, loss_model: str = "local", loss_design_fr
 
 def sca_allocation(s: Scenario, loss_model: str = "local", loss_design_fraction: float = 0.1,
                    ignore_loss: bool = False, model: StaticModel | None = None, rho: float = 1.0,
-                   tol: float = 1e-12, max_iter: int = 100, solver: str = "slsqp") -> SCAResult:
+                   tol: float = 1e-12, max_iter: int = 100, solver: str = "slsqp",
+                   enforce_trust: bool = True) -> SCAResult:
     """Static SCA allocation of scenario ``s`` (Algorithm 1 on trajectory-averaged quantities).
 
     ``model`` defaults to the cached :func:`iscc_gym.analysis.static_model` of ``s``; the other
@@ -447,7 +462,7 @@ def sca_allocation(s: Scenario, loss_model: str = "local", loss_design_fraction:
     """
     model = static_model(s) if model is None else model
     t0 = time.perf_counter()
-    prob = static_problem(model, loss_model, loss_design_fraction, ignore_loss)
+    prob = static_problem(model, loss_model, loss_design_fraction, ignore_loss, enforce_trust)
     res = solve_sca(prob, rho=rho, tol=tol, max_iter=max_iter, solver=solver)
     res.wall_time_s = time.perf_counter() - t0
     return res

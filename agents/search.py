@@ -4,6 +4,12 @@ Both minimise :attr:`iscc_gym.analysis.AllocationMetrics.objective` (the steady-
 error where the split is feasible, a finite penalty elsewhere) of
 :class:`iscc_gym.analysis.StaticModel`, the same evaluator that scores the SCA allocation: the
 paper's Table II compares SCA with a grid search and a genetic algorithm on the tracking error.
+
+Neither can pick a split the env cannot hold: a split is ``feasible`` only where the evaluator is
+trusted (every sampled position's control loss rate at most
+:data:`iscc_gym.analysis.TRUST_LOSS_FRACTION` of eps*; ``docs/model.md`` 3.1), and the objective
+penalises the excess loss rate beyond that bound. ``trust_loss_fraction=1.0`` (an evaluate keyword)
+leaves only the stability bound.
 """
 
 from __future__ import annotations
@@ -93,7 +99,7 @@ def grid_search(scenario: Scenario, step: float = 0.01, model: StaticModel | Non
     model : StaticModel, optional
         Default: the cached :func:`iscc_gym.analysis.static_model` of ``scenario``.
     **evaluate_kwargs
-        Passed to :meth:`StaticModel.evaluate` (``recursion``, ``loss_average``).
+        Passed to :meth:`StaticModel.evaluate` (``recursion``, ``loss_average``, ``trust_loss_fraction``).
 
     Returns
     -------

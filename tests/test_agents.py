@@ -109,9 +109,16 @@ def test_sca_subproblem_solvers_agree(model):
 def test_sca_readings_of_the_stability_threshold(model):
     """mean_snr at the boundary is the paper's alpha_ctrl* (4.1 % here, 4.03 % in the paper): the
     env cannot hold that split; ignoring loss starves the control link entirely."""
-    literal = sca_allocation(S, model=model, loss_model="mean_snr", loss_design_fraction=1.0)
+    literal = sca_allocation(S, model=model, loss_model="mean_snr", loss_design_fraction=1.0, enforce_trust=False)
     assert literal.alpha[1] == pytest.approx(0.0414, abs=0.002)
     assert not model.evaluate(literal.alpha).stable[0]
+    # by default every reading is lifted to the evaluator's trust edge: a split the env holds
+    for kw in ({"loss_model": "mean_snr", "loss_design_fraction": 1.0}, {"loss_model": "trajectory"},
+               {"loss_design_fraction": 1.0}):
+        res = sca_allocation(S, model=model, **kw)
+        assert res.alpha[1] >= model.alpha_ctrl_trusted() > 0.1
+        assert model.evaluate(res.alpha).trusted[0]
+        assert np.max(model.eps_ctrl_local(res.alpha[1])) <= analysis.TRUST_LOSS_FRACTION * model.eps_star + 1e-9
     ignore = sca_allocation(S, model=model, ignore_loss=True)
     assert ignore.alpha[1] == pytest.approx(MIN_SHARE, rel=1e-6)
     met = model.evaluate(ignore.alpha)
@@ -138,6 +145,24 @@ def test_grid_and_evolutionary_search(model, grid):
     np.testing.assert_array_equal(evo.alpha, evo2.alpha)  # deterministic for a seed
     with pytest.raises(ValueError, match="step"):
         grid_search(S, step=0.3, model=model)
+
+
+def test_searches_never_pick_beyond_the_trust_bound():
+    """With a data-rate floor that leaves little room (29 Mbps), the unbounded optimum lies between
+    the stability edge and the trust edge; the searches (default) stay at or above the trust edge,
+    where every sampled position's loss rate is at most TRUST_LOSS_FRACTION x eps*."""
+    s = S.replace(rate_min_bps=29e6)
+    m = analysis.static_model(s)
+    edge = m.alpha_ctrl_trusted()
+    free = grid_search(s, model=m, trust_loss_fraction=1.0)
+    assert free.alpha[1] < edge  # without the bound the grid picks a split the evaluator does not trust
+    assert not m.evaluate(free.alpha).trusted[0]
+    for res in (grid_search(s, model=m), evolutionary_search(s, seed=0, model=m, tol=1e-6)):
+        assert res.alpha[1] >= edge - 1e-9
+        assert res.metrics["trusted"] and res.metrics["feasible"]
+        assert np.max(m.eps_ctrl_local(res.alpha[1])) <= analysis.TRUST_LOSS_FRACTION * m.eps_star + 1e-9
+    sca = sca_allocation(s, model=m)
+    assert sca.alpha[1] >= edge and m.evaluate(sca.alpha).trusted[0]
 
 
 # --- SCA, per slot -----------------------------------------------------------------------------------

@@ -170,6 +170,37 @@ def test_feasibility_flags_and_monotone_trends(model):
     assert isinstance(d["feasible"], bool) and len(d["alpha"]) == 3
 
 
+def test_trust_bound_and_the_averaged_snr_reading(model):
+    """trusted iff every sampled position's loss rate (recomputed here from eq:ctrl_bler by Monte Carlo
+    over shadowing and Rician fading, not from the evaluator's table) is at most 0.4 eps*; the
+    mean_snr reading is stable exactly above the paper's alpha_ctrl* (stability.alpha_ctrl_star)."""
+    from iscc_gym.channel import large_scale_snr, shadowing_std_db
+    from iscc_gym.stability import alpha_ctrl_star
+
+    assert analysis.TRUST_LOSS_FRACTION == 0.4
+    edge = model.alpha_ctrl_trusted()
+    res = model.evaluate([[0.2, edge * 0.98, 0.8 - edge * 0.98], [0.2, edge * 1.02, 0.8 - edge * 1.02]])
+    assert list(res.trusted) == [False, True] and list(res.stable) == [True, True]
+    assert list(res.feasible) == [False, True] and res.objective[0] > S.max_tracking_error_m
+    # independent oracle of the worst position's loss rate at the edge
+    rng = np.random.default_rng(3)
+    worst = np.argmax(model.eps_ctrl_local(edge)[0])
+    pos = model.sample.pos_m[worst]
+    sh = rng.standard_normal(200_000) * shadowing_std_db(S, pos[2:3])[0]
+    snr = large_scale_snr(S, pos[None], 0.0)[0] * 10 ** (-sh / 10) * rician_power_gain(S, rng.standard_normal(200_000),
+                                                                                 rng.standard_normal(200_000))
+    mc = float(np.mean(ctrl_bler(S, edge, snr)))
+    assert mc == pytest.approx(analysis.TRUST_LOSS_FRACTION * model.eps_star, rel=0.05)
+    # the paper's averaged-SNR analysis: stable iff alpha_ctrl > alpha_ctrl*
+    a_star = alpha_ctrl_star(S, model.mean_snr, model.eps_star)
+    lit = model.evaluate([[0.2, a_star * 0.99, 0.8 - a_star * 0.99], [0.2, a_star * 1.01, 0.8 - a_star * 1.01]],
+                         loss_average="mean_snr")
+    assert list(lit.stable) == [False, True] and not lit.trusted.any()
+    with pytest.raises(ValueError, match="trust_loss_fraction"):
+        model.evaluate([0.2, 0.2, 0.6], trust_loss_fraction=0.0)
+    assert model.evaluate([0.2, 0.09, 0.71], trust_loss_fraction=1.0).trusted[0]
+
+
 def test_grid_of_splits_is_fast(model):
     g = np.arange(1, 100) / 100
     a_s, a_c = np.meshgrid(g, g, indexing="ij")

@@ -25,15 +25,13 @@ from .schema import (
 from .stability import scenario_eps_star
 from .task import (
     action_to_split,
-    env_step_reference,
-    observe_reference,
     reward_and_costs,
     split_to_action,
 )
 from .trajectory import sample_reference
 
-__all__ = ["ISCCEnv", "action_to_split", "split_to_action", "observe", "observe_reference", "reward_and_costs",
-           "env_step", "env_step_reference", "decode_observation", "OBS_NAMES", "OBS_BOUND",
+__all__ = ["ISCCEnv", "action_to_split", "split_to_action", "observe", "reward_and_costs", "env_step",
+           "decode_observation", "OBS_NAMES", "OBS_BOUND",
            "STEP_COLUMNS", "check_seed"]
 
 
@@ -41,11 +39,11 @@ def observe(s: Scenario, state: loop.LoopState, last_received, last_peb_m):
     """The observation of :class:`ISCCEnv` (table in its docstring), shape (B, 23), float32.
 
     A pure function of a batch of loop states and the last slot's outcome (arrays of shape (B,)),
-    so the single env and any vector env build it the same way. Evaluates
-    :func:`observe_reference` with the compiled kernel where it covers the scenario.
+    so the single env and any vector env build it the same way (:func:`iscc_gym.kernel.observe_one`;
+    an unbatched state gives shape (23,)).
     """
-    if not kernel.supported(s) or state.x.ndim != 2:
-        return observe_reference(s, state, last_received, last_peb_m)
+    if state.x.ndim == 1:
+        return observe(s, loop.LoopState(*(f[None] for f in state)), last_received, last_peb_m)[0]
     nb = state.x.shape[0]
     obs = np.empty((nb, len(OBS_NAMES)), np.float32)
     kernel.observe_batch(kernel.kernel_constants(s)[0], state.x_hat, state.p, state.shadow, state.n, state.ref,
@@ -136,29 +134,17 @@ def env_step(s: Scenario, state: loop.LoopState, actions, normals=None, active=N
     all_active = active is None
     if all_active:
         active = _all_active(nb)
-    if kernel.supported(s):
-        c, mats = kernel.kernel_constants(s)
-        x, x_hat, p, shadow, out, obs = outputs = kernel.new_outputs(nb, len(STEP_COLUMNS))
-        z = _NO_NORMALS if normals is None else normals
-        args = (c, mats, state.x, state.x_hat, state.p, state.shadow, state.n, state.ref, state.key, actions, z,
-                active)
-        # numba.get_num_threads() costs ~0.5 us: asked only for a batch the parallel kernel could take
-        if nb >= PARALLEL_MIN_BATCH and threads.use_parallel(nb, numba.get_num_threads()):
-            kernel.env_step_batch_parallel(*args, *outputs, kernel.parallel_chunk(nb))
-        else:
-            kernel.env_step_batch(*args, *outputs)
-        n = state.n + 1 if all_active else state.n + active
-        return state._replace(x=x, x_hat=x_hat, p=p, shadow=shadow, n=n), out, obs
-    if normals is None:
-        normals = loop.slot_noise(state)
-    if all_active:
-        return env_step_reference(s, state, actions, normals)
-    idx = np.flatnonzero(active)
-    sub, sub_out, sub_obs = env_step_reference(s, state.rows(idx), actions[idx], normals[idx])
-    out = np.zeros((nb, sub_out.shape[1]))
-    obs = np.zeros((nb, sub_obs.shape[1]), np.float32)
-    out[idx], obs[idx] = sub_out, sub_obs
-    return state.with_rows(idx, sub), out, obs
+    c, mats = kernel.kernel_constants(s)
+    x, x_hat, p, shadow, out, obs = outputs = kernel.new_outputs(nb, len(STEP_COLUMNS))
+    z = _NO_NORMALS if normals is None else normals
+    args = (c, mats, state.x, state.x_hat, state.p, state.shadow, state.n, state.ref, state.key, actions, z, active)
+    # numba.get_num_threads() costs ~0.5 us: asked only for a batch the parallel kernel could take
+    if nb >= PARALLEL_MIN_BATCH and threads.use_parallel(nb, numba.get_num_threads()):
+        kernel.env_step_batch_parallel(*args, *outputs, kernel.parallel_chunk(nb))
+    else:
+        kernel.env_step_batch(*args, *outputs)
+    n = state.n + 1 if all_active else state.n + active
+    return state._replace(x=x, x_hat=x_hat, p=p, shadow=shadow, n=n), out, obs
 
 
 _ALL_ACTIVE: dict[int, np.ndarray] = {}
@@ -223,8 +209,8 @@ class ISCCEnv(gym.Env):
     Each step calls the pure batched transition :func:`env_step` once on a batch of one (the vector
     env :class:`iscc_gym.vector.ISCCVectorEnv` calls the same function on N loops, so sub-env i
     reproduces this env seeded alike bit for bit). It evaluates the model of ``docs/model.md``
-    (:func:`iscc_gym.loop.step_reference`, :func:`reward_and_costs`, :func:`observe_reference`)
-    with a compiled kernel.
+    with a compiled kernel (:mod:`iscc_gym.kernel`, composed of the physics modules' scalar functions;
+    ``tests/oracle_loop.py`` holds the same step in numpy as the test oracle).
 
     ## Action Space
 

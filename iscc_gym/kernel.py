@@ -1,19 +1,19 @@
-"""The env's step, compiled: :func:`iscc_gym.env.env_step_reference` (action map, slot, reward and
-costs, next observation) as one loop over the batch (numba), composed of the compiled slot
-(:func:`iscc_gym.loop.step_one`) and the physics modules' scalar forms.
+"""The env's step, compiled: action map, slot, reward and costs, next observation, as one loop over
+the batch (numba), composed of the compiled slot (:func:`iscc_gym.loop.step_one`) and the physics
+modules' scalar forms.
 
 Every equation of the slot is written once, in the module that owns it (``channel.*_one``,
 ``fbl.*_one``, ``sensing.*_one``, ``kalman.*_one``, ``dynamics.*_one``), and composed by
-:func:`iscc_gym.loop.step_one`; this module adds the env's own pieces: the action map, the reward and
-costs, and the observation (:func:`observe_one`). ``tests/test_kernel.py`` checks it against the numpy
-reference (to ~1e-9 relative) on random states and whole episodes. Each slot draws its own normals
-from the loop's episode key (:mod:`iscc_gym.noise`), on whichever core steps the loop; drone i of a
-batch goes through the same machine code whatever the batch size, so a batch reproduces single runs
-bit for bit (the vector env relies on it).
+:func:`iscc_gym.loop.step_one`; this module adds the env's own pieces, also written once: the action
+map (:func:`split_one`), the reward and costs (:func:`reward_one`) and the observation
+(:func:`observe_one`). ``tests/test_kernel.py`` checks it against the numpy oracle
+(``tests/oracle_loop.py``, to ~1e-9 relative) on random states and whole episodes. Each slot draws
+its own normals from the loop's episode key (:mod:`iscc_gym.noise`), on whichever core steps the
+loop; drone i of a batch goes through the same machine code whatever the batch size, so a batch
+reproduces single runs bit for bit (the vector env relies on it).
 
 Every per-scenario constant is computed once in Python (:func:`iscc_gym.params.slot_params`) and
-passed as one typed record. Scenario options the compiled slot does not cover
-(``beamforming="broadside"``) fall back to numpy.
+passed as one typed record.
 """
 
 from __future__ import annotations
@@ -114,7 +114,7 @@ def observe_one(c, x_hat, p, shadow, n, ref, last_received, last_peb, out):
 
 @njit(cache=True, error_model="numpy")
 def observe_batch(cp, x_hat, p, shadow, n, ref, last_received, last_peb, obs):
-    """The observation of a batch (env.observe_reference), written into ``obs`` (B, 23) float32."""
+    """The observation of a batch (:func:`observe_one`), written into ``obs`` (B, 23) float32."""
     c = cp[0]
     for i in range(x_hat.shape[0]):
         observe_one(c, x_hat[i], p[i], shadow[i], n[i], ref[i], last_received[i], last_peb[i], obs[i])
@@ -205,8 +205,8 @@ def _env_rows(cp, mats, x, x_hat, p, shadow, n, ref, key, action, z, active, lo,
 @njit(cache=True, error_model="numpy")
 def env_step_batch(c, mats, x, x_hat, p, shadow, n, ref, key, action, z, active,
                    x_next, x_hat_next, p_next, shadow_next, out, obs):
-    """One env step of a batch (env.env_step_reference): action -> split (env.action_to_split), slot
-    transition, reward and costs (env.reward_and_costs), next observation (env.observe_reference),
+    """One env step of a batch: action -> split (:func:`split_one`), slot transition
+    (:func:`iscc_gym.loop.step_one`), reward and costs (:func:`reward_one`), next observation (:func:`observe_one`),
     written into the outputs: next x, x_hat, p, shadow, ``out`` (B, N_ENV_COLUMNS) and ``obs``
     (B, 23) float32. ``z`` holds the slot's normals (B, N_DRAWS), or has no rows: then each loop
     draws its own from its episode key (noise.slot_normals(key[i], n[i])). Loops with ``active[i]``

@@ -29,15 +29,13 @@ from .channel import (
     link_snr,
     link_snr_one,
     rician_gain_one,
-    rician_power_gain,
     shadowing_db_one,
     shadowing_std_db,
-    shadowing_step,
     shadowing_step_one,
 )
 from .dynamics import input_one, lqg_command_one, model_matrices, propagate_one
-from .fbl import ctrl_bler_one, delivered_one, link_terms_one, min_shares, q_func, rate_one, slot_link
-from .kalman import kf_predict, kf_predict_one, kf_update, kf_update_whitened_one
+from .fbl import ctrl_bler_one, delivered_one, link_terms_one, min_shares, rate_one
+from .kalman import kf_predict_one, kf_update_whitened_one
 from .noise import draw_keys, slot_normals, standard_normals
 from .params import MATS, slot_params
 from .scenario import Scenario
@@ -54,15 +52,13 @@ from .schema import (
     Z_PROC,
     Z_SHADOW,
 )
-from .sensing import crlb_local, crlb_local_one, whitened_observation_matrix, whitened_rows_one
+from .sensing import crlb_local_one, whitened_rows_one
 from .trajectory import Reference
 
-__all__ = ["LoopState", "N_DRAWS", "init_state", "step", "step_reference", "preview", "reference_at",
+__all__ = ["LoopState", "N_DRAWS", "init_state", "step", "preview", "reference_at",
            "standard_normals", "stack_references", "reference_array", "slot_noise", "supported", "step_one",
            "step_batch", "new_outputs"]
 
-# The layout of each slot's N_DRAWS standard normals (iscc_gym.schema.DRAWS)
-_MEAS, _DROP, _PROC, _SHAD = slice(Z_MEAS, Z_MEAS + 6), Z_DROP, slice(Z_PROC, Z_PROC + 6), Z_SHADOW
 
 
 class LoopState(NamedTuple):
@@ -202,12 +198,34 @@ def supported(s: Scenario) -> bool:
 def step(s: Scenario, state: LoopState, alpha, rng=None):
     """Advance every loop by one slot.
 
-    Evaluates :func:`step_reference`'s equations with the compiled slot (:func:`step_batch`) where it
-    covers the scenario, else with numpy; the two agree to rounding (``tests/test_kernel.py``).
-    Parameters, returns and randomness as :func:`step_reference`.
+    Parameters
+    ----------
+    s : Scenario
+    state : LoopState
+        One loop (arrays without a batch axis) or a batch of B loops, at slot n < N.
+    alpha : array_like, shape (3,) or (B, 3)
+        Applied split (alpha_sen, alpha_ctrl, alpha_comm), non-negative, summing to 1.
+    rng : Generator, or a sequence of B Generators for a batch, optional
+        Draw the slot's normals from it; default: the episode stream of the state's key
+        (:func:`slot_noise`).
+
+    Returns
+    -------
+    state : LoopState
+        At slot n + 1.
+    metrics : dict of ndarray, shape () or (B,)
+        :data:`iscc_gym.schema.METRIC_NAMES`: ``tracking_error_m`` (||p_{n+1} - p_ref,n+1||),
+        ``estimation_error_m`` (||p_hat_n - p_n||), ``snr_db`` (the slot's SNR with fading),
+        ``snr_large_scale_db``, ``peb_m``, ``veb_mps``, ``eps_ctrl``, ``packet_received`` (bool),
+        ``rate_comm_bps``, ``rate_ctrl_bps``, ``diverged`` (bool: tracking error above
+        ``max_tracking_error_m`` or non-finite).
+
+    Notes
+    -----
+    Evaluated by the compiled slot (:func:`step_batch`, :func:`step_one`) one drone at a time, so drone
+    i of a batch reproduces the unbatched loop bit for bit. ``tests/oracle_loop.py`` holds the same
+    transition in numpy (``step_reference``), the test oracle it is checked against.
     """
-    if not supported(s):
-        return step_reference(s, state, alpha, rng)
     alpha = np.asarray(alpha, dtype=float)
     x = state.x
     batch = None if x.ndim == 1 else x.shape[0]
@@ -233,111 +251,6 @@ def _check_step(s: Scenario, state: LoopState, alpha: np.ndarray) -> None:
         raise ValueError(f"alpha must have shape {state.x.shape[:-1] + (3,)}, got {alpha.shape}")
     if state.n.max() >= s.n_slots:
         raise ValueError("a loop is past the last slot of the mission; reset it first")
-
-
-def step_reference(s: Scenario, state: LoopState, alpha, rng=None, z=None):
-    """Advance every loop by one slot, in numpy: the readable definition of the transition.
-
-    Parameters
-    ----------
-    s : Scenario
-    state : LoopState
-        One loop (arrays without a batch axis) or a batch of B loops, at slot n < N.
-    alpha : array_like, shape (3,) or (B, 3)
-        Applied split (alpha_sen, alpha_ctrl, alpha_comm), non-negative, summing to 1.
-    rng : Generator, or a sequence of B Generators for a batch, optional
-        Draw the slot's normals from it; default: the episode stream of the state's key
-        (:func:`slot_noise`).
-    z : ndarray (N_DRAWS,) or (B, N_DRAWS), optional
-        The slot's standard normals, drawn already (then ``rng`` is not used).
-
-    Returns
-    -------
-    state : LoopState
-        At slot n + 1.
-    metrics : dict of ndarray, shape () or (B,)
-        ``tracking_error_m`` (||p_{n+1} - p_ref,n+1||), ``estimation_error_m`` (||p_hat_n - p_n||),
-        ``snr_db`` (the slot's SNR with fading), ``snr_large_scale_db``, ``peb_m``, ``veb_mps``,
-        ``eps_ctrl``, ``packet_received`` (bool), ``rate_comm_bps``, ``rate_ctrl_bps``,
-        ``diverged`` (bool: tracking error above ``max_tracking_error_m`` or non-finite).
-
-    Notes
-    -----
-    Every elementwise operation is the same for a batch and a single loop and every matrix
-    product is a stacked product, so drone i of a batch reproduces the unbatched loop bit for bit
-    (with its own key's stream, or stepped with Generator i against that Generator).
-    """
-    mm = model_matrices(s)
-    alpha = np.asarray(alpha, dtype=float)
-    x = state.x
-    _check_step(s, state, alpha)
-    n = state.n
-    if z is None:
-        z = slot_noise(state, rng)
-    ref_n = _at(state.ref, n)
-    pos = x[..., :3]
-    a_sen, a_ctrl, a_comm = alpha[..., 0], alpha[..., 1], alpha[..., 2]
-
-    # --- channel: geometry, large-scale SNR (path loss, beam gain, shadowing), this slot's fading
-    rel = pos - mm.gbs_pos
-    dist = _norm(rel)
-    los = rel / dist[..., None]
-    trig = direction_trig(los)
-    shadow_db = shadowing_std_db(s, pos[..., 2]) * state.shadow
-    snr_ls = link_snr(s, dist, shadow_db, beam_gain(s, trig))
-    snr = rician_power_gain(s, z[..., Z_FADE_COMM], z[..., Z_FADE_COMM + 1]) * snr_ls
-
-    # --- sensing (CRLB in the local range/azimuth/elevation frame) and Kalman measurement update
-    m_r, m_tt, m_tp, m_pp, crlb_vr = crlb_local(s, a_sen, dist, trig, shadow_db,
-                                                rician_power_gain(s, z[..., Z_FADE_SEN], z[..., Z_FADE_SEN + 1]))
-    if s.observation_source == "isac":
-        # eq:observation_model, whitened: W y = W C x + z with W C from the CRLBs, z ~ N(0, I4)
-        c = whitened_observation_matrix(los, trig, m_r, m_tt, m_tp, m_pp, crlb_vr)
-        y = (c @ x[..., None])[..., 0] + z[..., Z_MEAS:Z_MEAS + 4]
-    else:  # GNSS: position and velocity with independent Gaussian errors, whitened likewise
-        c = mm.gnss_whiten
-        y = (c @ x[..., None])[..., 0] + z[..., _MEAS]
-    x_post, p_post, _ = kf_update(state.x_hat, state.p, y, c, None)
-    if s.observation_source == "gnss" and s.gnss_update_slots > 1:  # a fix every k-th slot only
-        fix = (n % s.gnss_update_slots) == 0
-        x_post = np.where(fix[..., None], x_post, state.x_hat)
-        p_post = np.where(fix[..., None, None], p_post, state.p)
-
-    # --- control command and its finite-blocklength delivery
-    eps, rate_ctrl, rate_comm = slot_link(s, a_ctrl, a_comm, snr)
-    if s.control_mode == "lqg":
-        u_cmd = -(mm.k @ (x_post - ref_n[..., :6])[..., None])[..., 0]
-        if s.reference_feedforward:
-            u_cmd = u_cmd + ref_n[..., 6:]
-        received = (eps < 1.0) & (q_func(-z[..., _DROP]) >= eps)  # Phi(z) >= eps: P = 1 - eps
-        u_applied = np.where(np.asarray(received)[..., None], u_cmd, 0.0)  # a lost command applies nothing
-    else:  # open loop: the reference acceleration is stored on board, no link involved
-        received = np.ones(x.shape[:-1], dtype=bool)
-        u_applied = ref_n[..., 6:]
-
-    # --- drone dynamics and Kalman time update
-    bu = (mm.b @ u_applied[..., None])[..., 0]
-    x_next = (mm.a @ x[..., None])[..., 0] + bu + mm.chol_w * z[..., _PROC]
-    x_hat_next, p_next = kf_predict(x_post, p_post, mm.a, bu, mm.sigma_w)
-    shadow_next = shadowing_step(s, state.shadow, _norm(x_next[..., :3] - pos), z[..., _SHAD])
-
-    n_next = n + 1
-    err = _norm(x_next[..., :3] - _at(state.ref, n_next)[..., :3])
-    metrics = {
-        "tracking_error_m": err,
-        "estimation_error_m": _norm(x_post[..., :3] - pos),
-        "snr_db": 10.0 * np.log10(snr),
-        "snr_large_scale_db": 10.0 * np.log10(snr_ls),
-        "peb_m": np.sqrt(m_r + m_tt + m_pp),
-        "veb_mps": np.sqrt(crlb_vr),
-        "eps_ctrl": eps,
-        "packet_received": received,
-        "rate_comm_bps": rate_comm,
-        "rate_ctrl_bps": rate_ctrl,
-        "diverged": ~(err <= s.max_tracking_error_m),  # also catches NaN
-    }
-    new_state = state._replace(x=x_next, x_hat=x_hat_next, p=p_next, shadow=shadow_next, n=n_next)
-    return new_state, metrics
 
 
 def preview(s: Scenario, state: LoopState, eps_max: float) -> dict:

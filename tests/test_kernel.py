@@ -1,6 +1,7 @@
 """The compiled slot kernel against the numpy reference (the readable model), and batch invariance."""
 
 import numpy as np
+import oracle_loop
 import pytest
 
 from iscc_gym import env as E
@@ -47,7 +48,7 @@ def test_env_step_kernel_matches_numpy_reference(name, overrides):
         x, x_hat, p, shadow, out, obs = outputs = kernel.new_outputs(b, len(E.STEP_COLUMNS))
         kernel.env_step_batch(c, mats, state.x, state.x_hat, state.p, state.shadow, state.n, state.ref, state.key,
                               acts[t], z, np.ones(b, dtype=bool), *outputs)
-        ref_state, ref_out, ref_obs = E.env_step_reference(s, state, acts[t], z)
+        ref_state, ref_out, ref_obs = oracle_loop.env_step_reference(s, state, acts[t], z)
         np.testing.assert_allclose(out, ref_out, rtol=1e-9, atol=1e-12)
         np.testing.assert_allclose(obs, ref_obs, rtol=1e-6, atol=1e-6)
         assert obs.dtype == np.float32
@@ -68,7 +69,7 @@ def test_loop_step_kernel_rollout_tracks_numpy_rollout():
     alpha = np.tile([0.2, 0.2, 0.6], (b, 1))
     for _ in range(500):
         sk, mk = loop.step(s, sk, alpha, rk)
-        sr, mr = loop.step_reference(s, sr, alpha, rr)
+        sr, mr = oracle_loop.step_reference(s, sr, alpha, rr)
         assert np.array_equal(mk["packet_received"], mr["packet_received"])
         for key in ("tracking_error_m", "peb_m", "snr_db", "eps_ctrl", "rate_comm_bps"):
             np.testing.assert_allclose(mk[key], mr[key], rtol=1e-8, atol=1e-12)
@@ -138,7 +139,7 @@ def test_observation_kernel_matches_reference_on_extreme_states():
     state = state.replace(x_hat=x_hat)
     last_rx, last_peb = np.array([0.0, 1.0, 1.0]), np.array([1e9, 0.0, 0.01])
     obs = E.observe(s, state, last_rx, last_peb)
-    ref = E.observe_reference(s, state, last_rx, last_peb)
+    ref = oracle_loop.observe_reference(s, state, last_rx, last_peb)
     assert np.all(np.isfinite(obs)) and np.all(np.abs(obs) <= E.OBS_BOUND)
     np.testing.assert_allclose(obs, ref, rtol=1e-6, atol=1e-6)
 
@@ -173,8 +174,8 @@ def test_loop_step_defaults_to_the_state_key_stream():
     state = _batch(s, 3, seed=6)
     alpha = np.tile([0.2, 0.2, 0.6], (3, 1))
     a, ma = loop.step(s, state, alpha)
-    b, mb = loop.step_reference(s, state, alpha, z=noise.slot_normals(state.key, state.n))
-    c, mc = loop.step_reference(s, state, alpha)
+    b, mb = oracle_loop.step_reference(s, state, alpha, z=noise.slot_normals(state.key, state.n))
+    c, mc = oracle_loop.step_reference(s, state, alpha)
     np.testing.assert_allclose(a.x, b.x, rtol=1e-12, atol=1e-9)
     assert np.array_equal(b.x, c.x) and np.array_equal(a.key, state.key)
 
@@ -194,7 +195,7 @@ def test_sequential_update_keeps_covariance_symmetric_psd_at_extreme_precision()
     for _ in range(300):
         z = noise.slot_normals(state.key, state.n)
         state, _, _ = E.env_step(s, state, acts, z)
-        ref_state, _, _ = E.env_step_reference(s, ref_state, acts, z)
+        ref_state, _, _ = oracle_loop.env_step_reference(s, ref_state, acts, z)
         np.testing.assert_allclose(state.p, ref_state.p, rtol=1e-7, atol=1e-12)
         assert np.array_equal(state.p, state.p.transpose(0, 2, 1))
         assert np.all(np.linalg.eigvalsh(state.p) > 0)
@@ -214,7 +215,7 @@ def test_kernel_matches_reference_where_the_model_cannot_evaluate_the_state():
     z = loop.standard_normals([np.random.default_rng(i) for i in range(3)], 3)
     acts = np.zeros((3, 3))
     with np.errstate(all="ignore"):
-        _, ref_out, ref_obs = E.env_step_reference(s, state, acts, z)
+        _, ref_out, ref_obs = oracle_loop.env_step_reference(s, state, acts, z)
         _, out, obs = E.env_step(s, state, acts, z)
     col = {name: j for j, name in enumerate(E.STEP_COLUMNS)}
     assert np.all(np.isfinite(obs)) and np.all(np.abs(obs) <= E.OBS_BOUND)
@@ -225,7 +226,7 @@ def test_kernel_matches_reference_where_the_model_cannot_evaluate_the_state():
         np.testing.assert_allclose(out[:, col[name]], ref_out[:, col[name]], rtol=1e-9)
     np.testing.assert_allclose(obs, ref_obs, rtol=1e-6, atol=1e-6)
     # and the observation of such a state alone (reset / observe) is finite on both paths too
-    for fn in (E.observe, E.observe_reference):
+    for fn in (E.observe, oracle_loop.observe_reference):
         with np.errstate(all="ignore"):
             o = fn(s, state, np.ones(3), np.zeros(3))
         assert np.all(np.isfinite(o))

@@ -1,0 +1,203 @@
+"""Test oracle of the closed loop and the env step in numpy: the transition (``step_reference``), the
+observation (``observe_reference``) and the env step (``env_step_reference``), written with the numpy
+physics functions (``channel``, ``fbl``, ``sensing``, ``kalman``) independently of the compiled slot
+(:func:`iscc_gym.loop.step_one`, :mod:`iscc_gym.kernel`), which ``tests/test_kernel.py`` checks
+against them (issue 14: the library computes each equation once, the numpy path lives here).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from oracle_env import action_to_split, reward_and_costs
+
+from iscc_gym import loop
+from iscc_gym.channel import beam_gain, direction_trig, link_snr, rician_power_gain, shadowing_std_db, shadowing_step
+from iscc_gym.dynamics import model_matrices
+from iscc_gym.fbl import q_func, slot_link
+from iscc_gym.kalman import kf_predict, kf_update
+from iscc_gym.loop import LoopState, _at, _check_step, _norm, slot_noise
+from iscc_gym.scenario import Scenario
+from iscc_gym.schema import (
+    COL,
+    CTRL_SHARE_SCALE,
+    ERR_SCALE,
+    METRIC_NAMES,
+    OBS_BOUND,
+    OBS_NAMES,
+    PEB_SCALE,
+    REF_ACC_SCALE,
+    REF_VEL_SCALE,
+    SNR_SCALE,
+    Z_DROP,
+    Z_FADE_COMM,
+    Z_FADE_SEN,
+    Z_MEAS,
+    Z_PROC,
+    Z_SHADOW,
+)
+from iscc_gym.sensing import crlb_local, whitened_observation_matrix
+from iscc_gym.stability import scenario_eps_star
+
+_MEAS, _DROP, _PROC, _SHAD = slice(Z_MEAS, Z_MEAS + 6), Z_DROP, slice(Z_PROC, Z_PROC + 6), Z_SHADOW
+
+
+def step_reference(s: Scenario, state: LoopState, alpha, rng=None, z=None):
+    """Advance every loop by one slot, in numpy: the readable definition of the transition.
+
+    Parameters
+    ----------
+    s : Scenario
+    state : LoopState
+        One loop (arrays without a batch axis) or a batch of B loops, at slot n < N.
+    alpha : array_like, shape (3,) or (B, 3)
+        Applied split (alpha_sen, alpha_ctrl, alpha_comm), non-negative, summing to 1.
+    rng : Generator, or a sequence of B Generators for a batch, optional
+        Draw the slot's normals from it; default: the episode stream of the state's key
+        (:func:`slot_noise`).
+    z : ndarray (N_DRAWS,) or (B, N_DRAWS), optional
+        The slot's standard normals, drawn already (then ``rng`` is not used).
+
+    Returns
+    -------
+    state : LoopState
+        At slot n + 1.
+    metrics : dict of ndarray, shape () or (B,)
+        ``tracking_error_m`` (||p_{n+1} - p_ref,n+1||), ``estimation_error_m`` (||p_hat_n - p_n||),
+        ``snr_db`` (the slot's SNR with fading), ``snr_large_scale_db``, ``peb_m``, ``veb_mps``,
+        ``eps_ctrl``, ``packet_received`` (bool), ``rate_comm_bps``, ``rate_ctrl_bps``,
+        ``diverged`` (bool: tracking error above ``max_tracking_error_m`` or non-finite).
+
+    Notes
+    -----
+    Every elementwise operation is the same for a batch and a single loop and every matrix
+    product is a stacked product, so drone i of a batch reproduces the unbatched loop bit for bit
+    (with its own key's stream, or stepped with Generator i against that Generator).
+    """
+    mm = model_matrices(s)
+    alpha = np.asarray(alpha, dtype=float)
+    x = state.x
+    _check_step(s, state, alpha)
+    n = state.n
+    if z is None:
+        z = slot_noise(state, rng)
+    ref_n = _at(state.ref, n)
+    pos = x[..., :3]
+    a_sen, a_ctrl, a_comm = alpha[..., 0], alpha[..., 1], alpha[..., 2]
+
+    # --- channel: geometry, large-scale SNR (path loss, beam gain, shadowing), this slot's fading
+    rel = pos - mm.gbs_pos
+    dist = _norm(rel)
+    los = rel / dist[..., None]
+    trig = direction_trig(los)
+    shadow_db = shadowing_std_db(s, pos[..., 2]) * state.shadow
+    snr_ls = link_snr(s, dist, shadow_db, beam_gain(s, trig))
+    snr = rician_power_gain(s, z[..., Z_FADE_COMM], z[..., Z_FADE_COMM + 1]) * snr_ls
+
+    # --- sensing (CRLB in the local range/azimuth/elevation frame) and Kalman measurement update
+    m_r, m_tt, m_tp, m_pp, crlb_vr = crlb_local(s, a_sen, dist, trig, shadow_db,
+                                                rician_power_gain(s, z[..., Z_FADE_SEN], z[..., Z_FADE_SEN + 1]))
+    if s.observation_source == "isac":
+        # eq:observation_model, whitened: W y = W C x + z with W C from the CRLBs, z ~ N(0, I4)
+        c = whitened_observation_matrix(los, trig, m_r, m_tt, m_tp, m_pp, crlb_vr)
+        y = (c @ x[..., None])[..., 0] + z[..., Z_MEAS:Z_MEAS + 4]
+    else:  # GNSS: position and velocity with independent Gaussian errors, whitened likewise
+        c = mm.gnss_whiten
+        y = (c @ x[..., None])[..., 0] + z[..., _MEAS]
+    x_post, p_post, _ = kf_update(state.x_hat, state.p, y, c, None)
+    if s.observation_source == "gnss" and s.gnss_update_slots > 1:  # a fix every k-th slot only
+        fix = (n % s.gnss_update_slots) == 0
+        x_post = np.where(fix[..., None], x_post, state.x_hat)
+        p_post = np.where(fix[..., None, None], p_post, state.p)
+
+    # --- control command and its finite-blocklength delivery
+    eps, rate_ctrl, rate_comm = slot_link(s, a_ctrl, a_comm, snr)
+    if s.control_mode == "lqg":
+        u_cmd = -(mm.k @ (x_post - ref_n[..., :6])[..., None])[..., 0]
+        if s.reference_feedforward:
+            u_cmd = u_cmd + ref_n[..., 6:]
+        received = (eps < 1.0) & (q_func(-z[..., _DROP]) >= eps)  # Phi(z) >= eps: P = 1 - eps
+        u_applied = np.where(np.asarray(received)[..., None], u_cmd, 0.0)  # a lost command applies nothing
+    else:  # open loop: the reference acceleration is stored on board, no link involved
+        received = np.ones(x.shape[:-1], dtype=bool)
+        u_applied = ref_n[..., 6:]
+
+    # --- drone dynamics and Kalman time update
+    bu = (mm.b @ u_applied[..., None])[..., 0]
+    x_next = (mm.a @ x[..., None])[..., 0] + bu + mm.chol_w * z[..., _PROC]
+    x_hat_next, p_next = kf_predict(x_post, p_post, mm.a, bu, mm.sigma_w)
+    shadow_next = shadowing_step(s, state.shadow, _norm(x_next[..., :3] - pos), z[..., _SHAD])
+
+    n_next = n + 1
+    err = _norm(x_next[..., :3] - _at(state.ref, n_next)[..., :3])
+    metrics = {
+        "tracking_error_m": err,
+        "estimation_error_m": _norm(x_post[..., :3] - pos),
+        "snr_db": 10.0 * np.log10(snr),
+        "snr_large_scale_db": 10.0 * np.log10(snr_ls),
+        "peb_m": np.sqrt(m_r + m_tt + m_pp),
+        "veb_mps": np.sqrt(crlb_vr),
+        "eps_ctrl": eps,
+        "packet_received": received,
+        "rate_comm_bps": rate_comm,
+        "rate_ctrl_bps": rate_ctrl,
+        "diverged": ~(err <= s.max_tracking_error_m),  # also catches NaN
+    }
+    new_state = state._replace(x=x_next, x_hat=x_hat_next, p=p_next, shadow=shadow_next, n=n_next)
+    return new_state, metrics
+
+
+def _symlog(x, scale):
+    return np.sign(x) * np.log1p(np.abs(x) * (1.0 / scale))
+
+
+#: Per-entry scale of the linear part of the observation (entries 6-11: reference motion).
+_REF_SCALE = np.array([REF_VEL_SCALE] * 3 + [REF_ACC_SCALE] * 3)
+
+
+def observe_reference(s: Scenario, state: loop.LoopState, last_received, last_peb_m):
+    """:func:`observe` in numpy (one loop or a batch): the readable definition of the observation."""
+    return _observe_and_check(s, state, last_received, last_peb_m)[0]
+
+
+def _observe_and_check(s: Scenario, state: loop.LoopState, last_received, last_peb_m):
+    """``(obs, evaluable)``: :func:`observe_reference`, and where the observation could be evaluated
+    (no NaN entry, a finite estimate); where not, the episode ends (:func:`reward_and_costs`)."""
+    pv = loop.preview(s, state, scenario_eps_star(s))
+    ref = loop.reference_at(state)
+    cos_az, sin_az, _, sin_el = pv["trig"]
+    p = state.p
+    obs = np.empty(state.x.shape[:-1] + (len(OBS_NAMES),))
+    obs[..., 0:6] = _symlog(state.x_hat - ref[..., :6], ERR_SCALE)
+    obs[..., 6:12] = ref[..., 3:9] * _REF_SCALE
+    obs[..., 12] = _symlog(np.sqrt(p[..., 0, 0] + p[..., 1, 1] + p[..., 2, 2]), ERR_SCALE)
+    obs[..., 13] = pv["snr_db"] * SNR_SCALE
+    obs[..., 14] = pv["dist_m"] * (1.0 / s.coverage_radius_m)
+    obs[..., 15] = sin_el
+    obs[..., 16] = cos_az
+    obs[..., 17] = sin_az
+    obs[..., 18] = CTRL_SHARE_SCALE * pv["alpha_ctrl_min"]
+    obs[..., 19] = pv["alpha_comm_min"]
+    obs[..., 20] = last_received
+    obs[..., 21] = _symlog(last_peb_m, PEB_SCALE)
+    obs[..., 22] = 1.0 - state.n * (1.0 / s.n_slots)
+    # every entry is finite in the region the model describes (floors in min_shares, prior in the
+    # CRLB); far outside it (an estimate below ground, a diverged filter) an entry can be NaN: it reads
+    # 0 and the episode ends (loss of track). The clip keeps divergent states inside the box.
+    nan = np.isnan(obs)
+    evaluable = ~nan.any(axis=-1) & np.isfinite(state.shadow) & np.isfinite(state.x_hat).all(axis=-1) \
+        & np.isfinite(p).all(axis=(-2, -1))
+    if nan.any():
+        obs = np.where(nan, 0.0, obs)
+    return np.minimum(np.maximum(obs, -OBS_BOUND), OBS_BOUND).astype(np.float32), evaluable
+
+
+def env_step_reference(s: Scenario, state: loop.LoopState, actions, z):
+    """:func:`env_step` in numpy from pre-drawn normals ``z`` (B, N_DRAWS): the readable definition."""
+    alpha = action_to_split(actions)
+    new, m = step_reference(s, state, alpha, None, z=z)
+    cols = [np.asarray(m[k], dtype=float) for k in METRIC_NAMES]
+    obs, evaluable = _observe_and_check(s, new, cols[COL["packet_received"]], cols[COL["peb_m"]])
+    costs = reward_and_costs(s, m, new.n, evaluable)
+    cols += [alpha[:, 0], alpha[:, 1], alpha[:, 2]] + [np.asarray(v, dtype=float) for v in costs]
+    out = np.stack(cols, axis=-1)
+    return new, out, obs

@@ -9,12 +9,12 @@ from __future__ import annotations
 
 import numpy as np
 from oracle_env import action_to_split, reward_and_costs
+from oracle_kalman import kf_predict, kf_update
 
 from iscc_gym import loop
 from iscc_gym.channel import beam_gain, direction_trig, link_snr, rician_power_gain, shadowing_std_db, shadowing_step
 from iscc_gym.dynamics import model_matrices
 from iscc_gym.fbl import q_func, slot_link
-from iscc_gym.kalman import kf_predict, kf_update
 from iscc_gym.loop import LoopState, _at, _check_step, _norm, slot_noise
 from iscc_gym.scenario import Scenario
 from iscc_gym.schema import (

@@ -1,5 +1,5 @@
-"""Tests of iscc_gym.kalman against the textbook Kalman filter
-(eq:observation_model, eq:KF_update)."""
+"""Tests of the Kalman filter against the textbook one (eq:observation_model, eq:KF_update): the numpy
+oracle (tests/oracle_kalman.py) and the compiled per-drone forms of iscc_gym.kalman."""
 
 from __future__ import annotations
 
@@ -7,10 +7,12 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from numba import njit
+from oracle_kalman import kf_predict, kf_update, symmetrize
 
 from iscc_gym import Scenario
 from iscc_gym.dynamics import model_matrices
-from iscc_gym.kalman import isac_observation_matrix, kf_predict, kf_update, symmetrize
+from iscc_gym.kalman import isac_observation_matrix, kf_predict_one, kf_update_whitened_one
 
 
 def _random_spd(rng, n, log_lo=-2.0, log_hi=2.0):
@@ -188,3 +190,40 @@ def test_covariance_stays_symmetric_psd(seed, received, log_lo, log_span, readin
         bu = mm.b @ (rng.standard_normal(3) * 3.0) if got else np.zeros(6)
         x, p = kf_predict(x, p, mm.a, bu, mm.sigma_w)
         check(p)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_compiled_whitened_update_is_the_joseph_form(seed):
+    """kalman.kf_update_whitened_one (rows one at a time) equals the batch Joseph form with unit noise."""
+    rng = np.random.default_rng(seed)
+    p = _random_spd(rng, 6)
+    x, w = rng.standard_normal(6), rng.standard_normal((4, 6))
+    y = rng.standard_normal(4)
+    x_ref, p_ref, _ = kf_update(x, p, y, w, None)
+    x_post, p_post, h = np.empty(6), np.empty((6, 6)), np.empty(6)
+    kf_update_whitened_one(x, p, y, w, x_post, p_post, h)
+    np.testing.assert_allclose(x_post, x_ref, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(p_post, p_ref, rtol=1e-9, atol=1e-12)
+    assert np.array_equal(p_post, p_post.T)
+    kf_update_whitened_one(x, p, y[:0], w[:0], x_post, p_post, h)  # no rows: the prior
+    assert np.array_equal(x_post, x) and np.array_equal(p_post, p)
+
+
+def test_compiled_time_update_is_the_dense_one():
+    """kalman.kf_predict_one (blockwise A) equals A P A' + Sigma_w, symmetrised, and A x + B u."""
+    s = Scenario()
+    mm = model_matrices(s)
+    rng = np.random.default_rng(3)
+    p = _random_spd(rng, 6)
+    x, bu = rng.standard_normal(6), rng.standard_normal(6)
+    x_ref, p_ref = kf_predict(x, p, mm.a, bu, mm.sigma_w)
+    x_next, p_next, pa = np.empty(6), np.empty((6, 6)), np.empty((6, 6))
+    _predict(s.dt_s, x, p, bu, mm.sigma_w, x_next, p_next, pa)
+    np.testing.assert_allclose(x_next, x_ref, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(p_next, p_ref, rtol=1e-12, atol=1e-12)
+    assert np.array_equal(p_next, p_next.T)
+
+
+@njit
+def _predict(dt, x, p, bu, sigma_w, x_next, p_next, pa):
+    kf_predict_one(dt, x, p, bu, sigma_w, x_next, p_next, pa)

@@ -380,8 +380,8 @@ def claims(res: dict) -> list[dict]:
     # 4. the trust bound holds in the env
     chk = res["checks"]
     bad = [c["name"] for c in chk if not c["agreement"]["ok"]]
-    worst_m = max(abs(c["agreement"]["mean_rel"] or 0) for c in chk)
-    worst_r = max(abs(c["agreement"]["rms_rel"] or 0) for c in chk)
+    worst_m = max((abs(c["agreement"]["mean_rel"] or 0) for c in chk), default=0.0)
+    worst_r = max((abs(c["agreement"]["rms_rel"] or 0) for c in chk), default=0.0)
     out.append({
         "id": "evaluator-trust-bound",
         "figure": "sec. 3.1",
@@ -391,7 +391,7 @@ def claims(res: dict) -> list[dict]:
                  f"this sample): {sum(c['env']['lost'] for c in chk)} of {len(chk) * n} missions lost; evaluator "
                  f"vs env within {100 * worst_m:.1f} % (mean) and {100 * worst_r:.1f} % (RMS)"
                  + (f"; outside tolerance: {', '.join(bad)}" if bad else "")),
-        "holds": not bad,
+        "holds": bool(chk) and not bad,
         "why": (f"tolerance {100 * TOLERANCE['mean']:.0f} % (mean), {100 * TOLERANCE['rms']:.0f} % (RMS) plus the "
                 "env's 95 % CI half-width, and no mission lost"),
     })

@@ -160,3 +160,44 @@ def run_console(main, argv: list[str] | None, prog: str) -> int:
     from iscc_gym.cli import run
 
     return run(functools.partial(main, prog=prog), argv, prog)
+
+
+def claims_parser(prog: str, description: str, *, missions: int, quick_missions: int, seed_base: str,
+                  figures_default: str) -> Parser:
+    """The parser of a measurement command that states claims (``eval.fading``, ``eval.sensitivity``):
+    ``--quick``, ``--seed``, ``--json``, ``--figures``, ``--no-figures``."""
+    p = Parser(prog=prog, description=description)
+    p.add_argument("--quick", action="store_true",
+                   help=f"{quick_missions} missions per point on a coarser grid (smoke run; default {missions})")
+    p.add_argument("--seed", type=nonneg_int, default=0,
+                   help=f"run seed: missions {seed_base} + 1000 x SEED + i (held-out evaluation seeds; default 0)")
+    p.add_argument("--json", metavar="PATH", default=None, help="write the results (with the claims) as JSON")
+    p.add_argument("--figures", metavar="DIR", default=figures_default,
+                   help=f"directory of the PNG figures (default {figures_default})")
+    p.add_argument("--no-figures", action="store_true", help="draw no figures")
+    return p
+
+
+def run_claims_command(args, run, draw, check_seeds, report=None) -> dict:
+    """Check the outputs first, then ``run(quick, seed)``, ``draw(res, dir)``, print the claims (and
+    ``report(res)``), write ``--json`` atomically; returns the results."""
+    import json
+
+    from iscc_gym.files import write_atomic
+
+    if args.json:
+        check_writable_file(args.json, "--json")
+    if not args.no_figures:
+        check_writable_dir(args.figures, "--figures")
+    check_seeds(args)
+    res = run(quick=args.quick, seed=args.seed)
+    if not args.no_figures:
+        res["figures"] = draw(res, args.figures)
+    for c in res["claims"]:
+        print(f"[{'holds' if c['holds'] else 'does not hold'}] {c['id']} ({c['figure']}): {c['ours']}")
+    if report is not None:
+        report(res)
+    if args.json:
+        write_atomic(args.json, json.dumps(res, indent=1))
+        print(f"wrote {args.json}")
+    return res

@@ -21,7 +21,6 @@ Examples::
 
 from __future__ import annotations
 
-import json
 import math
 import sys
 import time
@@ -303,47 +302,28 @@ def draw(res: dict, figures_dir) -> dict[str, str]:
 # --------------------------------------------------------------------------------------------------
 # command line
 # --------------------------------------------------------------------------------------------------
-def build_parser(prog: str = "python -m eval.sensitivity"):
-    from iscc_gym.eval.options import Parser, nonneg_int
-
-    p = Parser(prog=prog, description=__doc__.splitlines()[0])
-    p.add_argument("--quick", action="store_true",
-                   help=f"{QUICK_MISSIONS} missions per point on shorter sweeps (smoke run; default {MISSIONS})")
-    p.add_argument("--seed", type=nonneg_int, default=0,
-                   help="run seed: missions 1,200,000 + 1000 x SEED + i (held-out evaluation seeds; default 0)")
-    p.add_argument("--json", metavar="PATH", default=None, help="write the results (with the claims) as JSON")
-    p.add_argument("--figures", metavar="DIR", default="runs/sensitivity/figures",
-                   help="directory of the PNG figure (default runs/sensitivity/figures)")
-    p.add_argument("--no-figures", action="store_true", help="draw no figure")
-    return p
-
-
-def main(argv: list[str] | None = None, prog: str = "python -m eval.sensitivity") -> dict:
-    from iscc_gym.eval.options import check_writable_dir, check_writable_file
-
-    from iscc_gym.files import write_atomic
-
-    args = build_parser(prog).parse_args(argv)
-    if args.json:
-        check_writable_file(args.json, "--json")
-    if not args.no_figures:
-        check_writable_dir(args.figures, "--figures")
-    mission_seeds(QUICK_MISSIONS if args.quick else MISSIONS, args.seed)
-    res = run(quick=args.quick, seed=args.seed)
-    if not args.no_figures:
-        res["figures"] = draw(res, args.figures)
-    for c in res["claims"]:
-        print(f"[{'holds' if c['holds'] else 'does not hold'}] {c['id']} ({c['figure']}): {c['ours']}")
+def _report(res: dict) -> None:
     for key in ("rate_min", "loss_design_fraction"):
         for r in res[key]:
             tag = {k: v for k, v in r.items() if k in ("rate_min_mbps", "loss_design_fraction", "enforce_trust")}
             e = r["env"]
             print(f"{tag}: split {np.round(r['alpha'], 4).tolist()}, env mean {e['mean_error_m']}, "
                   f"RMS {e['rms_error_m']}, lost {e['lost']}, violations {e['violation']:.3f}")
-    if args.json:
-        write_atomic(args.json, json.dumps(res, indent=1))
-        print(f"wrote {args.json}")
-    return res
+
+
+def build_parser(prog: str = "python -m eval.sensitivity"):
+    from iscc_gym.eval.options import claims_parser
+
+    return claims_parser(prog, __doc__.splitlines()[0], missions=MISSIONS, quick_missions=QUICK_MISSIONS,
+                         seed_base="1,200,000", figures_default="runs/sensitivity/figures")
+
+
+def main(argv: list[str] | None = None, prog: str = "python -m eval.sensitivity") -> dict:
+    from iscc_gym.eval.options import run_claims_command
+
+    args = build_parser(prog).parse_args(argv)
+    return run_claims_command(args, run, draw,
+                              lambda a: mission_seeds(QUICK_MISSIONS if a.quick else MISSIONS, a.seed), _report)
 
 
 if __name__ == "__main__":

@@ -62,18 +62,23 @@ MAX_BATCH = 1024
 TIGHT_RATE_MIN_BPS = 29e6
 
 
-def mission_seeds(n: int, seed: int = 0) -> list[int]:
-    """``n`` mission seeds for run ``seed``: ``SEED_START + 1000 * seed + i``; ``ValueError`` if any
-    leaves :data:`EVAL_RANGE` or ``n`` is outside [1, 1000]."""
+def held_out_seeds(start: int, n: int, seed: int = 0) -> list[int]:
+    """``n`` mission seeds for run ``seed`` from ``start``: ``start + 1000 * seed + i``; ``ValueError`` if
+    any leaves :data:`EVAL_RANGE` or ``n`` is outside [1, 1000]."""
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ValueError(f"seed = {seed!r} is invalid: use an integer >= 0")
     if not 1 <= n <= 1000:
         raise ValueError(f"n = {n!r} missions is invalid: use 1 to 1000 per run seed")
-    seeds = [SEED_START + 1000 * int(seed) + i for i in range(int(n))]
+    seeds = [start + 1000 * int(seed) + i for i in range(int(n))]
     if seeds[-1] >= EVAL_RANGE[1]:
         raise ValueError(f"seed = {seed}: missions {seeds[0]}-{seeds[-1]} leave the held-out evaluation range "
-                         f"[{EVAL_RANGE[0]}, {EVAL_RANGE[1]}); use a seed below {(EVAL_RANGE[1] - SEED_START) // 1000}")
+                         f"[{EVAL_RANGE[0]}, {EVAL_RANGE[1]}); use a seed below {(EVAL_RANGE[1] - start) // 1000}")
     return seeds
+
+
+def mission_seeds(n: int, seed: int = 0) -> list[int]:
+    """This command's ``n`` mission seeds for run ``seed`` (:func:`held_out_seeds` from :data:`SEED_START`)."""
+    return held_out_seeds(SEED_START, n, seed)
 
 
 class _Rows(SplitPolicy):
@@ -425,11 +430,9 @@ def _figure(size):
 
 
 def _save(fig, path: Path) -> str:
-    from iscc_gym.files import atomic_target
+    from iscc_gym.eval.figures import save_figure
 
-    with atomic_target(path) as tmp:
-        fig.savefig(tmp, format="png")
-    return str(path)
+    return str(save_figure(fig, path))
 
 
 def draw(res: dict, figures_dir) -> dict[str, str]:

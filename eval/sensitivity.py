@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 from iscc_gym.agents.sca import sca_allocation
-from iscc_gym.eval.fading import EVAL_RANGE, rollout, summarize_missions
+from iscc_gym.eval.fading import held_out_seeds, rollout, summarize_missions
 
 from iscc_gym import SCENARIOS
 from iscc_gym.analysis import TRUST_LOSS_FRACTION, mean_bounds, sample_positions, static_model
@@ -53,15 +53,7 @@ GNSS_3D_FACTOR = 1.0 / math.sqrt(3.0)
 
 def mission_seeds(n: int, seed: int = 0) -> list[int]:
     """``n`` mission seeds of run ``seed``: ``SEED_START + 1000 * seed + i``, inside the held-out range."""
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise ValueError(f"seed = {seed!r} is invalid: use an integer >= 0")
-    if not 1 <= n <= 1000:
-        raise ValueError(f"n = {n!r} missions is invalid: use 1 to 1000 per run seed")
-    seeds = [SEED_START + 1000 * int(seed) + i for i in range(int(n))]
-    if seeds[-1] >= EVAL_RANGE[1]:
-        raise ValueError(f"seed = {seed}: missions leave the held-out evaluation range {EVAL_RANGE}; use a seed "
-                         f"below {(EVAL_RANGE[1] - SEED_START) // 1000}")
-    return seeds
+    return held_out_seeds(SEED_START, n, seed)
 
 
 def _fin(x):

@@ -136,7 +136,7 @@ def calibrate(s: Scenario, sample: TrajectorySample, eps_max: float, quick: bool
     * ``ctrl_deadline_s``: alpha_ctrl* at the trajectory-averaged SNR equals 4.03 %
       (closed form: eps_ctrl(alpha*) = eps* solved for T_d);
     * ``sensing_snr_offset_db``: the env's slot-mean PEB at Table II's split (20 / 20 / 60 %) equals
-      Table II's 0.0635 m (:func:`calibrate_sensing_offset`; ``quick``: 8 short missions).
+      Table II's 0.0635 m (:func:`calibrate_sensing_offset`; ``quick``: 256 missions).
     """
     target_rate = PAPER["max_comm_rate_mbps"] * 1e6
 
@@ -147,8 +147,8 @@ def calibrate(s: Scenario, sample: TrajectorySample, eps_max: float, quick: bool
     snr = mean_snr(s.replace(comm_snr_offset_db=comm_off), sample)
     c = np.log2(1.0 + snr) - q_inv(eps_max) * np.sqrt(dispersion(snr) / s.ctrl_blocklength)
     deadline = s.ctrl_packet_bits / (PAPER["alpha_ctrl_star"] * s.bandwidth_hz * c)
-    sen = calibrate_sensing_offset(s, n_missions=8 if quick else CALIBRATION_MISSIONS,
-                                   max_steps=500 if quick else None, rtol=1e-3 if quick else 1e-4)
+    sen = calibrate_sensing_offset(s, n_missions=256 if quick else CALIBRATION_MISSIONS,
+                                   rtol=1e-3 if quick else 1e-4)
     return {"comm_snr_offset_db": comm_off, "ctrl_deadline_s": float(deadline),
             "sensing_snr_offset_db": sen["sensing_snr_offset_db"]}
 

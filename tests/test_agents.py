@@ -75,7 +75,7 @@ def test_sca_converges_to_a_feasible_stationary_point_near_the_grid_optimum(mode
     prob = static_problem(model)
     # every constraint of the reformulated problem
     assert min(res.alpha) >= MIN_SHARE - 1e-12
-    assert a_ctrl > prob.alpha_ctrl_min > 0.0  # stability threshold (design loss rate eps*/10)
+    assert a_ctrl >= prob.alpha_ctrl_min - 1e-12 and prob.alpha_ctrl_min > 0.0  # stability (design eps*/10)
     assert a_comm >= prob.alpha_comm_min - 1e-9  # data rate
     assert res.g_bits >= res.rate_cost_bits > 0.0  # cons:rate_cost
     met = model.evaluate(res.alpha)

@@ -118,15 +118,13 @@ def calibrate_sensing_offset(s: Scenario, n_missions: int = CALIBRATION_MISSIONS
     seeds = range(CALIBRATION_SEED_START, CALIBRATION_SEED_START + int(n_missions))
     target = PAPER["peb_m_table2_sca"]
     off = float(s.sensing_snr_offset_db)
-    for it in range(1, 9):
+    for iterations in range(1, 9):
         peb = float(rollout([TABLE2_SCA_SPLIT], seeds, s.replace(sensing_snr_offset_db=off),
                             max_steps=max_steps)["peb_m"].mean())
         if abs(peb / target - 1.0) <= rtol:
-            break
+            return {"sensing_snr_offset_db": off, "peb_m": peb, "iterations": iterations}
         off += 20.0 * np.log10(peb / target)
-    else:
-        raise RuntimeError(f"the PEB calibration did not converge: PEB {peb:.6g} m at offset {off:.6g} dB")
-    return {"sensing_snr_offset_db": off, "peb_m": peb, "iterations": it}
+    raise RuntimeError(f"the PEB calibration did not converge: PEB {peb:.6g} m at offset {off:.6g} dB")
 
 
 def calibrate(s: Scenario, sample: TrajectorySample, eps_max: float, quick: bool = False) -> dict[str, float]:

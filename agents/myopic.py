@@ -4,7 +4,7 @@
 large-scale SNR, geometry) and picks, for every env of a batch at once, the split
 :math:`(\\alpha_\\mathrm{sen}, \\alpha_\\mathrm{ctrl}, \\alpha_\\mathrm{comm})` that maximises the env's
 reward in expectation over the slot's Rician fading. Every equation comes from :mod:`iscc_gym`:
-the FBL link (:func:`iscc_gym.fbl.slot_link`, :func:`iscc_gym.fbl.min_ctrl_share`), the fading
+the FBL link (:func:`iscc_gym.fbl.slot_link`, :func:`iscc_gym.fbl.min_shares`), the fading
 quadrature (:func:`iscc_gym.analysis.rician_power_nodes`), the CRLB
 (:func:`iscc_gym.analysis.sensing_coefficients`, :func:`iscc_gym.analysis.local_crlb`), the Kalman
 steady state (:func:`iscc_gym.analysis.axis_kalman_steady_state`), the second-moment recursion under
@@ -33,7 +33,7 @@ from iscc_gym.analysis import (
 )
 from iscc_gym.channel import beam_gain, link_snr, matched_gain
 from iscc_gym.dynamics import model_matrices
-from iscc_gym.fbl import min_ctrl_share, slot_link
+from iscc_gym.fbl import min_shares, slot_link
 from iscc_gym.scenario import Scenario, make_scenario
 from iscc_gym.stability import scenario_eps_star, stability_matrix
 from iscc_gym.units import db_to_lin
@@ -222,7 +222,7 @@ class MyopicPolicy(SplitPolicy):
     * the stability term is in closed form: :math:`\\varepsilon_\\mathrm{ctrl}` falls with the SNR,
       so :math:`P(\\varepsilon_\\mathrm{ctrl} > \\varepsilon^\\star) = F_g(\\gamma^\\star(\\alpha_\\mathrm{ctrl})
       / \\bar\\gamma_n)` with :math:`\\gamma^\\star` the inverse of
-      :func:`iscc_gym.fbl.min_ctrl_share` at :math:`\\varepsilon^\\star` (tabulated) and :math:`F_g`
+      :func:`iscc_gym.fbl.min_shares` at :math:`\\varepsilon^\\star` (tabulated) and :math:`F_g`
       :func:`rician_power_cdf`;
     * :math:`T` is the steady-state mean tracking error at the predicted geometry
       (:class:`LocalTrackingModel`: range obs[14], direction obs[15..17], shadowing) for the
@@ -299,7 +299,7 @@ class MyopicPolicy(SplitPolicy):
         self.fade, self.fade_w = rician_power_nodes(float(db_to_lin(s.rician_k_db)))
         # gamma*(alpha): the SNR at which alpha_ctrl gives eps* (inverse of min_ctrl_share, decreasing)
         log_snr = np.linspace(-6.0, 16.0, 4401) * math.log(10.0)
-        a_star = min_ctrl_share(s, np.exp(log_snr), self.eps_star)
+        a_star = min_shares(s, np.exp(log_snr), self.eps_star, 0.0)[0]
         ok = a_star < 1e6
         self._log_alpha_star = np.log(a_star[ok])[::-1]
         self._log_snr_star = log_snr[ok][::-1]

@@ -72,8 +72,8 @@ from scipy.optimize import brentq
 from scipy.stats import ncx2
 
 from .channel import direction_trig, geometry, large_scale_snr, shadowing_std_db
-from .dynamics import model_matrices
-from .fbl import comm_rate_bps, ctrl_bler, link_terms, min_shares, q_func, q_inv
+from .dynamics import axis_matrices, model_matrices
+from .fbl import comm_rate_bps, ctrl_bler, ctrl_bler_and_slope, ctrl_rate_bps, min_shares, q_func, q_inv
 from .scenario import SPEED_OF_LIGHT_MPS, Scenario
 from .sensing import crlb, fim_terms, matched_signature_terms, peb, signature_derivatives, veb
 from .stability import lqg_cost_floor, rate_cost_bits, riccati_s_d, scenario_eps_star
@@ -277,16 +277,10 @@ def ctrl_goodput_bits(s: Scenario, alpha_ctrl, snr, ignore_loss: bool = False):
     g_bits, dg_bits : ndarray
     """
     a = np.maximum(np.asarray(alpha_ctrl, dtype=float), 1e-12)
-    cap, sqrt_v = link_terms(np.asarray(snr, dtype=float))
-    back_off = float(q_inv(s.ctrl_target_bler)) / math.sqrt(s.ctrl_blocklength)
-    per_share = s.bandwidth_hz * np.maximum(cap - sqrt_v * back_off, 0.0) * s.dt_s  # bits per slot
+    per_share = ctrl_rate_bps(s, 1.0, snr) * s.dt_s  # bits per slot and unit share
     if ignore_loss:
         return a * per_share, per_share + 0.0 * a
-    bits_per_hz = s.ctrl_packet_bits / (s.ctrl_deadline_s * s.bandwidth_hz)
-    scale = math.sqrt(s.ctrl_blocklength) / np.maximum(sqrt_v, 1e-150)
-    x = scale * (cap - bits_per_hz / a)
-    eps = q_func(x)
-    deps = -np.exp(-0.5 * x * x) / math.sqrt(2.0 * math.pi) * scale * bits_per_hz / (a * a)
+    eps, deps = ctrl_bler_and_slope(s, a, snr)
     return (1.0 - eps) * a * per_share, (1.0 - eps) * per_share - deps * a * per_share
 
 
@@ -578,16 +572,12 @@ class StaticModel:
         gain = (10.0 ** (-0.1 * sh_db))[:, :, None] * fade[None, None, :]  # (P, n_sh, n_f)
         self._node_snr = (self.snr_large_scale[:, None, None] * gain).reshape(len(pos), -1)
         self._node_w = np.outer(ws, wf).ravel()  # per position, sums to 1
-        cap, sqrt_v = link_terms(self._node_snr)
-        k_comm = float(q_inv(s.comm_target_bler)) / math.sqrt(s.comm_blocklength)
-        comm_per_share = s.bandwidth_hz * np.maximum(cap - k_comm * sqrt_v, 0.0)  # (P, nodes)
+        comm_per_share = comm_rate_bps(s, 1.0, self._node_snr)  # (P, nodes)
         w_all = np.broadcast_to(self._node_w, comm_per_share.shape).ravel() / len(pos)
         #: Mean FBL rate of the data link per unit share (slot average), bit/s.
         self.rate_comm_per_share_bps = float(np.sum(comm_per_share.ravel() * w_all))
-        k_ctrl = float(q_inv(s.ctrl_target_bler)) / math.sqrt(s.ctrl_blocklength)
         #: Mean FBL rate of the control link per unit share (slot average), bit/s.
-        self.rate_ctrl_per_share_bps = float(np.sum(
-            s.bandwidth_hz * np.maximum(cap - k_ctrl * sqrt_v, 0.0).ravel() * w_all))
+        self.rate_ctrl_per_share_bps = float(np.sum(ctrl_rate_bps(s, 1.0, self._node_snr).ravel() * w_all))
         order = np.argsort(comm_per_share.ravel())
         self._rate_sorted = comm_per_share.ravel()[order]
         self._rate_cw = np.concatenate([[0.0], np.cumsum(w_all[order])])
@@ -599,9 +589,7 @@ class StaticModel:
         self._alpha_grid = np.geomspace(1e-4, 1.0, n_alpha_grid)
         self._eps_table = None  # (n_alpha, P), built on first use
         # --- closed loop per axis: A1, B1, K1 and eq:M as a rational function of eps
-        dt = s.dt_s
-        self._a1 = np.array([[1.0, dt], [0.0, 1.0]])
-        self._b1 = np.array([[0.5 * dt * dt], [dt]])
+        self._a1, self._b1 = axis_matrices(s.dt_s)
         self._k1 = np.asarray(mm.k)[:1, [0, 3]]
         self._w1 = np.diag([s.process_noise_var_pos_m2, s.process_noise_var_vel_m2s2])
         self._poly = _LossOperator(self._a1, self._b1, self._k1)
@@ -612,14 +600,10 @@ class StaticModel:
     # --- link -------------------------------------------------------------------------------------
     def _build_eps_table(self):
         s = self.scenario
-        cap, sqrt_v = link_terms(self._node_snr)
-        bits_per_hz = s.ctrl_packet_bits / (s.ctrl_deadline_s * s.bandwidth_hz)
-        scale = math.sqrt(s.ctrl_blocklength) / np.maximum(sqrt_v, 1e-150)
         table = np.empty((len(self._alpha_grid), self.n_positions))
         chunk = max(1, 2_000_000 // max(self._node_snr.size, 1))
         for i in range(0, len(self._alpha_grid), chunk):
-            need = bits_per_hz / self._alpha_grid[i:i + chunk, None, None]
-            table[i:i + chunk] = q_func(scale * (cap - need)) @ self._node_w
+            table[i:i + chunk] = ctrl_bler(s, self._alpha_grid[i:i + chunk, None, None], self._node_snr) @ self._node_w
         self._eps_table = q_inv(np.clip(table, 1e-300, 1.0 - 1e-16))  # probit scale
 
     def eps_ctrl_local(self, alpha_ctrl):

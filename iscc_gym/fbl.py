@@ -5,18 +5,17 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit, vectorize
+from numba import guvectorize, njit, vectorize
 from scipy.special import erfc, ndtri
 
 from .scenario import Scenario, per_scenario
 
 __all__ = ["dispersion", "q_func", "q_inv", "link_terms", "fbl_rate_bps", "comm_rate_bps",
-           "ctrl_rate_bps", "ctrl_bler", "slot_link", "min_shares", "min_ctrl_share", "link_constants",
-           "link_terms_one", "ctrl_bler_one", "rate_one", "delivered_one", "min_ctrl_share_one", "min_comm_share_one",
+           "ctrl_rate_bps", "ctrl_bler", "ctrl_bler_and_slope", "slot_link", "min_shares", "link_constants",
+           "link_terms_one", "ctrl_bler_arg_one", "ctrl_bler_one", "ctrl_bler_slope_one", "rate_one", "delivered_one",
+           "min_ctrl_share_one", "min_comm_share_one",
            "LINK_PARAMS", "link_params", "ctrl_bler_ufunc", "ctrl_bler_compiled"]
 
-_LOG2E = float(np.log2(np.e))
-_LOG2E_SQ = _LOG2E**2
 _INV_SQRT2 = 1.0 / np.sqrt(2.0)
 
 
@@ -34,38 +33,32 @@ def q_inv(p):
 
 
 def dispersion(snr):
-    """Channel dispersion of the AWGN channel in bits^2 per channel use.
+    r"""Channel dispersion of the AWGN channel in bits^2 per channel use.
 
-    .. math:: V(\\gamma) = (\\log_2 e)^2 \\left[1 - (1+\\gamma)^{-2}\\right]
+    .. math:: V(\gamma) = (\log_2 e)^2 \left[1 - (1+\gamma)^{-2}\right]
 
-    (the paper, below eq:rate_equation). ``snr`` is linear.
+    (the paper, below eq:rate_equation). ``snr`` is linear; the square of the second term of
+    :func:`link_terms`.
     """
-    g = np.asarray(snr, dtype=float)
-    return _LOG2E_SQ * g * (2.0 + g) / ((1.0 + g) * (1.0 + g))  # = 1 - (1+g)^-2, exact at small g
-
-
-def fbl_rate_bps(alpha, bandwidth_hz, snr, blocklength, bler):
-    """Effective FBL rate of a share ``alpha`` of the band, eq:rate_equation, in bit/s.
-
-    .. math::
-        \\mathcal R_i = \\alpha_i B\\left[\\log_2(1+\\gamma) - \\sqrt{\\frac{V}{L_i}}\\,
-        Q^{-1}(\\varepsilon_i)\\right]
-
-    Clipped at zero (no negative rates at very low SNR).
-    """
-    cap, sqrt_v = link_terms(np.asarray(snr, dtype=float))
-    return _rate(alpha, bandwidth_hz, cap, sqrt_v, q_inv(bler) / np.sqrt(blocklength))
+    return link_terms(snr)[1] ** 2
 
 
 def link_terms(snr):
-    """Capacity :math:`\\log_2(1+\\gamma)` and :math:`\\sqrt{V(\\gamma)}`, the two SNR terms every
-    FBL quantity here is built from (computed once per slot)."""
-    g1 = 1.0 + snr
-    return np.log2(g1), _LOG2E * np.sqrt(snr * (2.0 + snr)) / g1
+    r"""Capacity :math:`\log_2(1+\gamma)` and :math:`\sqrt{V(\gamma)}` of linear SNRs, the two SNR terms
+    every FBL quantity here is built from: :func:`link_terms_one` over arrays."""
+    return _link_terms_ufunc(np.asarray(snr, dtype=float))
 
 
-def _rate(alpha, bandwidth_hz, cap, sqrt_v, back_off):
-    return alpha * bandwidth_hz * np.maximum(cap - sqrt_v * back_off, 0.0)
+def fbl_rate_bps(alpha, bandwidth_hz, snr, blocklength, bler):
+    r"""Effective FBL rate of a share ``alpha`` of the band, eq:rate_equation, in bit/s.
+
+    .. math::
+        \mathcal R_i = \alpha_i B\left[\log_2(1+\gamma) - \sqrt{\frac{V}{L_i}}\,
+        Q^{-1}(\varepsilon_i)\right]
+
+    Clipped at zero (no negative rates at very low SNR). :func:`rate_one` over arrays.
+    """
+    return _rate_ufunc(alpha, snr, bandwidth_hz, q_inv(bler) / np.sqrt(blocklength))
 
 
 @per_scenario
@@ -77,65 +70,69 @@ def link_constants(s: Scenario):
 
 
 def comm_rate_bps(s: Scenario, alpha_comm, snr):
-    """Data-link FBL rate :math:`\\mathcal R_\\mathrm{comm}` (L_comm, eps_comm of Table I)."""
-    return slot_link(s, 0.0, alpha_comm, snr)[2]
+    r"""Data-link FBL rate :math:`\mathcal R_\mathrm{comm}` (L_comm, eps_comm of Table I)."""
+    return _rate_ufunc(alpha_comm, snr, s.bandwidth_hz, link_constants(s)[0])
 
 
 def ctrl_rate_bps(s: Scenario, alpha_ctrl, snr):
-    """Control-link FBL rate :math:`\\mathcal R_\\mathrm{ctrl}` (L_ctrl, eps_ctrl of Table I)."""
-    return slot_link(s, alpha_ctrl, 0.0, snr)[1]
+    r"""Control-link FBL rate :math:`\mathcal R_\mathrm{ctrl}` (L_ctrl, eps_ctrl of Table I)."""
+    return _rate_ufunc(alpha_ctrl, snr, s.bandwidth_hz, link_constants(s)[1])
 
 
 def ctrl_bler(s: Scenario, alpha_ctrl, snr):
-    """Control packet-drop probability under the delivery deadline, eq:ctrl_bler.
+    r"""Control packet-drop probability under the delivery deadline, eq:ctrl_bler.
 
     .. math::
-        \\varepsilon_{\\mathrm{ctrl},n} = Q\\!\\left(\\sqrt{\\frac{L_\\mathrm{ctrl}}{V(\\gamma_n)}}
-        \\left[\\log_2(1+\\gamma_n) - \\frac{S}{T_d\\, \\alpha_\\mathrm{ctrl} B}\\right]\\right)
+        \varepsilon_{\mathrm{ctrl},n} = Q\!\left(\sqrt{\frac{L_\mathrm{ctrl}}{V(\gamma_n)}}
+        \left[\log_2(1+\gamma_n) - \frac{S}{T_d\, \alpha_\mathrm{ctrl} B}\right]\right)
 
-    The paper writes :math:`T_d = \\Delta t`; here :math:`T_d` is ``ctrl_deadline_s``
-    (``docs/model.md``). ``alpha_ctrl = 0`` gives 1 (nothing can be sent).
+    The paper writes :math:`T_d = \Delta t`; here :math:`T_d` is ``ctrl_deadline_s``
+    (``docs/model.md``). ``alpha_ctrl = 0`` gives 1 (nothing can be sent). The compiled
+    :func:`ctrl_bler_one` over arrays (:func:`ctrl_bler_ufunc`): the env's loss probability, bit for bit.
     """
-    return slot_link(s, alpha_ctrl, 0.0, snr)[0]
+    _, _, bits_per_hz, sqrt_l = link_constants(s)
+    return ctrl_bler_ufunc(alpha_ctrl, snr, sqrt_l, bits_per_hz)
+
+
+def ctrl_bler_and_slope(s: Scenario, alpha_ctrl, snr):
+    r"""eq:ctrl_bler and its derivative in ``alpha_ctrl`` (:func:`ctrl_bler_slope_one` over arrays).
+
+    .. math::
+        \frac{\partial\varepsilon}{\partial\alpha} = -\phi(x)\sqrt{L_\mathrm{ctrl}/V}\,
+        \frac{S}{T_d B\alpha^2},\qquad x = \sqrt{L_\mathrm{ctrl}/V}\left[\log_2(1+\gamma)
+        - \frac{S}{T_d B\alpha}\right]
+    """
+    _, _, bits_per_hz, sqrt_l = link_constants(s)
+    return _ctrl_bler_slope_ufunc(alpha_ctrl, snr, sqrt_l, bits_per_hz)
 
 
 def slot_link(s: Scenario, alpha_ctrl, alpha_comm, snr):
     """The slot's control drop probability (eq:ctrl_bler) and both FBL rates (eq:rate_equation).
 
-    Returns ``(eps_ctrl, rate_ctrl_bps, rate_comm_bps)``, sharing the SNR terms of
-    :func:`link_terms`. Floors (alpha >= 1e-30, sqrt(V) >= 1e-150) keep alpha = 0 and
-    gamma = 0 finite (eps -> 1) without overflow or division warnings.
+    Returns ``(eps_ctrl, rate_ctrl_bps, rate_comm_bps)``. Floors (alpha >= 1e-30,
+    sqrt(V) >= 1e-150) keep alpha = 0 and gamma = 0 finite (eps -> 1) without overflow or division
+    warnings.
     """
-    k_comm, k_ctrl, bits_per_hz, sqrt_l = link_constants(s)
-    cap, sqrt_v = link_terms(np.asarray(snr, dtype=float))
-    need = bits_per_hz / np.maximum(alpha_ctrl, 1e-30)
-    eps = q_func(sqrt_l / np.maximum(sqrt_v, 1e-150) * (cap - need))
-    return (eps, _rate(alpha_ctrl, s.bandwidth_hz, cap, sqrt_v, k_ctrl),
-            _rate(alpha_comm, s.bandwidth_hz, cap, sqrt_v, k_comm))
+    return ctrl_bler(s, alpha_ctrl, snr), ctrl_rate_bps(s, alpha_ctrl, snr), comm_rate_bps(s, alpha_comm, snr)
 
 
 def min_shares(s: Scenario, snr, eps_max, rate_bps):
-    """Smallest control share with drop probability at most ``eps_max`` and smallest data share
+    r"""Smallest control share with drop probability at most ``eps_max`` and smallest data share
     carrying ``rate_bps``, at SNR ``snr`` (closed forms of eq:ctrl_bler and eq:rate_equation):
 
     .. math::
-        \\alpha_\\mathrm{ctrl}^\\star(\\gamma) = \\frac{S}{T_d B\\left[\\log_2(1+\\gamma)
-        - Q^{-1}(\\varepsilon_\\max)\\sqrt{V(\\gamma)/L_\\mathrm{ctrl}}\\right]},\\qquad
-        \\alpha_\\mathrm{comm}^{\\min}(\\gamma) = \\frac{R}{B\\left[\\log_2(1+\\gamma)
-        - Q^{-1}(\\varepsilon_\\mathrm{comm})\\sqrt{V(\\gamma)/L_\\mathrm{comm}}\\right]}
+        \alpha_\mathrm{ctrl}^\star(\gamma) = \frac{S}{T_d B\left[\log_2(1+\gamma)
+        - Q^{-1}(\varepsilon_\max)\sqrt{V(\gamma)/L_\mathrm{ctrl}}\right]},\qquad
+        \alpha_\mathrm{comm}^{\min}(\gamma) = \frac{R}{B\left[\log_2(1+\gamma)
+        - Q^{-1}(\varepsilon_\mathrm{comm})\sqrt{V(\gamma)/L_\mathrm{comm}}\right]}
 
     Where a bracket is not positive (unreachable at any share) the result is at least 1e12.
+    :func:`min_ctrl_share_one` and :func:`min_comm_share_one` over arrays.
     """
     k_comm, _, bits_per_hz, sqrt_l = link_constants(s)
-    cap, sqrt_v = link_terms(np.asarray(snr, dtype=float))
-    ctrl = bits_per_hz / np.maximum(cap - float(q_inv(eps_max)) / sqrt_l * sqrt_v, 1e-12 * bits_per_hz)
-    comm = (rate_bps / s.bandwidth_hz) / np.maximum(cap - k_comm * sqrt_v, 1e-12)
-    return ctrl, comm
-
-
-def min_ctrl_share(s: Scenario, snr, eps_max):
-    """The control share of :func:`min_shares` (kept for ``agents/myopic.py``)."""
-    return min_shares(s, snr, eps_max, 0.0)[0]
+    q_back = q_inv(eps_max) / sqrt_l
+    return (_min_ctrl_share_ufunc(snr, bits_per_hz, q_back),
+            _min_comm_share_ufunc(snr, rate_bps, s.bandwidth_hz, k_comm))
 
 
 # --- compiled scalar forms: one drone, composed by the slot kernel (iscc_gym.loop.step_one) ---------
@@ -152,11 +149,26 @@ def link_terms_one(snr):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def ctrl_bler_one(cap, sqrt_v, sqrt_l, bits_per_hz, alpha_ctrl):
-    """eq:ctrl_bler of one slot from :func:`link_terms_one` (``sqrt_l``, ``bits_per_hz`` of
-    :func:`link_constants`); the floors of :func:`slot_link`."""
+def ctrl_bler_arg_one(cap, sqrt_v, sqrt_l, bits_per_hz, alpha_ctrl):
+    """The argument x of eq:ctrl_bler, eps = Q(x), of one slot from :func:`link_terms_one` (``sqrt_l``,
+    ``bits_per_hz`` of :func:`link_constants`); floors alpha >= 1e-30 and sqrt(V) >= 1e-150."""
     need = bits_per_hz / max(alpha_ctrl, 1e-30)
-    return 0.5 * math.erfc(sqrt_l / max(sqrt_v, 1e-150) * (cap - need) * _INV_SQRT2_F)
+    return sqrt_l / max(sqrt_v, 1e-150) * (cap - need)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def ctrl_bler_one(cap, sqrt_v, sqrt_l, bits_per_hz, alpha_ctrl):
+    """eq:ctrl_bler of one slot: Q of :func:`ctrl_bler_arg_one`."""
+    return 0.5 * math.erfc(ctrl_bler_arg_one(cap, sqrt_v, sqrt_l, bits_per_hz, alpha_ctrl) * _INV_SQRT2_F)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def ctrl_bler_slope_one(cap, sqrt_v, sqrt_l, bits_per_hz, alpha_ctrl):
+    """:func:`ctrl_bler_one` and its derivative in ``alpha_ctrl``, -phi(x) dx/dalpha."""
+    x = ctrl_bler_arg_one(cap, sqrt_v, sqrt_l, bits_per_hz, alpha_ctrl)
+    a = max(alpha_ctrl, 1e-30)
+    dx = sqrt_l / max(sqrt_v, 1e-150) * bits_per_hz / (a * a)
+    return 0.5 * math.erfc(x * _INV_SQRT2_F), -math.exp(-0.5 * x * x) * 0.3989422804014327 * dx
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -211,7 +223,35 @@ def ctrl_bler_ufunc(alpha_ctrl, snr, sqrt_l, bits_per_hz):
 
 
 def ctrl_bler_compiled(s: Scenario, alpha_ctrl, snr):
-    """:func:`ctrl_bler` by the compiled scalar form (:func:`ctrl_bler_ufunc`), for arrays of any
-    broadcastable shapes. Agrees with :func:`ctrl_bler` to rounding (libm's erfc, not scipy's)."""
-    r = link_params(s)[0]
-    return ctrl_bler_ufunc(alpha_ctrl, snr, r["sqrt_l"], r["bits_per_hz"])
+    """:func:`ctrl_bler` (kept name: both are the compiled :func:`ctrl_bler_one` over arrays)."""
+    return ctrl_bler(s, alpha_ctrl, snr)
+
+
+@guvectorize(["void(float64, float64[:], float64[:])"], "()->(),()", cache=True)
+def _link_terms_ufunc(snr, cap, sqrt_v):
+    cap[0], sqrt_v[0] = link_terms_one(snr)
+
+
+@vectorize(["float64(float64, float64, float64, float64)"], cache=True)
+def _rate_ufunc(alpha, snr, bandwidth_hz, back_off):
+    cap, sqrt_v = link_terms_one(snr)
+    return rate_one(alpha, bandwidth_hz, cap, sqrt_v, back_off)
+
+
+@guvectorize(["void(float64, float64, float64, float64, float64[:], float64[:])"], "(),(),(),()->(),()",
+             cache=True)
+def _ctrl_bler_slope_ufunc(alpha_ctrl, snr, sqrt_l, bits_per_hz, eps, deps):
+    cap, sqrt_v = link_terms_one(snr)
+    eps[0], deps[0] = ctrl_bler_slope_one(cap, sqrt_v, sqrt_l, bits_per_hz, alpha_ctrl)
+
+
+@vectorize(["float64(float64, float64, float64)"], cache=True)
+def _min_ctrl_share_ufunc(snr, bits_per_hz, q_back):
+    cap, sqrt_v = link_terms_one(snr)
+    return min_ctrl_share_one(cap, sqrt_v, bits_per_hz, q_back)
+
+
+@vectorize(["float64(float64, float64, float64, float64)"], cache=True)
+def _min_comm_share_ufunc(snr, rate_bps, bandwidth_hz, k_comm):
+    cap, sqrt_v = link_terms_one(snr)
+    return min_comm_share_one(cap, sqrt_v, rate_bps, bandwidth_hz, k_comm)

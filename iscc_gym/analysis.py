@@ -75,7 +75,7 @@ from .channel import direction_trig, geometry, large_scale_snr, shadowing_std_db
 from .dynamics import axis_matrices, model_matrices
 from .fbl import comm_rate_bps, ctrl_bler, ctrl_bler_and_slope, ctrl_rate_bps, min_shares, q_func, q_inv
 from .scenario import SPEED_OF_LIGHT_MPS, Scenario
-from .sensing import crlb, fim_terms, matched_signature_terms, peb, signature_derivatives, veb
+from .sensing import crlb, crlb_from_info, fim_terms, matched_signature_terms, peb, signature_derivatives, veb
 from .stability import lqg_cost_floor, rate_cost_bits, riccati_s_d, scenario_eps_star
 from .trajectory import sample_reference
 from .units import db_to_lin
@@ -224,13 +224,8 @@ def local_crlb(coef: SensingCoefficients, alpha_sen):
     crlb_vr : ndarray, (m/s)^2
     """
     a_s = np.asarray(alpha_sen, dtype=float)
-    p = coef.prior
-    a = a_s * coef.info_az + p
-    b = a_s * coef.info_cross
-    d = a_s * coef.info_el + p
-    inv_det = 1.0 / (a * d - b * b)
-    return (1.0 / (a_s**3 * coef.info_range + p), d * inv_det, -b * inv_det, a * inv_det,
-            1.0 / (a_s * coef.info_vr + p))
+    return crlb_from_info(a_s**3 * coef.info_range, a_s * coef.info_az, a_s * coef.info_cross, a_s * coef.info_el,
+                          a_s * coef.info_vr, coef.prior, 1.0)
 
 
 def crlb_trace(coef: SensingCoefficients, alpha_sen):
@@ -242,16 +237,12 @@ def crlb_trace(coef: SensingCoefficients, alpha_sen):
     trace_m2, dtrace : ndarray
     """
     a_s = np.asarray(alpha_sen, dtype=float)
-    p = coef.prior
-    a = a_s * coef.info_az + p
-    b = a_s * coef.info_cross
-    d = a_s * coef.info_el + p
-    num, den = a + d, a * d - b * b
-    dden = coef.info_az * d + a * coef.info_el - 2.0 * b * coef.info_cross
-    r = a_s**3 * coef.info_range + p
-    trace = 1.0 / r + num / den
-    dtrace = (-3.0 * a_s**2 * coef.info_range / (r * r)
-              + ((coef.info_az + coef.info_el) * den - num * dden) / (den * den))
+    m_r, m_tt, m_tp, m_pp, _ = local_crlb(coef, a_s)
+    trace = m_r + m_tt + m_pp
+    # d/da of the inverses: dM = -M (dJ/da) M, with dJ/da the information at alpha_sen = 1 (3 a^2 in range)
+    dtrace = (-3.0 * a_s**2 * coef.info_range * m_r * m_r
+              - (coef.info_az * (m_tt * m_tt + m_tp * m_tp) + 2.0 * coef.info_cross * m_tp * (m_tt + m_pp)
+                 + coef.info_el * (m_tp * m_tp + m_pp * m_pp)))
     return trace, dtrace
 
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from numba import njit, vectorize
 
 from .channel import (
     array_response,
@@ -42,6 +42,8 @@ __all__ = [
     "index_moments",
     "fim_constants",
     "crlb_local_one",
+    "crlb_from_info_one",
+    "crlb_from_info",
     "whitened_rows_one",
     "SENSING_PARAMS",
     "sensing_params",
@@ -318,17 +320,10 @@ def crlb_local(s: Scenario, alpha_sen, dist_m, trig, shadow_db, fading_gain=1.0)
                                               if s.beamforming == "matched" else
                                               signature_derivatives(s, np.arctan2(st, ct),
                                                                     np.arctan2(sp, cp)))
-    prior = 1.0 / s.sensing_prior_var_m2
-    inv_l = 1.0 / dist_m
+    inv_l = 1.0 / np.asarray(dist_m, dtype=float)
     inv_lc = inv_l / np.maximum(cp, 1e-9)
-    a = j_tt * inv_lc * inv_lc + prior
-    b = j_tp * inv_lc * inv_l
-    d = j_pp * inv_l * inv_l + prior
-    inv_det = 1.0 / (a * d - b * b)
-    m_r = 1.0 / (j_tau * (2.0 / SPEED_OF_LIGHT_MPS) ** 2 + prior)
-    lam_half_sq = (0.5 * s.wavelength_m) ** 2
-    crlb_vr = lam_half_sq / (j_nu + lam_half_sq * prior)
-    return m_r, d * inv_det, -b * inv_det, a * inv_det, crlb_vr
+    return crlb_from_info(j_tau * (2.0 / SPEED_OF_LIGHT_MPS) ** 2, j_tt * inv_lc * inv_lc, j_tp * inv_lc * inv_l,
+                          j_pp * inv_l * inv_l, j_nu, 1.0 / s.sensing_prior_var_m2, (0.5 * s.wavelength_m) ** 2)
 
 
 def peb(crlb_p):
@@ -384,17 +379,46 @@ def crlb_local_one(c, a_sen, dist, ct, st, cp, sp, shadow_db, fading):
     j_nu = common * c.c_nu
     ang = 0.5 * common if c.fim_printed == 1.0 else 2.0 * base
     j_tt, j_pp, j_tp = ang * d_tt, ang * d_pp, ang * d_tp
-    prior = c.prior
     inv_l = 1.0 / dist
     inv_lc = inv_l / max(cp, 1e-9)
-    a = j_tt * inv_lc * inv_lc + prior
-    b = j_tp * inv_lc * inv_l
-    d = j_pp * inv_l * inv_l + prior
+    return crlb_from_info_one(j_tau * c.two_over_c_sq, j_tt * inv_lc * inv_lc, j_tp * inv_lc * inv_l,
+                              j_pp * inv_l * inv_l, j_nu, c.prior, c.lam_half_sq)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def crlb_from_info_one(info_range, info_az, info_cross, info_el, j_nu, prior, lam_half_sq):
+    r"""eq:CRLB_pos in the local frame from the position-domain Fisher information: the one place the
+    CRLB is inverted.
+
+    .. math::
+        m_r = \frac{1}{(2/c)^2 J_{\tau\tau} + p},\qquad
+        \begin{bmatrix}m_{\theta\theta} & m_{\theta\varphi}\\ m_{\theta\varphi} & m_{\varphi\varphi}
+        \end{bmatrix} = \begin{bmatrix}a & b\\ b & d\end{bmatrix}^{-1},\qquad
+        \mathrm{CRLB}_{v_r} = \frac{(\lambda/2)^2}{J_{\nu\nu} + (\lambda/2)^2 p}
+
+    with :math:`a` = ``info_az`` + p, :math:`b` = ``info_cross``, :math:`d` = ``info_el`` + p (the
+    entries of :math:`\mathbf D\mathbf J_{\theta\varphi}\mathbf D`), ``info_range`` =
+    :math:`(2/c)^2 J_{\tau\tau}` and p the prior information ``1 / sensing_prior_var_m2``.
+    Returns ``(m_r, m_tt, m_tp, m_pp, crlb_vr)``.
+    """
+    a = info_az + prior
+    b = info_cross
+    d = info_el + prior
     inv_det = 1.0 / (a * d - b * b)
-    m_r = 1.0 / (j_tau * c.two_over_c_sq + prior)
-    lam = c.lam_half_sq
-    crlb_vr = lam / (j_nu + lam * prior)
+    m_r = 1.0 / (info_range + prior)
+    crlb_vr = lam_half_sq / (j_nu + lam_half_sq * prior)
     return m_r, d * inv_det, -b * inv_det, a * inv_det, crlb_vr
+
+
+@vectorize(["float64(float64, float64, float64, float64, float64, float64, float64, int64)"], cache=True)
+def _crlb_from_info_ufunc(info_range, info_az, info_cross, info_el, j_nu, prior, lam_half_sq, which):
+    return crlb_from_info_one(info_range, info_az, info_cross, info_el, j_nu, prior, lam_half_sq)[which]
+
+
+def crlb_from_info(info_range, info_az, info_cross, info_el, j_nu, prior, lam_half_sq):
+    """:func:`crlb_from_info_one` over arrays: ``(m_r, m_tt, m_tp, m_pp, crlb_vr)``."""
+    return tuple(_crlb_from_info_ufunc(info_range, info_az, info_cross, info_el, j_nu, prior, lam_half_sq, k)
+                 for k in range(5))
 
 
 @njit(cache=True, error_model="numpy", inline="always")

@@ -74,6 +74,7 @@ from scipy.stats import ncx2
 from .channel import direction_trig, geometry, large_scale_snr, shadowing_std_db
 from .dynamics import axis_matrices, model_matrices
 from .fbl import comm_rate_bps, ctrl_bler, ctrl_bler_and_slope, ctrl_rate_bps, min_shares, q_func, q_inv
+from .kernel import reward_from_costs
 from .scenario import SPEED_OF_LIGHT_MPS, Scenario
 from .sensing import crlb, crlb_from_info, fim_terms, matched_signature_terms, peb, signature_derivatives, veb
 from .stability import lqg_cost_floor, rate_cost_bits, riccati_s_d, scenario_eps_star
@@ -836,7 +837,7 @@ class StaticModel:
         objective = np.where(feasible, err, s.max_tracking_error_m * (1.0 + rate_gap + loss_gap))
         shortfall = self.rate_shortfall(al[:, 2])
         viol = self.stability_violation(al[:, 1])
-        reward = -np.minimum(err, s.max_tracking_error_m) - s.w_rate * shortfall - s.w_stab * viol
+        reward = reward_from_costs(s.max_tracking_error_m, s.w_rate, s.w_stab, err, shortfall, viol)
         return AllocationMetrics(
             alpha=al,
             tracking_error_m=err,

@@ -21,7 +21,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit, prange
+from numba import njit, prange, vectorize
 
 from .channel import beam_gain_one, direction_one, link_snr_one, shadowing_db_one
 from .fbl import link_terms_one, min_comm_share_one, min_ctrl_share_one
@@ -141,6 +141,20 @@ def split_batch(action, alpha):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
+def reward_from_costs_one(max_err, w_rate, w_stab, err, cost_rate, cost_stab):
+    """The reward of a slot from its tracking error and costs (:class:`iscc_gym.env.ISCCEnv`, Rewards):
+    ``-min(err, max_err) - w_rate cost_rate - w_stab cost_stab`` (also of expected costs: the
+    analytic evaluator's expected reward)."""
+    return -(err if err <= max_err else max_err) - w_rate * cost_rate - w_stab * cost_stab
+
+
+@vectorize(["float64(float64, float64, float64, float64, float64, float64)"], cache=True)
+def reward_from_costs(max_err, w_rate, w_stab, err, cost_rate, cost_stab):
+    """:func:`reward_from_costs_one` over arrays."""
+    return reward_from_costs_one(max_err, w_rate, w_stab, err, cost_rate, cost_stab)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
 def reward_one(c, err, rate, eps, terminated, n_next):
     """The slot's ``(cost_rate, cost_stability, reward)`` (:class:`iscc_gym.env.ISCCEnv`, Rewards): a
     rate or loss probability that is NaN counts as a violation; an episode that terminates pays
@@ -154,7 +168,7 @@ def reward_one(c, err, rate, eps, terminated, n_next):
     else:
         cost_rate = max(0.0, rate_min - rate) / rate_min
     cost_stab = 1.0 if (eps > c.eps_star or eps != eps) else 0.0
-    reward = -(err if err <= max_err else max_err) - c.w_rate * cost_rate - c.w_stab * cost_stab
+    reward = reward_from_costs_one(max_err, c.w_rate, c.w_stab, err, cost_rate, cost_stab)
     if terminated:
         reward -= max_err * (c.n_slots - n_next)
     return cost_rate, cost_stab, reward

@@ -5,11 +5,11 @@ large-scale SNR, geometry) and picks, for every env of a batch at once, the spli
 :math:`(\\alpha_\\mathrm{sen}, \\alpha_\\mathrm{ctrl}, \\alpha_\\mathrm{comm})` that maximises the env's
 reward in expectation over the slot's Rician fading. Every equation comes from :mod:`iscc_gym`:
 the FBL link (:func:`iscc_gym.fbl.slot_link`, :func:`iscc_gym.fbl.min_shares`), the fading
-quadrature (:func:`iscc_gym.analysis.rician_power_nodes`), the CRLB
-(:func:`iscc_gym.analysis.sensing_coefficients`, :func:`iscc_gym.analysis.local_crlb`), the Kalman
-steady state (:func:`iscc_gym.analysis.axis_kalman_steady_state`), the second-moment recursion under
+quadrature (:func:`iscc_gym.quadrature.rician_power_nodes`), the CRLB
+(:func:`iscc_gym.sensing_share.sensing_coefficients`, :func:`iscc_gym.sensing_share.local_crlb`), the Kalman
+steady state (:func:`iscc_gym.kalman_steady.axis_kalman_steady_state`), the second-moment recursion under
 packet loss (:func:`iscc_gym.stability.stability_matrix`) and the mean error norm
-(:func:`iscc_gym.analysis.expected_norm`). Two helpers the library does not have live here:
+(:func:`iscc_gym.quadrature.expected_norm`). Two helpers the library does not have live here:
 :func:`rician_power_cdf` (the CDF of :func:`iscc_gym.channel.rician_power_gain`) and
 :class:`LocalTrackingModel` (the steady-state tracking error of ``iscc_gym.analysis`` at one
 geometry, for any sensing share and loss rate).
@@ -23,18 +23,13 @@ from dataclasses import dataclass, fields, replace
 import numpy as np
 from scipy.special import chndtr
 
-from iscc_gym.analysis import (
-    SensingCoefficients,
-    axis_kalman_steady_state,
-    expected_norm,
-    local_crlb,
-    rician_power_nodes,
-    sensing_coefficients,
-)
 from iscc_gym.channel import beam_gain, link_snr, matched_gain
 from iscc_gym.dynamics import model_matrices
 from iscc_gym.fbl import min_shares, slot_link
+from iscc_gym.kalman_steady import axis_kalman_steady_state
+from iscc_gym.quadrature import expected_norm, rician_power_nodes
 from iscc_gym.scenario import Scenario, make_scenario
+from iscc_gym.sensing_share import SensingCoefficients, local_crlb, sensing_coefficients
 from iscc_gym.stability import scenario_eps_star, stability_matrix
 from iscc_gym.units import db_to_lin
 
@@ -48,7 +43,7 @@ def rician_power_cdf(s: Scenario, x):
     :func:`iscc_gym.channel.rician_power_gain`.
 
     :math:`|g|^2 = \\sigma^2\\chi'^2_2(2K)` with :math:`\\sigma^2 = 1/(2(K+1))` and K = ``rician_k_db``
-    (linear), the distribution whose quantiles :func:`iscc_gym.analysis.rician_power_nodes` takes.
+    (linear), the distribution whose quantiles :func:`iscc_gym.quadrature.rician_power_nodes` takes.
 
     Parameters
     ----------
@@ -69,10 +64,10 @@ class LocalTrackingModel:
     """Steady-state mean tracking error at one geometry for a sensing share and a loss rate.
 
     The model of :mod:`iscc_gym.analysis` (frozen geometry, exact closed-loop recursion) at a
-    single position: the local CRLB (:func:`iscc_gym.analysis.local_crlb`) splits the filter into
+    single position: the local CRLB (:func:`iscc_gym.sensing_share.local_crlb`) splits the filter into
     three 2-state axes (range: position and radial velocity measured; the two principal cross-range
     axes: position only). On each axis, with the Kalman steady state :math:`\\mathbf P_{n|n-1}`,
-    :math:`\\Sigma_\\mathrm{est}` (:func:`iscc_gym.analysis.axis_kalman_steady_state`) and the loss rate
+    :math:`\\Sigma_\\mathrm{est}` (:func:`iscc_gym.kalman_steady.axis_kalman_steady_state`) and the loss rate
     :math:`\\varepsilon`,
 
     .. math::
@@ -185,7 +180,7 @@ class SlotContext:
         and direction (obs[14..17]) with the slot's shadowing (recovered from obs[13] and the range).
     rate_per_share : (n, J)
         Data rate per unit share over ``rate_min_bps`` at the fading nodes
-        (:func:`iscc_gym.analysis.rician_power_nodes`); unused if ``rate_min_bps`` is 0.
+        (:func:`iscc_gym.quadrature.rician_power_nodes`); unused if ``rate_min_bps`` is 0.
     """
 
     snr: np.ndarray
@@ -218,7 +213,7 @@ class MyopicPolicy(SplitPolicy):
 
     * :math:`\\bar\\gamma_n` is obs[13] (the predicted large-scale SNR); the rate
       (:func:`iscc_gym.fbl.slot_link`) shortfall is averaged over the fading quadrature of
-      :func:`iscc_gym.analysis.rician_power_nodes`;
+      :func:`iscc_gym.quadrature.rician_power_nodes`;
     * the stability term is in closed form: :math:`\\varepsilon_\\mathrm{ctrl}` falls with the SNR,
       so :math:`P(\\varepsilon_\\mathrm{ctrl} > \\varepsilon^\\star) = F_g(\\gamma^\\star(\\alpha_\\mathrm{ctrl})
       / \\bar\\gamma_n)` with :math:`\\gamma^\\star` the inverse of

@@ -51,17 +51,12 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import brentq, minimize, nnls
 
-from iscc_gym.analysis import (
-    StaticModel,
-    crlb_trace,
-    ctrl_goodput_bits,
-    rician_power_nodes,
-    sensing_coefficients,
-    static_model,
-)
+from iscc_gym.analysis import StaticModel, static_model
 from iscc_gym.channel import beam_gain, link_snr, matched_gain
-from iscc_gym.fbl import ctrl_bler, link_terms, min_shares, q_func, q_inv
+from iscc_gym.fbl import comm_rate_bps, ctrl_bler, ctrl_goodput_bits, min_shares
+from iscc_gym.quadrature import rician_power_nodes
 from iscc_gym.scenario import Scenario
+from iscc_gym.sensing_share import crlb_trace, sensing_coefficients
 from iscc_gym.stability import scenario_eps_star
 from iscc_gym.units import db_to_lin
 
@@ -480,9 +475,7 @@ class _SlotTables:
     def __init__(self, s: Scenario, eps_design: float, ignore_loss: bool):
         self.fade, self.fade_w = rician_power_nodes(float(db_to_lin(s.rician_k_db)))
         snr = db_to_lin(self.SNR_DB_GRID)[:, None] * self.fade[None, :]
-        cap, sqrt_v = link_terms(snr)
-        k_comm = float(q_inv(s.comm_target_bler)) / math.sqrt(s.comm_blocklength)
-        rate = s.bandwidth_hz * np.maximum(cap - k_comm * sqrt_v, 0.0) @ self.fade_w
+        rate = comm_rate_bps(s, 1.0, snr) @ self.fade_w
         self.comm_min = s.rate_min_bps / np.maximum(rate, 1e-300)
         if ignore_loss:
             self.ctrl_min = np.zeros_like(self.comm_min)
@@ -492,16 +485,15 @@ class _SlotTables:
             hi = np.zeros(len(self.SNR_DB_GRID))
             for _ in range(60):
                 mid = 0.5 * (lo + hi)
-                ok = self._loss(s, np.exp(mid), cap, sqrt_v) <= eps_design
+                ok = self._loss(s, np.exp(mid), snr) <= eps_design
                 hi = np.where(ok, mid, hi)
                 lo = np.where(ok, lo, mid)
-            reach = self._loss(s, np.ones(1), cap, sqrt_v) <= eps_design
+            reach = self._loss(s, np.ones(1), snr) <= eps_design
             self.ctrl_min = np.where(reach, np.exp(hi) * (1.0 + 1e-9), np.inf)
 
-    def _loss(self, s, alpha, cap, sqrt_v):
-        bits_per_hz = s.ctrl_packet_bits / (s.ctrl_deadline_s * s.bandwidth_hz)
-        x = math.sqrt(s.ctrl_blocklength) / np.maximum(sqrt_v, 1e-150) * (cap - bits_per_hz / alpha[:, None])
-        return q_func(x) @ self.fade_w
+    def _loss(self, s, alpha, snr):
+        """Fading-averaged eq:ctrl_bler at shares ``alpha`` (n,) for the SNR grid ``snr`` (n, nodes)."""
+        return ctrl_bler(s, alpha[:, None], snr) @ self.fade_w
 
     def lookup(self, snr_db: float):
         g = self.SNR_DB_GRID

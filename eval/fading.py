@@ -33,7 +33,8 @@ from iscc_gym.agents.base import SplitPolicy
 from scipy import stats
 
 from iscc_gym import SCENARIOS
-from iscc_gym.analysis import TRUST_LOSS_FRACTION, StaticModel, mean_snr, sample_positions, static_model
+from iscc_gym.analysis import TRUST_LOSS_FRACTION, StaticModel, static_model
+from iscc_gym.averages import mean_snr, sample_positions
 from iscc_gym.dynamics import model_matrices
 from iscc_gym.fbl import ctrl_bler
 from iscc_gym.scenario import Scenario, make_scenario

@@ -28,7 +28,8 @@ from pathlib import Path
 import numpy as np
 from iscc_gym.eval.paper_mc import fly_splits
 
-from iscc_gym.analysis import mean_bounds, mean_snr, sample_positions, static_model
+from iscc_gym.analysis import static_model
+from iscc_gym.averages import mean_bounds, mean_snr, sample_positions
 from iscc_gym.dynamics import model_matrices
 from iscc_gym.fbl import ctrl_bler
 from iscc_gym.scenario import Scenario

@@ -43,13 +43,7 @@ from iscc_gym.eval.options import Parser, Stages, check_writable_dir, check_writ
 from scipy.optimize import brentq
 
 from iscc_gym import SCENARIOS, Scenario, loop, make_scenario
-from iscc_gym.analysis import (
-    TrajectorySample,
-    mean_bounds,
-    mean_comm_rate_bps,
-    mean_snr,
-    sample_positions,
-)
+from iscc_gym.averages import TrajectorySample, mean_bounds, mean_comm_rate_bps, mean_snr, sample_positions
 from iscc_gym.channel import geometry
 from iscc_gym.dynamics import model_matrices
 from iscc_gym.fbl import ctrl_bler, dispersion, q_inv

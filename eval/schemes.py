@@ -20,22 +20,20 @@ Part of ``python -m eval.reproduce`` (:func:`iscc_gym.eval.reproduce.run` calls 
 
 from __future__ import annotations
 
-import math
 import time
 from pathlib import Path
 
 import numpy as np
-import scipy.linalg
 from iscc_gym.agents import FixedSplitPolicy, SCAPolicy, evolutionary_search, grid_search
 from iscc_gym.eval.evaluate import Entry, evaluate
 from scipy.optimize import brentq
 
 from iscc_gym.analysis import static_model
-from iscc_gym.dynamics import model_matrices
+from iscc_gym.kalman_steady import gnss_steady_error_m
 from iscc_gym.scenario import Scenario
 
 __all__ = ["PAPER_SCHEMES", "SEEDS", "QUICK_SEEDS", "QUICK_MAX_STEPS", "LIFTED_BOUND_M", "SCHEME_SPLITS",
-           "run_schemes", "gnss_steady_error_m", "gnss_what_if", "check_targets", "format_schemes",
+           "run_schemes", "gnss_what_if", "check_targets", "format_schemes",
            "markdown_schemes", "headline"]
 
 #: The paper's figures: Table II (its "GA" is our differential evolution) and Sec. V-D / Fig. 9.
@@ -86,60 +84,6 @@ TIME_TARGETS_S = {"sca": 1.0, "grid": 10.0, "evolutionary": 10.0}
 # --------------------------------------------------------------------------------------------------
 # GNSS: the steady state of the GNSS-fed loop, for what the paper's 2.36 m implies
 # --------------------------------------------------------------------------------------------------
-def gnss_steady_error_m(s: Scenario, eps: float = 0.0, period_slots: int = 1, raw: bool = False) -> float:
-    """Mean tracking error E||p - p_ref|| of the GNSS-fed LQG loop at steady state (exact second
-    moments of the linear-Gaussian loop, per axis; the reference's lag is neglected).
-
-    Per axis the state is (x, x_hat_{n|n-1}) with x = (p, v) relative to the reference. A GNSS fix
-    (noise std ``gnss_pos_std_m``, ``gnss_vel_std_mps``) arrives every ``period_slots`` slots; the
-    Kalman filter (at its periodic steady state) updates on fixes and predicts otherwise; the command
-    u = -K x_hat is lost with probability ``eps`` (the GBS learns the loss, as in the env).
-    ``raw=True`` feeds the fix to the LQ gain unfiltered (x_hat = y, every slot). The second moments
-    are the fixed point of the period's linear map (Bernoulli loss averaged); the error is averaged
-    over the phases of the period. ``period_slots = 1`` is the env's GNSS scheme.
-    """
-    if period_slots < 1:
-        raise ValueError(f"period_slots = {period_slots!r} is invalid: must be an integer >= 1")
-    dt = s.dt_s
-    a = np.array([[1.0, dt], [0.0, 1.0]])
-    b = np.array([[0.5 * dt * dt], [dt]])
-    bk = b @ np.asarray(model_matrices(s).k)[:1, [0, 3]]
-    w = np.diag([s.process_noise_var_pos_m2, s.process_noise_var_vel_m2s2])
-    r = np.diag([s.gnss_pos_std_m**2, s.gnss_vel_std_mps**2])
-    eye = np.eye(2)
-    if raw:
-        period_slots, fix_gain = 1, eye
-    else:
-        a_p = np.linalg.matrix_power(a, period_slots)
-        w_p = sum(np.linalg.matrix_power(a, i) @ w @ np.linalg.matrix_power(a, i).T for i in range(period_slots))
-        p_prior = scipy.linalg.solve_discrete_are(a_p.T, eye, w_p, r)  # prior covariance at a fix
-        fix_gain = p_prior @ np.linalg.inv(p_prior + r)
-    noise = np.zeros((4, 4))
-    noise[:2, :2] = w
-    maps = []  # per phase: vec(Sigma_next) = m @ vec(Sigma) + c
-    for phase in range(period_slots):
-        gain = fix_gain if phase == 0 else np.zeros((2, 2))
-        m, c = np.zeros((16, 16)), noise.copy()
-        for delta, prob in ((1.0, 1.0 - eps), (0.0, eps)):
-            acl = a - delta * bk
-            f = np.block([[a - delta * bk @ gain, -delta * bk @ (eye - gain)], [acl @ gain, acl @ (eye - gain)]])
-            g = np.vstack([-delta * bk @ gain, acl @ gain])
-            m += prob * np.kron(f, f)
-            c += prob * (g @ r @ g.T)
-        maps.append((m, c.ravel()))
-    m_tot, c_tot = np.eye(16), np.zeros(16)
-    for m, c in maps:
-        m_tot, c_tot = m @ m_tot, m @ c_tot + c
-    if np.max(np.abs(np.linalg.eigvals(m_tot))) >= 1.0:
-        return float("inf")
-    sig = np.linalg.solve(np.eye(16) - m_tot, c_tot)
-    errs = []
-    for m, c in maps:
-        sig = m @ sig + c
-        errs.append(math.sqrt(8.0 / math.pi) * math.sqrt(max(sig[0], 0.0)))
-    return float(np.mean(errs))
-
-
 def gnss_what_if(s: Scenario, eps: float, target_m: float = PAPER_SCHEMES["schemes"]["gnss"]["tracking_error_m"]):
     """The GNSS scheme's steady-state error under readings of the paper's GNSS baseline (all at the
     control loss rate ``eps``): the env's (a 3 m / 0.2 m/s fix every ``gnss_update_period_s``,

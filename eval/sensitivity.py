@@ -31,7 +31,8 @@ from iscc_gym.agents.sca import sca_allocation
 from iscc_gym.eval.fading import held_out_seeds, rollout, summarize_missions
 
 from iscc_gym import SCENARIOS
-from iscc_gym.analysis import TRUST_LOSS_FRACTION, mean_bounds, sample_positions, static_model
+from iscc_gym.analysis import TRUST_LOSS_FRACTION, static_model
+from iscc_gym.averages import mean_bounds, sample_positions
 
 __all__ = ["run", "draw", "main", "mission_seeds", "RATE_MIN_MBPS", "LOSS_DESIGN_FRACTIONS", "PEB_TABLE2_M",
            "SEED_START"]

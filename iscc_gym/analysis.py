@@ -61,46 +61,26 @@ The lag of a moving reference without feed-forward is neglected (< 0.1 mm, ``doc
 from __future__ import annotations
 
 import functools
-import math
-from dataclasses import dataclass, fields
 
 import numpy as np
 from numpy.polynomial.hermite_e import hermegauss
-from numpy.polynomial.legendre import leggauss
 from scipy.interpolate import CubicSpline
 from scipy.optimize import brentq
-from scipy.stats import ncx2
 
+from .allocation import AllocationMetrics, check_alpha
+from .averages import TrajectorySample, sample_positions
 from .channel import direction_trig, geometry, large_scale_snr, shadowing_std_db
 from .dynamics import axis_matrices, model_matrices
-from .fbl import comm_rate_bps, ctrl_bler, ctrl_bler_and_slope, ctrl_rate_bps, min_shares, q_func, q_inv
+from .fbl import comm_rate_bps, ctrl_bler, ctrl_rate_bps, min_shares, q_func, q_inv
+from .kalman_steady import axis_kalman_steady_state
 from .kernel import reward_from_costs
-from .scenario import SPEED_OF_LIGHT_MPS, Scenario
-from .sensing import crlb, crlb_from_info, fim_terms, matched_signature_terms, peb, signature_derivatives, veb
-from .stability import lqg_cost_floor, rate_cost_bits, riccati_s_d, scenario_eps_star
-from .trajectory import sample_reference
+from .quadrature import expected_norm, rician_power_nodes
+from .scenario import Scenario
+from .sensing_share import crlb_trace, local_crlb, sensing_coefficients
+from .stability import LossOperator, lqg_cost_floor, rate_cost_bits, riccati_s_d, scenario_eps_star
 from .units import db_to_lin
 
-__all__ = [
-    "TRUST_LOSS_FRACTION",
-    "TrajectorySample",
-    "sample_positions",
-    "mean_snr",
-    "mean_comm_rate_bps",
-    "mean_bounds",
-    "SensingCoefficients",
-    "sensing_coefficients",
-    "local_crlb",
-    "crlb_trace",
-    "ctrl_goodput_bits",
-    "rician_power_nodes",
-    "axis_kalman_steady_state",
-    "expected_norm",
-    "AllocationMetrics",
-    "StaticModel",
-    "static_model",
-    "evaluate_allocation",
-]
+__all__ = ["TRUST_LOSS_FRACTION", "StaticModel", "static_model", "DEFAULT_SAMPLE"]
 
 
 #: The evaluator is trusted for a split only if every sampled position's fading-averaged control loss
@@ -109,401 +89,11 @@ TRUST_LOSS_FRACTION = 0.4
 
 
 # --------------------------------------------------------------------------------------------------
-# trajectory sample and trajectory-averaged link quantities (shared with eval.reproduce)
-# --------------------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class TrajectorySample:
-    """Drone positions along sampled reference trajectories (every ``stride``-th slot).
-
-    Attributes
-    ----------
-    pos_m : ndarray, shape (n, 3)
-        Reference positions in m, trajectories concatenated.
-    n_trajectories : int
-    """
-
-    pos_m: np.ndarray
-    n_trajectories: int
-
-
-def sample_positions(s: Scenario, n_trajectories: int, seed: int = 0, stride: int = 10) -> TrajectorySample:
-    """Reference positions of ``n_trajectories`` seeded trajectories (Sec. V-A), one every
-    ``stride`` slots (slot 0 included).
-
-    Raises
-    ------
-    ValueError
-        ``n_trajectories`` or ``stride`` not a positive integer.
-    """
-    for name, v in (("n_trajectories", n_trajectories), ("stride", stride)):
-        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
-            raise ValueError(f"{name} = {v!r} is invalid: must be an integer >= 1")
-    rng = np.random.default_rng(seed)
-    pos = [sample_reference(s, rng).pos_m[::stride] for _ in range(n_trajectories)]
-    return TrajectorySample(np.concatenate(pos), int(n_trajectories))
-
-
-def mean_snr(s: Scenario, sample: TrajectorySample) -> float:
-    """Trajectory-averaged SNR :math:`\\bar\\gamma` (linear mean of the large-scale SNR, shadowing at
-    its 0 dB median, :math:`\\mathbb E|g|^2 = 1`), the SNR of the paper's Sec. IV-C.1."""
-    return float(np.mean(large_scale_snr(s, sample.pos_m, 0.0)))
-
-
-def mean_comm_rate_bps(s: Scenario, sample: TrajectorySample, alpha_comm: float = 1.0) -> float:
-    """Trajectory average of the data link's FBL rate (eq:rate_equation) at ``alpha_comm``, in bit/s
-    (large-scale SNR, no fading)."""
-    return float(np.mean(comm_rate_bps(s, alpha_comm, large_scale_snr(s, sample.pos_m, 0.0))))
-
-
-def mean_bounds(s: Scenario, sample: TrajectorySample, alpha_sen: float):
-    """Trajectory-averaged PEB (m) and VEB (m/s) at ``alpha_sen`` (large-scale echo, no fading)."""
-    cp, cv = crlb(s, alpha_sen, sample.pos_m, 0.0)
-    return float(np.mean(peb(cp))), float(np.mean(veb(cv)))
-
-
-# --------------------------------------------------------------------------------------------------
-# sensing: the CRLB as an explicit function of alpha_sen
-# --------------------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class SensingCoefficients:
-    """Position-domain Fisher information of the ISAC measurement at ``alpha_sen = 1``.
-
-    The closed-form FIM (eq:FIM_tau -- eq:FIM_zero) scales as :math:`\\alpha_\\mathrm{sen}^3` in the
-    range (delay) entry and as :math:`\\alpha_\\mathrm{sen}` in the angle and Doppler entries, so the
-    CRLB at any share follows from these coefficients (:func:`local_crlb`). Frame: range direction
-    :math:`\\mathbf g`, azimuth direction :math:`\\mathbf e_\\theta`, elevation direction
-    :math:`\\mathbf e_\\varphi` (:func:`iscc_gym.sensing.local_frame`).
-
-    Attributes
-    ----------
-    info_range : ndarray, m^-2
-        :math:`(2/c)^2 J_{\\tau\\tau}` at :math:`\\alpha_\\mathrm{sen}=1`.
-    info_az, info_cross, info_el : ndarray, m^-2
-        Entries of :math:`\\mathbf D\\mathbf J_{\\theta\\varphi}\\mathbf D` (azimuth, cross, elevation).
-    info_vr : ndarray, (m/s)^-2
-        :math:`J_{\\nu\\nu}/(\\lambda/2)^2`.
-    prior : float, m^-2
-        ``1 / sensing_prior_var_m2`` (added to every diagonal entry, as in ``sensing.crlb_local``).
-    """
-
-    info_range: np.ndarray
-    info_az: np.ndarray
-    info_cross: np.ndarray
-    info_el: np.ndarray
-    info_vr: np.ndarray
-    prior: float
-
-
-def sensing_coefficients(s: Scenario, dist_m, trig, shadow_db=0.0, fading_gain=1.0) -> SensingCoefficients:
-    """:class:`SensingCoefficients` at ranges ``dist_m`` and directions ``trig`` (the output of
-    :func:`iscc_gym.channel.direction_trig`), for the given shadowing (dB) and fading gain."""
-    ct, st, cp, sp = trig
-    signature = (matched_signature_terms(s, ct, st, cp, sp) if s.beamforming == "matched" else
-                 signature_derivatives(s, np.arctan2(st, ct), np.arctan2(sp, cp)))
-    dist = np.asarray(dist_m, dtype=float)
-    j_tau, j_nu, j_tt, j_pp, j_tp = fim_terms(s, 1.0, dist, shadow_db, fading_gain, signature)
-    inv_l = 1.0 / dist
-    inv_lc = inv_l / np.maximum(cp, 1e-9)
-    lam_half_sq = (0.5 * s.wavelength_m) ** 2
-    return SensingCoefficients(
-        info_range=np.asarray(j_tau * (2.0 / SPEED_OF_LIGHT_MPS) ** 2, dtype=float),
-        info_az=np.asarray(j_tt * inv_lc * inv_lc, dtype=float),
-        info_cross=np.asarray(j_tp * inv_lc * inv_l, dtype=float),
-        info_el=np.asarray(j_pp * inv_l * inv_l, dtype=float),
-        info_vr=np.asarray(j_nu / lam_half_sq, dtype=float),
-        prior=1.0 / s.sensing_prior_var_m2,
-    )
-
-
-def local_crlb(coef: SensingCoefficients, alpha_sen):
-    """Local-frame CRLB at sensing share ``alpha_sen`` (equal to :func:`iscc_gym.sensing.crlb_local`).
-
-    Returns
-    -------
-    m_r, m_tt, m_tp, m_pp : ndarray, m^2
-        Range variance and the azimuth/elevation 2 x 2 block of the position CRLB (eq:CRLB_pos).
-    crlb_vr : ndarray, (m/s)^2
-    """
-    a_s = np.asarray(alpha_sen, dtype=float)
-    return crlb_from_info(a_s**3 * coef.info_range, a_s * coef.info_az, a_s * coef.info_cross, a_s * coef.info_el,
-                          a_s * coef.info_vr, coef.prior, 1.0)
-
-
-def crlb_trace(coef: SensingCoefficients, alpha_sen):
-    """:math:`f_\\mathrm{sen}(\\alpha_\\mathrm{sen}) = \\operatorname{Tr}\\mathrm{CRLB}_\\mathbf p`
-    (PEB squared, m^2) and its derivative in ``alpha_sen`` (the SCA objective, Sec. IV-B).
-
-    Returns
-    -------
-    trace_m2, dtrace : ndarray
-    """
-    a_s = np.asarray(alpha_sen, dtype=float)
-    m_r, m_tt, m_tp, m_pp, _ = local_crlb(coef, a_s)
-    trace = m_r + m_tt + m_pp
-    # d/da of the inverses: dM = -M (dJ/da) M, with dJ/da the information at alpha_sen = 1 (3 a^2 in range)
-    dtrace = (-3.0 * a_s**2 * coef.info_range * m_r * m_r
-              - (coef.info_az * (m_tt * m_tt + m_tp * m_tp) + 2.0 * coef.info_cross * m_tp * (m_tt + m_pp)
-                 + coef.info_el * (m_tp * m_tp + m_pp * m_pp)))
-    return trace, dtrace
-
-
-# --------------------------------------------------------------------------------------------------
-# control link: g(alpha_ctrl) of Sec. IV-B
-# --------------------------------------------------------------------------------------------------
-def ctrl_goodput_bits(s: Scenario, alpha_ctrl, snr, ignore_loss: bool = False):
-    """Effective control-link supply :math:`g(\\alpha_\\mathrm{ctrl}) = (1-\\varepsilon_\\mathrm{ctrl})
-    \\mathcal R_\\mathrm{ctrl}\\,\\Delta t` in bits per slot, and its derivative in ``alpha_ctrl``.
-
-    :math:`\\varepsilon_\\mathrm{ctrl}` is eq:ctrl_bler and :math:`\\mathcal R_\\mathrm{ctrl}` the FBL
-    rate eq:rate_equation (target BLER ``ctrl_target_bler``) at the linear SNR ``snr``. The
-    left-hand side of cons:rate_cost, per slot so that it compares with L(b) in bits per control
-    sample. ``ignore_loss=True`` sets :math:`\\varepsilon_\\mathrm{ctrl} = 0` (the design that ignores
-    packet loss).
-
-    .. math::
-        g' = (1-\\varepsilon)\\mathcal R'\\Delta t - \\varepsilon'\\mathcal R\\Delta t,\\qquad
-        \\varepsilon' = -\\phi(x)\\sqrt{L_\\mathrm{ctrl}/V}\\,\\frac{S}{T_d B\\alpha^2}
-
-    Returns
-    -------
-    g_bits, dg_bits : ndarray
-    """
-    a = np.maximum(np.asarray(alpha_ctrl, dtype=float), 1e-12)
-    per_share = ctrl_rate_bps(s, 1.0, snr) * s.dt_s  # bits per slot and unit share
-    if ignore_loss:
-        return a * per_share, per_share + 0.0 * a
-    eps, deps = ctrl_bler_and_slope(s, a, snr)
-    return (1.0 - eps) * a * per_share, (1.0 - eps) * per_share - deps * a * per_share
-
-
-# --------------------------------------------------------------------------------------------------
-# Kalman steady state of one axis (2 states) and the expected norm of a Gaussian vector
-# --------------------------------------------------------------------------------------------------
-def _mul(x, y):
-    """Product of 2 x 2 matrices stored as (m00, m01, m10, m11) tuples of arrays."""
-    x00, x01, x10, x11 = x
-    y00, y01, y10, y11 = y
-    return (x00 * y00 + x01 * y10, x00 * y01 + x01 * y11, x10 * y00 + x11 * y10, x10 * y01 + x11 * y11)
-
-
-def _tr(x):
-    return (x[0], x[2], x[1], x[3])
-
-
-def _inv(x):
-    x00, x01, x10, x11 = x
-    inv_det = 1.0 / (x00 * x11 - x01 * x10)
-    return (x11 * inv_det, -x01 * inv_det, -x10 * inv_det, x00 * inv_det)
-
-
-def _congruence(m, s):
-    """:math:`\\mathbf M\\mathbf S\\mathbf M^T` for symmetric S (both as 4-tuples); symmetric result."""
-    m00, m01, m10, m11 = m
-    s00, s01, _, s11 = s
-    t00, t01 = m00 * s00 + m01 * s01, m00 * s01 + m01 * s11  # first row of M S
-    t10, t11 = m10 * s00 + m11 * s01, m10 * s01 + m11 * s11
-    r01 = t00 * m10 + t01 * m11
-    return (t00 * m00 + t01 * m01, r01, r01, t10 * m10 + t11 * m11)
-
-
-def _add_sym(x, y):
-    return (x[0] + y[0], x[1] + y[1], x[2] + y[2], x[3] + y[3])
-
-
-def _sym(x):
-    off = 0.5 * (x[1] + x[2])
-    return (x[0], off, off, x[3])
-
-
-def axis_kalman_steady_state(dt_s: float, var_pos_m2: float, var_vel_m2s2: float, meas_pos_var_m2,
-                             meas_vel_var_m2s2=None, tol: float = 1e-12, max_iter: int = 60):
-    """Steady-state Kalman covariances of one axis of the double integrator, batched.
-
-    State (p, v), :math:`\\mathbf A_1 = [[1, \\Delta t], [0, 1]]`, process noise
-    :math:`\\mathrm{diag}(\\sigma_p^2, \\sigma_v^2)`, measurement of p with variance
-    ``meas_pos_var_m2`` and (optionally) of v with variance ``meas_vel_var_m2s2``. The filtering DARE
-    :math:`\\mathbf X = \\mathbf A_1\\mathbf X(\\mathbf I + \\mathbf G\\mathbf X)^{-1}\\mathbf A_1^T
-    + \\mathbf W`, :math:`\\mathbf G = \\mathbf C^T\\mathbf R^{-1}\\mathbf C`, is solved by the
-    structure-preserving doubling algorithm (Chu, Fan and Lin, 2005; quadratic convergence), written
-    out entry by entry so that it vectorises over any number of filters.
-
-    Parameters
-    ----------
-    dt_s : float
-        Slot duration.
-    var_pos_m2, var_vel_m2s2 : float
-        Process-noise variances per axis.
-    meas_pos_var_m2 : array_like, shape (...)
-        Position measurement variance (> 0).
-    meas_vel_var_m2s2 : array_like, shape (...), optional
-        ``None`` or ``inf``: velocity not measured on this axis.
-
-    Returns
-    -------
-    p_prior : ndarray, shape (..., 2, 2)
-        :math:`\\mathbf P_{n|n-1}`.
-    sigma_est : ndarray, shape (..., 2, 2)
-        :math:`\\Sigma_\\mathrm{est} = \\mathbf X(\\mathbf I + \\mathbf G\\mathbf X)^{-1}`.
-    """
-    rp = np.asarray(meas_pos_var_m2, dtype=float)
-    rv = np.full(rp.shape, np.inf) if meas_vel_var_m2s2 is None else np.broadcast_to(
-        np.asarray(meas_vel_var_m2s2, dtype=float), rp.shape)
-    zero = np.zeros(rp.shape)
-    one = zero + 1.0
-    g0 = (1.0 / rp, zero, zero, 1.0 / rv)
-    g = g0
-    a = (one, zero, zero + dt_s, one)  # A_1^T
-    h = (zero + var_pos_m2, zero, zero, zero + var_vel_m2s2)
-    for _ in range(max_iter):
-        gh = _mul(g, h)
-        w_inv = _inv((1.0 + gh[0], gh[1], gh[2], 1.0 + gh[3]))
-        h_new = _add_sym(h, _congruence(_tr(a), _sym(_mul(h, w_inv))))  # H + A^T (H W^-1) A
-        g = _add_sym(g, _congruence(a, _sym(_mul(w_inv, g))))  # G + A (W^-1 G) A^T
-        a = _mul(_mul(a, w_inv), a)
-        change = max(float(np.max(np.abs(h_new[0] - h[0]) / np.maximum(h_new[0], 1e-300), initial=0.0)),
-                     float(np.max(np.abs(h_new[3] - h[3]) / np.maximum(h_new[3], 1e-300), initial=0.0)))
-        h = h_new
-        if change <= tol:
-            break
-    gh = _mul(g0, h)
-    est = _sym(_mul(h, _inv((1.0 + gh[0], gh[1], gh[2], 1.0 + gh[3]))))
-    return _stack2(h), _stack2(est)
-
-
-def _stack2(x):
-    return np.stack([np.stack([x[0], x[1]], -1), np.stack([x[2], x[3]], -1)], -2)
-
-
-@functools.lru_cache(maxsize=4)
-def _sphere_rule(n: int = 6):
-    # Gauss-Legendre in t = |u_3| on [0, 1] and in the azimuth on [0, pi/2]: the octant suffices
-    # because the integrand depends on u_i^2 only
-    t, wt = leggauss(n)
-    t = 0.5 * (t + 1.0)
-    wt = 0.5 * wt
-    ph = 0.25 * np.pi * (t * 2.0)  # same nodes mapped to [0, pi/2]
-    wp = wt.copy()
-    tt, pp = np.meshgrid(t, ph, indexing="ij")
-    w = np.outer(wt, wp).ravel()
-    s2 = 1.0 - tt.ravel() ** 2
-    u2 = np.stack([s2 * np.cos(pp.ravel()) ** 2, s2 * np.sin(pp.ravel()) ** 2, tt.ravel() ** 2])
-    return u2, w / w.sum()
-
-
-_MEAN_CHI3 = 2.0 * math.sqrt(2.0 / math.pi)
-
-
-def expected_norm(var_m2):
-    """:math:`\\mathbb E\\|\\mathbf x\\|` of a zero-mean Gaussian vector in R^3 with covariance
-    eigenvalues ``var_m2`` (..., 3).
-
-    With :math:`\\mathbf x = \\Lambda^{1/2} r\\mathbf u` (:math:`r\\sim\\chi_3` independent of the
-    uniform direction :math:`\\mathbf u`), :math:`\\mathbb E\\|\\mathbf x\\| = \\mathbb E[\\chi_3]\\,
-    \\mathbb E_\\mathbf u\\sqrt{\\sum_i\\lambda_i u_i^2}`, :math:`\\mathbb E[\\chi_3] = 2\\sqrt{2/\\pi}`;
-    the direction average is a 6 x 6 Gauss-Legendre rule on the octant (relative error below 3e-4
-    for eigenvalue ratios up to 100, below 1e-3 in the degenerate limits).
-    """
-    u2, w = _sphere_rule()
-    lam = np.asarray(var_m2, dtype=float)
-    return _MEAN_CHI3 * (np.sqrt(np.maximum(lam @ u2, 0.0)) @ w)
-
-
-# --------------------------------------------------------------------------------------------------
 # the static model
 # --------------------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class AllocationMetrics:
-    """Steady-state figures of static splits, each an array of shape (n,) (or (n, 3) for ``alpha``).
-
-    Attributes
-    ----------
-    alpha : (n, 3)
-        The split (alpha_sen, alpha_ctrl, alpha_comm).
-    tracking_error_m :
-        Mean tracking error :math:`\\mathbb E\\|\\mathbf p_n - \\mathbf p_{\\mathrm{ref},n}\\|` (inf when
-        not mean-square stable).
-    tracking_rmse_m :
-        :math:`\\sqrt{\\mathbb E\\|\\mathbf e_\\mathbf p\\|^2}` (prob:obj).
-    estimation_error_m :
-        :math:`\\mathbb E\\|\\hat{\\mathbf p}_n - \\mathbf p_n\\|` of the Kalman estimate.
-    peb_m, veb_mps :
-        Trajectory-averaged PEB and VEB (large-scale echo, as ``eval.reproduce``).
-    eps_ctrl :
-        Trajectory-averaged control packet-loss rate (eq:ctrl_bler over shadowing and fading).
-    rho_m :
-        Spectral radius of eq:M at ``eps_ctrl``.
-    rate_comm_bps :
-        Mean data rate (eq:rate_equation over positions, shadowing and fading).
-    rate_shortfall :
-        Expected normalised shortfall :math:`\\mathbb E(R_\\min - \\mathcal R_{\\mathrm{comm},n})^+/R_\\min`
-        (the env's ``cost_rate``).
-    stability_violation :
-        Fraction of slots with :math:`\\varepsilon_{\\mathrm{ctrl},n} > \\varepsilon^\\star` (the env's
-        ``cost_stability``).
-    lqg_cost :
-        Average LQG cost b (eq:LQG_cost).
-    rate_ok :
-        ``rate_comm_bps >= rate_min_bps`` (cons:comm_rate on average).
-    stable :
-        ``eps_ctrl < eps*`` (cons:stability; with ``loss_average="local"`` every position's loss rate).
-    trusted :
-        Every sampled position's loss rate is at most ``trust_loss_fraction`` x eps*
-        (:data:`TRUST_LOSS_FRACTION`): the steady state holds in the env (module docstring).
-    feasible :
-        ``rate_ok & stable & trusted``.
-    objective :
-        ``tracking_error_m`` where feasible, else ``max_tracking_error_m`` plus the constraint
-        violations (finite, for optimisers; beyond the trust bound the excess loss rate over it).
-    expected_reward :
-        Steady-state mean per-slot reward of the env: :math:`-\\min(\\mathbb E\\|\\mathbf e\\|, e_\\max)
-        - w_\\mathrm{rate}\\,` ``rate_shortfall`` :math:`- w_\\mathrm{stab}\\,` ``stability_violation``.
-    """
-
-    alpha: np.ndarray
-    tracking_error_m: np.ndarray
-    tracking_rmse_m: np.ndarray
-    estimation_error_m: np.ndarray
-    peb_m: np.ndarray
-    veb_mps: np.ndarray
-    eps_ctrl: np.ndarray
-    rho_m: np.ndarray
-    rate_comm_bps: np.ndarray
-    rate_shortfall: np.ndarray
-    stability_violation: np.ndarray
-    lqg_cost: np.ndarray
-    rate_ok: np.ndarray
-    stable: np.ndarray
-    trusted: np.ndarray
-    feasible: np.ndarray
-    objective: np.ndarray
-    expected_reward: np.ndarray
-
-    def __getitem__(self, i):
-        """Metrics of split(s) ``i`` (an index, slice or mask)."""
-        return AllocationMetrics(**{f.name: getattr(self, f.name)[i] for f in fields(self)})
-
-    def as_dict(self, i: int = 0) -> dict:
-        """Plain floats (and a list for ``alpha``) of split ``i``, for JSON."""
-        out = {}
-        for f in fields(self):
-            v = getattr(self, f.name)[i]
-            out[f.name] = v.tolist() if np.ndim(v) else (bool(v) if v.dtype == bool else float(v))
-        return out
-
-
 _RECURSIONS = ("exact", "paper")
 _POS = np.array([[1.0, 0.0, 0.0]])  # the (0, 0) entry: position variance
 _LOSS_AVERAGES = ("trajectory", "local", "mean_snr")
-
-
-def _check_alpha(alpha):
-    a = np.asarray(alpha, dtype=float)
-    if a.ndim not in (1, 2) or a.shape[-1] != 3:
-        raise ValueError(f"alpha must have shape (3,) or (n, 3), got {a.shape}")
-    if not np.all(np.isfinite(a)) or np.any(a < -1e-12) or not np.allclose(a.sum(-1), 1.0, atol=1e-6):
-        raise ValueError("alpha must hold finite, non-negative shares (alpha_sen, alpha_ctrl, alpha_comm) "
-                         "summing to 1")
-    return np.maximum(a, 0.0).reshape(-1, 3)
 
 
 class StaticModel:
@@ -584,7 +174,7 @@ class StaticModel:
         self._a1, self._b1 = axis_matrices(s.dt_s)
         self._k1 = np.asarray(mm.k)[:1, [0, 3]]
         self._w1 = np.diag([s.process_noise_var_pos_m2, s.process_noise_var_vel_m2s2])
-        self._poly = _LossOperator(self._a1, self._b1, self._k1)
+        self._poly = LossOperator(self._a1, self._b1, self._k1)
         self._kalman_cache: dict[tuple, tuple] = {}
         self._sen_grid = np.geomspace(1e-4, 1.0, 121)
         self._kalman_spline = None
@@ -762,7 +352,7 @@ class StaticModel:
         if isinstance(trust, bool) or not 0.0 < float(trust) <= 1.0:
             raise ValueError(f"trust_loss_fraction = {trust_loss_fraction!r} is invalid: must be in (0, 1]")
         s = self.scenario
-        al = _check_alpha(alpha)
+        al = check_alpha(alpha)
         n = len(al)
         u_sen, inv_sen = np.unique(al[:, 0], return_inverse=True)
         u_ctrl, inv_ctrl = np.unique(al[:, 1], return_inverse=True)
@@ -889,86 +479,6 @@ class StaticModel:
         return rate_cost_bits(mm.a, s.lqg_cost_target, b_min, n_w, d, s.rate_cost_determinant)
 
 
-def rician_power_nodes(k_lin: float):
-    """Quadrature nodes and weights of the unit-mean Rician power gain :math:`|g|^2`.
-
-    :math:`|g|^2 = \\sigma^2\\chi'^2_2(2K)` with :math:`\\sigma^2 = 1/(2(K+1))` (``channel.rician_power_gain``);
-    the nodes are the quantiles at the midpoints of 30 probability bins refined in the lower tail
-    (deep fades drive the loss rate), the weights the bins' probabilities.
-
-    Parameters
-    ----------
-    k_lin : float
-        Rician K factor, linear.
-
-    Returns
-    -------
-    gain, weight : ndarray, shape (30,)
-    """
-    edges = np.concatenate([[0.0, 1e-6, 1e-5, 1e-4, 3e-4, 1e-3, 3e-3, 0.01, 0.02, 0.04],
-                            np.linspace(0.07, 0.97, 19), [0.99, 1.0]])
-    mid = 0.5 * (edges[:-1] + edges[1:])
-    sigma2 = 0.5 / (k_lin + 1.0)
-    return sigma2 * ncx2.ppf(mid, 2, 2.0 * k_lin), np.diff(edges)
-
-
-class _LossOperator:
-    """The per-axis closed-loop map :math:`\\mathrm{vec}\\,\\Sigma = (\\mathbf I - \\mathbf M_1(\\varepsilon))^{-1}
-    \\mathrm{vec}\\,\\mathbf N` as a rational function of the loss rate.
-
-    With :math:`\\mathbf M_1(\\varepsilon) = \\mathbf M_\\mathrm{cl} + \\varepsilon\\Delta`,
-    :math:`(\\mathbf I - \\mathbf M_1)^{-1} = \\mathbf X_0(\\mathbf I - \\varepsilon\\mathbf Y)^{-1}`,
-    :math:`\\mathbf X_0 = (\\mathbf I - \\mathbf M_\\mathrm{cl})^{-1}`, :math:`\\mathbf Y = \\Delta\\mathbf X_0`,
-    and by Cayley-Hamilton :math:`(\\mathbf I - \\varepsilon\\mathbf Y)^{-1} = \\sum_{d=0}^{3}\\varepsilon^d
-    \\mathbf C_d / \\det(\\mathbf I - \\varepsilon\\mathbf Y)`, :math:`\\mathbf C_d = \\sum_{k\\le d}
-    c_{d-k}\\mathbf Y^k` with :math:`c` the characteristic-polynomial coefficients of Y.
-    """
-
-    _OUT = (0, 2, 3)  # column-major vec indices of the (0,0), (0,1), (1,1) entries
-
-    def __init__(self, a1, b1, k1):
-        a_cl = a1 - b1 @ k1
-        self.m_cl = np.kron(a_cl, a_cl)
-        self.m_a = np.kron(a1, a1)
-        x0 = np.linalg.inv(np.eye(4) - self.m_cl)
-        y = (self.m_a - self.m_cl) @ x0
-        c = np.poly(y)  # [1, c1, c2, c3, c4]
-        powers = [np.eye(4), y, y @ y, y @ y @ y]
-        cd = [sum(c[d - k] * powers[k] for k in range(d + 1)) for d in range(4)]
-        # rows: outputs; applied to vec N with N symmetric: columns n00, n01 (twice), n11
-        self.lin = np.stack([(x0 @ cd[d])[list(self._OUT)] for d in range(4)], -1)  # (3, 4, 4deg)
-        self.det_coef = c  # det(I - eps Y) = sum_i c_i eps^i
-
-    def project(self, n_mat, weights):
-        """Numerator coefficients of linear functionals of the steady state.
-
-        ``n_mat`` (..., 2, 2): noise matrices N; ``weights`` (k, 3): functionals
-        :math:`w_0\\Sigma_{00} + w_1\\Sigma_{01} + w_2\\Sigma_{11}`. Returns (..., k, 4 degrees).
-        """
-        vec = np.stack([n_mat[..., 0, 0], n_mat[..., 1, 0], n_mat[..., 0, 1], n_mat[..., 1, 1]], -1)
-        lin = np.einsum("ke,evd->vkd", np.asarray(weights, dtype=float), self.lin).reshape(4, -1)
-        return (vec @ lin).reshape(vec.shape[:-1] + (len(weights), 4))
-
-    def evaluate(self, eta_a, eta_b, eps):
-        """Steady-state outputs for noise :math:`\\mathbf N_a + (1-\\varepsilon)\\mathbf N_b`.
-
-        ``eta_*`` (..., 4 degrees) are :meth:`project` outputs (or linear combinations of them);
-        ``eps`` broadcasts against ``eta_*[..., 0]``. Returns shape ``eta_*.shape[:-1]``.
-        """
-        e = np.asarray(eps, dtype=float)
-        coef = eta_a + (1.0 - e)[..., None] * eta_b
-        num = ((coef[..., 3] * e + coef[..., 2]) * e + coef[..., 1]) * e + coef[..., 0]
-        c = self.det_coef
-        det = (((c[4] * e + c[3]) * e + c[2]) * e + c[1]) * e + c[0]
-        return num / det
-
-    def spectral_radius(self, eps):
-        """:math:`\\rho(\\mathbf M(\\varepsilon))` of eq:M (equal to that of the per-axis 4 x 4 map)."""
-        e = np.atleast_1d(np.asarray(eps, dtype=float))
-        m = (1.0 - e)[:, None, None] * self.m_cl + e[:, None, None] * self.m_a
-        return np.max(np.abs(np.linalg.eigvals(m)), axis=-1)
-
-
 #: Default trajectory sample of :func:`static_model`: 32 trajectories, one position every 250 slots.
 DEFAULT_SAMPLE = {"n_trajectories": 32, "seed": 0, "stride": 250}
 
@@ -982,11 +492,3 @@ def static_model(s: Scenario, n_trajectories: int = DEFAULT_SAMPLE["n_trajectori
                  seed: int = DEFAULT_SAMPLE["seed"], stride: int = DEFAULT_SAMPLE["stride"]) -> StaticModel:
     """Cached :class:`StaticModel` of scenario ``s`` on a seeded trajectory sample."""
     return _cached_model(s, int(n_trajectories), int(seed), int(stride))
-
-
-def evaluate_allocation(s: Scenario, alpha, recursion: str = "exact", loss_average: str = "local",
-                        trust_loss_fraction: float | None = None, **sample) -> AllocationMetrics:
-    """Steady-state metrics of static split(s) ``alpha`` for scenario ``s`` (see
-    :meth:`StaticModel.evaluate`); ``sample`` keywords as :func:`static_model`."""
-    return static_model(s, **sample).evaluate(alpha, recursion=recursion, loss_average=loss_average,
-                                              trust_loss_fraction=trust_loss_fraction)

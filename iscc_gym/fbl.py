@@ -11,7 +11,8 @@ from scipy.special import erfc, ndtri
 from .scenario import Scenario, per_scenario
 
 __all__ = ["dispersion", "q_func", "q_inv", "link_terms", "fbl_rate_bps", "comm_rate_bps",
-           "ctrl_rate_bps", "ctrl_bler", "ctrl_bler_and_slope", "slot_link", "min_shares", "link_constants",
+           "ctrl_rate_bps", "ctrl_bler", "ctrl_bler_and_slope", "ctrl_goodput_bits", "slot_link", "min_shares",
+           "link_constants",
            "link_terms_one", "ctrl_bler_arg_one", "ctrl_bler_one", "ctrl_bler_slope_one", "rate_one", "delivered_one",
            "min_ctrl_share_one", "min_comm_share_one",
            "LINK_PARAMS", "link_params", "ctrl_bler_ufunc", "ctrl_bler_compiled"]
@@ -133,6 +134,32 @@ def min_shares(s: Scenario, snr, eps_max, rate_bps):
     q_back = q_inv(eps_max) / sqrt_l
     return (_min_ctrl_share_ufunc(snr, bits_per_hz, q_back),
             _min_comm_share_ufunc(snr, rate_bps, s.bandwidth_hz, k_comm))
+
+
+def ctrl_goodput_bits(s: Scenario, alpha_ctrl, snr, ignore_loss: bool = False):
+    """Effective control-link supply :math:`g(\\alpha_\\mathrm{ctrl}) = (1-\\varepsilon_\\mathrm{ctrl})
+    \\mathcal R_\\mathrm{ctrl}\\,\\Delta t` in bits per slot, and its derivative in ``alpha_ctrl``.
+
+    :math:`\\varepsilon_\\mathrm{ctrl}` is eq:ctrl_bler and :math:`\\mathcal R_\\mathrm{ctrl}` the FBL
+    rate eq:rate_equation (target BLER ``ctrl_target_bler``) at the linear SNR ``snr``. The
+    left-hand side of cons:rate_cost, per slot so that it compares with L(b) in bits per control
+    sample. ``ignore_loss=True`` sets :math:`\\varepsilon_\\mathrm{ctrl} = 0` (the design that ignores
+    packet loss).
+
+    .. math::
+        g' = (1-\\varepsilon)\\mathcal R'\\Delta t - \\varepsilon'\\mathcal R\\Delta t,\\qquad
+        \\varepsilon' = -\\phi(x)\\sqrt{L_\\mathrm{ctrl}/V}\\,\\frac{S}{T_d B\\alpha^2}
+
+    Returns
+    -------
+    g_bits, dg_bits : ndarray
+    """
+    a = np.maximum(np.asarray(alpha_ctrl, dtype=float), 1e-12)
+    per_share = ctrl_rate_bps(s, 1.0, snr) * s.dt_s  # bits per slot and unit share
+    if ignore_loss:
+        return a * per_share, per_share + 0.0 * a
+    eps, deps = ctrl_bler_and_slope(s, a, snr)
+    return (1.0 - eps) * a * per_share, (1.0 - eps) * per_share - deps * a * per_share
 
 
 # --- compiled scalar forms: one drone, composed by the slot kernel (iscc_gym.loop.step_one) ---------

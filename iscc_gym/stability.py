@@ -12,6 +12,7 @@ from .fbl import ctrl_bler
 from .scenario import Scenario, per_scenario
 
 __all__ = [
+    "LossOperator",
     "scenario_eps_star",
     "stability_matrix",
     "spectral_radius",
@@ -220,3 +221,60 @@ def rate_cost_bits(a, b_target, b_min, noise_entropy_power, d, determinant: str 
         det_root = float(np.exp(np.mean(np.log(nz))))
     return base + 0.5 * dim * float(np.log2(1.0 + dim * noise_entropy_power * det_root
                                             / (b_target - b_min)))
+
+
+class LossOperator:
+    """The per-axis closed-loop map :math:`\\mathrm{vec}\\,\\Sigma = (\\mathbf I - \\mathbf M_1(\\varepsilon))^{-1}
+    \\mathrm{vec}\\,\\mathbf N` as a rational function of the loss rate.
+
+    With :math:`\\mathbf M_1(\\varepsilon) = \\mathbf M_\\mathrm{cl} + \\varepsilon\\Delta`,
+    :math:`(\\mathbf I - \\mathbf M_1)^{-1} = \\mathbf X_0(\\mathbf I - \\varepsilon\\mathbf Y)^{-1}`,
+    :math:`\\mathbf X_0 = (\\mathbf I - \\mathbf M_\\mathrm{cl})^{-1}`, :math:`\\mathbf Y = \\Delta\\mathbf X_0`,
+    and by Cayley-Hamilton :math:`(\\mathbf I - \\varepsilon\\mathbf Y)^{-1} = \\sum_{d=0}^{3}\\varepsilon^d
+    \\mathbf C_d / \\det(\\mathbf I - \\varepsilon\\mathbf Y)`, :math:`\\mathbf C_d = \\sum_{k\\le d}
+    c_{d-k}\\mathbf Y^k` with :math:`c` the characteristic-polynomial coefficients of Y.
+    """
+
+    _OUT = (0, 2, 3)  # column-major vec indices of the (0,0), (0,1), (1,1) entries
+
+    def __init__(self, a1, b1, k1):
+        a_cl = a1 - b1 @ k1
+        self.m_cl = np.kron(a_cl, a_cl)
+        self.m_a = np.kron(a1, a1)
+        x0 = np.linalg.inv(np.eye(4) - self.m_cl)
+        y = (self.m_a - self.m_cl) @ x0
+        c = np.poly(y)  # [1, c1, c2, c3, c4]
+        powers = [np.eye(4), y, y @ y, y @ y @ y]
+        cd = [sum(c[d - k] * powers[k] for k in range(d + 1)) for d in range(4)]
+        # rows: outputs; applied to vec N with N symmetric: columns n00, n01 (twice), n11
+        self.lin = np.stack([(x0 @ cd[d])[list(self._OUT)] for d in range(4)], -1)  # (3, 4, 4deg)
+        self.det_coef = c  # det(I - eps Y) = sum_i c_i eps^i
+
+    def project(self, n_mat, weights):
+        """Numerator coefficients of linear functionals of the steady state.
+
+        ``n_mat`` (..., 2, 2): noise matrices N; ``weights`` (k, 3): functionals
+        :math:`w_0\\Sigma_{00} + w_1\\Sigma_{01} + w_2\\Sigma_{11}`. Returns (..., k, 4 degrees).
+        """
+        vec = np.stack([n_mat[..., 0, 0], n_mat[..., 1, 0], n_mat[..., 0, 1], n_mat[..., 1, 1]], -1)
+        lin = np.einsum("ke,evd->vkd", np.asarray(weights, dtype=float), self.lin).reshape(4, -1)
+        return (vec @ lin).reshape(vec.shape[:-1] + (len(weights), 4))
+
+    def evaluate(self, eta_a, eta_b, eps):
+        """Steady-state outputs for noise :math:`\\mathbf N_a + (1-\\varepsilon)\\mathbf N_b`.
+
+        ``eta_*`` (..., 4 degrees) are :meth:`project` outputs (or linear combinations of them);
+        ``eps`` broadcasts against ``eta_*[..., 0]``. Returns shape ``eta_*.shape[:-1]``.
+        """
+        e = np.asarray(eps, dtype=float)
+        coef = eta_a + (1.0 - e)[..., None] * eta_b
+        num = ((coef[..., 3] * e + coef[..., 2]) * e + coef[..., 1]) * e + coef[..., 0]
+        c = self.det_coef
+        det = (((c[4] * e + c[3]) * e + c[2]) * e + c[1]) * e + c[0]
+        return num / det
+
+    def spectral_radius(self, eps):
+        """:math:`\\rho(\\mathbf M(\\varepsilon))` of eq:M (equal to that of the per-axis 4 x 4 map)."""
+        e = np.atleast_1d(np.asarray(eps, dtype=float))
+        m = (1.0 - e)[:, None, None] * self.m_cl + e[:, None, None] * self.m_a
+        return np.max(np.abs(np.linalg.eigvals(m)), axis=-1)

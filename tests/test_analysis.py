@@ -14,7 +14,7 @@ import pytest
 import scipy.linalg
 
 import iscc_gym  # noqa: F401  (registers the env)
-from iscc_gym import SCENARIOS, analysis
+from iscc_gym import SCENARIOS, analysis, averages, fbl, quadrature, sensing_share
 from iscc_gym.channel import geometry, rician_power_gain
 from iscc_gym.dynamics import model_matrices
 from iscc_gym.fbl import ctrl_bler, slot_link
@@ -33,7 +33,7 @@ def model():
 # --- building blocks ---------------------------------------------------------------------------
 def test_local_crlb_matches_sensing_module(model):
     for a in (1e-3, 0.05, 0.2, 0.9):
-        ours = analysis.local_crlb(model.sensing, a)
+        ours = sensing_share.local_crlb(model.sensing, a)
         ref = crlb_local(S, a, model.dist_m, model.trig, 0.0)
         for x, y in zip(ours, ref, strict=True):
             np.testing.assert_allclose(x, y, rtol=1e-10)
@@ -41,8 +41,9 @@ def test_local_crlb_matches_sensing_module(model):
 
 def test_crlb_trace_derivative_matches_finite_difference(model):
     a, h = 0.17, 1e-6
-    tr, dtr = analysis.crlb_trace(model.sensing, a)
-    fd = (analysis.crlb_trace(model.sensing, a + h)[0] - analysis.crlb_trace(model.sensing, a - h)[0]) / (2 * h)
+    tr, dtr = sensing_share.crlb_trace(model.sensing, a)
+    trace = sensing_share.crlb_trace
+    fd = (trace(model.sensing, a + h)[0] - trace(model.sensing, a - h)[0]) / (2 * h)
     np.testing.assert_allclose(dtr, fd, rtol=1e-5)
     m_r, m_tt, _, m_pp, _ = crlb_local(S, a, model.dist_m, model.trig, 0.0)
     np.testing.assert_allclose(tr, m_r + m_tt + m_pp, rtol=1e-12)
@@ -52,14 +53,14 @@ def test_crlb_trace_derivative_matches_finite_difference(model):
 def test_ctrl_goodput_derivative_matches_finite_difference():
     snr = 10.0 ** 1.2
     for a in (0.04, 0.045, 0.1):
-        g, dg = analysis.ctrl_goodput_bits(S, a, snr)
+        g, dg = fbl.ctrl_goodput_bits(S, a, snr)
         h = 1e-7
-        fd = (analysis.ctrl_goodput_bits(S, a + h, snr)[0] - analysis.ctrl_goodput_bits(S, a - h, snr)[0]) / (2 * h)
+        fd = (fbl.ctrl_goodput_bits(S, a + h, snr)[0] - fbl.ctrl_goodput_bits(S, a - h, snr)[0]) / (2 * h)
         assert dg == pytest.approx(fd, rel=1e-4)
         eps, rate, _ = slot_link(S, a, 0.0, snr)
         assert g == pytest.approx((1 - eps) * rate * S.dt_s, rel=1e-12)
-    g0, dg0 = analysis.ctrl_goodput_bits(S, 0.045, snr, ignore_loss=True)
-    assert g0 == pytest.approx(0.045 * dg0) and g0 > analysis.ctrl_goodput_bits(S, 0.045, snr)[0]
+    g0, dg0 = fbl.ctrl_goodput_bits(S, 0.045, snr, ignore_loss=True)
+    assert g0 == pytest.approx(0.045 * dg0) and g0 > fbl.ctrl_goodput_bits(S, 0.045, snr)[0]
 
 
 def test_axis_kalman_equals_six_state_dare_in_the_local_frame(model):
@@ -82,7 +83,7 @@ def test_single_position_evaluation_matches_the_six_state_recursion():
     """One position: tracking covariance Sigma_est + (I - M)^-1 vec(P - Sigma_est) and the LQG cost,
     from the stability module's DARE, vectorised recursion and lqg_cost."""
     pos = np.array([[300.0, -200.0, 180.0]])
-    m = analysis.StaticModel(S, analysis.TrajectorySample(pos, 1))
+    m = analysis.StaticModel(S, averages.TrajectorySample(pos, 1))
     mm = model_matrices(S)
     alpha = np.array([0.01, 0.12, 0.87])
     eps = float(m.eps_ctrl(alpha[1])[0])
@@ -94,7 +95,7 @@ def test_single_position_evaluation_matches_the_six_state_recursion():
     res = m.evaluate(alpha)
     assert res.tracking_rmse_m[0] == pytest.approx(np.sqrt(np.trace(sig_x[:3, :3])), rel=1e-6)
     assert res.tracking_error_m[0] == pytest.approx(
-        analysis.expected_norm(np.linalg.eigvalsh(sig_x[:3, :3])), rel=1e-6)
+        quadrature.expected_norm(np.linalg.eigvalsh(sig_x[:3, :3])), rel=1e-6)
     assert res.lqg_cost[0] == pytest.approx(lqg_cost(mm.q, mm.r, mm.k, eps, sig_x, est6), rel=1e-6)
     # the paper's recursion: eq:omega_tilde_cov fed to eq:covariance_recursion
     from iscc_gym.stability import equivalent_noise_cov
@@ -106,11 +107,11 @@ def test_single_position_evaluation_matches_the_six_state_recursion():
 
 
 def test_expected_norm_against_closed_form_and_monte_carlo():
-    assert analysis.expected_norm(np.array([4.0, 4.0, 4.0])) == pytest.approx(2 * 2 * np.sqrt(2 / np.pi), rel=1e-12)
+    assert quadrature.expected_norm(np.array([4.0, 4.0, 4.0])) == pytest.approx(2 * 2 * np.sqrt(2 / np.pi), rel=1e-12)
     z = np.random.default_rng(0).standard_normal((400_000, 3))
     for lam in ([1.0, 0.1, 0.01], [0.04, 0.04, 1e-6], [9.0, 1.0, 1.0]):
         mc = np.linalg.norm(z * np.sqrt(lam), axis=1).mean()
-        assert analysis.expected_norm(np.array(lam)) == pytest.approx(mc, rel=4e-3)
+        assert quadrature.expected_norm(np.array(lam)) == pytest.approx(mc, rel=4e-3)
 
 
 def test_loss_table_matches_direct_quadrature(model):
@@ -152,7 +153,7 @@ def test_evaluate_validates_input(model):
     with pytest.raises(ValueError, match="control_mode"):
         analysis.StaticModel(S.replace(control_mode="open_loop"), model.sample)
     with pytest.raises(ValueError, match="n_trajectories"):
-        analysis.sample_positions(S, 0)
+        averages.sample_positions(S, 0)
 
 
 def test_feasibility_flags_and_monotone_trends(model):

@@ -4,8 +4,9 @@ Three seeded 5000-slot episodes of the single env under seeded random actions, a
 with the same seeds. The digests recorded before the issue-14 refactor (equal to those of commit
 69ce7bd) held through every refactor step; they were re-recorded once, on purpose, when the
 ``paper`` preset's ``sensing_snr_offset_db`` moved from 103.8 to 103.23 dB (issue 13: the PEB is
-calibrated to Table II's 0.0635 m), a physics change, not a refactor. A change that moves the last bit of any observation or reward changes a digest; if such
-a change is intended, say so, regenerate every figure and table, and record the new digests here.
+calibrated to Table II's 0.0635 m), a physics change, not a refactor. A change that moves the last
+bit of any observation or reward changes a digest; if such a change is intended, say so, regenerate
+every figure and table, and record the new digests here.
 """
 
 import hashlib

@@ -12,17 +12,15 @@ from scipy.stats import ncx2
 
 import iscc_gym  # noqa: F401  (registers the env)
 from iscc_gym import SCENARIOS
-from iscc_gym.analysis import (
-    StaticModel,
-    TrajectorySample,
-    axis_kalman_steady_state,
-    expected_norm,
-    local_crlb,
-)
+from iscc_gym.analysis import StaticModel
+from iscc_gym.averages import TrajectorySample
 from iscc_gym.channel import geometry, link_snr, matched_gain, rician_power_gain
 from iscc_gym.dynamics import model_matrices, system_matrices
 from iscc_gym.env import OBS_NAMES, action_to_split, split_to_action
 from iscc_gym.fbl import min_shares, slot_link
+from iscc_gym.kalman_steady import axis_kalman_steady_state
+from iscc_gym.quadrature import expected_norm
+from iscc_gym.sensing_share import local_crlb
 from iscc_gym.stability import scenario_eps_star, steady_state_covariance
 from iscc_gym.vector import ISCCVectorEnv
 

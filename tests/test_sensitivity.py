@@ -1,7 +1,7 @@
 """Tests of eval.sensitivity: the constants that decide SCA's split and the conventions.
 
 Oracles: env rollouts (data rate carried at SCA's split, PEB scaling with the echo SNR), the closed
-form of the GNSS loop (eval.schemes.gnss_steady_error_m) and the project's seed ranges."""
+form of the GNSS loop (iscc_gym.kalman_steady.gnss_steady_error_m) and the project's seed ranges."""
 
 from __future__ import annotations
 
@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 from iscc_gym.agents.sca import sca_allocation
 from iscc_gym.eval import fading, sensitivity
-from iscc_gym.eval.schemes import gnss_steady_error_m
 from iscc_gym.eval.tune import check_tuning_seeds
 
-from iscc_gym import SCENARIOS, analysis
+from iscc_gym import SCENARIOS, analysis, averages
+from iscc_gym.kalman_steady import gnss_steady_error_m
 
 S = SCENARIOS["paper"]
 
@@ -44,9 +44,9 @@ def test_rate_floor_sets_the_data_share_the_env_carries():
 def test_peb_scales_as_the_inverse_root_of_the_echo_snr():
     """The calibration step to Table II's 0.0635 m assumes PEB ~ SNR^-1/2 (angle-limited): +6 dB of
     echo SNR divides the trajectory-averaged PEB by 10^(6/20) within 2 %."""
-    sample = analysis.sample_positions(S, 4, seed=0, stride=50)
-    p0 = analysis.mean_bounds(S, sample, 0.2)[0]
-    p6 = analysis.mean_bounds(S.replace(sensing_snr_offset_db=S.sensing_snr_offset_db + 6.0), sample, 0.2)[0]
+    sample = averages.sample_positions(S, 4, seed=0, stride=50)
+    p0 = averages.mean_bounds(S, sample, 0.2)[0]
+    p6 = averages.mean_bounds(S.replace(sensing_snr_offset_db=S.sensing_snr_offset_db + 6.0), sample, 0.2)[0]
     assert p0 / p6 == pytest.approx(10 ** (6 / 20), rel=0.02)
 
 

@@ -24,7 +24,8 @@ from iscc_gym.scenario import Scenario, make_scenario
 from .base import EqualSplitPolicy, FixedSplitPolicy, Policy, SplitPolicy, validate_split
 from .margin import MarginPolicy
 from .myopic import MyopicPolicy
-from .sca import SCAPolicy, SCAResult, sca_allocation, solve_sca
+from .sca import SCAResult, sca_allocation, solve_sca
+from .sca_slot import SCAPolicy
 from .search import SearchResult, evolutionary_search, grid_search
 
 __all__ = [

@@ -7,11 +7,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import guvectorize, njit
 
 from .scenario import SPEED_OF_LIGHT_MPS, Scenario
-from .sensing import crlb_from_info, fim_terms, matched_signature_terms, signature_derivatives
+from .sensing import crlb_from_info, crlb_from_info_one, fim_terms, matched_signature_terms, signature_derivatives
 
-__all__ = ["SensingCoefficients", "sensing_coefficients", "local_crlb", "crlb_trace"]
+__all__ = ["SensingCoefficients", "sensing_coefficients", "local_crlb", "crlb_trace", "crlb_trace_one"]
 
 
 @dataclass(frozen=True)
@@ -87,11 +88,30 @@ def crlb_trace(coef: SensingCoefficients, alpha_sen):
     -------
     trace_m2, dtrace : ndarray
     """
-    a_s = np.asarray(alpha_sen, dtype=float)
-    m_r, m_tt, m_tp, m_pp, _ = local_crlb(coef, a_s)
+    return _crlb_trace_ufunc(coef.info_range, coef.info_az, coef.info_cross, coef.info_el, coef.prior,
+                             np.asarray(alpha_sen, dtype=float))
+
+
+@njit(cache=True, error_model="numpy")
+def crlb_trace_one(info_range, info_az, info_cross, info_el, prior, alpha_sen):
+    """:func:`crlb_trace` of one position (scalars of :class:`SensingCoefficients`): ``(trace, dtrace)``.
+
+    The CRLB is :func:`iscc_gym.sensing.crlb_from_info_one`; its derivative is
+    :math:`\\partial\\mathbf M/\\partial\\alpha = -\\mathbf M\\,(\\partial\\mathbf J/\\partial\\alpha)\\,
+    \\mathbf M`, with
+    :math:`\\partial\\mathbf J/\\partial\\alpha` the information at alpha_sen = 1 (3 alpha^2 of it in range).
+    """
+    a = alpha_sen
+    m_r, m_tt, m_tp, m_pp, _ = crlb_from_info_one(a * a * a * info_range, a * info_az, a * info_cross,
+                                                  a * info_el, 0.0, prior, 1.0)
     trace = m_r + m_tt + m_pp
-    # d/da of the inverses: dM = -M (dJ/da) M, with dJ/da the information at alpha_sen = 1 (3 a^2 in range)
-    dtrace = (-3.0 * a_s**2 * coef.info_range * m_r * m_r
-              - (coef.info_az * (m_tt * m_tt + m_tp * m_tp) + 2.0 * coef.info_cross * m_tp * (m_tt + m_pp)
-                 + coef.info_el * (m_tp * m_tp + m_pp * m_pp)))
+    dtrace = (-3.0 * a * a * info_range * m_r * m_r
+              - (info_az * (m_tt * m_tt + m_tp * m_tp) + 2.0 * info_cross * m_tp * (m_tt + m_pp)
+                 + info_el * (m_tp * m_tp + m_pp * m_pp)))
     return trace, dtrace
+
+
+@guvectorize(["void(float64, float64, float64, float64, float64, float64, float64[:], float64[:])"],
+             "(),(),(),(),(),()->(),()", cache=True)
+def _crlb_trace_ufunc(info_range, info_az, info_cross, info_el, prior, alpha_sen, trace, dtrace):
+    trace[0], dtrace[0] = crlb_trace_one(info_range, info_az, info_cross, info_el, prior, alpha_sen)

@@ -1,8 +1,8 @@
 """The ``margin`` rule: control and data get fixed multiples of the shares the GBS predicts they need.
 
 The observation carries, for the coming slot, the control share at which the predicted large-scale
-SNR gives the drop probability eps* (``alpha_ctrl_min``, obs[18] / 10) and the data share that
-carries ``rate_min_bps`` (``alpha_comm_min``, obs[19]), both without the slot's fading (drawn after
+SNR gives the drop probability eps* (``alpha_ctrl_min``) and the data share that
+carries ``rate_min_bps`` (``alpha_comm_min``), both without the slot's fading (drawn after
 the allocation). A design margin covers the fading: control gets ``m_ctrl`` times its need, data
 ``m_comm`` times its need, sensing the rest (at least ``sensing_floor``). Where the three do not fit
 in the slot, control comes first (a stability violation costs ``w_stab`` = 10, a rate shortfall at
@@ -20,8 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from iscc_gym.env import OBS_NAMES
 from iscc_gym.files import write_atomic
+from iscc_gym.schema import OBS, OBS_SCALING
 
 from .base import SplitPolicy
 
@@ -30,17 +30,13 @@ __all__ = ["MarginPolicy", "margin_split", "predicted_needs", "load_tuned", "sav
 #: Where the tuning commands store their results (package data).
 TUNED_DIR = Path(__file__).resolve().parent / "tuned"
 
-_CTRL = OBS_NAMES.index("alpha_ctrl_min")
-_COMM = OBS_NAMES.index("alpha_comm_min")
-#: obs[_CTRL] is 10 x the share (see the env's observation table).
-_CTRL_SCALE = 0.1
 
 
 def predicted_needs(obs) -> tuple[np.ndarray, np.ndarray]:
     """The control and data shares the GBS predicts the slot needs, read from observations (n, 23):
-    ``alpha_ctrl_min`` (obs 18, stored x 10) and ``alpha_comm_min`` (obs 19)."""
+    ``alpha_ctrl_min`` and ``alpha_comm_min`` (both scaled linearly, :data:`iscc_gym.schema.OBS_SCALING`)."""
     o = np.asarray(obs, dtype=float)
-    return o[:, _CTRL] * _CTRL_SCALE, o[:, _COMM]
+    return tuple(o[:, OBS[name]] / OBS_SCALING[name][1] for name in ("alpha_ctrl_min", "alpha_comm_min"))
 
 
 def margin_split(ctrl_need, comm_need, m_ctrl: float, m_comm: float, sensing_floor: float):

@@ -25,6 +25,7 @@ from scipy.special import chndtr
 
 from iscc_gym.channel import beam_gain, link_snr, matched_gain
 from iscc_gym.dynamics import model_matrices
+from iscc_gym.env import decode_observation
 from iscc_gym.fbl import min_shares, slot_link
 from iscc_gym.kalman_steady import axis_kalman_steady_state
 from iscc_gym.quadrature import expected_norm, rician_power_nodes
@@ -174,10 +175,12 @@ class SlotContext:
     Attributes
     ----------
     snr : (n,)
-        Predicted large-scale SNR :math:`\\bar\\gamma_n` (linear), obs[13].
+        Predicted large-scale SNR :math:`\\bar\\gamma_n` (linear), from ``snr_db`` of
+        :func:`iscc_gym.env.decode_observation`.
     coef : SensingCoefficients
         Position-domain Fisher information at :math:`\\alpha_\\mathrm{sen} = 1` at the predicted range
-        and direction (obs[14..17]) with the slot's shadowing (recovered from obs[13] and the range).
+        and direction (``range``, ``sin_elevation``, ``cos_azimuth``, ``sin_azimuth``) with the slot's
+        shadowing (recovered from the SNR and the range).
     rate_per_share : (n, J)
         Data rate per unit share over ``rate_min_bps`` at the fading nodes
         (:func:`iscc_gym.quadrature.rician_power_nodes`); unused if ``rate_min_bps`` is 0.
@@ -211,7 +214,7 @@ class MyopicPolicy(SplitPolicy):
     the env's reward (:func:`iscc_gym.env.reward_and_costs`) in expectation over the slot's
     small-scale fading :math:`g = |g_C|^2` (Rician, drawn after the allocation), where
 
-    * :math:`\\bar\\gamma_n` is obs[13] (the predicted large-scale SNR); the rate
+    * :math:`\\bar\\gamma_n` is ``snr_db`` (the predicted large-scale SNR); the rate
       (:func:`iscc_gym.fbl.slot_link`) shortfall is averaged over the fading quadrature of
       :func:`iscc_gym.quadrature.rician_power_nodes`;
     * the stability term is in closed form: :math:`\\varepsilon_\\mathrm{ctrl}` falls with the SNR,
@@ -220,7 +223,7 @@ class MyopicPolicy(SplitPolicy):
       :func:`iscc_gym.fbl.min_shares` at :math:`\\varepsilon^\\star` (tabulated) and :math:`F_g`
       :func:`rician_power_cdf`;
     * :math:`T` is the steady-state mean tracking error at the predicted geometry
-      (:class:`LocalTrackingModel`: range obs[14], direction obs[15..17], shadowing) for the
+      (:class:`LocalTrackingModel`: range, direction, shadowing) for the
       sensing share held and the fading-averaged loss rate
       :math:`\\bar\\varepsilon(\\alpha_\\mathrm{ctrl}) = \\mathbb E_g\\,\\varepsilon_\\mathrm{ctrl}`. It is
       the error the loop settles to if the split is held (filter and loop forget a slot within a
@@ -309,12 +312,14 @@ class MyopicPolicy(SplitPolicy):
         o, _ = as_obs_batch(obs)
         if not np.all(np.isfinite(o)):
             raise ValueError("obs contains NaN or inf; pass the env's (finite) observations")
-        snr_db = 10.0 * o[:, 13]
-        dist = np.maximum(o[:, 14] * s.coverage_radius_m, 1.0)
-        sin_el = np.clip(o[:, 15], -1.0, 1.0)
-        norm = np.hypot(o[:, 16], o[:, 17])
+        d = decode_observation(o, s)
+        snr_db = d["snr_db"]
+        dist = np.maximum(d["range_m"], 1.0)
+        sin_el = np.clip(d["sin_elevation"], -1.0, 1.0)
+        norm = np.hypot(d["cos_azimuth"], d["sin_azimuth"])
         norm = np.where(norm > 0.0, norm, 1.0)
-        trig = (o[:, 16] / norm, o[:, 17] / norm, np.sqrt(np.maximum(0.0, 1.0 - sin_el * sin_el)), sin_el)
+        trig = (d["cos_azimuth"] / norm, d["sin_azimuth"] / norm, np.sqrt(np.maximum(0.0, 1.0 - sin_el * sin_el)),
+                sin_el)
         gain = self._gain if self._gain is not None else beam_gain(s, trig)
         shadow_db = 10.0 * np.log10(link_snr(s, dist, 0.0, gain)) - snr_db
         snr = db_to_lin(snr_db)

@@ -29,7 +29,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-from iscc_gym.eval.docs import README_PATH, RESULTS_PATH, docs_path, publish, save_json
 from iscc_gym.eval.evaluate import evaluate, format_table, horizon_slots, markdown_table, summarize  # noqa: F401
 from iscc_gym.eval.options import (
     PICKLE_WARNING,
@@ -55,6 +54,7 @@ from iscc_gym.eval.policies import (  # noqa: F401
 )
 
 from iscc_gym.cli import run
+from iscc_gym.docs import README_PATH, RESULTS_PATH, docs_path, publish, save_json
 
 DEFAULT_POLICIES = "ppo,sca,sca-per-slot,margin,myopic,equal"
 PROG = "python -m eval"

@@ -27,10 +27,10 @@ import time
 
 import gymnasium as gym
 import numpy as np
-from iscc_gym.eval.docs import README_PATH, RESULTS_PATH, docs_path, publish, save_json
 from iscc_gym.eval.options import Parser, check_writable_file, positive_int, run_console
 
 import iscc_gym
+from iscc_gym.docs import README_PATH, RESULTS_PATH, docs_path, publish, save_json
 
 
 def env_steps_per_second(env_id: str, n_steps: int, repeats: int, seed: int = 0, **kwargs) -> dict:

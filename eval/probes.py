@@ -128,8 +128,9 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.probes") -> 
         raise ValueError(f"--episodes {args.episodes}: use at least 2 (a confidence interval needs two missions)")
     seeds = check_tuning_seeds(range(args.seed_start, args.seed_start + args.episodes))
     if args.write_docs:
-        from iscc_gym.eval.docs import RESULTS_PATH, docs_path
         from iscc_gym.eval.options import check_writable_file
+
+        from iscc_gym.docs import RESULTS_PATH, docs_path
 
         check_writable_file(docs_path(RESULTS_PATH), "--write-docs")
     show = show_progress(args.quiet)
@@ -140,7 +141,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.probes") -> 
     table = markdown(rows, cmd, seeds)
     print(table)
     if args.write_docs:
-        from iscc_gym.eval.docs import write_section
+        from iscc_gym.docs import write_section
 
         write_section(docs_path(RESULTS_PATH), "probes", "## Non-myopic probes of the scripted rules\n\n" + table)
         print(f"wrote {docs_path(RESULTS_PATH)}")

@@ -19,7 +19,7 @@ values. The scheme level (:mod:`eval.schemes`) measures tracking error, data rat
 modules of :data:`OTHER_MODULES` (issue 13's stability-under-fading and sensitivity studies), where
 present, run too: their claims and figures join this command's. ``--write-docs`` regenerates the
 project's committed figures in ``docs/figures``, this command's sections of ``docs/results.md`` and the
-README's ``reproduce`` block (:func:`iscc_gym.eval.docs.write_section`); without it nothing under
+README's ``reproduce`` block (:func:`iscc_gym.docs.write_section`); without it nothing under
 ``docs/`` is touched.
 """
 
@@ -38,13 +38,13 @@ import numpy as np
 import scipy.linalg
 from iscc_gym.eval import paper_figures
 from iscc_gym.eval import schemes as scheme_level
-from iscc_gym.eval.docs import README_PATH, RESULTS_PATH, docs_path, write_section
 from iscc_gym.eval.options import Parser, Stages, check_writable_dir, check_writable_file, nonneg_int, show_progress
 from scipy.optimize import brentq
 
 from iscc_gym import SCENARIOS, Scenario, loop, make_scenario
 from iscc_gym.averages import TrajectorySample, mean_bounds, mean_comm_rate_bps, mean_snr, sample_positions
 from iscc_gym.channel import geometry
+from iscc_gym.docs import README_PATH, RESULTS_PATH, docs_path, write_section
 from iscc_gym.dynamics import model_matrices
 from iscc_gym.fbl import ctrl_bler, dispersion, q_inv
 from iscc_gym.files import write_atomic

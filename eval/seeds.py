@@ -120,7 +120,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.seeds") -> d
     from iscc_gym.eval.policies import check_specs
 
     check_specs([f"seed_{s}={p}" for s, p in runs.items()], args.scenario)  # torch and SB3 installed
-    from iscc_gym.eval.docs import RESULTS_PATH, docs_path
+    from iscc_gym.docs import RESULTS_PATH, docs_path
 
     if args.json:
         check_writable_file(args.json, "--json")
@@ -137,13 +137,13 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.seeds") -> d
     table = markdown(res, cmd)
     print(table)
     if args.write_docs:
-        from iscc_gym.eval.docs import write_section
+        from iscc_gym.docs import write_section
 
         write_section(docs_path(RESULTS_PATH), "seeds", "## The shipped configuration over 5 training seeds\n\n"
                       + table)
         print(f"wrote {docs_path(RESULTS_PATH)}")
     if args.json:
-        from iscc_gym.eval.docs import save_json
+        from iscc_gym.docs import save_json
 
         save_json(args.json, res)
     return res

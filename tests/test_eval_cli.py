@@ -9,9 +9,11 @@ from pathlib import Path
 
 import pytest
 from iscc_gym.eval import __main__ as cli
-from iscc_gym.eval import bench, docs, evaluator_check, probes, reproduce, seeds, tune
+from iscc_gym.eval import bench, evaluator_check, probes, reproduce, seeds, tune
 from iscc_gym.eval.options import parse_seeds, show_progress
 from iscc_gym.eval.policies import SHIPPED_AGENT, check_specs, resolve_specs
+
+from iscc_gym import docs
 
 ROOT = Path(__file__).resolve().parents[1]
 PARSERS = {"eval": cli.build_parser, "reproduce": reproduce.build_parser, "seeds": seeds.build_parser,
@@ -116,14 +118,14 @@ def test_bare_ppo_is_the_shipped_agent():
 
 
 def test_write_docs_is_refused_outside_a_checkout(tmp_path, monkeypatch, no_episodes):
-    installed = tmp_path / "site-packages" / "iscc_gym" / "eval"
+    installed = tmp_path / "site-packages" / "iscc_gym"
     installed.mkdir(parents=True)
     monkeypatch.setattr(docs, "PACKAGE_DIR", installed)
     with pytest.raises(OSError, match="not in a source checkout"):
         cli.main(["--policies", "sca,equal", "--write-docs", "--quiet"])
     with pytest.raises(OSError, match="not in a source checkout"):
         reproduce.main(["--model-only", "--write-docs", "--quiet"])
-    monkeypatch.setattr(docs, "PACKAGE_DIR", ROOT / "eval")
+    monkeypatch.setattr(docs, "PACKAGE_DIR", ROOT / "iscc_gym")
     assert docs.project_root() == ROOT
 
 

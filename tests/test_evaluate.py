@@ -86,19 +86,20 @@ def test_eval_cli_writes_json_and_plots(tmp_path, capsys):
 
 def fake_checkout(root):
     """A project checkout at ``root`` (pyproject, README with a comparison block, docs/results.md); returns
-    the ``PACKAGE_DIR`` of its ``eval/``."""
-    (root / "eval").mkdir(parents=True)
+    the ``PACKAGE_DIR`` of its ``iscc_gym/``."""
+    (root / "iscc_gym").mkdir(parents=True)
     (root / "docs").mkdir()
     (root / "pyproject.toml").write_text('[project]\nname = "iscc-gym"\n')
     (root / "docs" / "results.md").write_text("# Results\n\n<!-- bench:start -->\nkeep me\n<!-- bench:end -->\n")
     (root / "README.md").write_text("intro\n<!-- comparison:start -->\nold\n<!-- comparison:end -->\noutro\n")
-    return root / "eval"
+    return root / "iscc_gym"
 
 
 def test_eval_write_docs_owns_only_its_sections_of_the_checkout(tmp_path, monkeypatch):
     """--write-docs writes the checkout's README and docs (found from the package), not the working directory's."""
-    from iscc_gym.eval import docs
     from iscc_gym.eval.__main__ import main
+
+    from iscc_gym import docs
 
     repo = tmp_path / "repo"
     monkeypatch.setattr(docs, "PACKAGE_DIR", fake_checkout(repo))

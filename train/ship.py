@@ -41,7 +41,7 @@ def ship(args: Args = SHIP_ARGS, dest: Path = SHIP_DIR, write_docs: bool = True)
     for name in sorted(ARTIFACTS, key=lambda n: (n == "manifest.yml", n == "model.zip")):
         _copy(Path(args.out) / name, dest / name)
     if write_docs:
-        from iscc_gym.eval.docs import RESULTS_PATH, write_section
+        from iscc_gym.docs import RESULTS_PATH, write_section
 
         figures = ROOT / "docs" / "figures"
         figures.mkdir(parents=True, exist_ok=True)

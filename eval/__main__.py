@@ -52,6 +52,7 @@ from iscc_gym.eval.policies import (  # noqa: F401
     resolve_specs,
     run_parallel,
 )
+from iscc_gym.eval.training import run_training
 
 from iscc_gym.cli import run
 from iscc_gym.docs import README_PATH, RESULTS_PATH, docs_path, publish, save_json
@@ -204,11 +205,8 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> dict:
             check_writable_file(docs_path(rel), "--write-docs")
     show = show_progress(args.quiet)
     if args.train_steps > 0:
-        from iscc_gym.train import Args
-        from iscc_gym.train import main as train_main
-
-        summary = train_main(Args(total_timesteps=args.train_steps, out=args.train_out, scenario=args.scenario,
-                                  progress_bar=show))
+        summary = run_training(["--total-timesteps", args.train_steps, "--scenario", args.scenario],
+                               args.train_out, quiet=not show)["summary"]
         print(f"trained PPO: {summary['timesteps']} steps in {summary['wall_time_s']:.0f} s -> {args.train_out}")
     specs = ",".join(items)
     t0 = time.perf_counter()

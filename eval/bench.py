@@ -114,8 +114,8 @@ def vector_under_load(sizes=(64, 1024), n_steps: int = 3000, repeats: int = 3) -
 def ppo_steps_per_second(kind: str, total_steps: int, repeats: int, n_envs: int = 4) -> dict:
     """Median env-steps/s of SB3 PPO (default hyperparameters) learning ``total_steps`` steps."""
     import torch
+    from iscc_gym.agents.sb3_logging import stdout_logger
     from iscc_gym.agents.sb3_vec_env import ISCCBatchedVecEnv
-    from iscc_gym.train.train import stdout_logger
     from stable_baselines3 import PPO
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecMonitor
@@ -151,37 +151,34 @@ def ppo_shipped_steps_per_second(total_steps: int, repeats: int, settings=THREAD
     1 means the serial kernel, the default."""
     import tempfile
 
-    import torch
-    from iscc_gym.train.train import Args, main, resolve_args
-
-    from iscc_gym import threads
+    from iscc_gym.eval.training import run_training
 
     out = {}
-    parallel0 = threads.get_parallel()
+    config = None
     with tempfile.TemporaryDirectory() as tmp:
-        resolved, hp = resolve_args(Args())
         for numba_threads, torch_threads in settings:
             if numba_threads > os.cpu_count() or torch_threads > os.cpu_count():
                 continue
             rates = []
-            threads.set_parallel(numba_threads > 1)
             for r in range(repeats):
                 # PPO itself: a warm start of the YAML (a fixed cost before learning) is left out
-                summary = main(Args(total_timesteps=total_steps, seed=r, eval_freq=0,
-                                    out=f"{tmp}/run_numba{numba_threads}_torch{torch_threads}_{r}",
-                                    checkpoint_freq=0, tensorboard=False, numba_threads=numba_threads,
-                                    torch_threads=torch_threads, init_policy="none"))
-                rates.append(summary["env_steps_per_s"])
+                run = run_training(["--total-timesteps", total_steps, "--seed", r, "--eval-freq", 0,
+                                    "--checkpoint-freq", 0, "--no-tensorboard", "--numba-threads", numba_threads,
+                                    "--torch-threads", torch_threads, "--init-policy", "none"],
+                                   f"{tmp}/run_numba{numba_threads}_torch{torch_threads}_{r}",
+                                   env={"ISCC_GYM_PARALLEL": "1" if numba_threads > 1 else "0"})
+                rates.append(run["summary"]["env_steps_per_s"])
+                config = run["config"]
             out[f"numba{numba_threads}_torch{torch_threads}"] = {
                 "median_env_steps_per_s": statistics.median(rates), "runs": rates, "numba_threads": numba_threads,
                 "torch_threads": torch_threads}
-        torch.set_num_threads(1)
-        threads.set_parallel(parallel0)
-    default = Args()
-    numba_default = (default.numba_threads or os.cpu_count()) if parallel0 else 1
-    return {"settings": out, "n_envs": resolved.n_envs, "total_steps": total_steps,
+    hp = (config or {}).get("hyperparams", {})
+    from iscc_gym import threads
+
+    numba_default = os.cpu_count() if threads.get_parallel() else 1
+    return {"settings": out, "n_envs": (config or {}).get("args", {}).get("n_envs"), "total_steps": total_steps,
             "hyperparams": {k: hp[k] for k in ("n_steps", "batch_size", "n_epochs") if k in hp},
-            "default": f"numba{numba_default}_torch{default.torch_threads}"}
+            "default": f"numba{numba_default}_torch1"}
 
 
 def render_ms(frames: int = 50, steps_before: int = 300) -> dict:

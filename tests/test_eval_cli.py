@@ -85,6 +85,16 @@ def test_train_steps_refuse_a_used_run_directory_first(tmp_path, no_episodes):
         cli.main(["--train-steps", "64", "--train-out", str(tmp_path), "--policies", "sca", "--quiet"])
 
 
+def test_train_steps_trains_through_the_command_line_then_evaluates(tmp_path):
+    """--train-steps runs python -m iscc_gym.train in a subprocess (eval never imports train) and then
+    evaluates the fresh agent as ``ppo``."""
+    out = tmp_path / "run"
+    res = cli.main(["--train-steps", "256", "--train-out", str(out), "--policies", "ppo,equal", "--episodes", "2",
+                    "--max-steps", "5", "--quiet"])
+    assert (out / "model.zip").is_file() and (out / "summary.yml").is_file()
+    assert {"ppo", "equal"} <= set(res["policies"])
+
+
 @pytest.mark.parametrize("args", [["--max-steps", "0"], ["--episodes", "0"], ["--workers", "0"],
                                   ["--torch-threads", "-1"], ["--max-steps", "abc"]])
 def test_bad_numbers_exit_2_with_one_line(args, no_episodes, capsys):

@@ -37,6 +37,7 @@ from typing import Any
 
 import numpy as np
 import yaml
+from iscc_gym.agents.sb3_logging import stdout_logger
 from iscc_gym.agents.sb3_policy import MANIFEST, read_manifest, write_manifest
 
 from iscc_gym.files import atomic_target, write_atomic
@@ -744,18 +745,6 @@ def _progress(args: Args) -> bool:
     return bool(on) and all(importlib.util.find_spec(m) is not None for m in ("tqdm", "rich"))
 
 
-
-def stdout_logger(verbose: int):
-    """An SB3 logger that writes to stdout (``verbose`` >= 1) or nowhere, and creates no folder.
-
-    Without TensorBoard, SB3's own default (``configure(None, ...)``) makes an empty
-    ``$TMPDIR/SB3-<date>`` folder per ``learn`` call; a run of this project leaves nothing behind.
-    """
-    import sys
-
-    from stable_baselines3.common.logger import HumanOutputFormat, Logger
-
-    return Logger(folder=None, output_formats=[HumanOutputFormat(sys.stdout)] if verbose >= 1 else [])
 
 def main(args: Args, callback_after_eval=None) -> dict:
     """Train, save everything into ``args.out``; returns a summary (paths, steps, wall time).

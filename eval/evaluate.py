@@ -132,8 +132,9 @@ def run_episodes(policy, seeds: Sequence[int], scenario: str | Scenario = "paper
         if record:
             traces["alpha"].append(info["alpha"][:record].copy())
             traces["tracking_error_m"].append(np.where(alive[:record], info["tracking_error_m"][:record], np.nan))
-            traces["pos"].append(venv._state.x[:record, :3].copy())
-            traces["ref_pos"].append(venv._state.ref[np.arange(min(record, k)), venv._state.n[:record], :3].copy())
+            pos, ref_pos = venv.positions(record)
+            traces["pos"].append(pos)
+            traces["ref_pos"].append(ref_pos)
         terminated_any |= term & alive
         alive &= ~(term | trunc)
         if not alive.any():

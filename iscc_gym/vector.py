@@ -157,6 +157,22 @@ class ISCCVectorEnv(VectorEnv):
         return obs, reward, terminated, truncated, info
 
     # --- helpers ---------------------------------------------------------------------------------
+    def positions(self, rows: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """The drones' true positions and their reference positions (m) at each loop's current slot,
+        for the first ``rows`` loops (all by default): two copies of shape (rows, 3). For plots and
+        evaluation traces; the policy sees only the observation.
+
+        Raises
+        ------
+        RuntimeError
+            Before the first ``reset``.
+        """
+        if self._state is None:
+            raise RuntimeError("call reset() before positions()")
+        k = self.num_envs if rows is None else max(0, min(int(rows), self.num_envs))
+        st = self._state
+        return st.x[:k, :3].copy(), st.ref[np.arange(k), st.n[:k], :3].copy()
+
     def _check_reset_mask(self, options) -> np.ndarray:
         n = self.num_envs
         if options is None:

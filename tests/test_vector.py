@@ -221,3 +221,21 @@ def test_terminated_sub_env_is_reset_not_charged_again():
     _, reward, terminated, truncated, info = venv.step(acts)
     assert reward[0] == 0.0 and not terminated[0] and not truncated[0] and info["slot"][0] == 0
     assert not info["_tracking_error_m"][0]
+
+
+def test_positions_are_the_true_and_reference_positions_behind_the_tracking_error():
+    """``positions()`` (the evaluator's traces) returns the state the tracking error is measured on."""
+    import pytest
+
+    from iscc_gym.vector import ISCCVectorEnv
+
+    venv = ISCCVectorEnv(num_envs=3)
+    with pytest.raises(RuntimeError, match="reset"):
+        venv.positions()
+    venv.reset(seed=[4, 5, 6])
+    for _ in range(20):
+        _, _, _, _, info = venv.step(np.full((3, 3), 0.1, dtype=np.float32))
+    pos, ref = venv.positions()
+    assert pos.shape == ref.shape == (3, 3)
+    np.testing.assert_allclose(np.linalg.norm(pos - ref, axis=1), info["tracking_error_m"], rtol=1e-9)
+    assert venv.positions(2)[0].shape == (2, 3)

@@ -1,0 +1,387 @@
+"""Configuration of a training run: :class:`Args` (command-line settings), the hyperparameter file in
+rl-zoo3's layout (``train/hyperparams.yml``) and their resolution and checks."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+HYPERPARAMS = Path(__file__).with_name("hyperparams.yml")
+ALGOS = ("ppo", "sac", "td3")
+VEC_ENVS = ("dummy", "subproc", "batched")
+#: Seeds of the EvalCallback's held-out episodes start here (training seeds are small integers, the
+#: final comparison uses ``eval --seed-start``'s, 10_000 by default).
+EVAL_SEED_START = 1_000_000
+#: Seeds of the behaviour-cloning warm start's missions: INIT_SEED_START + 1000 * seed + i (training
+#: seeds, disjoint from every evaluation seed).
+INIT_SEED_START = 200_000
+
+
+@dataclass
+class Args:
+    """Everything a training run depends on (``python -m train --help`` lists them; :data:`FIELD_HELP`)."""
+
+    env_id: str = "iscc_gym/ISCC-v0"
+    algo: str = "ppo"  # ppo | sac | td3
+    # None: the YAML entry's ``n_timesteps`` / ``n_envs`` (rl-zoo3's keys), else RUN_DEFAULTS
+    total_timesteps: int | None = None
+    n_envs: int | None = None
+    vec_env: str = "batched"  # dummy | subproc | batched (the native batched env)
+    seed: int = 0
+    scenario: str = "paper"
+    env_overrides: dict = field(default_factory=dict)  # Scenario field overrides, e.g. {"observation_source": "gnss"}
+    out: str = "runs/ppo"
+    hyperparams: str = str(HYPERPARAMS)
+    overrides: dict = field(default_factory=dict)  # hyperparameter overrides, e.g. {"n_steps": 64}
+    normalize: bool | None = None  # VecNormalize of observations and rewards (None: the YAML's, else True)
+    # warm start by behaviour cloning of a scripted policy (agents.make_policy spec; train/pretrain.py);
+    # None: the YAML's init_policy / init_envs / init_steps (steps per env) / init_log_std
+    init_policy: str | None = None
+    init_envs: int | None = None
+    init_steps: int | None = None
+    init_log_std: float | None = None
+    eval_freq: int = 500_000  # env steps between evaluations (0: none)
+    eval_episodes: int = 8
+    eval_max_steps: int = 5000  # slots per eval episode (the full mission by default)
+    checkpoint_freq: int = 1_000_000  # env steps between checkpoints (0: none)
+    resume: bool = False  # continue from the newest complete checkpoint in ``out``
+    overwrite: bool = False  # start afresh in a non-empty ``out`` (its previous run's files are deleted)
+    tensorboard: bool = True
+    progress_bar: bool | None = None  # None: on a terminal (stdout a TTY) unless ``quiet``
+    quiet: bool = False  # no progress bar, no closing line
+    torch_threads: int = 1  # threads of torch (1 is fastest here: python -m eval.bench)
+    numba_threads: int | None = None  # threads of the env's compiled kernel (None: numba's default, all cores)
+    verbose: int = 0
+
+
+#: The ``--help`` text of every :class:`Args` field.
+FIELD_HELP = {
+    "env_id": "Gymnasium env id to train on (an entry of --hyperparams)",
+    "algo": "SB3 algorithm: ppo | sac | td3",
+    "total_timesteps": "env steps to train (default: the YAML entry's n_timesteps, else 200000)",
+    "n_envs": "parallel envs (default: the YAML entry's n_envs, else 4)",
+    "vec_env": "dummy | subproc | batched (the ISCC env's own batched env, fastest)",
+    "seed": "training seed (envs, networks, sampling)",
+    "scenario": "Scenario preset of the env (e.g. paper)",
+    "out": "run directory; must be empty or new unless --resume or --overwrite",
+    "hyperparams": "hyperparameter YAML in rl-zoo3's layout (env id -> hyperparameters; see train/hyperparams.yml)",
+    "normalize": "VecNormalize observations and rewards (default: the YAML entry's normalize, else on)",
+    "init_policy": "warm start: behaviour-clone this scripted policy (agents.make_policy spec, e.g. myopic; "
+                   "none: no warm start; default: the YAML's)",
+    "init_envs": "envs the scripted policy plays during the warm start (default: the YAML's, else 16)",
+    "init_steps": "steps per env of the warm start (default: the YAML's, else 5000)",
+    "init_log_std": "log standard deviation of the actions after the warm start (default: the YAML's, else kept)",
+    "eval_freq": "env steps between held-out evaluations (0: none); the best model goes to OUT/best/",
+    "eval_episodes": "held-out missions per evaluation (seeds from 1,000,000)",
+    "eval_max_steps": "slots per held-out episode at most (the full mission by default)",
+    "checkpoint_freq": "env steps between checkpoints in OUT/checkpoints/ (0: none)",
+    "resume": "continue the run in OUT from its newest complete checkpoint (same algo, env, scenario, "
+              "normalisation)",
+    "overwrite": "start afresh in a non-empty OUT: its previous run's files are deleted first",
+    "tensorboard": "write TensorBoard logs to OUT/tb (tensorboard --logdir OUT/tb)",
+    "progress_bar": "show a progress bar (default: on a terminal unless --quiet)",
+    "quiet": "no progress bar and no closing line",
+    "torch_threads": "torch threads (1 is fastest here: python -m eval.bench)",
+    "numba_threads": "threads of the env's compiled kernel (default: all cores)",
+    "verbose": "SB3 verbosity: 0 quiet, 1 training logs, 2 debug",
+}
+
+#: Run settings a YAML entry may hold beside the algorithm's hyperparameters (rl-zoo3's names), mapped
+#: to the :class:`Args` field they fill, and the value used when neither the flag nor the YAML sets it.
+#: ``init_*`` are python -m train's own: in a file rl-zoo3 reads too, they go under ``iscc_gym.train.settings``.
+RUN_KEYS = {"n_timesteps": "total_timesteps", "n_envs": "n_envs", "normalize": "normalize",
+            "init_policy": "init_policy", "init_envs": "init_envs", "init_steps": "init_steps",
+            "init_log_std": "init_log_std"}
+RUN_DEFAULTS = {"total_timesteps": 200_000, "n_envs": 4, "normalize": True, "init_policy": None, "init_envs": 16,
+                "init_steps": 5000, "init_log_std": None}
+
+
+def _to_int(v):
+    f = float(v)
+    if not f.is_integer():
+        raise ValueError
+    return int(f)
+
+
+def _to_bool(v):
+    if not isinstance(v, bool):
+        raise ValueError
+    return v
+
+
+_RUN_TYPES = {"total_timesteps": _to_int, "n_envs": _to_int, "normalize": _to_bool, "init_policy": str,
+              "init_envs": _to_int, "init_steps": _to_int, "init_log_std": float}
+
+#: The key of a hyperparameter file that only python -m train reads (rl-zoo3 reads the entry of its env id).
+OWN_SECTION = "iscc_gym.train"
+_ACTIVATIONS = {"Tanh": "tanh", "ReLU": "relu", "ELU": "elu", "LeakyReLU": "leaky_relu", "GELU": "gelu"}
+
+
+def parse_policy_kwargs(value, where: str = "policy_kwargs") -> dict:
+    """``policy_kwargs`` of a YAML entry as a dict, activation functions as names (``"tanh"``).
+
+    Reads rl-zoo3's string form ``"dict(net_arch=[64, 64], activation_fn=nn.Tanh)"`` without eval'ing
+    it: only ``dict(...)`` / ``{...}`` of literals and ``nn.<activation>`` names are accepted. A YAML
+    mapping is taken as it is.
+
+    Raises
+    ------
+    ValueError
+        Anything else in the string (a call, a name, an unknown activation).
+    """
+    import ast
+
+    if value is None:
+        return {}
+    if isinstance(value, dict):
+        return dict(value)
+    if not isinstance(value, str):
+        raise ValueError(f"{where} = {value!r}; use a mapping or rl-zoo3's string 'dict(net_arch=[64, 64])'")
+
+    def read(node):
+        if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id == "dict" \
+                and not node.args and all(k.arg for k in node.keywords):
+            return {k.arg: read(k.value) for k in node.keywords}
+        if isinstance(node, ast.Dict):
+            return {ast.literal_eval(k): read(v) for k, v in zip(node.keys, node.values, strict=True)}
+        if isinstance(node, ast.List | ast.Tuple):
+            return [read(e) for e in node.elts]
+        if isinstance(node, ast.Attribute) and node.attr in _ACTIVATIONS and ast.unparse(node.value) in (
+                "nn", "th.nn", "torch.nn"):
+            return _ACTIVATIONS[node.attr]
+        return ast.literal_eval(node)
+
+    try:
+        out = read(ast.parse(value.strip(), mode="eval").body)
+    except (SyntaxError, ValueError, TypeError):
+        raise ValueError(f"{where} = {value!r}: python -m train reads dict(...) of literals and nn.<activation> "
+                         f"({', '.join('nn.' + a for a in _ACTIVATIONS)}) and evaluates nothing else") from None
+    if not isinstance(out, dict):
+        raise ValueError(f"{where} = {value!r}: use dict(...)")
+    return out
+
+
+def format_policy_kwargs(pk: dict) -> str:
+    """The rl-zoo3 string of ``policy_kwargs`` (inverse of :func:`parse_policy_kwargs`)."""
+    names = {v: k for k, v in _ACTIVATIONS.items()}
+
+    def fmt(key, v):
+        if isinstance(v, dict):
+            return "dict(" + ", ".join(f"{k}={fmt(k, x)}" for k, x in v.items()) + ")"
+        if isinstance(v, list | tuple):
+            return "[" + ", ".join(fmt(None, x) for x in v) + "]"
+        if key == "activation_fn" and isinstance(v, str):
+            if v.lower() not in names:
+                raise ValueError(f"policy_kwargs.activation_fn = {v!r}; use one of {sorted(names)}")
+            return "nn." + names[v.lower()]
+        return repr(v)
+
+    return fmt(None, dict(pk))
+
+
+def _entries(table: dict, path, algo: str, env_id: str) -> tuple[dict, dict]:
+    """``(entries by env id, python -m train's settings by env id)`` of ``algo`` in a hyperparameter file."""
+    own = table.pop(OWN_SECTION, None) or {}
+    if not isinstance(own, dict) or set(own) - {"algo", "settings", *ALGOS}:
+        raise ValueError(f"{path}: {OWN_SECTION} holds algo, settings and entries per algorithm ({', '.join(ALGOS)}); "
+                         f"found {sorted(own) if isinstance(own, dict) else own!r}")
+    file_algo = own.get("algo")
+    if algo in own and algo != file_algo:
+        return dict(own[algo] or {}), {}
+    if file_algo not in (None, algo):
+        raise ValueError(f"algo {algo!r} has no entry for {env_id} in {path}: its entries are {file_algo}'s "
+                         f"(rl-zoo3's layout, one algorithm per file); add {OWN_SECTION}.{algo}.{env_id} or pass "
+                         f"--hyperparams with a file of {algo} entries")
+    return table, dict(own.get("settings") or {})
+
+
+def load_hyperparams(path: str | os.PathLike, env_id: str, algo: str, overrides: dict | None = None) -> dict:
+    """The hyperparameters of ``algo`` on ``env_id`` from the YAML file, with ``overrides`` applied.
+
+    The file is in rl-zoo3's layout (env id -> hyperparameters of one algorithm, e.g.
+    ``train/hyperparams.yml``); its ``iscc_gym.train`` key (which rl-zoo3 never reads) names that
+    algorithm (``algo``), holds python -m train's own run settings per env id (``settings``) and other
+    algorithms' entries (``sac``, ``td3``). The older layout (env id -> algo -> hyperparameters) is
+    read too. ``policy_kwargs`` comes back as a dict, activations as names (:func:`parse_policy_kwargs`,
+    never eval'd); the run settings of :data:`RUN_KEYS` stay in the dict; :func:`resolve_args` takes them out.
+    """
+    try:
+        with open(path) as f:
+            table = yaml.safe_load(f)
+    except yaml.YAMLError as e:
+        raise ValueError(f"{path}: not valid YAML ({str(e).splitlines()[0]})") from None
+    if not isinstance(table, dict):
+        raise ValueError(f"{path}: expected a mapping of env ids to hyperparameters (rl-zoo3's layout)")
+    entries, settings = _entries(table, path, algo, env_id)
+    if env_id not in entries:
+        raise ValueError(f"env_id {env_id!r} has no entry in {path}; add one (keys: {sorted(entries)})")
+    entry = entries[env_id]
+    if isinstance(entry, dict) and entry and set(entry) <= set(ALGOS) and all(isinstance(v, dict) for v in
+                                                                             entry.values()):
+        if algo not in entry:  # the older layout: env id -> algo -> hyperparameters
+            raise ValueError(f"algo {algo!r} has no entry for {env_id} in {path}; add one or use {sorted(entry)}")
+        entry = entry[algo]
+    if not isinstance(entry, dict):
+        raise ValueError(f"{path}: the entry of {env_id} is {entry!r}; use a mapping of hyperparameters")
+    hp = {**dict(settings.get(env_id) or {}), **entry}
+    hp.update(overrides or {})
+    if "policy_kwargs" in hp:
+        hp["policy_kwargs"] = parse_policy_kwargs(hp["policy_kwargs"])
+    return hp
+
+
+def resolve_args(args: Args) -> tuple[Args, dict]:
+    """``(args, hyperparameters)``: the run settings that ``args`` leaves at None filled from the
+    YAML entry (``n_timesteps``, ``n_envs``, ``normalize``, ``init_*``), else from :data:`RUN_DEFAULTS`;
+    rl-zoo3's ``env_kwargs`` join ``env_overrides`` (a flag wins); the returned hyperparameters are the
+    algorithm's keyword arguments only."""
+    hp = load_hyperparams(args.hyperparams, args.env_id, args.algo, args.overrides)
+    filled: dict[str, Any] = {}
+    for key, name in RUN_KEYS.items():
+        value = hp.pop(key, None)
+        if getattr(args, name) is None:
+            value = RUN_DEFAULTS[name] if value is None else value
+            if value is None:
+                filled[name] = None
+                continue
+            try:
+                filled[name] = _RUN_TYPES[name](value)
+            except (TypeError, ValueError):
+                kind = {"normalize": "true or false", "init_policy": "a policy spec",
+                        "init_log_std": "a number"}.get(name, "an integer")
+                raise ValueError(f"{key} = {value!r} in {args.hyperparams} or --set; use {kind}") from None
+    env_kwargs = hp.pop("env_kwargs", None) or {}
+    if not isinstance(env_kwargs, dict):
+        raise ValueError(f"env_kwargs = {env_kwargs!r}; use a mapping of Scenario fields")
+    if env_kwargs:
+        filled["env_overrides"] = {**env_kwargs, **args.env_overrides}
+    return dataclasses.replace(args, **filled), hp
+
+
+def check_hyperparams(algo: str, hp: dict) -> dict:
+    """Names and types of the algorithm's keyword arguments, checked against its constructor; returns
+    them with whole numbers where it takes integers (``n_steps: 6.4e1`` -> 64).
+
+    Raises
+    ------
+    ValueError
+        An unknown name (with the closest known ones), or a text or other non-number where the
+        algorithm takes a number (e.g. ``--set n_steps=abc``), or a fraction where it takes an integer.
+    """
+    import difflib
+    import inspect
+
+    from stable_baselines3 import PPO, SAC, TD3
+
+    cls = {"ppo": PPO, "sac": SAC, "td3": TD3}[algo]
+    params = inspect.signature(cls.__init__).parameters
+    extra = {"noise_type", "noise_std"} if algo in ("sac", "td3") else set()
+    hp = dict(hp)
+    for key, value in hp.items():
+        if key in extra:
+            continue
+        if key not in params or key in ("self", "env"):
+            near = difflib.get_close_matches(key, [p for p in params if p not in ("self", "env")], n=3)
+            raise ValueError(f"hyperparameter {key!r} is not an argument of {cls.__name__}"
+                             + (f"; did you mean {', '.join(near)}?" if near else ""))
+        default = params[key].default
+        if isinstance(default, bool) or not isinstance(default, int | float):
+            continue
+        if key in ("learning_rate", "clip_range", "clip_range_vf") and (isinstance(value, str) or callable(value)):
+            continue  # lin_<value> (linear_schedule checks it)
+        if key == "train_freq" and isinstance(value, list | tuple):
+            continue
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise ValueError(f"{key} = {value!r}; use a number")
+        if isinstance(default, int):
+            if not float(value).is_integer():
+                raise ValueError(f"{key} = {value!r}; use an integer")
+            hp[key] = int(value)
+    return hp
+
+
+def _resolve_policy_kwargs(hp: dict) -> dict:
+    import torch.nn as nn
+
+    hp = dict(hp)
+    pk = dict(hp.get("policy_kwargs") or {})
+    if "activation_fn" in pk and isinstance(pk["activation_fn"], str):
+        names = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU, "leaky_relu": nn.LeakyReLU, "gelu": nn.GELU}
+        key = pk["activation_fn"].lower()
+        if key not in names:
+            raise ValueError(f"policy_kwargs.activation_fn = {pk['activation_fn']!r}; use one of {sorted(names)}")
+        pk["activation_fn"] = names[key]
+    if pk:
+        hp["policy_kwargs"] = pk
+    for key in ("learning_rate", "clip_range"):
+        if isinstance(hp.get(key), str):
+            hp[key] = linear_schedule(hp[key], key)
+    if isinstance(hp.get("train_freq"), list):  # rl-zoo3's [1, "episode"]
+        hp["train_freq"] = tuple(hp["train_freq"])
+    return hp
+
+
+def _action_noise(kw: dict, n_envs: int, dim: int) -> dict:
+    """rl-zoo3's ``noise_type`` (``normal`` | ``ornstein-uhlenbeck``) and ``noise_std`` keys as SB3's
+    ``action_noise`` (one independent noise process per env) for SAC/TD3."""
+    kw = dict(kw)
+    kind, std = kw.pop("noise_type", None), kw.pop("noise_std", None)
+    if kind is None:
+        if std is not None:
+            raise ValueError("noise_std is set without noise_type; add noise_type: normal")
+        return kw
+    from stable_baselines3.common.noise import NormalActionNoise, OrnsteinUhlenbeckActionNoise, VectorizedActionNoise
+
+    classes = {"normal": NormalActionNoise, "ornstein-uhlenbeck": OrnsteinUhlenbeckActionNoise}
+    if kind not in classes:
+        raise ValueError(f"noise_type = {kind!r}; use one of {sorted(classes)}")
+    sigma = float(0.1 if std is None else std)
+    if not sigma > 0:
+        raise ValueError(f"noise_std = {std!r}; use a positive number")
+    base = classes[kind](mean=np.zeros(dim), sigma=sigma * np.ones(dim))
+    kw["action_noise"] = VectorizedActionNoise(base, n_envs) if n_envs > 1 else base
+    return kw
+
+
+def linear_schedule(text: str, name: str = "learning_rate"):
+    """rl-zoo3's ``lin_<value>``: a schedule falling linearly from ``value`` to 0 over training
+    (SB3 calls it with the remaining progress, 1 -> 0).
+
+    Raises
+    ------
+    ValueError
+        Not ``lin_`` followed by a positive number.
+    """
+    try:
+        if not text.startswith("lin_"):
+            raise ValueError
+        start = float(text[len("lin_"):])
+        if not start > 0:
+            raise ValueError
+    except ValueError:
+        raise ValueError(f"{name} = {text!r}; use a number or 'lin_<number>' (rl-zoo3's linear schedule, "
+                         "e.g. lin_3e-4)") from None
+
+    def schedule(progress_remaining: float) -> float:
+        return progress_remaining * start
+
+    return schedule
+
+
+def _check(args: Args) -> None:
+    if args.algo not in ALGOS:
+        raise ValueError(f"algo = {args.algo!r}; use one of {ALGOS}")
+    if args.vec_env not in VEC_ENVS:
+        raise ValueError(f"vec_env = {args.vec_env!r}; use one of {VEC_ENVS}")
+    if args.vec_env == "batched" and args.env_id != "iscc_gym/ISCC-v0":
+        raise ValueError("vec_env = 'batched' is the ISCC env's own batched env; use dummy or subproc for "
+                         f"{args.env_id}")
+    for name in ("total_timesteps", "n_envs", "eval_episodes", "eval_max_steps", "torch_threads", "numba_threads"):
+        if getattr(args, name) is not None and getattr(args, name) < 1:
+            raise ValueError(f"{name} = {getattr(args, name)}; use an integer >= 1")

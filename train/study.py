@@ -42,10 +42,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-import numpy as np
 import yaml
 from iscc_gym.train.train import (
-    EVAL_SEED_START,
     Args,
     _check,
     _resolve_policy_kwargs,
@@ -55,13 +53,20 @@ from iscc_gym.train.train import (
     resolve_args,
 )
 
-from iscc_gym.files import write_atomic
-
 if TYPE_CHECKING:  # pragma: no cover
     import optuna
 
-SAMPLERS = ("tpe", "random")
-PRUNERS = ("median", "none")
+from .multi_seed import evaluate_run, parse_seeds, run_seeds
+from .study_io import (
+    PRUNERS,
+    SAMPLERS,
+    StudyConfigError,
+    best_trial,
+    export_best,
+    make_pruner,
+    make_sampler,
+    make_storage,
+)
 
 #: The PPO search space: name -> choices (a list) or ``(low, high, "log" | "linear")``. ``n_minibatches``
 #: sets ``batch_size = n_envs * n_steps / n_minibatches`` (always a divisor of the rollout);
@@ -82,15 +87,6 @@ PPO_SPACE: dict[str, Any] = {
     "net_depth": [1, 2, 3],
     "log_std_init": (-4.0, 0.5, "linear"),
 }
-
-#: Ports probed (TCP, with a timeout) before a database URL without one is handed to SQLAlchemy.
-_DEFAULT_PORTS = {"postgresql": 5432, "mysql": 3306, "mariadb": 3306, "mssql": 1433, "oracle": 1521}
-CONNECT_TIMEOUT_S = 10
-
-
-class StudyConfigError(ValueError):
-    """A study flag with a bad value; the message names the flag and the fix."""
-
 
 @dataclass
 class StudyArgs:
@@ -197,23 +193,6 @@ def run_cli(ap: argparse.ArgumentParser, ns: argparse.Namespace, args: Args) -> 
 
 # --- validation -----------------------------------------------------------------------------------------
 
-def parse_seeds(text: str) -> list[int]:
-    """``"0,1,2"`` -> ``[0, 1, 2]``.
-
-    Raises
-    ------
-    StudyConfigError
-        Empty, non-integer, negative or repeated seeds.
-    """
-    try:
-        seeds = [int(s) for s in text.split(",")]
-    except ValueError:
-        raise StudyConfigError(f"--seeds {text!r}: use comma-separated integers, e.g. --seeds 0,1,2,3,4") from None
-    if any(s < 0 for s in seeds) or len(set(seeds)) != len(seeds):
-        raise StudyConfigError(f"--seeds {text!r}: use distinct non-negative integers, e.g. --seeds 0,1,2,3,4")
-    return seeds
-
-
 def _check_study(args: Args, study: StudyArgs) -> None:
     if args.algo != "ppo":
         raise StudyConfigError(f"--algo {args.algo}: the study's search space is PPO's; use --algo ppo "
@@ -236,213 +215,6 @@ def _check_study(args: Args, study: StudyArgs) -> None:
         check_hyperparams(args.algo, _resolve_policy_kwargs(hp))
     except ValueError as e:
         raise StudyConfigError(str(e)) from None
-
-
-# --- storage, sampler, pruner ---------------------------------------------------------------------------
-
-def make_storage(url: str | None, out: str | os.PathLike) -> tuple[Any, str]:
-    """The Optuna storage of ``url`` (checked: reachable, openable), and the URL (password hidden).
-
-    Parameters
-    ----------
-    url : str or None
-        ``sqlite:///PATH``, any other SQLAlchemy URL (``postgresql://``, ``mysql+pymysql://``...),
-        ``journal:PATH``, or None for ``sqlite:///<out>/study.db``.
-    out : path-like
-        The run directory (holds the default SQLite file).
-
-    Returns
-    -------
-    storage : optuna.storages.BaseStorage
-        ``RDBStorage`` (heartbeat every 60 s: a killed worker's trial is marked failed) or
-        ``JournalStorage``.
-    shown : str
-        The URL as printed (no password).
-
-    Raises
-    ------
-    StudyConfigError
-        Unparsable URL, unknown dialect, missing driver, unreachable host (TCP probe with a
-        ``CONNECT_TIMEOUT_S`` timeout, and the same connect timeout for the driver) or a database
-        that cannot be opened.
-    """
-    import optuna
-    import sqlalchemy.exc
-    from sqlalchemy.engine import make_url
-
-    if url is None:
-        path = Path(out) / "study.db"
-        path.parent.mkdir(parents=True, exist_ok=True)
-        url = f"sqlite:///{path.resolve()}"
-    if url.startswith("journal:"):
-        path = url[len("journal:"):]
-        if not path:
-            raise StudyConfigError("--storage journal:: name the journal file, e.g. "
-                                   "--storage journal:/shared/study.log")
-        Path(path).parent.mkdir(parents=True, exist_ok=True)
-        try:
-            from optuna.storages.journal import JournalFileBackend
-
-            return optuna.storages.JournalStorage(JournalFileBackend(path)), url
-        except OSError as e:
-            raise StudyConfigError(f"--storage {url}: cannot open the journal file ({e}); "
-                                   "use a writable path") from None
-    fix = "use sqlite:///PATH, postgresql://USER:PASS@HOST/DB, mysql+pymysql://USER:PASS@HOST/DB or journal:PATH"
-    try:
-        parsed = make_url(url)
-    except sqlalchemy.exc.ArgumentError:
-        raise StudyConfigError(f"--storage {url!r}: not a storage URL; {fix}") from None
-    shown = parsed.render_as_string(hide_password=True)
-    backend = parsed.get_backend_name()
-    engine_kwargs: dict[str, Any] = {}
-    if backend == "sqlite":
-        if parsed.database and parsed.database != ":memory:":
-            Path(parsed.database).parent.mkdir(parents=True, exist_ok=True)
-        engine_kwargs["connect_args"] = {"timeout": 60}  # wait for another worker's write lock
-    else:
-        engine_kwargs["connect_args"] = {"connect_timeout": CONNECT_TIMEOUT_S}
-        if parsed.host:
-            port = parsed.port or _DEFAULT_PORTS.get(backend)
-            if port is not None:
-                _probe(parsed.host, port, shown)
-    last: Exception | None = None
-    for attempt in range(5):  # workers creating the tables of a new SQLite file at once may collide
-        try:
-            with warnings.catch_warnings():  # heartbeat_interval is flagged experimental
-                warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
-                storage = optuna.storages.RDBStorage(url, engine_kwargs=engine_kwargs, heartbeat_interval=60,
-                                                     grace_period=180)
-            return storage, shown
-        except (ModuleNotFoundError, ImportError) as e:
-            raise StudyConfigError(f"--storage {shown}: the database driver is not installed ({e}); install it "
-                                   "(psycopg2-binary for postgresql, pymysql for mysql+pymysql) or "
-                                   "use sqlite:///PATH or journal:PATH") from None
-        except sqlalchemy.exc.NoSuchModuleError:
-            raise StudyConfigError(f"--storage {shown}: unknown database dialect {parsed.drivername!r}; "
-                                   f"{fix}") from None
-        except (sqlalchemy.exc.OperationalError, sqlalchemy.exc.IntegrityError) as e:
-            last = e  # SQLite: another worker is creating the tables ("locked", "UNIQUE constraint failed")
-            if backend != "sqlite":
-                break
-            time.sleep(0.2 * (attempt + 1) + 0.1 * np.random.default_rng().random())
-        except Exception as e:  # noqa: BLE001  (any other driver error: say what it was)
-            last = e
-            break
-    reason = str(getattr(last, "orig", None) or last).splitlines()[0]
-    raise StudyConfigError(f"--storage {shown}: cannot open the database ({reason}); check the URL, credentials "
-                           "and that the server is running")
-
-
-def _probe(host: str, port: int, shown: str) -> None:
-    try:
-        socket.getaddrinfo(host, port)
-    except OSError as e:
-        raise StudyConfigError(f"--storage {shown}: cannot resolve host {host!r} ({e}); check the host name") from None
-    try:
-        with socket.create_connection((host, port), timeout=CONNECT_TIMEOUT_S):
-            pass
-    except OSError as e:
-        raise StudyConfigError(f"--storage {shown}: cannot reach {host}:{port} ({e}); check the host, port and that "
-                               "the database server is running") from None
-
-
-def trial_seed(seed: int, number: int) -> int:
-    """The sampler seed of trial ``number`` in a study seeded ``seed`` (independent streams)."""
-    return int(np.random.SeedSequence([int(seed) & 0xFFFFFFFF, int(number)]).generate_state(1)[0])
-
-
-def _sampler_base():
-    import optuna
-
-    class TrialSeededSampler(optuna.samplers.BaseSampler):
-        """Delegate to ``factory(trial_seed(seed, n))``, a fresh sampler for trial ``n``.
-
-        Optuna's samplers keep their random state in the process; seeding per trial number makes a
-        trial's random draws a function of ``(seed, n)`` whichever worker runs it. TPE and random
-        sampling read everything else from the study's storage.
-        """
-
-        def __init__(self, factory: Callable[[int], optuna.samplers.BaseSampler], seed: int):
-            self._factory = factory
-            self._seed = seed
-            self._inner = factory(trial_seed(seed, 0))
-
-        def before_trial(self, study, trial):
-            self._inner = self._factory(trial_seed(self._seed, trial.number))
-            self._inner.before_trial(study, trial)
-
-        def infer_relative_search_space(self, study, trial):
-            return self._inner.infer_relative_search_space(study, trial)
-
-        def sample_relative(self, study, trial, search_space):
-            return self._inner.sample_relative(study, trial, search_space)
-
-        def sample_independent(self, study, trial, param_name, param_distribution):
-            return self._inner.sample_independent(study, trial, param_name, param_distribution)
-
-        def after_trial(self, study, trial, state, values):
-            self._inner.after_trial(study, trial, state, values)
-
-        def reseed_rng(self) -> None:
-            self._inner.reseed_rng()
-
-    return TrialSeededSampler
-
-
-def make_sampler(name: str, seed: int, n_startup_trials: int = 5):
-    """The sampler ``tpe`` or ``random``, seeded per trial from ``seed`` (see :func:`trial_seed`).
-
-    Parameters
-    ----------
-    name : str
-        ``tpe`` or ``random``.
-    seed : int
-        The study's seed (``--seed``).
-    n_startup_trials : int
-        TPE's random start-up trials.
-
-    Returns
-    -------
-    optuna.samplers.BaseSampler
-    """
-    import optuna
-
-    if name not in SAMPLERS:
-        raise StudyConfigError(f"--sampler {name!r}: use one of {', '.join(SAMPLERS)}")
-    if name == "tpe":
-        def factory(s):
-            return optuna.samplers.TPESampler(n_startup_trials=n_startup_trials, seed=s)
-    else:
-        def factory(s):
-            return optuna.samplers.RandomSampler(seed=s)
-    return _sampler_base()(factory, seed)
-
-
-def make_pruner(name: str, n_startup_trials: int = 5, n_evaluations: int = 4):
-    """``median``: prune a trial whose evaluation ``k`` is below the median of earlier trials' at ``k``.
-
-    Parameters
-    ----------
-    name : str
-        ``median`` or ``none``.
-    n_startup_trials : int
-        Trials completed before pruning starts.
-    n_evaluations : int
-        Evaluations per trial; the first ``max(1, n_evaluations // 3)`` never prune.
-
-    Returns
-    -------
-    optuna.pruners.BasePruner
-    """
-    import optuna
-
-    if name not in PRUNERS:
-        raise StudyConfigError(f"--pruner {name!r}: use one of {', '.join(PRUNERS)}")
-    if name == "none":
-        return optuna.pruners.NopPruner()
-    # evaluations are reported at steps 1, 2, ...; steps below n_warmup_steps never prune
-    return optuna.pruners.MedianPruner(n_startup_trials=n_startup_trials,
-                                       n_warmup_steps=max(1, n_evaluations // 3) + 1)
 
 
 # --- the search space and the trial -----------------------------------------------------------------------
@@ -539,41 +311,6 @@ def _trial_callback(trial: optuna.Trial):
             return True
 
     return TrialEvalCallback()
-
-
-def evaluate_run(args: Args) -> tuple[float, float]:
-    """Mean and std of the episode rewards of the model saved in ``args.out`` on the held-out seeds.
-
-    The episodes are those of the EvalCallback's first evaluation (seeds ``EVAL_SEED_START + i``,
-    ``args.eval_episodes`` of them, ``args.eval_max_steps`` slots at most), deterministic actions, with
-    the run's VecNormalize statistics (frozen).
-
-    Parameters
-    ----------
-    args : Args
-        The arguments the run was trained with.
-
-    Returns
-    -------
-    mean, std : float
-        Over the ``args.eval_episodes`` episodes.
-    """
-    from iscc_gym.train.train import make_eval_env
-    from stable_baselines3 import PPO, SAC, TD3
-    from stable_baselines3.common.evaluation import evaluate_policy
-    from stable_baselines3.common.vec_env import VecNormalize
-
-    args, _ = resolve_args(args)
-    out = Path(args.out)
-    env = make_eval_env(args)
-    if args.normalize:
-        env = VecNormalize.load(str(out / "vecnormalize.pkl"), env)
-        env.training, env.norm_reward = False, False
-    model = {"ppo": PPO, "sac": SAC, "td3": TD3}[args.algo].load(str(out / "model.zip"), device="cpu")
-    rewards, _ = evaluate_policy(model, env, n_eval_episodes=args.eval_episodes, deterministic=True,
-                                 return_episode_rewards=True)
-    env.close()
-    return float(np.mean(rewards)), float(np.std(rewards))
 
 
 def _budget(args: Args, study: StudyArgs) -> int:
@@ -720,132 +457,3 @@ def optimize(args: Args, study: StudyArgs) -> dict:
         lines.append("no completed trial yet: nothing exported")
     result["report"] = "\n".join(lines)
     return result
-
-
-def best_trial(s: optuna.Study) -> optuna.trial.FrozenTrial | None:
-    """The completed trial of highest value that :func:`make_objective` ran (None if there is none yet)."""
-    import optuna
-
-    done = [t for t in s.get_trials(deepcopy=False, states=(optuna.trial.TrialState.COMPLETE,))
-            if "hyperparams" in t.user_attrs and t.value is not None]
-    return max(done, key=lambda t: t.value, default=None)
-
-
-def best_entry(trial: optuna.trial.FrozenTrial, env_id: str, algo: str) -> dict:
-    """The hyperparams.yml content of a completed trial, in rl-zoo3's layout.
-
-    Parameters
-    ----------
-    trial : optuna.trial.FrozenTrial
-        A trial run by :func:`make_objective` (its user attributes hold the configuration).
-    env_id, algo : str
-        The env id of the entry and the algorithm (named under ``iscc_gym.train.algo``).
-
-    Returns
-    -------
-    dict
-        ``{env_id: entry, "iscc_gym.train": {"algo": algo}}``: the entry holds ``n_timesteps``, ``n_envs``,
-        ``normalize`` (read by :func:`iscc_gym.train.train.resolve_args` and by rl-zoo3) and the
-        algorithm's keyword arguments, ``policy_kwargs`` as rl-zoo3's ``dict(...)`` string.
-    """
-    from iscc_gym.train.train import OWN_SECTION, format_policy_kwargs
-
-    attrs = trial.user_attrs
-    hp = dict(attrs["hyperparams"])
-    if hp.get("policy_kwargs"):
-        hp["policy_kwargs"] = format_policy_kwargs(hp["policy_kwargs"])
-    entry = {"n_timesteps": int(attrs["n_timesteps"]), "n_envs": int(attrs["n_envs"]),
-             "normalize": bool(attrs["normalize"]), **hp}
-    return {env_id: entry, OWN_SECTION: {"algo": algo}}
-
-
-def export_best(s: optuna.Study, env_id: str, algo: str, path: str | os.PathLike) -> str:
-    """Write the best trial as a hyperparams.yml entry to ``path`` (temporary name, then rename).
-
-    Parameters
-    ----------
-    s : optuna.Study
-        A study with at least one completed trial run by :func:`make_objective` (:func:`best_trial`).
-    env_id, algo : str
-        The keys of the entry.
-    path : path-like
-        Destination, e.g. ``OUT/best_hyperparams.yml``.
-
-    Returns
-    -------
-    str
-        The YAML text written.
-    """
-    best = best_trial(s)
-    if best is None:
-        raise ValueError(f"study {s.study_name!r} has no completed trial to export yet")
-    header = (f"# Best trial #{best.number} of Optuna study {s.study_name!r}: final held-out mean episode reward "
-              f"{best.value:.4f}\n# ({len(s.trials)} trials in the study when exported). Train it with:\n"
-              f"#   python -m train --hyperparams {path}\n"
-              f"# or rl-zoo3 (its layout): python -m rl_zoo3.train --algo {algo} --env {env_id} "
-              f"--gym-packages iscc_gym -conf {path}\n")
-    text = header + yaml.safe_dump(best_entry(best, env_id, algo), sort_keys=False)
-    write_atomic(path, text)
-    return text
-
-
-# --- several seeds of one configuration -------------------------------------------------------------------
-
-def run_seeds(args: Args, seeds: list[int]) -> dict:
-    """Train the configuration of ``args`` once per seed into ``OUT/seed_<s>`` and summarise.
-
-    Parameters
-    ----------
-    args : Args
-        The configuration (YAML entry, ``--set`` overrides, run settings); ``seed`` and ``out`` are
-        replaced per seed.
-    seeds : list of int
-        Training seeds.
-
-    Returns
-    -------
-    dict
-        ``runs`` (per seed: ``seed``, ``out``, ``final_reward_mean``, ``final_reward_std``, ``timesteps``,
-        ``train_time_s`` of ``model.learn``, ``wall_time_s`` of the run and its final evaluation), the
-        mean and std over seeds of the final held-out reward, ``hyperparams`` (the resolved
-        configuration) and ``path`` of ``OUT/seeds.yml`` (written atomically).
-    """
-    if not seeds:
-        raise StudyConfigError("--seeds: name at least one seed, e.g. --seeds 0,1,2")
-    try:
-        _check(args)
-        resolved, hp = resolve_args(args)
-        check_hyperparams(args.algo, _resolve_policy_kwargs(hp))
-    except ValueError as e:
-        raise StudyConfigError(str(e)) from None
-    rows = []
-    for seed in seeds:
-        run = dataclasses.replace(args, seed=seed, out=str(Path(args.out) / f"seed_{seed}"))
-        t0 = time.perf_counter()
-        summary = main(run)
-        mean, std = evaluate_run(run)
-        rows.append({"seed": seed, "out": run.out, "final_reward_mean": mean, "final_reward_std": std,
-                     "timesteps": summary["timesteps"], "train_time_s": round(summary["wall_time_s"], 3),
-                     "wall_time_s": round(time.perf_counter() - t0, 3)})
-    finals = [r["final_reward_mean"] for r in rows]
-    result = {"env_id": args.env_id, "algo": args.algo, "n_timesteps": resolved.total_timesteps,
-              "n_envs": resolved.n_envs, "eval_episodes": args.eval_episodes, "eval_seed_start": EVAL_SEED_START,
-              "final_reward_mean": float(np.mean(finals)),
-              "final_reward_std": float(np.std(finals, ddof=1)) if len(finals) > 1 else 0.0,
-              "runs": rows, "hyperparams": hp}
-    path = Path(args.out) / "seeds.yml"
-    write_atomic(path, yaml.safe_dump(result, sort_keys=False))
-    result["path"] = str(path)
-    print(format_seed_table(result))
-    return result
-
-
-def format_seed_table(result: dict) -> str:
-    """The per-seed table of :func:`run_seeds` as printed."""
-    lines = [f"{'seed':>6}  {'final held-out reward':>24}  {'wall s':>8}  out"]
-    for r in result["runs"]:
-        lines.append(f"{r['seed']:>6}  {r['final_reward_mean']:>12.2f} +- {r['final_reward_std']:<9.2f}  "
-                     f"{r['wall_time_s']:>8.1f}  {r['out']}")
-    lines.append(f"{'mean':>6}  {result['final_reward_mean']:>12.2f} +- {result['final_reward_std']:<9.2f}  "
-                 f"{'':>8}  (std over seeds; {result['eval_episodes']} held-out episodes per seed)")
-    return "\n".join(lines)

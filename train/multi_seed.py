@@ -1,0 +1,141 @@
+"""Several seeds of one training configuration (``python -m train --seeds 0,1,2``): one run per seed,
+each scored on the held-out missions (:func:`evaluate_run`), and the table of their rewards."""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+import yaml
+from iscc_gym.train.train import (
+    EVAL_SEED_START,
+    Args,
+    _check,
+    _resolve_policy_kwargs,
+    check_hyperparams,
+    main,
+    resolve_args,
+)
+
+from iscc_gym.files import write_atomic
+
+if TYPE_CHECKING:  # pragma: no cover
+    pass
+from .study_io import StudyConfigError
+
+
+def parse_seeds(text: str) -> list[int]:
+    """``"0,1,2"`` -> ``[0, 1, 2]``.
+
+    Raises
+    ------
+    StudyConfigError
+        Empty, non-integer, negative or repeated seeds.
+    """
+    try:
+        seeds = [int(s) for s in text.split(",")]
+    except ValueError:
+        raise StudyConfigError(f"--seeds {text!r}: use comma-separated integers, e.g. --seeds 0,1,2,3,4") from None
+    if any(s < 0 for s in seeds) or len(set(seeds)) != len(seeds):
+        raise StudyConfigError(f"--seeds {text!r}: use distinct non-negative integers, e.g. --seeds 0,1,2,3,4")
+    return seeds
+
+
+def evaluate_run(args: Args) -> tuple[float, float]:
+    """Mean and std of the episode rewards of the model saved in ``args.out`` on the held-out seeds.
+
+    The episodes are those of the EvalCallback's first evaluation (seeds ``EVAL_SEED_START + i``,
+    ``args.eval_episodes`` of them, ``args.eval_max_steps`` slots at most), deterministic actions, with
+    the run's VecNormalize statistics (frozen).
+
+    Parameters
+    ----------
+    args : Args
+        The arguments the run was trained with.
+
+    Returns
+    -------
+    mean, std : float
+        Over the ``args.eval_episodes`` episodes.
+    """
+    from iscc_gym.train.train import make_eval_env
+    from stable_baselines3 import PPO, SAC, TD3
+    from stable_baselines3.common.evaluation import evaluate_policy
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    args, _ = resolve_args(args)
+    out = Path(args.out)
+    env = make_eval_env(args)
+    if args.normalize:
+        env = VecNormalize.load(str(out / "vecnormalize.pkl"), env)
+        env.training, env.norm_reward = False, False
+    model = {"ppo": PPO, "sac": SAC, "td3": TD3}[args.algo].load(str(out / "model.zip"), device="cpu")
+    rewards, _ = evaluate_policy(model, env, n_eval_episodes=args.eval_episodes, deterministic=True,
+                                 return_episode_rewards=True)
+    env.close()
+    return float(np.mean(rewards)), float(np.std(rewards))
+
+
+# --- several seeds of one configuration -------------------------------------------------------------------
+
+def run_seeds(args: Args, seeds: list[int]) -> dict:
+    """Train the configuration of ``args`` once per seed into ``OUT/seed_<s>`` and summarise.
+
+    Parameters
+    ----------
+    args : Args
+        The configuration (YAML entry, ``--set`` overrides, run settings); ``seed`` and ``out`` are
+        replaced per seed.
+    seeds : list of int
+        Training seeds.
+
+    Returns
+    -------
+    dict
+        ``runs`` (per seed: ``seed``, ``out``, ``final_reward_mean``, ``final_reward_std``, ``timesteps``,
+        ``train_time_s`` of ``model.learn``, ``wall_time_s`` of the run and its final evaluation), the
+        mean and std over seeds of the final held-out reward, ``hyperparams`` (the resolved
+        configuration) and ``path`` of ``OUT/seeds.yml`` (written atomically).
+    """
+    if not seeds:
+        raise StudyConfigError("--seeds: name at least one seed, e.g. --seeds 0,1,2")
+    try:
+        _check(args)
+        resolved, hp = resolve_args(args)
+        check_hyperparams(args.algo, _resolve_policy_kwargs(hp))
+    except ValueError as e:
+        raise StudyConfigError(str(e)) from None
+    rows = []
+    for seed in seeds:
+        run = dataclasses.replace(args, seed=seed, out=str(Path(args.out) / f"seed_{seed}"))
+        t0 = time.perf_counter()
+        summary = main(run)
+        mean, std = evaluate_run(run)
+        rows.append({"seed": seed, "out": run.out, "final_reward_mean": mean, "final_reward_std": std,
+                     "timesteps": summary["timesteps"], "train_time_s": round(summary["wall_time_s"], 3),
+                     "wall_time_s": round(time.perf_counter() - t0, 3)})
+    finals = [r["final_reward_mean"] for r in rows]
+    result = {"env_id": args.env_id, "algo": args.algo, "n_timesteps": resolved.total_timesteps,
+              "n_envs": resolved.n_envs, "eval_episodes": args.eval_episodes, "eval_seed_start": EVAL_SEED_START,
+              "final_reward_mean": float(np.mean(finals)),
+              "final_reward_std": float(np.std(finals, ddof=1)) if len(finals) > 1 else 0.0,
+              "runs": rows, "hyperparams": hp}
+    path = Path(args.out) / "seeds.yml"
+    write_atomic(path, yaml.safe_dump(result, sort_keys=False))
+    result["path"] = str(path)
+    print(format_seed_table(result))
+    return result
+
+
+def format_seed_table(result: dict) -> str:
+    """The per-seed table of :func:`run_seeds` as printed."""
+    lines = [f"{'seed':>6}  {'final held-out reward':>24}  {'wall s':>8}  out"]
+    for r in result["runs"]:
+        lines.append(f"{r['seed']:>6}  {r['final_reward_mean']:>12.2f} +- {r['final_reward_std']:<9.2f}  "
+                     f"{r['wall_time_s']:>8.1f}  {r['out']}")
+    lines.append(f"{'mean':>6}  {result['final_reward_mean']:>12.2f} +- {result['final_reward_std']:<9.2f}  "
+                 f"{'':>8}  (std over seeds; {result['eval_episodes']} held-out episodes per seed)")
+    return "\n".join(lines)

@@ -33,6 +33,7 @@ __all__ = ["Entry", "evaluate", "summarize", "run_episodes", "mean_ci", "format_
 EPISODE_METRICS = {
     "reward": "episode reward (sum)",
     "tracking_error_m": "mean tracking error (m)",
+    "mse_m2": "mean squared tracking error (m^2; the RMS error is its square root)",
     "rate_violation": "fraction of slots with data rate below R_min",
     "stability_violation": "fraction of slots with eps_ctrl above eps*",
     "violation": "fraction of slots with either violation",
@@ -53,7 +54,7 @@ _NONNEG = (0.0, math.inf)
 #: The range of every per-episode metric: a confidence interval is clamped to it (a fraction's CI stays
 #: inside [0, 1], an error's or a count's above 0). Metrics not listed (the reward) are unbounded.
 METRIC_RANGES = {
-    "tracking_error_m": _NONNEG, "rate_violation": _FRACTION, "stability_violation": _FRACTION,
+    "tracking_error_m": _NONNEG, "mse_m2": _NONNEG, "rate_violation": _FRACTION, "stability_violation": _FRACTION,
     "violation": _FRACTION, "cost": _NONNEG, "peb_m": _NONNEG, "rate_comm_mbps": _NONNEG, "eps_ctrl": _FRACTION,
     "packet_loss": _FRACTION, "terminated": _FRACTION, "length": _NONNEG, "alpha_sen": _FRACTION,
     "alpha_ctrl": _FRACTION, "alpha_comm": _FRACTION,
@@ -99,9 +100,9 @@ def run_episodes(policy, seeds: Sequence[int], scenario: str | Scenario = "paper
     t0 = time.perf_counter()
     obs, _ = venv.reset(seed=seeds)
     alive = np.ones(k, dtype=bool)
-    sums = {key: np.zeros(k) for key in ("reward", "tracking_error_m", "rate_violation", "stability_violation",
-                                         "violation", "cost", "peb_m", "rate_comm_mbps", "eps_ctrl",
-                                         "packet_loss", "alpha_sen", "alpha_ctrl", "alpha_comm")}
+    sums = {key: np.zeros(k) for key in ("reward", "tracking_error_m", "mse_m2", "rate_violation",
+                                         "stability_violation", "violation", "cost", "peb_m", "rate_comm_mbps",
+                                         "eps_ctrl", "packet_loss", "alpha_sen", "alpha_ctrl", "alpha_comm")}
     length = np.zeros(k)
     terminated_any = np.zeros(k, dtype=bool)
     traces: dict[str, list] = {"alpha": [], "tracking_error_m": [], "pos": [], "ref_pos": []}
@@ -118,6 +119,7 @@ def run_episodes(policy, seeds: Sequence[int], scenario: str | Scenario = "paper
         cr, cs = info["cost_rate"], info["cost_stability"]
         sums["reward"] += a * reward
         sums["tracking_error_m"] += a * info["tracking_error_m"]
+        sums["mse_m2"] += a * info["tracking_error_m"] * info["tracking_error_m"]
         sums["rate_violation"] += a * (cr > 0)
         sums["stability_violation"] += a * (cs > 0)
         sums["violation"] += a * ((cr > 0) | (cs > 0))

@@ -93,59 +93,29 @@ class _Rows(SplitPolicy):
 
 
 def rollout(splits, seeds, scenario: str | Scenario = "paper", max_steps: int | None = None) -> dict:
-    """Fly every split on every seed (common random numbers), in batches of at most
-    :data:`MAX_BATCH` loops. Returns arrays of shape (n_splits, n_seeds): ``mean_error_m`` and
-    ``mse_m2`` (over the slots played), ``terminated`` (loss of track), ``eps_ctrl`` (mean
-    per-slot loss probability), ``packet_loss``, ``stability_violation``, ``rate_violation``,
-    ``violation`` (either), ``peb_m``, ``rate_comm_mbps``, ``length``."""
-    from iscc_gym.vector import ISCCVectorEnv
+    """Fly every split on every seed (common random numbers) through :func:`iscc_gym.eval.evaluate.run_episodes`,
+    in batches of at most :data:`MAX_BATCH` loops. Returns arrays of shape (n_splits, n_seeds):
+    ``mean_error_m`` and ``mse_m2`` (over the slots played), ``terminated`` (loss of track),
+    ``eps_ctrl`` (mean per-slot loss probability), ``packet_loss``, ``stability_violation``,
+    ``rate_violation``, ``violation`` (either), ``peb_m``, ``rate_comm_mbps``, ``length``."""
+    from iscc_gym.eval.evaluate import run_episodes
 
     s = make_scenario(scenario)
     splits = np.asarray(splits, dtype=float).reshape(-1, 3)
     seeds = [int(x) for x in seeds]
     rows = np.repeat(splits, len(seeds), axis=0)
     all_seeds = seeds * len(splits)
-    keys = ("mean_error_m", "mse_m2", "eps_ctrl", "packet_loss", "stability_violation", "rate_violation",
-            "violation", "peb_m", "rate_comm_mbps")
-    out = {k: np.zeros(len(rows)) for k in keys}
-    out["terminated"] = np.zeros(len(rows), dtype=bool)
-    out["length"] = np.zeros(len(rows))
-    horizon = s.n_slots if max_steps is None else min(int(max_steps), s.n_slots)
+    names = {"mean_error_m": "tracking_error_m", "mse_m2": "mse_m2", "eps_ctrl": "eps_ctrl",
+             "packet_loss": "packet_loss", "stability_violation": "stability_violation",
+             "rate_violation": "rate_violation", "violation": "violation", "peb_m": "peb_m",
+             "rate_comm_mbps": "rate_comm_mbps", "terminated": "terminated", "length": "length"}
+    out = {k: np.zeros(len(rows)) for k in names}
     for lo in range(0, len(rows), MAX_BATCH):
         sl = slice(lo, min(lo + MAX_BATCH, len(rows)))
-        k = sl.stop - sl.start
-        venv = ISCCVectorEnv(num_envs=k, scenario=s)
-        pol = _Rows(rows[sl])
-        obs, _ = venv.reset(seed=all_seeds[sl])
-        alive = np.ones(k, dtype=bool)
-        acc = {key: np.zeros(k) for key in keys}
-        length = np.zeros(k)
-        term_any = np.zeros(k, dtype=bool)
-        for _ in range(horizon):
-            action, _ = pol.predict(obs)
-            obs, _, term, trunc, info = venv.step(np.asarray(action, dtype=np.float32))
-            w = alive.astype(float)
-            e = info["tracking_error_m"]
-            cr, cs = info["cost_rate"] > 0, info["cost_stability"] > 0
-            acc["mean_error_m"] += w * e
-            acc["mse_m2"] += w * e * e
-            acc["eps_ctrl"] += w * info["eps_ctrl"]
-            acc["packet_loss"] += w * ~info["packet_received"]
-            acc["stability_violation"] += w * cs
-            acc["rate_violation"] += w * cr
-            acc["violation"] += w * (cr | cs)
-            acc["peb_m"] += w * info["peb_m"]
-            acc["rate_comm_mbps"] += w * info["rate_comm_bps"] * 1e-6
-            length += w
-            term_any |= term & alive
-            alive &= ~(term | trunc)
-            if not alive.any():
-                break
-        for key in keys:
-            out[key][sl] = acc[key] / np.maximum(length, 1.0)
-        out["terminated"][sl] = term_any
-        out["length"][sl] = length
-        venv.close()
+        ep = run_episodes(_Rows(rows[sl]), all_seeds[sl], s, max_steps=max_steps)["episodes"]
+        for key, name in names.items():
+            out[key][sl] = ep[name]
+    out["terminated"] = out["terminated"].astype(bool)
     return {k: v.reshape(len(splits), len(seeds)) for k, v in out.items()}
 
 

@@ -108,16 +108,15 @@ def test_write_docs_regenerates_only_its_sections(tmp_path, quick_paper, quick_l
     readme.write_text("head\n<!-- reproduce:start -->\nSTALE\n<!-- reproduce:end -->\n"
                       "<!-- bench:start -->\nbench table\n<!-- bench:end -->\ntail\n")
     results = tmp_path / "results.md"
-    # a results file as the previous version of the command wrote it (no markers), plus a marked
-    # section of another command that must survive
-    results.write_text("# Results\n\n" + reproduce.LEGACY_LINE + "\n\n## Model-level reproduction\n\nold table\n\n"
+    # a stale section of this command, plus a marked section of another command that must survive
+    results.write_text("# Results\n\n<!-- reproduce:start -->\nold table\n<!-- reproduce:end -->\n\n"
                        "<!-- bench:start -->\n## Speed\n\nbench table\n<!-- bench:end -->\n")
     reproduce.write_docs(quick_paper, quick_literal, str(results), str(readme))
     text = readme.read_text()
     assert "STALE" not in text and text.startswith("head\n") and text.endswith("tail\n")
     assert "| eps_ctrl* |" in text and "Scheme level" in text and "bench table" in text
     doc = results.read_text()
-    assert "old table" not in doc and reproduce.LEGACY_LINE not in doc
+    assert "old table" not in doc
     for name in ("reproduce", "reproduce-schemes", "bench"):
         assert doc.count(f"<!-- {name}:start -->") == 1 and doc.count(f"<!-- {name}:end -->") == 1
     assert "| eps_ctrl* |" in doc and "Table II analog" in doc and "Fig. 9 analog" in doc and "## Speed" in doc

@@ -3,7 +3,7 @@
 Table I of the paper gives most values; the rest are quantities the paper leaves open. Each field
 states its unit in its name and its meaning in the docstring below. Variants are made with
 :func:`dataclasses.replace`, which re-runs the validation: every numeric field must lie in its
-physical range (``_RANGES``; e.g. dB values within +-100 or +-300 dB, at most 1,000,000 slots per
+physical range (``scenario_checks._RANGES``; e.g. dB values within +-100 or +-300 dB, at most 1,000,000 slots per
 mission), and the cross-field conditions below must hold (including what a reset can achieve: at
 most 1,000 expected waypoints, a coverage region filling at least 1e-3 of its bounding box). A
 violation raises ``ValueError`` naming the field and its allowed range.
@@ -21,26 +21,14 @@ Two presets live in :data:`SCENARIOS`:
 from __future__ import annotations
 
 import dataclasses
-import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
-import numpy as np
+from .scenario_checks import validate
 
 __all__ = ["Scenario", "SCENARIOS", "make_scenario", "per_scenario"]
 
-_CHOICES: dict[str, tuple[str, ...]] = {
-    "process_noise_reading": ("variance", "std"),
-    "snr_convention": ("total_power", "per_subcarrier_power"),
-    "sensing_noise_convention": ("full_band", "per_subcarrier"),
-    "array_orientation": ("printed", "vertical", "horizontal"),
-    "beamforming": ("matched", "broadside"),
-    "fim_angle_convention": ("definition", "printed"),
-    "observation_source": ("isac", "gnss"),
-    "control_mode": ("lqg", "open_loop"),
-    "rate_cost_determinant": ("pseudo", "printed"),
-}
 
 
 @dataclass(frozen=True)
@@ -268,7 +256,7 @@ class Scenario:
     reference_feedforward: bool = False
 
     def __post_init__(self) -> None:
-        _validate(self)
+        validate(self)
 
     # --- derived quantities (pure functions of the fields) ------------------------------------------
     @property
@@ -315,148 +303,6 @@ class Scenario:
 
 
 SPEED_OF_LIGHT_MPS = 299_792_458.0
-
-
-def _fail(name: str, value: Any, allowed: str) -> None:
-    raise ValueError(f"Scenario.{name} = {value!r} is invalid: must be {allowed}")
-
-
-#: Allowed range of every numeric field: (low, high, low_open), i.e. (low, high] or [low, high]. The
-#: upper bounds are generous physical limits that keep every quantity of a slot finite and every
-#: array small; the lower bounds are what the model needs (a positive frequency, a non-negative std).
-_RANGES: dict[str, tuple[float, float, bool]] = {
-    "carrier_freq_ghz": (0.0, 1e3, True),
-    "bandwidth_hz": (0.0, 1e11, True),
-    "tx_power_dbm": (-100.0, 100.0, False),
-    "gbs_height_m": (0.0, 1e5, False),
-    "n_x": (1, 1024, False),
-    "n_y": (1, 1024, False),
-    "antenna_spacing_wavelengths": (0.0, 100.0, True),
-    "coverage_radius_m": (0.0, 1e5, True),
-    "altitude_min_m": (0.0, 1e5, False),
-    "shadowing_a_db": (0.0, 100.0, False),
-    "shadowing_b_per_m": (0.0, 10.0, False),
-    "shadowing_decorrelation_m": (0.0, 1e6, True),
-    "rician_k_db": (-100.0, 100.0, False),
-    "rcs_m2": (0.0, 1e6, True),
-    "noise_psd_dbm_hz": (-300.0, 100.0, False),
-    "comm_snr_offset_db": (-300.0, 300.0, False),
-    "sensing_snr_offset_db": (-300.0, 300.0, False),
-    "sensing_prior_var_m2": (0.0, 1e20, True),
-    "n_symbols": (1, 10**6, False),
-    "n_subcarriers": (1, 10**6, False),
-    "subcarrier_spacing_hz": (0.0, 1e9, True),
-    "symbol_duration_s": (0.0, 1.0, True),
-    "mission_duration_s": (0.0, 1e6, True),
-    "dt_s": (0.0, 1e4, True),
-    "lqg_q_pos": (0.0, 1e12, False),
-    "lqg_q_vel": (0.0, 1e12, False),
-    "lqg_r": (0.0, 1e12, True),
-    "process_noise_pos": (0.0, 1e6, False),
-    "process_noise_vel": (0.0, 1e6, False),
-    "ctrl_packet_bits": (1, 10**9, False),
-    "ctrl_blocklength": (1, 10**9, False),
-    "comm_blocklength": (1, 10**9, False),
-    "ctrl_deadline_s": (0.0, 1e4, True),
-    "rate_min_bps": (0.0, 1e12, False),
-    "lqg_cost_target": (0.0, 1e15, True),
-    "w_rate": (0.0, 1e6, False),
-    "w_stab": (0.0, 1e6, False),
-    "max_tracking_error_m": (0.0, 1e15, True),
-    "waypoint_intensity_per_km3": (0.0, 1e6, True),
-    "min_waypoints": (2, 50, False),
-    "initial_pos_std_m": (0.0, 1e4, False),
-    "initial_vel_std_mps": (0.0, 1e3, False),
-    "gnss_pos_std_m": (0.0, 1e6, True),
-    "gnss_vel_std_mps": (0.0, 1e4, True),
-    "gnss_update_period_s": (0.0, 1e6, True),
-}
-#: At most this many slots per mission (the reference alone takes 72 bytes a slot per loop).
-MAX_SLOTS = 1_000_000
-#: At most this many waypoints expected per mission (intensity x coverage volume).
-MAX_MEAN_WAYPOINTS = 1000.0
-#: The coverage region must fill at least this share of its bounding box (waypoints are drawn by
-#: rejection from the box).
-MIN_BOX_FRACTION = 1e-3
-
-
-def _range_text(lo: float, hi: float, lo_open: bool) -> str:
-    return f"in {'(' if lo_open else '['}{lo:g}, {hi:g}]"
-
-
-def _validate(s: Scenario) -> None:
-    integer = ["n_x", "n_y", "n_symbols", "n_subcarriers", "ctrl_packet_bits", "ctrl_blocklength",
-               "comm_blocklength", "min_waypoints"]
-    for f in dataclasses.fields(s):
-        v = getattr(s, f.name)
-        if f.name in _CHOICES or f.name == "reference_feedforward":
-            continue
-        if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, float, np.integer, np.floating)):
-            _fail(f.name, v, "a real number (not a bool or a string)")
-        if not math.isfinite(float(v)):
-            _fail(f.name, v, "a finite number")
-    for name in integer:
-        v = getattr(s, name)
-        if not isinstance(v, (int, np.integer)):
-            lo, hi, _ = _RANGES[name]
-            _fail(name, v, f"an integer in [{lo}, {hi}]")
-    for name, (lo, hi, lo_open) in _RANGES.items():
-        v = float(getattr(s, name))
-        if not ((v > lo if lo_open else v >= lo) and v <= hi):
-            what = "an integer " if name in integer else ""
-            _fail(name, getattr(s, name), what + _range_text(lo, hi, lo_open))
-    for name, choices in _CHOICES.items():
-        if getattr(s, name) not in choices:
-            _fail(name, getattr(s, name), f"one of {list(choices)}")
-    if not isinstance(s.reference_feedforward, (bool, np.bool_)):
-        _fail("reference_feedforward", s.reference_feedforward, "True or False")
-    for name in ("ctrl_target_bler", "comm_target_bler"):
-        v = getattr(s, name)
-        if not 0.0 < v < 0.5:
-            _fail(name, v, "in (0, 0.5)")
-    if not 0.0 <= s.altitude_min_m < s.altitude_max_m:
-        _fail("altitude_min_m", s.altitude_min_m, f"in [0, altitude_max_m = {s.altitude_max_m})")
-    if s.altitude_max_m >= s.coverage_radius_m:
-        _fail("altitude_max_m", s.altitude_max_m, f"< coverage_radius_m = {s.coverage_radius_m}")
-    if s.gbs_height_m >= s.altitude_min_m:
-        _fail("gbs_height_m", s.gbs_height_m, f"< altitude_min_m = {s.altitude_min_m}")
-    if s.subcarrier_spacing_hz * s.n_subcarriers > s.bandwidth_hz * (1 + 1e-9):
-        _fail(
-            "n_subcarriers", s.n_subcarriers,
-            f"<= bandwidth_hz / subcarrier_spacing_hz = {s.bandwidth_hz / s.subcarrier_spacing_hz:g}",
-        )
-    if s.symbol_duration_s * (1 + 1e-9) < 1.0 / s.subcarrier_spacing_hz:
-        _fail(
-            "symbol_duration_s", s.symbol_duration_s,
-            f">= 1 / subcarrier_spacing_hz = {1.0 / s.subcarrier_spacing_hz:g} s (T_S = T + T_CP)",
-        )
-    if s.ctrl_deadline_s > s.dt_s * (1 + 1e-12):
-        _fail("ctrl_deadline_s", s.ctrl_deadline_s, f"<= dt_s = {s.dt_s} (one slot)")
-    n = s.mission_duration_s / s.dt_s
-    if abs(n - round(n)) > 1e-6 or round(n) < 2:
-        _fail("dt_s", s.dt_s, "a divisor of mission_duration_s giving at least 2 slots")
-    if round(n) > MAX_SLOTS:
-        _fail("mission_duration_s", s.mission_duration_s,
-              f"at most {MAX_SLOTS:,} slots of dt_s = {s.dt_s} s (it gives {round(n):,}); shorten the mission or "
-              f"lengthen dt_s")
-    # what a reset can achieve: a bounded number of waypoints, drawn by rejection from the bounding box
-    from .trajectory import coverage_box_fraction, coverage_volume_km3
-
-    mean = s.waypoint_intensity_per_km3 * coverage_volume_km3(s)
-    if mean > MAX_MEAN_WAYPOINTS:
-        _fail("waypoint_intensity_per_km3", s.waypoint_intensity_per_km3,
-              f"at most {MAX_MEAN_WAYPOINTS:g} expected waypoints per mission (this coverage region of "
-              f"{coverage_volume_km3(s):.4g} km^3 expects {mean:.4g}); lower it or coverage_radius_m")
-    frac = coverage_box_fraction(s)
-    if frac < MIN_BOX_FRACTION:
-        _fail("altitude_min_m", s.altitude_min_m,
-              f"low enough below coverage_radius_m = {s.coverage_radius_m} for the coverage region to fill at "
-              f"least {MIN_BOX_FRACTION:g} of its bounding box (it fills {frac:.3g}): lower altitude_min_m or "
-              f"altitude_max_m, or enlarge coverage_radius_m")
-    if s.lqg_q_pos == 0.0:
-        # (A, Q^{1/2}) must be detectable for the LQG gain to stabilise: position weight > 0.
-        _fail("lqg_q_pos", s.lqg_q_pos, "> 0 (with zero position weight the LQR leaves the "
-              "position undetectable and the DARE has no stabilising solution)")
 
 
 #: Overrides turning the calibrated ``paper`` preset into Table I / the equations as printed.

@@ -370,7 +370,7 @@ def test_coverage_region_must_fill_part_of_its_box():
 
 @pytest.mark.parametrize("name", [n for n in NUMERIC if n not in ("altitude_max_m",)])
 def test_presets_inside_every_range(name):
-    from iscc_gym.scenario import _RANGES
+    from iscc_gym.scenario_checks import _RANGES
 
     for preset in SCENARIOS.values():
         v = getattr(preset, name)

@@ -22,7 +22,8 @@ N_OBS = len(OBS_NAMES)
 @runtime_checkable
 class Policy(Protocol):
     """SB3-style policy: ``predict`` maps an observation (23,) or a batch (n, 23) to an action (3,)
-    or (n, 3) in [-1, 1] and a recurrent state (``None`` for stateless policies)."""
+    or (n, 3) in [-1, 1] and a recurrent state (``None`` for stateless policies).
+    """
 
     def predict(self, obs, state=None, episode_start=None, deterministic: bool = True) -> tuple[np.ndarray, Any]:
         ...
@@ -64,7 +65,8 @@ def as_obs_batch(obs) -> tuple[np.ndarray, bool]:
 
 class SplitPolicy:
     """Base of the scripted policies: subclasses implement :meth:`split_batch` (the split per
-    observation); :meth:`predict` turns splits into env actions."""
+    observation); :meth:`predict` turns splits into env actions.
+    """
 
     def split_batch(self, obs: np.ndarray, state=None, episode_start=None) -> tuple[np.ndarray, Any]:
         """Splits (n, 3) for observations (n, 23), and the new state."""

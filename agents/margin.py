@@ -34,19 +34,20 @@ TUNED_DIR = Path(__file__).resolve().parent / "tuned"
 
 def predicted_needs(obs) -> tuple[np.ndarray, np.ndarray]:
     """The control and data shares the GBS predicts the slot needs, read from observations (n, 23):
-    ``alpha_ctrl_min`` and ``alpha_comm_min`` (both scaled linearly, :data:`iscc_gym.schema.OBS_SCALING`)."""
+    ``alpha_ctrl_min`` and ``alpha_comm_min`` (both scaled linearly, :data:`iscc_gym.schema.OBS_SCALING`).
+    """
     o = np.asarray(obs, dtype=float)
     return tuple(o[:, OBS[name]] / OBS_SCALING[name][1] for name in ("alpha_ctrl_min", "alpha_comm_min"))
 
 
 def margin_split(ctrl_need, comm_need, m_ctrl: float, m_comm: float, sensing_floor: float):
-    """The rule's split for predicted needs ``ctrl_need``, ``comm_need`` (arrays (n,)), shape (n, 3).
+    r"""The rule's split for predicted needs ``ctrl_need``, ``comm_need`` (arrays (n,)), shape (n, 3).
 
     .. math::
-        \\alpha_\\mathrm{ctrl} = \\min(m_\\mathrm{ctrl}\\,\\alpha_\\mathrm{ctrl}^\\star, 1 - f),\\quad
-        \\alpha_\\mathrm{comm} = \\min(m_\\mathrm{comm}\\,\\alpha_\\mathrm{comm}^{\\min},
-        1 - f - \\alpha_\\mathrm{ctrl}),\\quad
-        \\alpha_\\mathrm{sen} = 1 - \\alpha_\\mathrm{ctrl} - \\alpha_\\mathrm{comm}
+        \alpha_\mathrm{ctrl} = \min(m_\mathrm{ctrl}\,\alpha_\mathrm{ctrl}^\star, 1 - f),\quad
+        \alpha_\mathrm{comm} = \min(m_\mathrm{comm}\,\alpha_\mathrm{comm}^{\min},
+        1 - f - \alpha_\mathrm{ctrl}),\quad
+        \alpha_\mathrm{sen} = 1 - \alpha_\mathrm{ctrl} - \alpha_\mathrm{comm}
 
     with the sensing floor :math:`f`.
     """

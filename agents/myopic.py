@@ -1,8 +1,8 @@
-"""Model-based per-slot optimiser: each slot, the split that maximises the expected one-slot reward.
+r"""Model-based per-slot optimiser: each slot, the split that maximises the expected one-slot reward.
 
 :class:`MyopicPolicy` reads what the GBS knows before the slot (the observation: predicted
 large-scale SNR, geometry) and picks, for every env of a batch at once, the split
-:math:`(\\alpha_\\mathrm{sen}, \\alpha_\\mathrm{ctrl}, \\alpha_\\mathrm{comm})` that maximises the env's
+:math:`(\alpha_\mathrm{sen}, \alpha_\mathrm{ctrl}, \alpha_\mathrm{comm})` that maximises the env's
 reward in expectation over the slot's Rician fading. Every equation comes from :mod:`iscc_gym`:
 the FBL link (:func:`iscc_gym.fbl.slot_link`, :func:`iscc_gym.fbl.min_shares`), the fading
 quadrature (:func:`iscc_gym.quadrature.rician_power_nodes`), the CRLB
@@ -40,10 +40,10 @@ __all__ = ["MyopicPolicy", "LocalTrackingModel", "rician_power_cdf"]
 
 
 def rician_power_cdf(s: Scenario, x):
-    """CDF :math:`P(|g|^2 \\le x)` of the unit-mean Rician power gain of
+    r"""CDF :math:`P(|g|^2 \le x)` of the unit-mean Rician power gain of
     :func:`iscc_gym.channel.rician_power_gain`.
 
-    :math:`|g|^2 = \\sigma^2\\chi'^2_2(2K)` with :math:`\\sigma^2 = 1/(2(K+1))` and K = ``rician_k_db``
+    :math:`|g|^2 = \sigma^2\chi'^2_2(2K)` with :math:`\sigma^2 = 1/(2(K+1))` and K = ``rician_k_db``
     (linear), the distribution whose quantiles :func:`iscc_gym.quadrature.rician_power_nodes` takes.
 
     Parameters
@@ -62,26 +62,26 @@ def rician_power_cdf(s: Scenario, x):
 
 
 class LocalTrackingModel:
-    """Steady-state mean tracking error at one geometry for a sensing share and a loss rate.
+    r"""Steady-state mean tracking error at one geometry for a sensing share and a loss rate.
 
     The model of :mod:`iscc_gym.analysis` (frozen geometry, exact closed-loop recursion) at a
     single position: the local CRLB (:func:`iscc_gym.sensing_share.local_crlb`) splits the filter into
     three 2-state axes (range: position and radial velocity measured; the two principal cross-range
-    axes: position only). On each axis, with the Kalman steady state :math:`\\mathbf P_{n|n-1}`,
-    :math:`\\Sigma_\\mathrm{est}` (:func:`iscc_gym.kalman_steady.axis_kalman_steady_state`) and the loss rate
-    :math:`\\varepsilon`,
+    axes: position only). On each axis, with the Kalman steady state :math:`\mathbf P_{n|n-1}`,
+    :math:`\Sigma_\mathrm{est}` (:func:`iscc_gym.kalman_steady.axis_kalman_steady_state`) and the loss rate
+    :math:`\varepsilon`,
 
     .. math::
-        \\mathrm{vec}\\,\\Sigma_{\\hat z} = (\\mathbf I - \\mathbf M_1(\\varepsilon))^{-1}
-        \\mathrm{vec}(\\mathbf P_{n|n-1} - \\Sigma_\\mathrm{est}),\\qquad
-        \\lambda = [\\Sigma_{\\hat z}]_{pp} + [\\Sigma_\\mathrm{est}]_{pp},\\qquad
-        T = \\mathbb E\\|\\mathbf e_\\mathbf p\\| = \\texttt{expected\\_norm}(\\lambda_r, \\lambda_1, \\lambda_2)
+        \mathrm{vec}\,\Sigma_{\hat z} = (\mathbf I - \mathbf M_1(\varepsilon))^{-1}
+        \mathrm{vec}(\mathbf P_{n|n-1} - \Sigma_\mathrm{est}),\qquad
+        \lambda = [\Sigma_{\hat z}]_{pp} + [\Sigma_\mathrm{est}]_{pp},\qquad
+        T = \mathbb E\|\mathbf e_\mathbf p\| = \texttt{expected\_norm}(\lambda_r, \lambda_1, \lambda_2)
 
-    with :math:`\\mathbf M_1` the per-axis eq:M (:func:`iscc_gym.stability.stability_matrix`). The
+    with :math:`\mathbf M_1` the per-axis eq:M (:func:`iscc_gym.stability.stability_matrix`). The
     Kalman steady state is tabulated once on a grid of measurement variances (0.05 decade steps,
     bilinear in the logarithms; clamped outside :math:`[10^{-10}, 10^{6.5}]` m^2 and
-    :math:`[10^{-14}, 10^{6.5}]` (m/s)^2, where it no longer changes); :math:`\\varepsilon \\ge
-    \\varepsilon^\\star` (no steady state) gives ``max_tracking_error_m``, and T is capped there as
+    :math:`[10^{-14}, 10^{6.5}]` (m/s)^2, where it no longer changes); :math:`\varepsilon \ge
+    \varepsilon^\star` (no steady state) gives ``max_tracking_error_m``, and T is capped there as
     the env's reward is.
 
     Parameters
@@ -133,9 +133,10 @@ class LocalTrackingModel:
         return (1.0 - ti) * self._cross_tab[i] + ti * self._cross_tab[i + 1]
 
     def loss_weights(self, eps):
-        """Row of :math:`(\\mathbf I - \\mathbf M_1(\\varepsilon))^{-1}` giving
-        :math:`[\\Sigma_{\\hat z}]_{pp}` from (N_pp, N_pv, N_vv), shape ``eps.shape + (3,)``;
-        zeros where :math:`\\varepsilon \\ge \\varepsilon^\\star`."""
+        r"""Row of :math:`(\mathbf I - \mathbf M_1(\varepsilon))^{-1}` giving
+        :math:`[\Sigma_{\hat z}]_{pp}` from (N_pp, N_pv, N_vv), shape ``eps.shape + (3,)``;
+        zeros where :math:`\varepsilon \ge \varepsilon^\star`.
+        """
         e = np.asarray(eps, dtype=float)
         stable = e < self.eps_star
         ee = np.where(stable, e, 0.0)[..., None, None]
@@ -146,7 +147,8 @@ class LocalTrackingModel:
     def axis_variances(self, coef: SensingCoefficients, alpha_sen, eps=None, weights=None):
         """Steady-state position variances (m^2) on the range and the two cross-range axes,
         shape ``broadcast(coef, alpha_sen, eps) + (3,)``; ``weights`` (:meth:`loss_weights` of
-        ``eps``) may be passed instead of ``eps``."""
+        ``eps``) may be passed instead of ``eps``.
+        """
         if weights is None:
             weights = self.loss_weights(0.0 if eps is None else eps)
         m_r, m_tt, m_tp, m_pp, vr = local_crlb(coef, alpha_sen)
@@ -157,8 +159,9 @@ class LocalTrackingModel:
         return np.stack(lam, -1)
 
     def tracking_error(self, coef: SensingCoefficients, alpha_sen, eps):
-        """:math:`\\min(\\mathbb E\\|\\mathbf e_\\mathbf p\\|, e_\\max)` in m (``max_tracking_error_m``
-        where ``eps`` >= eps*); broadcasts ``coef``'s arrays, ``alpha_sen`` and ``eps``."""
+        r""":math:`\min(\mathbb E\|\mathbf e_\mathbf p\|, e_\max)` in m (``max_tracking_error_m``
+        where ``eps`` >= eps*); broadcasts ``coef``'s arrays, ``alpha_sen`` and ``eps``.
+        """
         eps = np.asarray(eps, dtype=float)
         return self._error(self.axis_variances(coef, alpha_sen, weights=self.loss_weights(eps)), eps)
 
@@ -170,15 +173,15 @@ class LocalTrackingModel:
 
 @dataclass(frozen=True)
 class SlotContext:
-    """What :class:`MyopicPolicy` decodes from a batch of n observations (arrays with leading n).
+    r"""What :class:`MyopicPolicy` decodes from a batch of n observations (arrays with leading n).
 
     Attributes
     ----------
     snr : (n,)
-        Predicted large-scale SNR :math:`\\bar\\gamma_n` (linear), from ``snr_db`` of
+        Predicted large-scale SNR :math:`\bar\gamma_n` (linear), from ``snr_db`` of
         :func:`iscc_gym.env.decode_observation`.
     coef : SensingCoefficients
-        Position-domain Fisher information at :math:`\\alpha_\\mathrm{sen} = 1` at the predicted range
+        Position-domain Fisher information at :math:`\alpha_\mathrm{sen} = 1` at the predicted range
         and direction (``range``, ``sin_elevation``, ``cos_azimuth``, ``sin_azimuth``) with the slot's
         shadowing (recovered from the SNR and the range).
     rate_per_share : (n, J)
@@ -197,38 +200,38 @@ def _expand(x, ndim):
 
 
 class MyopicPolicy(SplitPolicy):
-    """Per-slot split maximising the expected one-slot reward given the observation.
+    r"""Per-slot split maximising the expected one-slot reward given the observation.
 
     Each slot and for each env of the batch,
 
     .. math::
-        \\boldsymbol\\alpha_n = \\arg\\max_{\\boldsymbol\\alpha\\in\\Delta}\\;
-        -\\,T\\big(\\alpha_\\mathrm{sen}, \\bar\\varepsilon(\\alpha_\\mathrm{ctrl})\\big)
-        - w_\\mathrm{rate}\\,\\mathbb E_g\\!\\left[\\frac{(R_\\min - \\mathcal R_\\mathrm{comm}(\\alpha_\\mathrm{comm},
-        g\\bar\\gamma_n))^+}{R_\\min}\\right]
-        - w_\\mathrm{stab}\\,P_g\\!\\left(\\varepsilon_\\mathrm{ctrl}(\\alpha_\\mathrm{ctrl}, g\\bar\\gamma_n)
-        > \\varepsilon^\\star\\right)
+        \boldsymbol\alpha_n = \arg\max_{\boldsymbol\alpha\in\Delta}\;
+        -\,T\big(\alpha_\mathrm{sen}, \bar\varepsilon(\alpha_\mathrm{ctrl})\big)
+        - w_\mathrm{rate}\,\mathbb E_g\!\left[\frac{(R_\min - \mathcal R_\mathrm{comm}(\alpha_\mathrm{comm},
+        g\bar\gamma_n))^+}{R_\min}\right]
+        - w_\mathrm{stab}\,P_g\!\left(\varepsilon_\mathrm{ctrl}(\alpha_\mathrm{ctrl}, g\bar\gamma_n)
+        > \varepsilon^\star\right)
 
-    over :math:`\\Delta = \\{\\alpha_\\mathrm{sen} \\ge` ``sensing_floor``,
-    :math:`\\alpha_\\mathrm{ctrl} \\ge` ``ctrl_floor``, :math:`\\alpha_\\mathrm{comm} \\ge 0`, sum 1\\},
+    over :math:`\Delta = \{\alpha_\mathrm{sen} \ge` ``sensing_floor``,
+    :math:`\alpha_\mathrm{ctrl} \ge` ``ctrl_floor``, :math:`\alpha_\mathrm{comm} \ge 0`, sum 1\},
     the env's reward (:func:`iscc_gym.env.reward_and_costs`) in expectation over the slot's
     small-scale fading :math:`g = |g_C|^2` (Rician, drawn after the allocation), where
 
-    * :math:`\\bar\\gamma_n` is ``snr_db`` (the predicted large-scale SNR); the rate
+    * :math:`\bar\gamma_n` is ``snr_db`` (the predicted large-scale SNR); the rate
       (:func:`iscc_gym.fbl.slot_link`) shortfall is averaged over the fading quadrature of
       :func:`iscc_gym.quadrature.rician_power_nodes`;
-    * the stability term is in closed form: :math:`\\varepsilon_\\mathrm{ctrl}` falls with the SNR,
-      so :math:`P(\\varepsilon_\\mathrm{ctrl} > \\varepsilon^\\star) = F_g(\\gamma^\\star(\\alpha_\\mathrm{ctrl})
-      / \\bar\\gamma_n)` with :math:`\\gamma^\\star` the inverse of
-      :func:`iscc_gym.fbl.min_shares` at :math:`\\varepsilon^\\star` (tabulated) and :math:`F_g`
+    * the stability term is in closed form: :math:`\varepsilon_\mathrm{ctrl}` falls with the SNR,
+      so :math:`P(\varepsilon_\mathrm{ctrl} > \varepsilon^\star) = F_g(\gamma^\star(\alpha_\mathrm{ctrl})
+      / \bar\gamma_n)` with :math:`\gamma^\star` the inverse of
+      :func:`iscc_gym.fbl.min_shares` at :math:`\varepsilon^\star` (tabulated) and :math:`F_g`
       :func:`rician_power_cdf`;
     * :math:`T` is the steady-state mean tracking error at the predicted geometry
       (:class:`LocalTrackingModel`: range, direction, shadowing) for the
       sensing share held and the fading-averaged loss rate
-      :math:`\\bar\\varepsilon(\\alpha_\\mathrm{ctrl}) = \\mathbb E_g\\,\\varepsilon_\\mathrm{ctrl}`. It is
+      :math:`\bar\varepsilon(\alpha_\mathrm{ctrl}) = \mathbb E_g\,\varepsilon_\mathrm{ctrl}`. It is
       the error the loop settles to if the split is held (filter and loop forget a slot within a
       few slots), so sensing is valued for the estimate it maintains and the loss rate for the
-      commands it drops; at :math:`\\bar\\varepsilon \\ge \\varepsilon^\\star` it is the cap
+      commands it drops; at :math:`\bar\varepsilon \ge \varepsilon^\star` it is the cap
       ``max_tracking_error_m``.
 
     The search: a coarse lattice of ``n_coarse`` control shares (geometric from ``ctrl_floor``) by
@@ -246,10 +249,10 @@ class MyopicPolicy(SplitPolicy):
     scenario : Scenario or str
         Scenario (or preset name); must have ``control_mode="lqg"`` and ``observation_source="isac"``.
     rate_weight : float, optional
-        :math:`w_\\mathrm{rate}` of the objective (>= 0). Default: the scenario's ``w_rate`` (the
+        :math:`w_\mathrm{rate}` of the objective (>= 0). Default: the scenario's ``w_rate`` (the
         env's reward); another value trades rate outage for tracking error.
     stability_weight : float, optional
-        :math:`w_\\mathrm{stab}` (>= 0). Default: the scenario's ``w_stab``.
+        :math:`w_\mathrm{stab}` (>= 0). Default: the scenario's ``w_stab``.
     sensing_floor : float
         Smallest sensing share, in [0, 0.5). Default 1e-3 (as SCA's ``MIN_SHARE``).
     ctrl_floor : float
@@ -327,8 +330,9 @@ class MyopicPolicy(SplitPolicy):
         return SlotContext(snr=snr, coef=sensing_coefficients(s, dist, trig, shadow_db), rate_per_share=rate)
 
     def ctrl_terms(self, ctx: SlotContext, alpha_ctrl):
-        """Fading-averaged loss rate :math:`\\bar\\varepsilon` and :math:`P(\\varepsilon_\\mathrm{ctrl} >
-        \\varepsilon^\\star)` of control shares ``alpha_ctrl`` (n, ...), each of that shape."""
+        r"""Fading-averaged loss rate :math:`\bar\varepsilon` and :math:`P(\varepsilon_\mathrm{ctrl} >
+        \varepsilon^\star)` of control shares ``alpha_ctrl`` (n, ...), each of that shape.
+        """
         c = np.asarray(alpha_ctrl, dtype=float)
         snr = _expand(ctx.snr, c.ndim)
         eps_bar = slot_link(self.scenario, c[..., None], 0.0, snr[..., None] * self.fade)[0] @ self.fade_w
@@ -337,8 +341,9 @@ class MyopicPolicy(SplitPolicy):
         return eps_bar, np.where(c > 0.0, p_viol, 1.0)
 
     def rate_shortfall(self, ctx: SlotContext, alpha_comm):
-        """:math:`\\mathbb E_g (R_\\min - \\mathcal R_\\mathrm{comm})^+/R_\\min` of data shares
-        ``alpha_comm`` (n, ...), of that shape."""
+        r""":math:`\mathbb E_g (R_\min - \mathcal R_\mathrm{comm})^+/R_\min` of data shares
+        ``alpha_comm`` (n, ...), of that shape.
+        """
         d = np.asarray(alpha_comm, dtype=float)
         if self.scenario.rate_min_bps <= 0.0:  # no rate requirement: the env charges nothing
             return np.zeros(np.broadcast_shapes(d.shape, ctx.snr.shape + (1,) * (d.ndim - 1)))

@@ -36,7 +36,8 @@ def _digest(path: Path) -> str:
 
 def write_manifest(directory: str | Path, files: list[str], **meta) -> Path:
     """Write ``directory/manifest.yml`` (atomically) listing ``files`` (names in ``directory``) with
-    their sizes and SHA-256, and ``meta``; call it after every listed file is written."""
+    their sizes and SHA-256, and ``meta``; call it after every listed file is written.
+    """
     import yaml
 
     from iscc_gym.files import write_atomic

@@ -1,33 +1,33 @@
-"""SCA-based resource allocation: the paper's Algorithm 1 (alg:sca_allocation), static and per slot.
+r"""SCA-based resource allocation: the paper's Algorithm 1 (alg:sca_allocation), static and per slot.
 
-The reformulated problem of Sec. IV-B, in the shares :math:`\\boldsymbol\\alpha = (\\alpha_\\mathrm{sen},
-\\alpha_\\mathrm{ctrl})` (``alpha_comm = 1 - alpha_sen - alpha_ctrl`` eliminated):
+The reformulated problem of Sec. IV-B, in the shares :math:`\boldsymbol\alpha = (\alpha_\mathrm{sen},
+\alpha_\mathrm{ctrl})` (``alpha_comm = 1 - alpha_sen - alpha_ctrl`` eliminated):
 
 .. math::
-    \\min_{\\boldsymbol\\alpha}\\ f_\\mathrm{sen}(\\alpha_\\mathrm{sen})\\quad\\text{s.t.}\\quad
-    g(\\alpha_\\mathrm{ctrl}) \\ge L(b),\\quad
-    \\mathcal R_\\mathrm{comm}(1-\\alpha_\\mathrm{sen}-\\alpha_\\mathrm{ctrl}) \\ge \\mathcal R_\\mathrm{comm}^{\\min},
-    \\quad \\alpha_\\mathrm{sen}+\\alpha_\\mathrm{ctrl} < 1,\\quad 0<\\alpha_i<1,\\quad
-    \\alpha_\\mathrm{ctrl} > \\alpha_\\mathrm{ctrl}^\\star
+    \min_{\boldsymbol\alpha}\ f_\mathrm{sen}(\alpha_\mathrm{sen})\quad\text{s.t.}\quad
+    g(\alpha_\mathrm{ctrl}) \ge L(b),\quad
+    \mathcal R_\mathrm{comm}(1-\alpha_\mathrm{sen}-\alpha_\mathrm{ctrl}) \ge \mathcal R_\mathrm{comm}^{\min},
+    \quad \alpha_\mathrm{sen}+\alpha_\mathrm{ctrl} < 1,\quad 0<\alpha_i<1,\quad
+    \alpha_\mathrm{ctrl} > \alpha_\mathrm{ctrl}^\star
 
-with :math:`f_\\mathrm{sen} = \\operatorname{Tr}\\mathrm{CRLB}_\\mathbf p` and
-:math:`g = (1-\\varepsilon_\\mathrm{ctrl})\\mathcal R_\\mathrm{ctrl}`. Each iteration replaces g by its
-first-order expansion at :math:`\\alpha_\\mathrm{ctrl}^{(k)}`, adds the proximal term
-:math:`\\rho\\|\\boldsymbol\\alpha - \\boldsymbol\\alpha^{(k)}\\|^2` and solves the convex subproblem; it stops when
-:math:`\\|\\boldsymbol\\alpha^{(k)} - \\boldsymbol\\alpha^{(k-1)}\\|^2 \\le \\delta`.
+with :math:`f_\mathrm{sen} = \operatorname{Tr}\mathrm{CRLB}_\mathbf p` and
+:math:`g = (1-\varepsilon_\mathrm{ctrl})\mathcal R_\mathrm{ctrl}`. Each iteration replaces g by its
+first-order expansion at :math:`\alpha_\mathrm{ctrl}^{(k)}`, adds the proximal term
+:math:`\rho\|\boldsymbol\alpha - \boldsymbol\alpha^{(k)}\|^2` and solves the convex subproblem; it stops when
+:math:`\|\boldsymbol\alpha^{(k)} - \boldsymbol\alpha^{(k-1)}\|^2 \le \delta`.
 
 Three readings are needed to make this well posed (``docs/model.md`` Sec. 3.2):
 
-* **Strict stability.** :math:`\\alpha_\\mathrm{ctrl} > \\alpha_\\mathrm{ctrl}^\\star` is an open set: the
-  objective does not depend on :math:`\\alpha_\\mathrm{ctrl}`, so the infimum sits on the stability
-  boundary, where :math:`\\rho(\\mathbf M) = 1` and the error is unbounded. The threshold is therefore
-  taken at a design loss rate :math:`\\varepsilon_\\mathrm{design} = ` ``loss_design_fraction``
-  :math:`\\times\\,\\varepsilon^\\star` (default 0.1, i.e. one tenth of the critical loss rate;
+* **Strict stability.** :math:`\alpha_\mathrm{ctrl} > \alpha_\mathrm{ctrl}^\star` is an open set: the
+  objective does not depend on :math:`\alpha_\mathrm{ctrl}`, so the infimum sits on the stability
+  boundary, where :math:`\rho(\mathbf M) = 1` and the error is unbounded. The threshold is therefore
+  taken at a design loss rate :math:`\varepsilon_\mathrm{design} = ` ``loss_design_fraction``
+  :math:`\times\,\varepsilon^\star` (default 0.1, i.e. one tenth of the critical loss rate;
   ``1.0`` is the paper's boundary).
 * **Which loss rate.** ``loss_model="mean_snr"`` evaluates eq:ctrl_bler at the trajectory-averaged
-  SNR (the paper's Fig. 5(b), :math:`\\alpha_\\mathrm{ctrl}^\\star = 4.1\\,\\%`); ``"trajectory"`` averages
+  SNR (the paper's Fig. 5(b), :math:`\alpha_\mathrm{ctrl}^\star = 4.1\,\%`); ``"trajectory"`` averages
   it over the slots (positions, shadowing, fading), the paper's own definition of
-  :math:`\\varepsilon_\\mathrm{ctrl}` below eq:omega_tilde_cov; ``"local"`` (default) requires it at every
+  :math:`\varepsilon_\mathrm{ctrl}` below eq:omega_tilde_cov; ``"local"`` (default) requires it at every
   sampled position. The mean SNR is dominated by the near positions, so ``"mean_snr"``'s threshold
   is far too small for the far ones: the env diverges at its allocation.
 * **Trust.** Whatever the reading, the threshold is at least the analytic evaluator's trust edge
@@ -67,21 +67,21 @@ _MODES = ("static", "per_slot")
 
 @dataclass
 class SCAProblem:
-    """One instance of the reformulated problem: the callables and constants Algorithm 1 needs.
+    r"""One instance of the reformulated problem: the callables and constants Algorithm 1 needs.
 
     Attributes
     ----------
     f_sen : callable
-        ``alpha_sen -> (f, df)``: :math:`\\operatorname{Tr}\\mathrm{CRLB}_\\mathbf p` in m^2 and its derivative.
+        ``alpha_sen -> (f, df)``: :math:`\operatorname{Tr}\mathrm{CRLB}_\mathbf p` in m^2 and its derivative.
     g_ctrl : callable
-        ``alpha_ctrl -> (g, dg)``: :math:`(1-\\varepsilon_\\mathrm{ctrl})\\mathcal R_\\mathrm{ctrl}\\Delta t` in
+        ``alpha_ctrl -> (g, dg)``: :math:`(1-\varepsilon_\mathrm{ctrl})\mathcal R_\mathrm{ctrl}\Delta t` in
         bits per slot and its derivative.
     rate_cost : callable
         ``(alpha_sen, alpha_ctrl) -> L(b)`` in bits per slot, evaluated at the current iterate.
     alpha_comm_min : float
         Data share carrying ``rate_min_bps``.
     alpha_ctrl_min : float
-        Stability threshold (the design reading of :math:`\\alpha_\\mathrm{ctrl}^\\star`).
+        Stability threshold (the design reading of :math:`\alpha_\mathrm{ctrl}^\star`).
     min_share : float
         Floor of every share (strict positivity).
     fallback_sen : float
@@ -116,26 +116,26 @@ class SCAProblem:
 
 @dataclass
 class SCAResult:
-    """Outcome of :func:`solve_sca`.
+    r"""Outcome of :func:`solve_sca`.
 
     Attributes
     ----------
     alpha : ndarray (3,)
         (alpha_sen, alpha_ctrl, alpha_comm).
     converged : bool
-        The stopping rule :math:`\\|\\boldsymbol\\alpha^{(k)}-\\boldsymbol\\alpha^{(k-1)}\\|^2\\le\\delta` held.
+        The stopping rule :math:`\|\boldsymbol\alpha^{(k)}-\boldsymbol\alpha^{(k-1)}\|^2\le\delta` held.
     feasible : bool
         The constraint set was non-empty (else ``alpha`` is the fallback of :func:`_fallback_split`).
     iterations : int
     f_sen_m2 : float
-        :math:`f_\\mathrm{sen}` at the solution (PEB squared).
+        :math:`f_\mathrm{sen}` at the solution (PEB squared).
     g_bits, rate_cost_bits : float
         Both sides of cons:rate_cost at the solution.
     kkt_residual : float
         Norm of the projected gradient at the solution (stationarity, 0 at a KKT point), computed
         on the normalised objective with NNLS over the active constraints.
     history : list of ndarray (2,)
-        The iterates :math:`\\boldsymbol\\alpha^{(k)}`.
+        The iterates :math:`\boldsymbol\alpha^{(k)}`.
     wall_time_s : float
     """
 
@@ -193,14 +193,14 @@ def _subproblem_slsqp(prob, x_k, f0, rho, g_k, dg_k, l_k):
 
 
 def _subproblem_kkt(prob, x_k, f0, rho, g_k, dg_k, l_k):
-    """Solve the convex subproblem from its KKT conditions (no scipy optimiser).
+    r"""Solve the convex subproblem from its KKT conditions (no scipy optimiser).
 
-    The objective is separable, :math:`\\phi(\\alpha_s) + \\rho(\\alpha_c - a_c)^2` with
-    :math:`\\phi = f_\\mathrm{sen}/f_0 + \\rho(\\alpha_s - a_s)^2` convex, over a box with the single
-    coupling :math:`\\alpha_s + \\alpha_c \\le u`. Either the coupling is inactive (each variable its own
-    clipped minimiser) or, on :math:`\\alpha_s + \\alpha_c = u`, the multiplier
-    :math:`\\mu = -\\phi'(\\alpha_s)` fixes :math:`\\alpha_c = \\mathrm{clip}(a_c - \\mu/2\\rho)` and the
-    remaining scalar equation is monotone in :math:`\\alpha_s` (bracketed root).
+    The objective is separable, :math:`\phi(\alpha_s) + \rho(\alpha_c - a_c)^2` with
+    :math:`\phi = f_\mathrm{sen}/f_0 + \rho(\alpha_s - a_s)^2` convex, over a box with the single
+    coupling :math:`\alpha_s + \alpha_c \le u`. Either the coupling is inactive (each variable its own
+    clipped minimiser) or, on :math:`\alpha_s + \alpha_c = u`, the multiplier
+    :math:`\mu = -\phi'(\alpha_s)` fixes :math:`\alpha_c = \mathrm{clip}(a_c - \mu/2\rho)` and the
+    remaining scalar equation is monotone in :math:`\alpha_s` (bracketed root).
     """
     a_sk, a_ck = float(x_k[0]), float(x_k[1])
     lo_c, hi_c = _ctrl_bounds(prob, g_k, dg_k, a_ck, l_k)
@@ -242,19 +242,19 @@ _SOLVERS = {"slsqp": _subproblem_slsqp, "kkt": _subproblem_kkt}
 
 def solve_sca(prob: SCAProblem, x0=None, rho: float = 1.0, tol: float = 1e-12, max_iter: int = 100,
               solver: str = "slsqp") -> SCAResult:
-    """Algorithm 1 (alg:sca_allocation): successive convex approximation of the reformulated problem.
+    r"""Algorithm 1 (alg:sca_allocation): successive convex approximation of the reformulated problem.
 
     Parameters
     ----------
     prob : SCAProblem
     x0 : array_like (2,), optional
-        Initial feasible point :math:`(\\alpha_\\mathrm{sen}^{(0)}, \\alpha_\\mathrm{ctrl}^{(0)})`; projected
+        Initial feasible point :math:`(\alpha_\mathrm{sen}^{(0)}, \alpha_\mathrm{ctrl}^{(0)})`; projected
         onto the constraint set; default :meth:`SCAProblem.feasible_start`.
     rho : float
-        Proximal weight on the objective normalised by :math:`f_\\mathrm{sen}(\\alpha_\\mathrm{sen}^{(0)})`.
+        Proximal weight on the objective normalised by :math:`f_\mathrm{sen}(\alpha_\mathrm{sen}^{(0)})`.
     tol : float
-        :math:`\\delta` of the stopping rule :math:`\\|\\boldsymbol\\alpha^{(k)}-\\boldsymbol\\alpha^{(k-1)}\\|^2
-        \\le\\delta`.
+        :math:`\delta` of the stopping rule :math:`\|\boldsymbol\alpha^{(k)}-\boldsymbol\alpha^{(k-1)}\|^2
+        \le\delta`.
     max_iter : int
     solver : {"slsqp", "kkt"}
         Subproblem solver: scipy's SLSQP, or the exact KKT solution (:func:`_subproblem_kkt`, fast).
@@ -316,9 +316,10 @@ def _project(prob: SCAProblem, x):
 
 
 def _kkt_residual(prob, x, f0, g, dg, l_b, active_tol: float = 1e-7):
-    """Stationarity of the original (non-linearised) problem at x: the smallest
-    :math:`\\|\\nabla f/f_0 + \\sum_i\\lambda_i\\nabla c_i\\|` over :math:`\\lambda\\ge 0` and the active
-    constraints :math:`c_i(\\boldsymbol\\alpha)\\le 0`."""
+    r"""Stationarity of the original (non-linearised) problem at x: the smallest
+    :math:`\|\nabla f/f_0 + \sum_i\lambda_i\nabla c_i\|` over :math:`\lambda\ge 0` and the active
+    constraints :math:`c_i(\boldsymbol\alpha)\le 0`.
+    """
     grad = np.array([prob.f_sen(x[0])[1] / f0, 0.0])
     normals = []
     u = prob.sum_max
@@ -345,7 +346,8 @@ def _fallback_split(prob: SCAProblem) -> np.ndarray:
     share and the minimum rate). Stability comes first (the paper's "fundamental feasibility
     condition"): control gets its threshold share; sensing keeps ``prob.fallback_sen`` (per slot:
     the static design's sensing share) as far as control leaves room; the data link gets the rest,
-    short of its minimum rate."""
+    short of its minimum rate.
+    """
     m = prob.min_share
     a_c = min(max(prob.ctrl_min, m), 1.0 - 2.0 * m)
     a_s = min(max(prob.fallback_sen, m), 1.0 - m - a_c)

@@ -1,5 +1,6 @@
 """Per-slot SCA: the paper's Algorithm 1 (:mod:`iscc_gym.agents.sca`) as a policy, static or re-solved
-every slot for the slot's predicted link and geometry, decoded from the observation."""
+every slot for the slot's predicted link and geometry, decoded from the observation.
+"""
 
 from __future__ import annotations
 
@@ -31,7 +32,8 @@ _READ = ("snr_db", "range_m", "sin_elevation", "cos_azimuth", "sin_azimuth")
 # --------------------------------------------------------------------------------------------------
 class _SlotTables:
     """Per-scenario cache of the per-slot SCA: quadrature of the Rician fading and, on a grid of the
-    slot's large-scale SNR, the stability threshold and the minimum data share."""
+    slot's large-scale SNR, the stability threshold and the minimum data share.
+    """
 
     SNR_DB_GRID = np.linspace(-30.0, 70.0, 1001)
 
@@ -81,24 +83,24 @@ PER_SLOT_LOSS_DESIGN_FRACTION = 0.02
 
 
 class SCAPolicy(SplitPolicy):
-    """The paper's SCA allocation (Algorithm 1) as a policy.
+    r"""The paper's SCA allocation (Algorithm 1) as a policy.
 
     ``mode="static"``: one allocation from trajectory-averaged quantities
     (:func:`sca_allocation`), played every slot (the paper's design). ``mode="per_slot"``: Algorithm 1
     re-solved every slot for that slot's predicted link and geometry.
 
     What ``per_slot`` reads from the observation (``iscc_gym.env.OBS_NAMES``), all predicted by the
-    GBS from its estimate :math:`\\hat{\\mathbf x}_{n|n-1}` before the slot's fading is drawn, decoded
+    GBS from its estimate :math:`\hat{\mathbf x}_{n|n-1}` before the slot's fading is drawn, decoded
     by :func:`iscc_gym.env.decode_observation`:
 
-    * ``snr_db``: the slot's large-scale SNR :math:`\\bar\\gamma_n` (path loss, beam gain,
+    * ``snr_db``: the slot's large-scale SNR :math:`\bar\gamma_n` (path loss, beam gain,
       shadowing). The stability threshold is the smallest share whose loss rate eq:ctrl_bler,
       averaged over the slot's Rician fading, is at most the design loss rate; the data share is
       ``rate_min_bps`` over the fading-averaged FBL rate (cons:comm_rate of slot n). Both come from
       a table over the SNR built once per policy (``alpha_ctrl_min``, ``alpha_comm_min`` are the same
       quantities without fading and at eps*, and are not used).
     * ``range``, ``sin_elevation``, ``cos_azimuth``, ``sin_azimuth``: the geometry of
-      :math:`f_\\mathrm{sen} = \\operatorname{Tr}\\mathrm{CRLB}_\\mathbf p` (the slot's shadowing,
+      :math:`f_\mathrm{sen} = \operatorname{Tr}\mathrm{CRLB}_\mathbf p` (the slot's shadowing,
       which also scales the echo, is recovered from the SNR and the range).
 
     Nothing else (errors, estimate, time) enters Algorithm 1. The right-hand side L(b) of

@@ -63,7 +63,8 @@ PROG = "python -m eval"
 
 def save_plots(res: dict, out_dir: str | Path, dt_s: float = 0.1) -> list[str]:
     """Allocation over time, tracking error over time and 3-D trajectories of the first recorded
-    episode of every policy, as PNGs."""
+    episode of every policy, as PNGs.
+    """
     from iscc_gym.eval.figures import new_figure, save_figure
 
     out = Path(out_dir)
@@ -247,7 +248,8 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> dict:
 
 def console(argv: list[str] | None = None, prog: str | None = None) -> int:
     """The ``iscc-eval`` command: :func:`main`, ending with exit code 0 on success, 2 after a one-line
-    error for a user's mistake, 130 on Ctrl-C (:func:`iscc_gym.cli.run`)."""
+    error for a user's mistake, 130 on Ctrl-C (:func:`iscc_gym.cli.run`).
+    """
     prog = prog or os.path.basename(sys.argv[0]) or PROG
     return run(functools.partial(main, prog=prog), argv, prog)
 

@@ -55,7 +55,8 @@ def env_steps_per_second(env_id: str, n_steps: int, repeats: int, seed: int = 0,
 
 def vector_steps_per_second(num_envs: int, n_steps: int, repeats: int, seed: int = 0, warmup: int = 1) -> dict:
     """Median env-steps/s of the native vector env (``n_steps`` batched steps per run, after ``warmup``
-    untimed steps: compiled kernels loaded, the ``auto`` kernel choice made)."""
+    untimed steps: compiled kernels loaded, the ``auto`` kernel choice made).
+    """
     venv = gym.make_vec(iscc_gym.ENV_ID, num_envs=num_envs, vectorization_mode="vector_entry_point")
     venv.reset(seed=seed)
     actions = np.random.default_rng(seed).uniform(-1, 1, (n_steps, num_envs, 3)).astype(np.float32)
@@ -148,7 +149,8 @@ def ppo_shipped_steps_per_second(total_steps: int, repeats: int, settings=THREAD
     hyperparameters, VecNormalize, the batched env), learning ``total_steps`` steps without
     evaluations, checkpoints or warm start, per (numba threads, torch threads) setting. Numba threads
     above 1 mean the env's parallel kernel on that many threads (:func:`iscc_gym.threads.set_parallel`);
-    1 means the serial kernel, the default."""
+    1 means the serial kernel, the default.
+    """
     import tempfile
 
     from iscc_gym.eval.training import run_training
@@ -183,7 +185,8 @@ def ppo_shipped_steps_per_second(total_steps: int, repeats: int, settings=THREAD
 
 def render_ms(frames: int = 50, steps_before: int = 300) -> dict:
     """Median milliseconds per ``rgb_array`` frame (a step and a render each), after ``steps_before``
-    slots; the first frame (the figure built) is timed apart."""
+    slots; the first frame (the figure built) is timed apart.
+    """
     env = gym.make(iscc_gym.ENV_ID, render_mode="rgb_array")
     env.reset(seed=0)
     actions = np.random.default_rng(0).uniform(-1, 1, (steps_before + frames, 3)).astype(np.float32)
@@ -216,7 +219,8 @@ def eval_sca_seconds(episodes: int, max_steps: int | None = None) -> dict:
 
 def solver_seconds(quick: bool = False) -> dict:
     """Wall times of the allocation solvers on the paper preset (the shared analytic model built
-    first, outside the timing), beside the paper's."""
+    first, outside the timing), beside the paper's.
+    """
     from iscc_gym.agents import evolutionary_search, grid_search, sca_allocation
 
     from iscc_gym.analysis import static_model

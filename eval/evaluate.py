@@ -86,7 +86,8 @@ def run_episodes(policy, seeds: Sequence[int], scenario: str | Scenario = "paper
 
     ``progress(n)``, if given, is called every :data:`PROGRESS_EVERY` slots with the slots played since
     its last call; the calls add up to :func:`horizon_slots` (the rest is reported when every episode
-    ended early)."""
+    ended early).
+    """
     seeds = [int(s) for s in seeds]
     if not seeds:
         raise ValueError("seeds is empty; pass at least one seed")
@@ -156,7 +157,8 @@ def run_episodes(policy, seeds: Sequence[int], scenario: str | Scenario = "paper
 def mean_ci(x, confidence: float = 0.95, bounds: tuple[float, float] | None = None) -> tuple[float, list[float]]:
     """Mean and the Student-t confidence interval of the mean of samples ``x``, clamped to ``bounds``
     (``(low, high)``: the metric's range, e.g. ``(0, 1)`` for a fraction; the t interval of a fraction
-    near 0 would otherwise reach below 0)."""
+    near 0 would otherwise reach below 0).
+    """
     x = np.asarray(x, dtype=float)
     m = float(x.mean())
     if x.size < 2:
@@ -198,7 +200,8 @@ def summarize(runs: Mapping[str, dict], seeds: Sequence[int], reference: str | N
               focus: str | None = None) -> dict:
     """The result of :func:`evaluate` from the :func:`run_episodes` results of every policy (played on
     ``seeds``, e.g. in separate processes). With ``focus`` (a policy name), ``focus_paired`` holds
-    its paired differences against every other policy (``<focus>_vs_<name>``)."""
+    its paired differences against every other policy (``<focus>_vs_<name>``).
+    """
     if reference is not None and reference not in runs:
         raise ValueError(f"reference = {reference!r} is not one of the policies {list(runs)}")
     traces = {name: run["traces"] for name, run in runs.items() if "traces" in run}
@@ -224,7 +227,8 @@ def summarize(runs: Mapping[str, dict], seeds: Sequence[int], reference: str | N
 
 def _paired(episodes: Mapping, ref: Mapping) -> dict:
     """Per-metric mean and 95 % CI of ``episodes - ref`` (per episode), clamped to the range a difference
-    of the metric can take (a difference of fractions inside [-1, 1]); ``ci95`` is the reward's."""
+    of the metric can take (a difference of fractions inside [-1, 1]); ``ci95`` is the reward's.
+    """
     pair = {}
     for metric, vals in episodes.items():
         low, high = METRIC_RANGES.get(metric, (-math.inf, math.inf))
@@ -282,7 +286,8 @@ def _pair_name(pair: str) -> str:
 
 def format_table(res: dict) -> str:
     """The comparison as a text table for a terminal (about 110 columns): mean ±half-width of the 95 % CI
-    per policy, ↑/↓ marking the better direction, then the paired differences."""
+    per policy, ↑/↓ marking the better direction, then the paired differences.
+    """
     n = len(res["seeds"])
     names = list(res["policies"])
     w0 = max([len("policy"), *map(len, names)]) + 2
@@ -316,7 +321,8 @@ def format_table(res: dict) -> str:
 def markdown_table(res: dict, command: str) -> str:
     """The comparison as markdown (tables under 120 columns): the main metrics per policy, a line
     explaining the columns, the violations split and the mean allocation, then the paired differences;
-    mean ±half-width of the 95 % CI, ↑/↓ marking the better direction."""
+    mean ±half-width of the 95 % CI, ↑/↓ marking the better direction.
+    """
     import textwrap
 
     n = len(res["seeds"])

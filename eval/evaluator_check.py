@@ -28,7 +28,8 @@ SEEDS = range(1000, 1016)  # held out from the evaluator's trajectory sample (se
 
 def run(scenario: str = "paper", seeds=SEEDS, splits=SPLITS, max_steps: int | None = None) -> list[dict]:
     """One row per split: env mean tracking error, missions losing track and mean loss rate, and
-    the evaluator's tracking error (``None`` where it calls the split unstable) in each reading."""
+    the evaluator's tracking error (``None`` where it calls the split unstable) in each reading.
+    """
     s = make_scenario(scenario)
     model = static_model(s)
     rows = []

@@ -64,7 +64,8 @@ TIGHT_RATE_MIN_BPS = 29e6
 
 def held_out_seeds(start: int, n: int, seed: int = 0) -> list[int]:
     """``n`` mission seeds for run ``seed`` from ``start``: ``start + 1000 * seed + i``; ``ValueError`` if
-    any leaves :data:`EVAL_RANGE` or ``n`` is outside [1, 1000]."""
+    any leaves :data:`EVAL_RANGE` or ``n`` is outside [1, 1000].
+    """
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ValueError(f"seed = {seed!r} is invalid: use an integer >= 0")
     if not 1 <= n <= 1000:
@@ -77,7 +78,7 @@ def held_out_seeds(start: int, n: int, seed: int = 0) -> list[int]:
 
 
 def mission_seeds(n: int, seed: int = 0) -> list[int]:
-    """This command's ``n`` mission seeds for run ``seed`` (:func:`held_out_seeds` from :data:`SEED_START`)."""
+    """The ``n`` mission seeds of this command for run ``seed`` (:func:`held_out_seeds` from :data:`SEED_START`)."""
     return held_out_seeds(SEED_START, n, seed)
 
 
@@ -96,7 +97,8 @@ def rollout(splits, seeds, scenario: str | Scenario = "paper", max_steps: int | 
     in batches of at most :data:`MAX_BATCH` loops. Returns arrays of shape (n_splits, n_seeds):
     ``mean_error_m`` and ``mse_m2`` (over the slots played), ``terminated`` (loss of track),
     ``eps_ctrl`` (mean per-slot loss probability), ``packet_loss``, ``stability_violation``,
-    ``rate_violation``, ``violation`` (either), ``peb_m``, ``rate_comm_mbps``, ``length``."""
+    ``rate_violation``, ``violation`` (either), ``peb_m``, ``rate_comm_mbps``, ``length``.
+    """
     from iscc_gym.eval.evaluate import run_episodes
 
     s = make_scenario(scenario)
@@ -142,7 +144,8 @@ def summarize_missions(r: dict, i: int) -> dict:
     """Per-split summary of :func:`rollout` row ``i``: loss of track (count, fraction, Wilson 95 %
     CI), mean and RMS tracking error over the missions that kept track (Student-t 95 % CI; the RMS
     interval is the square root of the mean-square interval), and the mean loss rate and violation
-    fractions over all missions."""
+    fractions over all missions.
+    """
     lost = r["terminated"][i]
     held = ~lost
     n, k = int(lost.size), int(lost.sum())
@@ -184,7 +187,8 @@ def _evaluator_row(model: StaticModel, alpha) -> dict:
 
 def _agreement(env: dict, ev: dict) -> dict:
     """Relative error of the evaluator against the env (positive: the env is worse) and whether it is
-    within :data:`TOLERANCE` plus the env's CI half-width."""
+    within :data:`TOLERANCE` plus the env's CI half-width.
+    """
     out = {}
     for key, ev_key in (("mean", "local_mean_m"), ("rms", "local_rms_m")):
         e, p = env[f"{key}_error_m"], ev[ev_key]
@@ -213,7 +217,8 @@ def run(quick: bool = False, seed: int = 0) -> dict:
     """The stability-under-fading study and the evaluator's env checks (JSON-able; ``claims`` list).
 
     ``quick``: :data:`QUICK_MISSIONS` missions on a coarser grid (a smoke run; the claims then rest on
-    few missions)."""
+    few missions).
+    """
     t0 = time.perf_counter()
     s = SCENARIOS["paper"]
     model = static_model(s)

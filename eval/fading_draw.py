@@ -30,7 +30,8 @@ def _save(fig, path: Path) -> str:
 def draw(res: dict, figures_dir) -> dict[str, str]:
     """Two PNG figures: ``fading_stability`` (loss rate, loss of track and tracking error vs alpha_ctrl,
     env beside the analysis) and ``evaluator_trust`` (evaluator vs env against the worst position's
-    loss rate). Returns {name: path}."""
+    loss rate). Returns {name: path}.
+    """
     d = Path(figures_dir)
     rows = res["rows"]
     a = np.array([r["alpha_ctrl"] for r in rows]) * 100

@@ -44,7 +44,8 @@ def new_figure(size, dpi: int = 100):
 
 def save_figure(fig, path: str | Path) -> Path:
     """Save ``fig`` as a PNG at ``path`` atomically (a temporary name, then a rename): an interrupted run
-    never leaves a truncated figure."""
+    never leaves a truncated figure.
+    """
     from iscc_gym.files import atomic_target
 
     with atomic_target(path) as tmp:
@@ -60,7 +61,8 @@ def _alive(tr):
 
 def trajectories_3d(path: Path, traces: dict, dt_s: float) -> None:
     """(a) the whole mission of every scheme; (b) a 30 s window of GNSS feedback and ISCC, whose
-    errors (metres, decimetres) do not show at the mission's scale."""
+    errors (metres, decimetres) do not show at the mission's scale.
+    """
     fig = new_figure((13, 6))
     first = traces["iscc"]
     ok = _alive(first)

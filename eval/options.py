@@ -85,7 +85,8 @@ def _probe_dir(directory: Path, flag: str, path: Path) -> None:
 
 def check_writable_file(path: str | os.PathLike, flag: str) -> Path:
     """Check, before any work, that a file can be written at ``path`` (its missing parent directories
-    would be created); ``OSError`` naming ``flag`` otherwise. Creates nothing."""
+    would be created); ``OSError`` naming ``flag`` otherwise. Creates nothing.
+    """
     p = Path(path)
     if p.is_dir():
         raise OSError(f"{flag} {p}: is a directory; give a file name")
@@ -98,7 +99,8 @@ def check_writable_file(path: str | os.PathLike, flag: str) -> Path:
 
 def check_writable_dir(path: str | os.PathLike, flag: str) -> Path:
     """Check, before any work, that files can be written into directory ``path`` (created if missing);
-    ``OSError`` naming ``flag`` otherwise. Creates nothing."""
+    ``OSError`` naming ``flag`` otherwise. Creates nothing.
+    """
     p = Path(path)
     if p.exists() and not p.is_dir():
         raise OSError(f"{flag} {p}: is a file, not a directory")
@@ -129,7 +131,8 @@ def progress_bar(total: float, desc: str, unit: str = "it", enabled: bool = True
 
 class Stages:
     """A progress bar over the named stages of a long command: ``st.next("model level")`` marks the
-    previous stage done and shows the new one's name. A no-op when not ``enabled``."""
+    previous stage done and shows the new one's name. A no-op when not ``enabled``.
+    """
 
     def __init__(self, total: int, desc: str, enabled: bool = True):
         self.bar = progress_bar(total, desc, unit="stage", enabled=enabled,
@@ -156,7 +159,8 @@ class Stages:
 
 def run_console(main, argv: list[str] | None, prog: str) -> int:
     """``main(argv, prog=prog)`` ended with an exit code (:func:`iscc_gym.cli.run`): 0 on success, 2 after
-    a one-line error for a user's mistake, 130 on Ctrl-C. For ``sys.exit`` in a command's ``__main__``."""
+    a one-line error for a user's mistake, 130 on Ctrl-C. For ``sys.exit`` in a command's ``__main__``.
+    """
     from iscc_gym.cli import run
 
     return run(functools.partial(main, prog=prog), argv, prog)
@@ -165,7 +169,8 @@ def run_console(main, argv: list[str] | None, prog: str) -> int:
 def claims_parser(prog: str, description: str, *, missions: int, quick_missions: int, seed_base: str,
                   figures_default: str) -> Parser:
     """The parser of a measurement command that states claims (``eval.fading``, ``eval.sensitivity``):
-    ``--quick``, ``--seed``, ``--json``, ``--figures``, ``--no-figures``."""
+    ``--quick``, ``--seed``, ``--json``, ``--figures``, ``--no-figures``.
+    """
     p = Parser(prog=prog, description=description)
     p.add_argument("--quick", action="store_true",
                    help=f"{quick_missions} missions per point on a coarser grid (smoke run; default {missions})")
@@ -180,7 +185,8 @@ def claims_parser(prog: str, description: str, *, missions: int, quick_missions:
 
 def run_claims_command(args, run, draw, check_seeds, report=None) -> dict:
     """Check the outputs first, then ``run(quick, seed)``, ``draw(res, dir)``, print the claims (and
-    ``report(res)``), write ``--json`` atomically; returns the results."""
+    ``report(res)``), write ``--json`` atomically; returns the results.
+    """
     import json
 
     from iscc_gym.files import write_atomic

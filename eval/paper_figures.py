@@ -206,7 +206,8 @@ def _stable_rows(g) -> np.ndarray:
 def fig7_fits(g: dict) -> dict:
     """Per alpha_ctrl row of :data:`FIG7_CTRL` in the grid: the line error = k PEB + c over the
     alpha_sen points where no mission lost track (env PEB), its R^2, a bootstrap 90 % interval of k
-    over missions, and the evaluator's k on the same splits."""
+    over missions, and the evaluator's k on the same splits.
+    """
     ctrl = list(g["alpha_ctrl"])
     err_pm = np.asarray(g["per_mission"]["tracking_error_m"])
     peb_pm = np.asarray(g["per_mission"]["peb_m"])
@@ -239,7 +240,8 @@ def fig8_stats(g: dict, model) -> dict:
     """Fig. 8: the LQG cost against the PEB (a line per alpha_ctrl row where no mission lost track, the
     PEB varied by alpha_sen), and the data rate above which the best achievable tracking error rises
     (the knee: the smallest rate R such that every split with a rate >= R has an error above 1.25 x
-    the best of all splits, or loses track)."""
+    the best of all splits, or loses track).
+    """
     peb, lqg = np.asarray(g["peb_m"]), np.asarray(g["lqg_cost"])
     err, rate = np.asarray(g["tracking_error_m"]).ravel(), np.asarray(g["rate_mbps"]).ravel()
     lost = np.asarray(g["lost"])
@@ -270,7 +272,8 @@ def _pct(x: float) -> str:
 
 def _first_saturated(values, ref: float, ok, tol: float):
     """Index of the first entry from which every later entry with ``ok`` stays within ``tol`` (relative)
-    of ``ref`` (None if none)."""
+    of ``ref`` (None if none).
+    """
     v = np.asarray(values, dtype=float)
     okv = np.asarray(ok, dtype=bool)
     for j in range(len(v)):
@@ -282,7 +285,8 @@ def _first_saturated(values, ref: float, ok, tol: float):
 
 def claims(res: dict) -> list[dict]:
     """The paper's statements about Figs. 3-8 (and the Table II PEB and error readings), each tested
-    on the measured numbers of ``res``."""
+    on the measured numbers of ``res``.
+    """
     out = []
 
     def add(cid, figure, paper, ours, holds, why):

@@ -1,15 +1,15 @@
-"""Closed-loop Monte Carlo of static splits for the paper's Figs. 5-8 (``python -m eval.reproduce``).
+r"""Closed-loop Monte Carlo of static splits for the paper's Figs. 5-8 (``python -m eval.reproduce``).
 
 Every split of a list is flown on the same ``n_missions`` seeded missions (common random numbers:
 the same trajectories, shadowing, fading, measurement, process-noise and drop draws for every split),
 all splits and missions stepped as one batch through :func:`iscc_gym.loop.step` (the env's
 transition, compiled kernel). Per slot it records what the env reports (tracking error, PEB, data
 rate, loss rate) and one thing the env does not: the LQG stage cost of eq:LQG_cost,
-:math:`\\mathbf x_n^T\\mathbf Q\\mathbf x_n + \\tilde{\\mathbf u}_n^T\\mathbf R\\tilde{\\mathbf u}_n`, with
-:math:`\\mathbf x_n` the state minus the reference and :math:`\\tilde{\\mathbf u}_n` the applied command
+:math:`\mathbf x_n^T\mathbf Q\mathbf x_n + \tilde{\mathbf u}_n^T\mathbf R\tilde{\mathbf u}_n`, with
+:math:`\mathbf x_n` the state minus the reference and :math:`\tilde{\mathbf u}_n` the applied command
 (zero when the command is lost). The applied command is recovered exactly from the transition,
-:math:`\\mathbf B\\tilde{\\mathbf u}_n = \\mathbf x_{n+1} - \\mathbf A\\mathbf x_n - \\mathbf w_n`, with
-:math:`\\mathbf w_n` the slot's process noise regenerated from the episode's noise key
+:math:`\mathbf B\tilde{\mathbf u}_n = \mathbf x_{n+1} - \mathbf A\mathbf x_n - \mathbf w_n`, with
+:math:`\mathbf w_n` the slot's process noise regenerated from the episode's noise key
 (:func:`iscc_gym.loop.slot_noise`).
 
 A mission that loses track (tracking error above ``max_tracking_error_m``, the env's termination)

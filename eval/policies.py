@@ -44,7 +44,8 @@ def policy_name(item: str) -> str:
 
 def resolve_specs(specs: str) -> list[str]:
     """The items of a ``--policies`` value: a bare ``ppo`` becomes the shipped agent (``ppo=`` its path);
-    ``ValueError`` if it is empty or names a policy twice (results are keyed by name)."""
+    ``ValueError`` if it is empty or names a policy twice (results are keyed by name).
+    """
     items = [p.strip() for p in _split_specs(specs) if p.strip()]
     if not items:
         raise ValueError("--policies is empty; e.g. --policies ppo,sca,equal")
@@ -66,7 +67,8 @@ _items = resolve_specs  # the former name
 def check_specs(items: list[str], scenario: str = "paper") -> None:
     """Check every item before any episode is played: a trained agent's path holds a model (and torch and
     SB3 are installed), a scripted spec is one :func:`agents.make_policy` understands. ``OSError`` /
-    ``ValueError`` with one line naming the item otherwise. Builds only the cheap scripted policies."""
+    ``ValueError`` with one line naming the item otherwise. Builds only the cheap scripted policies.
+    """
     from iscc_gym.agents import make_policy
 
     learned = False
@@ -129,7 +131,8 @@ def run_parallel(specs: str, seeds, scenario: str = "paper", max_steps=None, rec
 
     ``progress(n)``, if given, is called in this process with the slots played since its last call (the
     workers report through a queue; a policy's calls add up to its horizon when it finishes). The first
-    error of a worker is raised as soon as it happens (the policies not started are cancelled)."""
+    error of a worker is raised as soon as it happens (the policies not started are cancelled).
+    """
     import multiprocessing
     from concurrent.futures import FIRST_EXCEPTION, ProcessPoolExecutor, wait
     from queue import Empty
@@ -186,7 +189,8 @@ def run_parallel(specs: str, seeds, scenario: str = "paper", max_steps=None, rec
 
 def _stop(pool) -> None:
     """Cancel what a pool has not started and end its worker processes (Python 3.14's ``terminate_workers``,
-    else each process of the pool)."""
+    else each process of the pool).
+    """
     terminate = getattr(pool, "terminate_workers", None)
     if terminate is not None:
         terminate()

@@ -1,4 +1,6 @@
-"""``python -m eval.probes``: is there anything beyond the per-slot optimum for a learner to find?
+"""``python -m eval.probes``: what a learner could find beyond the per-slot optimum.
+
+Is there anything beyond the per-slot optimum for a learner to find?
 
 Plays variants of the scripted baselines that use what a non-myopic (learned) policy could exploit,
 each against its base rule on the same tuning missions (common random numbers, seeds from 500,000,
@@ -59,7 +61,8 @@ N_PROBES = (15, 20)
 
 def probes(seeds, scenario: str = "paper", myopic: bool = True, progress=None) -> list[dict]:
     """Every probe's mean episode reward and paired difference to its base (see the module).
-    ``progress(1)``, if given, is called after each policy played (:data:`N_PROBES`)."""
+    ``progress(1)``, if given, is called after each policy played (:data:`N_PROBES`).
+    """
     from iscc_gym.scenario import make_scenario
 
     s = make_scenario(scenario)

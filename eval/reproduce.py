@@ -104,7 +104,8 @@ def calibrate_sensing_offset(s: Scenario, n_missions: int = CALIBRATION_MISSIONS
     The CRLB scales as 1/SNR, so the PEB of a slot scales as SNR^-1/2 and a shift of
     ``20 log10(PEB / target)`` dB lands on the target up to the feedback of the estimate on the
     trajectory; the fixed-point iteration repeats that step until the PEB is within ``rtol``.
-    Returns the offset, the PEB it gives and the iterations."""
+    Returns the offset, the PEB it gives and the iterations.
+    """
     from iscc_gym.eval.fading import rollout
 
     seeds = range(CALIBRATION_SEED_START, CALIBRATION_SEED_START + int(n_missions))
@@ -187,7 +188,8 @@ def model_level(s: Scenario, sample: TrajectorySample) -> dict:
 def lqr_floor_error_m(s: Scenario) -> float:
     """Mean tracking error E||e_p|| of a perfectly informed, loss-free LQR loop (no sensing error):
     the stationary covariance of x+ = (A - BK) x + w from the discrete Lyapunov equation, and
-    E||e|| of the 3-D position error by Monte Carlo over that Gaussian (fixed seed)."""
+    E||e|| of the 3-D position error by Monte Carlo over that Gaussian (fixed seed).
+    """
     mm = model_matrices(s)
     cov = scipy.linalg.solve_discrete_lyapunov(mm.a_cl, mm.sigma_w)[:3, :3]
     z = np.random.default_rng(0).standard_normal((200_000, 3)) @ np.linalg.cholesky(cov).T
@@ -197,7 +199,8 @@ def lqr_floor_error_m(s: Scenario) -> float:
 def closed_loop_error_m(s: Scenario, n_missions: int, alpha=(0.2, 0.2, 0.6), seed: int = 0):
     """Mean tracking error of the closed loop in the env (``n_missions`` full missions, seeds
     ``1000 * seed + i``, one batch, through :func:`iscc_gym.eval.fading.rollout`) at a fixed split; the
-    paper's Table II SCA split by default. Returns the mean over missions and the missions that lost track."""
+    paper's Table II SCA split by default. Returns the mean over missions and the missions that lost track.
+    """
     from iscc_gym.eval.fading import rollout
 
     r = rollout([alpha], [1000 * int(seed) + i for i in range(int(n_missions))], s)
@@ -360,7 +363,8 @@ _TARGET_CLAIMS = (
 
 def scheme_claims(res: dict) -> list[dict]:
     """The scheme level's targets (:func:`eval.schemes.check_targets`) and Table II's data rate and LQG
-    cost, as claims."""
+    cost, as claims.
+    """
     out = []
     for t in res["targets"]:
         for prefix, cid, fig, paper in _TARGET_CLAIMS:
@@ -412,7 +416,8 @@ def build_parser(prog: str = "python -m eval.reproduce") -> Parser:
 
 def figures_dir_of(args) -> Path | None:
     """Where ``args`` send the figures: none with ``--no-figures`` (or ``--model-only``), ``--figures``,
-    the checkout's ``docs/figures`` with ``--write-docs``, else :data:`DEFAULT_FIGURES`."""
+    the checkout's ``docs/figures`` with ``--write-docs``, else :data:`DEFAULT_FIGURES`.
+    """
     if args.no_figures or args.model_only:
         return None
     if args.figures:

@@ -1,5 +1,6 @@
 """What ``python -m eval.reproduce`` prints and writes: the console table, the README block and the
-sections of ``docs/results.md`` (model level, claims, scheme level)."""
+sections of ``docs/results.md`` (model level, claims, scheme level).
+"""
 
 from __future__ import annotations
 
@@ -137,7 +138,8 @@ def _cell(text) -> str:
 def claims_section(res: dict, results_path: Path) -> str:
     """The ``reproduce-claims`` section of docs/results.md: the claims table, then every figure of the
     paper (Figs. 3-8 here, Fig. 9 in the scheme-level section, the other modules' figures after)
-    with where its numbers come from."""
+    with where its numbers come from.
+    """
     claims = res["claims"]
     pf = res.get("paper_figures", {})
     g = pf.get("grid", {})
@@ -188,7 +190,8 @@ def write_docs(paper_res: dict, literal_res: dict, results_path: str | Path = RE
     """Regenerate this command's sections of docs/results.md (``reproduce``: model level;
     ``reproduce-schemes``: scheme level, if ``paper_res`` has it; ``reproduce-claims``: the claims
     table and the paper's figures) and the README's ``reproduce`` block; every other section of both
-    files is left as it is."""
+    files is left as it is.
+    """
     results_path, readme_path = Path(results_path), Path(readme_path)
     write_section(results_path, "reproduce", model_section(paper_res, literal_res))
     n = paper_res["n_trajectories"]

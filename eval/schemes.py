@@ -89,7 +89,8 @@ def gnss_what_if(s: Scenario, eps: float, target_m: float = PAPER_SCHEMES["schem
     control loss rate ``eps``): the env's (a 3 m / 0.2 m/s fix every ``gnss_update_period_s``,
     Kalman-filtered), a fix every 0.1 s slot, a 1 Hz receiver, the fix fed unfiltered, process noise
     read as variances, and the position noise std that would give the paper's ``target_m`` with a fix
-    every slot."""
+    every slot.
+    """
     k = s.gnss_update_slots
     out = {
         "env_reading_m": gnss_steady_error_m(s, eps, period_slots=k),
@@ -263,7 +264,8 @@ def run_schemes(s: Scenario, quick: bool = False, seeds=None, max_steps: int | N
 # --------------------------------------------------------------------------------------------------
 def check_targets(res: dict) -> list[dict]:
     """The issue's targets (on the ``paper`` preset): one dict per target with ``name``, ``holds``
-    and ``detail`` (the figures)."""
+    and ``detail`` (the figures).
+    """
     p = PAPER_SCHEMES
     al, sc = res["allocation"], res["schemes"]
     out = []

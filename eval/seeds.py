@@ -54,7 +54,8 @@ def seed_runs(root: str | Path) -> dict[int, Path]:
 def compare_seeds(root, seeds, scenario: str = "paper", scripted=SCRIPTED, max_steps: int | None = None,
                   progress=None) -> dict:
     """Evaluate every seed's agent and the scripted policies on ``seeds``; per-seed paired differences.
-    ``progress(n)``: slots played, as in :func:`iscc_gym.eval.evaluate.evaluate`."""
+    ``progress(n)``: slots played, as in :func:`iscc_gym.eval.evaluate.evaluate`.
+    """
     import torch
     from iscc_gym.agents import make_policy
     from iscc_gym.agents.sb3_policy import SB3Policy

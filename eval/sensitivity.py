@@ -74,7 +74,8 @@ def _point(model, res, env: dict, **extra) -> dict:
 
 def run(quick: bool = False, seed: int = 0) -> dict:
     """The sweeps of ``rate_min_bps`` and ``loss_design_fraction``, the conventions and the PEB
-    calibration (JSON-able; ``claims`` list)."""
+    calibration (JSON-able; ``claims`` list).
+    """
     t0 = time.perf_counter()
     s = SCENARIOS["paper"]
     n = QUICK_MISSIONS if quick else MISSIONS
@@ -230,7 +231,8 @@ def claims(res: dict) -> list[dict]:
 # --------------------------------------------------------------------------------------------------
 def draw(res: dict, figures_dir) -> dict[str, str]:
     """``sensitivity_constants``: SCA's split, its tracking error and the violation fraction over
-    ``rate_min_bps`` (top row) and ``loss_design_fraction`` (bottom row). Returns {name: path}."""
+    ``rate_min_bps`` (top row) and ``loss_design_fraction`` (bottom row). Returns {name: path}.
+    """
     from iscc_gym.eval.fading import _figure, _save
 
     fig = _figure((14, 7.5))

@@ -86,7 +86,8 @@ def n_batches(n_points: int, n_seeds: int) -> int:
 def margin_rewards(points, seeds, scenario="paper", progress=None) -> np.ndarray:
     """Mean episode reward over ``seeds`` of each (m_ctrl, m_comm, sensing_floor) in ``points``
     (k, 3), played in batches of up to :data:`MAX_BATCH` loops (common random numbers: every point
-    on the same seeds). ``progress(1)``, if given, is called after each batch."""
+    on the same seeds). ``progress(1)``, if given, is called after each batch.
+    """
     pts = np.asarray(points, dtype=float).reshape(-1, 3)
     n = len(seeds)
     per = max(1, MAX_BATCH // n)
@@ -109,7 +110,8 @@ def tune_margin(seeds=TUNE_SEEDS, grid=None, scenario: str = "paper", refine: bo
                 progress=None) -> dict:
     """Grid over (m_ctrl, m_comm, sensing_floor), then Nelder-Mead from the best point, on the
     tuning seeds; returns the tuning record (see the module). ``progress(1)``, if given, is called
-    after each batch of the grid (:func:`n_batches`) and each Nelder-Mead evaluation."""
+    after each batch of the grid (:func:`n_batches`) and each Nelder-Mead evaluation.
+    """
     seeds = check_tuning_seeds(seeds)
     grid = grid or MARGIN_GRID
     t0 = time.perf_counter()

@@ -1,5 +1,6 @@
 """Static splits: validation of a split (alpha_sen, alpha_ctrl, alpha_comm) and the metrics the
-analytic evaluator (:mod:`iscc_gym.analysis`) reports for one."""
+analytic evaluator (:mod:`iscc_gym.analysis`) reports for one.
+"""
 
 from __future__ import annotations
 
@@ -12,19 +13,19 @@ __all__ = ["AllocationMetrics", "check_alpha"]
 
 @dataclass(frozen=True)
 class AllocationMetrics:
-    """Steady-state figures of static splits, each an array of shape (n,) (or (n, 3) for ``alpha``).
+    r"""Steady-state figures of static splits, each an array of shape (n,) (or (n, 3) for ``alpha``).
 
     Attributes
     ----------
     alpha : (n, 3)
         The split (alpha_sen, alpha_ctrl, alpha_comm).
     tracking_error_m :
-        Mean tracking error :math:`\\mathbb E\\|\\mathbf p_n - \\mathbf p_{\\mathrm{ref},n}\\|` (inf when
+        Mean tracking error :math:`\mathbb E\|\mathbf p_n - \mathbf p_{\mathrm{ref},n}\|` (inf when
         not mean-square stable).
     tracking_rmse_m :
-        :math:`\\sqrt{\\mathbb E\\|\\mathbf e_\\mathbf p\\|^2}` (prob:obj).
+        :math:`\sqrt{\mathbb E\|\mathbf e_\mathbf p\|^2}` (prob:obj).
     estimation_error_m :
-        :math:`\\mathbb E\\|\\hat{\\mathbf p}_n - \\mathbf p_n\\|` of the Kalman estimate.
+        :math:`\mathbb E\|\hat{\mathbf p}_n - \mathbf p_n\|` of the Kalman estimate.
     peb_m, veb_mps :
         Trajectory-averaged PEB and VEB (large-scale echo, as ``eval.reproduce``).
     eps_ctrl :
@@ -34,10 +35,10 @@ class AllocationMetrics:
     rate_comm_bps :
         Mean data rate (eq:rate_equation over positions, shadowing and fading).
     rate_shortfall :
-        Expected normalised shortfall :math:`\\mathbb E(R_\\min - \\mathcal R_{\\mathrm{comm},n})^+/R_\\min`
+        Expected normalised shortfall :math:`\mathbb E(R_\min - \mathcal R_{\mathrm{comm},n})^+/R_\min`
         (the env's ``cost_rate``).
     stability_violation :
-        Fraction of slots with :math:`\\varepsilon_{\\mathrm{ctrl},n} > \\varepsilon^\\star` (the env's
+        Fraction of slots with :math:`\varepsilon_{\mathrm{ctrl},n} > \varepsilon^\star` (the env's
         ``cost_stability``).
     lqg_cost :
         Average LQG cost b (eq:LQG_cost).
@@ -54,8 +55,8 @@ class AllocationMetrics:
         ``tracking_error_m`` where feasible, else ``max_tracking_error_m`` plus the constraint
         violations (finite, for optimisers; beyond the trust bound the excess loss rate over it).
     expected_reward :
-        Steady-state mean per-slot reward of the env: :math:`-\\min(\\mathbb E\\|\\mathbf e\\|, e_\\max)
-        - w_\\mathrm{rate}\\,` ``rate_shortfall`` :math:`- w_\\mathrm{stab}\\,` ``stability_violation``.
+        Steady-state mean per-slot reward of the env: :math:`-\min(\mathbb E\|\mathbf e\|, e_\max)
+        - w_\mathrm{rate}\,` ``rate_shortfall`` :math:`- w_\mathrm{stab}\,` ``stability_violation``.
     """
 
     alpha: np.ndarray

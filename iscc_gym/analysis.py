@@ -1,4 +1,4 @@
-"""Analytic (steady-state) evaluation of a static allocation (alpha_sen, alpha_ctrl, alpha_comm).
+r"""Analytic (steady-state) evaluation of a static allocation (alpha_sen, alpha_ctrl, alpha_comm).
 
 The paper's problem prob:resource_allocation asks for the split that minimises the mean tracking
 error of the closed loop eq:closed_loop subject to mean-square stability (cons:stability), the
@@ -18,28 +18,28 @@ How the steady state is computed (``docs/model.md``, Sec. 3):
   6-state filter into three independent 2-state (position, velocity) filters: the range axis
   measures position and radial velocity, the two cross-range axes position only. Each is solved by
   the structure-preserving doubling algorithm, vectorised over positions, axes and splits.
-* **Exact closed-loop recursion.** With the estimate :math:`\\hat{\\mathbf z}_n = \\hat{\\mathbf x}_n -
-  \\mathbf x_{\\mathrm{ref},n}`, the loop is :math:`\\hat{\\mathbf z}_{n+1} = (\\mathbf A - \\delta_n
-  \\mathbf B\\mathbf K)\\hat{\\mathbf z}_n + \\mathbf L\\boldsymbol\\nu_{n+1}` (innovations white and
-  independent of :math:`\\delta_n`, because the GBS learns :math:`\\delta_n` from the acknowledgement),
-  and the tracking error is :math:`\\hat{\\mathbf z}_n + \\mathbf e_n` with
-  :math:`\\mathbf e_n \\perp \\hat{\\mathbf z}_n`. Hence
+* **Exact closed-loop recursion.** With the estimate :math:`\hat{\mathbf z}_n = \hat{\mathbf x}_n -
+  \mathbf x_{\mathrm{ref},n}`, the loop is :math:`\hat{\mathbf z}_{n+1} = (\mathbf A - \delta_n
+  \mathbf B\mathbf K)\hat{\mathbf z}_n + \mathbf L\boldsymbol\nu_{n+1}` (innovations white and
+  independent of :math:`\delta_n`, because the GBS learns :math:`\delta_n` from the acknowledgement),
+  and the tracking error is :math:`\hat{\mathbf z}_n + \mathbf e_n` with
+  :math:`\mathbf e_n \perp \hat{\mathbf z}_n`. Hence
 
   .. math::
-      \\Sigma_{\\hat z} = (1-\\varepsilon)(\\mathbf A-\\mathbf B\\mathbf K)\\Sigma_{\\hat z}(\\mathbf A-
-      \\mathbf B\\mathbf K)^T + \\varepsilon\\mathbf A\\Sigma_{\\hat z}\\mathbf A^T + (\\mathbf P_{n|n-1}
-      - \\Sigma_\\mathrm{est}),\\qquad \\Sigma_x = \\Sigma_{\\hat z} + \\Sigma_\\mathrm{est},
+      \Sigma_{\hat z} = (1-\varepsilon)(\mathbf A-\mathbf B\mathbf K)\Sigma_{\hat z}(\mathbf A-
+      \mathbf B\mathbf K)^T + \varepsilon\mathbf A\Sigma_{\hat z}\mathbf A^T + (\mathbf P_{n|n-1}
+      - \Sigma_\mathrm{est}),\qquad \Sigma_x = \Sigma_{\hat z} + \Sigma_\mathrm{est},
 
-  the recursion eq:covariance_recursion with :math:`\\mathbf P_{n|n-1} - \\Sigma_\\mathrm{est}` in place
-  of eq:omega_tilde_cov's :math:`\\Sigma_{\\tilde\\omega}`. The paper's form (which drops the
-  correlation between :math:`\\mathbf x_n` and :math:`\\mathbf e_n`) is available as
+  the recursion eq:covariance_recursion with :math:`\mathbf P_{n|n-1} - \Sigma_\mathrm{est}` in place
+  of eq:omega_tilde_cov's :math:`\Sigma_{\tilde\omega}`. The paper's form (which drops the
+  correlation between :math:`\mathbf x_n` and :math:`\mathbf e_n`) is available as
   ``recursion="paper"``.
 * **Packet loss.** eq:ctrl_bler averaged over the slot's unknowns: shadowing (Gauss-Hermite) and
   Rician fading (non-central chi-square quantiles), per position. ``loss_average="local"``
   (default) applies each position's own loss rate to that position's steady state, and the loop is
   stable only if every position's loss rate is below eps*; ``"trajectory"`` uses one loss rate for
-  all positions, the trajectory average (the paper's :math:`\\varepsilon_\\mathrm{ctrl} =
-  \\frac1N\\sum_n\\varepsilon_{\\mathrm{ctrl},n}`), which is optimistic when the far part of a
+  all positions, the trajectory average (the paper's :math:`\varepsilon_\mathrm{ctrl} =
+  \frac1N\sum_n\varepsilon_{\mathrm{ctrl},n}`), which is optimistic when the far part of a
   trajectory loses most commands (the losses come in long runs there, not independently).
 * **Where it can be trusted.** Near the stability edge the steady state is optimistic: far from
   the GBS the losses come in long runs (shadowing is correlated along the flight), and the env's
@@ -50,9 +50,9 @@ How the steady state is computed (``docs/model.md``, Sec. 3):
   is 6-10 % above it, at 0.8 eps* the mean 4 % and the RMS 40-50 %. Splits beyond the bound are
   flagged ``trusted=False`` and are not ``feasible``, so no optimiser scored by this evaluator
   (grid, evolutionary search, SCA) picks one.
-* **Mean error.** The tracking error reported is :math:`\\mathbb E\\|\\mathbf e_\\mathbf p\\|` (what
+* **Mean error.** The tracking error reported is :math:`\mathbb E\|\mathbf e_\mathbf p\|` (what
   the env and the paper's Table II report) of the zero-mean Gaussian position error, by quadrature
-  on the sphere; ``tracking_rmse_m`` is :math:`\\sqrt{\\mathbb E\\|\\mathbf e_\\mathbf p\\|^2}`
+  on the sphere; ``tracking_rmse_m`` is :math:`\sqrt{\mathbb E\|\mathbf e_\mathbf p\|^2}`
   (prob:obj).
 
 The lag of a moving reference without feed-forward is neglected (< 0.1 mm, ``docs/model.md`` 2.10).
@@ -97,7 +97,7 @@ _LOSS_AVERAGES = ("trajectory", "local", "mean_snr")
 
 
 class StaticModel:
-    """Steady-state evaluator of static splits for one scenario and one trajectory sample.
+    r"""Steady-state evaluator of static splits for one scenario and one trajectory sample.
 
     Everything that does not depend on the split is computed once: positions, ranges and
     directions; the sensing coefficients (:class:`SensingCoefficients`); the SNR at shadowing and
@@ -112,7 +112,7 @@ class StaticModel:
     sample : TrajectorySample
         Positions along reference trajectories (:func:`sample_positions`).
     n_shadow_nodes : int
-        Gauss-Hermite nodes of the shadowing :math:`\\mathcal N(0, \\sigma_\\mathrm{SF}(h)^2)` (dB).
+        Gauss-Hermite nodes of the shadowing :math:`\mathcal N(0, \sigma_\mathrm{SF}(h)^2)` (dB).
     n_alpha_grid : int
         Points of the log-spaced ``alpha_ctrl`` grid (1e-4 to 1) of the loss-rate table.
 
@@ -120,9 +120,9 @@ class StaticModel:
     -----
     The Kalman and closed-loop part is exact for the model of ``docs/model.md`` Sec. 3 (frozen
     geometry, loss rate independent of the state); two tables carry approximation error: the
-    loss-rate table (:meth:`eps_ctrl_local`, below 2e-3 in :math:`\\varepsilon` per position, 3e-4 on
+    loss-rate table (:meth:`eps_ctrl_local`, below 2e-3 in :math:`\varepsilon` per position, 3e-4 on
     trajectory average) and the Kalman steady state, a cubic spline in
-    :math:`\\log\\alpha_\\mathrm{sen}` through 121 exact solutions (relative error below 1e-4;
+    :math:`\log\alpha_\mathrm{sen}` through 121 exact solutions (relative error below 1e-4;
     :meth:`kalman` is the exact path).
     """
 
@@ -189,11 +189,11 @@ class StaticModel:
         self._eps_table = q_inv(np.clip(table, 1e-300, 1.0 - 1e-16))  # probit scale
 
     def eps_ctrl_local(self, alpha_ctrl):
-        """Per-position loss rate eq:ctrl_bler averaged over shadowing and fading, shape (n, P).
+        r"""Per-position loss rate eq:ctrl_bler averaged over shadowing and fading, shape (n, P).
 
-        Interpolated in the table linearly in :math:`1/\\alpha_\\mathrm{ctrl}` on the probit scale
-        :math:`Q^{-1}(\\varepsilon)` (exact for a single quadrature node, where
-        :math:`Q^{-1}(\\varepsilon)` is affine in :math:`1/\\alpha`).
+        Interpolated in the table linearly in :math:`1/\alpha_\mathrm{ctrl}` on the probit scale
+        :math:`Q^{-1}(\varepsilon)` (exact for a single quadrature node, where
+        :math:`Q^{-1}(\varepsilon)` is affine in :math:`1/\alpha`).
         """
         if self._eps_table is None:
             self._build_eps_table()
@@ -205,8 +205,9 @@ class StaticModel:
         return q_func((1.0 - t) * self._eps_table[i] + t * self._eps_table[i + 1])
 
     def eps_ctrl(self, alpha_ctrl):
-        """Trajectory-averaged loss rate :math:`\\varepsilon_\\mathrm{ctrl} = \\frac1N\\sum_n
-        \\mathbb E\\,\\varepsilon_{\\mathrm{ctrl},n}`, shape (n,)."""
+        r"""Trajectory-averaged loss rate :math:`\varepsilon_\mathrm{ctrl} = \frac1N\sum_n
+        \mathbb E\,\varepsilon_{\mathrm{ctrl},n}`, shape (n,).
+        """
         return self.eps_ctrl_local(alpha_ctrl).mean(axis=1)
 
     def alpha_ctrl_for_loss(self, eps_target: float, local: bool = True) -> float:
@@ -235,7 +236,8 @@ class StaticModel:
 
     def alpha_ctrl_trusted(self, trust_loss_fraction: float | None = None) -> float:
         """Smallest control share the evaluator is trusted at: every sampled position's loss rate at
-        most ``trust_loss_fraction`` (default :data:`TRUST_LOSS_FRACTION`) x eps*."""
+        most ``trust_loss_fraction`` (default :data:`TRUST_LOSS_FRACTION`) x eps*.
+        """
         trust = TRUST_LOSS_FRACTION if trust_loss_fraction is None else float(trust_loss_fraction)
         return self.alpha_ctrl_for_loss(trust * self.eps_star, local=True)
 
@@ -244,7 +246,7 @@ class StaticModel:
         return np.asarray(alpha_comm, dtype=float) * self.rate_comm_per_share_bps
 
     def rate_shortfall(self, alpha_comm):
-        """:math:`\\mathbb E(R_\\min - \\mathcal R_{\\mathrm{comm},n})^+ / R_\\min` at ``alpha_comm``."""
+        r""":math:`\mathbb E(R_\min - \mathcal R_{\mathrm{comm},n})^+ / R_\min` at ``alpha_comm``."""
         r_min = self.scenario.rate_min_bps
         a = np.atleast_1d(np.asarray(alpha_comm, dtype=float))
         if r_min <= 0.0:
@@ -261,8 +263,9 @@ class StaticModel:
 
     # --- sensing and the Kalman filter ------------------------------------------------------------
     def mean_crlb_trace(self, alpha_sen):
-        """Trajectory average of :math:`\\operatorname{Tr}\\mathrm{CRLB}_\\mathbf p` (m^2) and its
-        derivative in ``alpha_sen`` (scalar ``alpha_sen``)."""
+        r"""Trajectory average of :math:`\operatorname{Tr}\mathrm{CRLB}_\mathbf p` (m^2) and its
+        derivative in ``alpha_sen`` (scalar ``alpha_sen``).
+        """
         tr, dtr = crlb_trace(self.sensing, float(alpha_sen))
         return float(np.mean(tr)), float(np.mean(dtr))
 
@@ -288,7 +291,8 @@ class StaticModel:
 
     def _kalman_interp(self, alpha_sen):
         """:meth:`kalman` from a cubic spline in log(alpha_sen) through a table of exact solutions
-        (built on first use; relative error below 1e-5); shares below the table (1e-4) exactly."""
+        (built on first use; relative error below 1e-5); shares below the table (1e-4) exactly.
+        """
         a = np.asarray(alpha_sen, dtype=float)
         lo = self._sen_grid[0]
         inside = a >= lo * (1.0 - 1e-12)
@@ -454,11 +458,11 @@ class StaticModel:
         return self.evaluate(alpha, **kwargs).objective
 
     def rate_cost_bits(self, alpha_sen: float, eps: float) -> float:
-        """Right-hand side of cons:rate_cost, :math:`L(b)` of eq:Lb in bits per slot, at the target
+        r"""Right-hand side of cons:rate_cost, :math:`L(b)` of eq:Lb in bits per slot, at the target
         ``lqg_cost_target`` (``rate_cost_determinant`` selects the printed or pseudo determinant).
 
-        :math:`N(\\tilde\\omega)` is the trajectory average of the entropy power of
-        eq:omega_tilde_cov with each position's :math:`\\Sigma_\\mathrm{est}`; D solves
+        :math:`N(\tilde\omega)` is the trajectory average of the entropy power of
+        eq:omega_tilde_cov with each position's :math:`\Sigma_\mathrm{est}`; D solves
         eq:Riccati_D/eq:Riccati_S at the loss rate ``eps``.
         """
         s = self.scenario

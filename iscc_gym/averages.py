@@ -1,5 +1,6 @@
 """Trajectory-averaged link quantities and bounds: the averages of the paper's Sec. IV-C over
-positions sampled along seeded reference trajectories (Sec. V-A)."""
+positions sampled along seeded reference trajectories (Sec. V-A).
+"""
 
 from __future__ import annotations
 
@@ -49,14 +50,16 @@ def sample_positions(s: Scenario, n_trajectories: int, seed: int = 0, stride: in
 
 
 def mean_snr(s: Scenario, sample: TrajectorySample) -> float:
-    """Trajectory-averaged SNR :math:`\\bar\\gamma` (linear mean of the large-scale SNR, shadowing at
-    its 0 dB median, :math:`\\mathbb E|g|^2 = 1`), the SNR of the paper's Sec. IV-C.1."""
+    r"""Trajectory-averaged SNR :math:`\bar\gamma` (linear mean of the large-scale SNR, shadowing at
+    its 0 dB median, :math:`\mathbb E|g|^2 = 1`), the SNR of the paper's Sec. IV-C.1.
+    """
     return float(np.mean(large_scale_snr(s, sample.pos_m, 0.0)))
 
 
 def mean_comm_rate_bps(s: Scenario, sample: TrajectorySample, alpha_comm: float = 1.0) -> float:
     """Trajectory average of the data link's FBL rate (eq:rate_equation) at ``alpha_comm``, in bit/s
-    (large-scale SNR, no fading)."""
+    (large-scale SNR, no fading).
+    """
     return float(np.mean(comm_rate_bps(s, alpha_comm, large_scale_snr(s, sample.pos_m, 0.0))))
 
 

@@ -44,12 +44,12 @@ __all__ = [
 
 
 def geometry(s: Scenario, pos_m):
-    """Range, azimuth, elevation and LoS unit vector of the drone seen from the GBS antenna.
+    r"""Range, azimuth, elevation and LoS unit vector of the drone seen from the GBS antenna.
 
     .. math::
-        \\mathbf{r} = \\mathbf{p} - [0, 0, h_\\mathrm{GBS}]^T,\\quad l = \\|\\mathbf{r}\\|_2,\\quad
-        \\theta = \\operatorname{atan2}(r_y, r_x),\\quad \\varphi = \\arcsin(r_z / l),\\quad
-        \\mathbf{g} = \\mathbf{r} / l
+        \mathbf{r} = \mathbf{p} - [0, 0, h_\mathrm{GBS}]^T,\quad l = \|\mathbf{r}\|_2,\quad
+        \theta = \operatorname{atan2}(r_y, r_x),\quad \varphi = \arcsin(r_z / l),\quad
+        \mathbf{g} = \mathbf{r} / l
 
     Parameters
     ----------
@@ -73,9 +73,9 @@ def geometry(s: Scenario, pos_m):
 
 
 def path_loss_db(s: Scenario, dist_m):
-    """3GPP TR 36.777 UMa-AV LoS path loss in dB.
+    r"""3GPP TR 36.777 UMa-AV LoS path loss in dB.
 
-    .. math:: \\mathcal{L}(l) = 28.0 + 22\\log_{10}(l) + 20\\log_{10}(f_c)
+    .. math:: \mathcal{L}(l) = 28.0 + 22\log_{10}(l) + 20\log_{10}(f_c)
 
     with :math:`l` in m and :math:`f_c` in GHz (the paper, Sec. II-B).
     """
@@ -83,7 +83,7 @@ def path_loss_db(s: Scenario, dist_m):
 
 
 def shadowing_std_db(s: Scenario, altitude_m):
-    """Shadowing standard deviation :math:`\\sigma_\\mathrm{SF}(h) = 4.64 e^{-0.0066 h}` dB (Table I).
+    r"""Shadowing standard deviation :math:`\sigma_\mathrm{SF}(h) = 4.64 e^{-0.0066 h}` dB (Table I).
 
     ``altitude_m`` is the drone height above ground in m.
     """
@@ -91,12 +91,12 @@ def shadowing_std_db(s: Scenario, altitude_m):
 
 
 def shadowing_step(s: Scenario, shadow_norm, moved_m, z):
-    """Advance the unit-variance shadowing process by a travelled distance (Gudmundson AR(1)).
+    r"""Advance the unit-variance shadowing process by a travelled distance (Gudmundson AR(1)).
 
-    .. math:: s_{n+1} = \\rho s_n + \\sqrt{1-\\rho^2}\\, z_n,\\quad \\rho = e^{-d_n / d_\\mathrm{corr}}
+    .. math:: s_{n+1} = \rho s_n + \sqrt{1-\rho^2}\, z_n,\quad \rho = e^{-d_n / d_\mathrm{corr}}
 
-    The shadowing in dB is :math:`\\varepsilon_n = \\sigma_\\mathrm{SF}(h_n)\\, s_n`
-    (:func:`shadowing_std_db`). The paper gives :math:`\\varepsilon\\sim\\mathcal N(0,\\sigma_{SF}^2)`
+    The shadowing in dB is :math:`\varepsilon_n = \sigma_\mathrm{SF}(h_n)\, s_n`
+    (:func:`shadowing_std_db`). The paper gives :math:`\varepsilon\sim\mathcal N(0,\sigma_{SF}^2)`
     but not its correlation; see ``docs/model.md``.
 
     Parameters
@@ -113,13 +113,13 @@ def shadowing_step(s: Scenario, shadow_norm, moved_m, z):
 
 
 def rician_power_gain(s: Scenario, z_re, z_im):
-    """Small-scale power gain :math:`|g|^2` of a unit-mean-power Rician coefficient.
+    r"""Small-scale power gain :math:`|g|^2` of a unit-mean-power Rician coefficient.
 
     .. math::
-        g = \\sqrt{\\tfrac{K}{K+1}} + \\sqrt{\\tfrac{1}{2(K+1)}}\\,(z_\\mathrm{re} + j z_\\mathrm{im}),
-        \\quad \\mathbb{E}|g|^2 = 1
+        g = \sqrt{\tfrac{K}{K+1}} + \sqrt{\tfrac{1}{2(K+1)}}\,(z_\mathrm{re} + j z_\mathrm{im}),
+        \quad \mathbb{E}|g|^2 = 1
 
-    i.e. :math:`g \\sim \\mathcal{CN}(\\mu, \\sigma^2)` with :math:`|\\mu|^2/\\sigma^2 = K`
+    i.e. :math:`g \sim \mathcal{CN}(\mu, \sigma^2)` with :math:`|\mu|^2/\sigma^2 = K`
     (``rician_k_db``), the paper's :math:`g_{C,m,k}` and :math:`g_{S,m,k}`, one draw per slot.
     ``z_re`` and ``z_im`` are standard normal draws.
     """
@@ -131,7 +131,7 @@ def rician_power_gain(s: Scenario, z_re, z_im):
 
 @per_scenario
 def rician_constants(s: Scenario):
-    """``(los, scat)``: :math:`\\sqrt{K/(K+1)}` and :math:`\\sqrt{1/(2(K+1))}` of :func:`rician_power_gain`."""
+    r"""``(los, scat)``: :math:`\sqrt{K/(K+1)}` and :math:`\sqrt{1/(2(K+1))}` of :func:`rician_power_gain`."""
     k = float(db_to_lin(s.rician_k_db))
     return float(np.sqrt(k / (k + 1.0))), float(np.sqrt(0.5 / (k + 1.0)))
 
@@ -144,11 +144,11 @@ def _element_indices(s: Scenario):
 
 
 def direction_trig(los_unit):
-    """Sines and cosines of the azimuth and elevation of a unit LoS vector, without trigonometry.
+    r"""Sines and cosines of the azimuth and elevation of a unit LoS vector, without trigonometry.
 
     .. math::
-        \\cos\\varphi = \\sqrt{g_x^2 + g_y^2},\\ \\sin\\varphi = g_z,\\
-        \\cos\\theta = g_x/\\cos\\varphi,\\ \\sin\\theta = g_y/\\cos\\varphi
+        \cos\varphi = \sqrt{g_x^2 + g_y^2},\ \sin\varphi = g_z,\
+        \cos\theta = g_x/\cos\varphi,\ \sin\theta = g_y/\cos\varphi
 
     (azimuth 0 at the zenith, where it is undefined). Returns ``(cos_az, sin_az, cos_el, sin_el)``.
     """
@@ -161,14 +161,14 @@ def direction_trig(los_unit):
 
 
 def direction_cosines(s: Scenario, azimuth_rad, elevation_rad):
-    """The two phase-progression terms (u_x, u_y) of the UPA and their angle derivatives.
+    r"""The two phase-progression terms (u_x, u_y) of the UPA and their angle derivatives.
 
     ``array_orientation`` selects the response (see :class:`Scenario`):
 
-    * ``"printed"``: :math:`u_x = \\sin\\theta\\cos\\varphi,\\ u_y = \\sin\\theta\\sin\\varphi`
-      (the paper's :math:`\\mathbf a_x, \\mathbf a_y` as printed);
-    * ``"vertical"``: :math:`u_x = \\cos\\varphi\\sin\\theta,\\ u_y = \\sin\\varphi`;
-    * ``"horizontal"``: :math:`u_x = \\cos\\varphi\\cos\\theta,\\ u_y = \\cos\\varphi\\sin\\theta`.
+    * ``"printed"``: :math:`u_x = \sin\theta\cos\varphi,\ u_y = \sin\theta\sin\varphi`
+      (the paper's :math:`\mathbf a_x, \mathbf a_y` as printed);
+    * ``"vertical"``: :math:`u_x = \cos\varphi\sin\theta,\ u_y = \sin\varphi`;
+    * ``"horizontal"``: :math:`u_x = \cos\varphi\cos\theta,\ u_y = \cos\varphi\sin\theta`.
 
     Returns
     -------
@@ -192,11 +192,11 @@ def direction_cosines_trig(s: Scenario, ct, st, cp, sp):
 
 
 def array_response(s: Scenario, azimuth_rad, elevation_rad):
-    """UPA response :math:`\\mathbf a(\\theta,\\varphi) = \\mathbf a_x \\otimes \\mathbf a_y` and derivatives.
+    r"""UPA response :math:`\mathbf a(\theta,\varphi) = \mathbf a_x \otimes \mathbf a_y` and derivatives.
 
     .. math::
-        [\\mathbf a]_{(i,j)} = \\exp\\big(j 2\\pi \\tfrac{d_\\lambda}{\\lambda}
-        (i\\, u_x + j\\, u_y)\\big)
+        [\mathbf a]_{(i,j)} = \exp\big(j 2\pi \tfrac{d_\lambda}{\lambda}
+        (i\, u_x + j\, u_y)\big)
 
     with centred element indices (phase reference at the array centre) and (u_x, u_y) from
     :func:`direction_cosines`.
@@ -216,10 +216,10 @@ def array_response(s: Scenario, azimuth_rad, elevation_rad):
 
 
 def beamformer(s: Scenario, azimuth_rad, elevation_rad):
-    """Unit-norm transmit beamformer w, shape (..., N).
+    r"""Unit-norm transmit beamformer w, shape (..., N).
 
-    ``"matched"``: :math:`\\mathbf w = \\mathbf a(\\theta,\\varphi)/\\sqrt N` (steered at the given
-    direction, :math:`G = N`); ``"broadside"``: :math:`\\mathbf w = \\mathbf 1/\\sqrt N`.
+    ``"matched"``: :math:`\mathbf w = \mathbf a(\theta,\varphi)/\sqrt N` (steered at the given
+    direction, :math:`G = N`); ``"broadside"``: :math:`\mathbf w = \mathbf 1/\sqrt N`.
     """
     n = s.n_antennas
     if s.beamforming == "matched":
@@ -230,7 +230,7 @@ def beamformer(s: Scenario, azimuth_rad, elevation_rad):
 
 
 def beamforming_gain(a, w):
-    """Beamforming gain :math:`G(\\theta,\\varphi) = |\\mathbf a^H \\mathbf w|^2` (Sec. II-B)."""
+    r"""Beamforming gain :math:`G(\theta,\varphi) = |\mathbf a^H \mathbf w|^2` (Sec. II-B)."""
     return np.abs(np.einsum("...i,...i->...", np.conj(a), w)) ** 2
 
 
@@ -240,21 +240,21 @@ def noise_power_w(s: Scenario):
 
 
 def large_scale_snr(s: Scenario, pos_m, shadow_db, gain=None):
-    """Link SNR without small-scale fading (:math:`|g|^2 = 1`), linear.
+    r"""Link SNR without small-scale fading (:math:`|g|^2 = 1`), linear.
 
     .. math::
-        \\bar\\gamma = \\frac{P\\, \\beta_C\\, G(\\theta,\\varphi)}{N_0 B},\\qquad
-        \\sqrt{\\beta_C} = 10^{-(\\mathcal L + \\varepsilon)/20}
+        \bar\gamma = \frac{P\, \beta_C\, G(\theta,\varphi)}{N_0 B},\qquad
+        \sqrt{\beta_C} = 10^{-(\mathcal L + \varepsilon)/20}
 
-    with :math:`P = P_t` (``snr_convention="total_power"``, the printed eq. of :math:`\\gamma`) or
-    :math:`P = P_k = P_t/\\mathcal K` (``"per_subcarrier_power"``), times the calibration
-    ``comm_snr_offset_db``. The slot's SNR is :math:`\\gamma = |g_C|^2 \\bar\\gamma`.
+    with :math:`P = P_t` (``snr_convention="total_power"``, the printed eq. of :math:`\gamma`) or
+    :math:`P = P_k = P_t/\mathcal K` (``"per_subcarrier_power"``), times the calibration
+    ``comm_snr_offset_db``. The slot's SNR is :math:`\gamma = |g_C|^2 \bar\gamma`.
 
     Parameters
     ----------
     pos_m : array_like, shape (..., 3)
     shadow_db : array_like, shape (...)
-        Shadowing :math:`\\varepsilon` in dB.
+        Shadowing :math:`\varepsilon` in dB.
     gain : array_like, optional
         Beamforming gain; the scenario's beamformer steered at the drone if omitted (for
         ``"matched"`` this is exactly :math:`G = N`).
@@ -269,7 +269,7 @@ def large_scale_snr(s: Scenario, pos_m, shadow_db, gain=None):
 
 
 def matched_gain(s: Scenario) -> float:
-    """Gain of the matched beamformer, :math:`|\\mathbf a^H \\mathbf a|^2/N = N`."""
+    r"""Gain of the matched beamformer, :math:`|\mathbf a^H \mathbf a|^2/N = N`."""
     return float(s.n_antennas)
 
 
@@ -284,18 +284,19 @@ def beam_gain(s: Scenario, trig):
 
 
 def link_snr(s: Scenario, dist_m, shadow_db, gain):
-    """:func:`large_scale_snr` from the range, the shadowing and the beamforming gain.
+    r""":func:`large_scale_snr` from the range, the shadowing and the beamforming gain.
 
-    The dB budget :math:`P - \\mathcal L(l) - \\varepsilon + \\Delta - N_0B` in linear form,
-    :math:`\\kappa\\, G\\, l^{-2.2}\\, 10^{-\\varepsilon/10}`, with the constant :math:`\\kappa` cached.
+    The dB budget :math:`P - \mathcal L(l) - \varepsilon + \Delta - N_0B` in linear form,
+    :math:`\kappa\, G\, l^{-2.2}\, 10^{-\varepsilon/10}`, with the constant :math:`\kappa` cached.
     """
     return snr_constant(s) * gain * dist_m ** -2.2 * 10.0 ** (-0.1 * shadow_db)
 
 
 @per_scenario
 def snr_constant(s: Scenario) -> float:
-    """The range-independent factor :math:`\\kappa` of :func:`link_snr` (transmit power over noise,
-    path loss at 1 m and the carrier, calibration offset)."""
+    r"""The range-independent factor :math:`\kappa` of :func:`link_snr` (transmit power over noise,
+    path loss at 1 m and the carrier, calibration offset).
+    """
     p_w = float(dbm_to_w(s.tx_power_dbm))
     if s.snr_convention == "per_subcarrier_power":
         p_w /= s.n_subcarriers
@@ -313,7 +314,8 @@ _LN10_OVER_10 = math.log(10.0) / 10.0
 @njit(cache=True, error_model="numpy", inline="always")
 def direction_one(h_gbs, px, py, pz):
     """:func:`geometry` and :func:`direction_trig` of one position: ``(dist, gx, gy, gz, cos_az, sin_az,
-    cos_el, sin_el)`` (range in m, LoS unit vector, cosines and sines of azimuth and elevation)."""
+    cos_el, sin_el)`` (range in m, LoS unit vector, cosines and sines of azimuth and elevation).
+    """
     rx, ry, rz = px, py, pz - h_gbs
     dist = math.sqrt(rx * rx + ry * ry + rz * rz)
     gx, gy, gz = rx / dist, ry / dist, rz / dist
@@ -331,8 +333,9 @@ def shadowing_db_one(sf_a, sf_b, altitude_m, shadow_norm):
 
 @njit(cache=True, error_model="numpy", inline="always")
 def link_snr_one(snr_k, gain, dist_m, shadow_db):
-    """:func:`link_snr`, :math:`\\kappa G l^{-2.2} 10^{-\\varepsilon/10}`, as one exp of a log (two
-    powers cost more than the rest of the slot)."""
+    r""":func:`link_snr`, :math:`\kappa G l^{-2.2} 10^{-\varepsilon/10}`, as one exp of a log (two
+    powers cost more than the rest of the slot).
+    """
     return snr_k * gain * math.exp(-2.2 * math.log(dist_m) - _LN10_OVER_10 * shadow_db)
 
 
@@ -354,7 +357,8 @@ def shadowing_step_one(neg_inv_decorr, shadow_norm, moved_m, z):
 @njit(cache=True, error_model="numpy", inline="always")
 def upa_terms_one(orient, ct, st, cp, sp):
     """:func:`direction_cosines_trig` of one direction, ``(ux, uy, dux_dth, duy_dth, dux_dph, duy_dph)``;
-    ``orient`` 0 horizontal, 1 printed, 2 vertical (``Scenario.array_orientation``)."""
+    ``orient`` 0 horizontal, 1 printed, 2 vertical (``Scenario.array_orientation``).
+    """
     if orient == 0.0:
         return cp * ct, cp * st, -cp * st, cp * ct, -sp * ct, -sp * st
     if orient == 1.0:
@@ -364,10 +368,12 @@ def upa_terms_one(orient, ct, st, cp, sp):
 
 @njit(cache=True, error_model="numpy")
 def broadside_sums_one(kd, n_x, n_y, ux, uy, tx, ty, qx, qy):
-    r"""Sums over the UPA of the broadside beamformer :math:`\mathbf w = \mathbf 1/\sqrt N` in one
-    direction (element phases :math:`\phi_i = k(i_x u_x + i_y u_y)` on the centred grid, ``kd`` =
-    :math:`k = 2\pi d/\lambda`, ``(tx, ty)``, ``(qx, qy)`` the derivatives of (u_x, u_y) in azimuth and
-    elevation). Returns ``(t, d_th, d_ph, s_tt, s_pp, s_tp)``:
+    r"""Sums over the UPA of the broadside beamformer in one direction.
+
+    The beamformer is :math:`\mathbf w = \mathbf 1/\sqrt N` (element phases
+    :math:`\phi_i = k(i_x u_x + i_y u_y)` on the centred grid, ``kd`` = :math:`k = 2\pi d/\lambda`,
+    ``(tx, ty)``, ``(qx, qy)`` the derivatives of (u_x, u_y) in azimuth and elevation).
+    Returns ``(t, d_th, d_ph, s_tt, s_pp, s_tp)``:
 
     .. math::
         t = \mathbf a^H\mathbf w = \tfrac{1}{\sqrt N}\sum_i\cos\phi_i,\quad
@@ -399,9 +405,10 @@ def broadside_sums_one(kd, n_x, n_y, ux, uy, tx, ty, qx, qy):
 
 @njit(cache=True, error_model="numpy", inline="always")
 def beam_gain_one(c, ct, st, cp, sp):
-    """:func:`beam_gain` of one direction: ``c.beam_g`` (= N) for the matched beamformer, else the
-    broadside gain :math:`|\\mathbf a^H\\mathbf w|^2` (:func:`broadside_sums_one`). ``c``: a record with
-    ``broadside``, ``beam_g``, ``orient``, ``kd``, ``n_x``, ``n_y`` (:data:`iscc_gym.params.SLOT_PARAMS`)."""
+    r""":func:`beam_gain` of one direction: ``c.beam_g`` (= N) for the matched beamformer, else the
+    broadside gain :math:`|\mathbf a^H\mathbf w|^2` (:func:`broadside_sums_one`). ``c``: a record with
+    ``broadside``, ``beam_g``, ``orient``, ``kd``, ``n_x``, ``n_y`` (:data:`iscc_gym.params.SLOT_PARAMS`).
+    """
     if c.broadside == 0.0:
         return c.beam_g
     ux, uy, tx, ty, qx, qy = upa_terms_one(c.orient, ct, st, cp, sp)

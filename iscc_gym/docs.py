@@ -26,7 +26,8 @@ PACKAGE_DIR = Path(__file__).resolve().parent
 
 def project_root() -> Path:
     """The source checkout this package lives in (the folder holding ``pyproject.toml``, ``README.md``
-    and ``docs/`` beside ``iscc_gym/``); ``OSError`` if it runs from an installed copy."""
+    and ``docs/`` beside ``iscc_gym/``); ``OSError`` if it runs from an installed copy.
+    """
     root = PACKAGE_DIR.parent
     pyproject = root / "pyproject.toml"
     if (PACKAGE_DIR.name == "iscc_gym" and pyproject.is_file() and 'name = "iscc-gym"' in pyproject.read_text()
@@ -44,7 +45,8 @@ def docs_path(relative: str | Path) -> Path:
 
 def write_section(path: str | Path, name: str, text: str) -> None:
     """Replace the ``name`` block of the file at ``path`` with ``text`` (appended if the file or
-    the block does not exist yet; a new results file gets its header)."""
+    the block does not exist yet; a new results file gets its header).
+    """
     p = Path(path)
     start, end = f"<!-- {name}:start -->", f"<!-- {name}:end -->"
     block = f"{start}\n{text.rstrip()}\n{end}"
@@ -60,7 +62,8 @@ def write_section(path: str | Path, name: str, text: str) -> None:
 
 def publish(name: str, title: str, table: str) -> None:
     """Write ``table`` as section ``name`` of the project's docs/results.md (under the heading ``title``)
-    and as block ``name`` of its README."""
+    and as block ``name`` of its README.
+    """
     results, readme = docs_path(RESULTS_PATH), docs_path(README_PATH)
     write_section(results, name, f"## {title}\n\n{table}")
     write_section(readme, name, table)

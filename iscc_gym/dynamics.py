@@ -52,24 +52,26 @@ def system_matrices(dt_s: float):
 
 
 def process_noise_cov(s: Scenario):
-    """Process-noise covariance :math:`\\Sigma_\\omega = \\mathrm{blkdiag}(\\sigma_p^2\\mathbf I_3,
-    \\sigma_v^2\\mathbf I_3)` (eq:state), with the Table I values read per ``process_noise_reading``."""
+    r"""Process-noise covariance :math:`\Sigma_\omega = \mathrm{blkdiag}(\sigma_p^2\mathbf I_3,
+    \sigma_v^2\mathbf I_3)` (eq:state), with the Table I values read per ``process_noise_reading``.
+    """
     return np.diag([s.process_noise_var_pos_m2] * 3 + [s.process_noise_var_vel_m2s2] * 3)
 
 
 def lqg_weights(s: Scenario):
-    """LQG weights :math:`\\mathbf Q = \\mathrm{blkdiag}(Q_p\\mathbf I_3, Q_v\\mathbf I_3)` and
-    :math:`\\mathbf R = r\\,\\mathbf I_3` (Table I)."""
+    r"""LQG weights :math:`\mathbf Q = \mathrm{blkdiag}(Q_p\mathbf I_3, Q_v\mathbf I_3)` and
+    :math:`\mathbf R = r\,\mathbf I_3` (Table I).
+    """
     return np.diag([s.lqg_q_pos] * 3 + [s.lqg_q_vel] * 3), s.lqg_r * np.eye(3)
 
 
 def lqr_gain(a, b, q, r):
-    """Feedback gain from the DARE via python-control (eq:LQG_control_input).
+    r"""Feedback gain from the DARE via python-control (eq:LQG_control_input).
 
     .. math::
-        \\mathbf K = (\\mathbf R + \\mathbf B^T\\mathbf P\\mathbf B)^{-1}\\mathbf B^T\\mathbf P\\mathbf A,\\quad
-        \\mathbf P = \\mathbf A^T\\mathbf P\\mathbf A - \\mathbf A^T\\mathbf P\\mathbf B(\\mathbf R +
-        \\mathbf B^T\\mathbf P\\mathbf B)^{-1}\\mathbf B^T\\mathbf P\\mathbf A + \\mathbf Q
+        \mathbf K = (\mathbf R + \mathbf B^T\mathbf P\mathbf B)^{-1}\mathbf B^T\mathbf P\mathbf A,\quad
+        \mathbf P = \mathbf A^T\mathbf P\mathbf A - \mathbf A^T\mathbf P\mathbf B(\mathbf R +
+        \mathbf B^T\mathbf P\mathbf B)^{-1}\mathbf B^T\mathbf P\mathbf A + \mathbf Q
 
     Returns
     -------
@@ -82,7 +84,8 @@ def lqr_gain(a, b, q, r):
 
 class ModelMatrices:
     """The constant matrices of one scenario: A, B, K, P (DARE), Q, R, Sigma_omega, A - BK, and the
-    constants of the slot transition (GBS antenna position, Cholesky factor of Sigma_omega, GNSS whitening)."""
+    constants of the slot transition (GBS antenna position, Cholesky factor of Sigma_omega, GNSS whitening).
+    """
 
     __slots__ = ("a", "b", "k", "p", "q", "r", "sigma_w", "a_cl", "chol_w", "gbs_pos", "gnss_whiten")
 
@@ -113,9 +116,10 @@ def model_matrices(s: Scenario) -> ModelMatrices:
 
 @njit(cache=True, error_model="numpy", inline="always")
 def lqg_command_one(k_mat, x_hat, ref_row, feedforward, u):
-    """eq:LQG_control_input of one drone, :math:`\\mathbf u = -\\mathbf K(\\hat{\\mathbf x} -
-    \\mathbf x_\\mathrm{ref})` (plus the reference acceleration ``ref_row[6:9]`` with ``feedforward``),
-    written into ``u`` (3)."""
+    r"""eq:LQG_control_input of one drone, :math:`\mathbf u = -\mathbf K(\hat{\mathbf x} -
+    \mathbf x_\mathrm{ref})` (plus the reference acceleration ``ref_row[6:9]`` with ``feedforward``),
+    written into ``u`` (3).
+    """
     for j in range(3):
         acc = 0.0
         for k in range(6):
@@ -127,7 +131,7 @@ def lqg_command_one(k_mat, x_hat, ref_row, feedforward, u):
 
 @njit(cache=True, error_model="numpy", inline="always")
 def input_one(b_mat, u, bu):
-    """:math:`\\mathbf B\\mathbf u` of one drone into ``bu`` (6)."""
+    r""":math:`\mathbf B\mathbf u` of one drone into ``bu`` (6)."""
     for j in range(6):
         acc = 0.0
         for k in range(3):
@@ -137,9 +141,10 @@ def input_one(b_mat, u, bu):
 
 @njit(cache=True, error_model="numpy", inline="always")
 def propagate_one(dt, x, bu, chol_w, z, z0, x_next):
-    """eq:state of one drone, :math:`\\mathbf x_{n+1} = \\mathbf A\\mathbf x_n + \\mathbf B\\mathbf u_n
-    + \\omega_n` with A = [[I, dt I], [0, I]] and :math:`\\omega_n` = ``chol_w * z[z0:z0 + 6]``
-    (Sigma_omega is diagonal), into ``x_next`` (6)."""
+    r"""eq:state of one drone, :math:`\mathbf x_{n+1} = \mathbf A\mathbf x_n + \mathbf B\mathbf u_n
+    + \omega_n` with A = [[I, dt I], [0, I]] and :math:`\omega_n` = ``chol_w * z[z0:z0 + 6]``
+    (Sigma_omega is diagonal), into ``x_next`` (6).
+    """
     for j in range(6):
         ax = x[j] + dt * x[j + 3] if j < 3 else x[j]
         x_next[j] = ax + bu[j] + chol_w[j] * z[z0 + j]

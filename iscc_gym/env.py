@@ -188,7 +188,8 @@ REGISTERED_MAX_EPISODE_STEPS = 5000
 def warn_time_limit(s: Scenario) -> None:
     """Warn when the scenario's mission is longer than the registered TimeLimit: ``gymnasium.make``
     wraps the env in ``TimeLimit(5000)`` unless it is given ``max_episode_steps``, which would cut
-    the mission short (a shorter mission ends by itself)."""
+    the mission short (a shorter mission ends by itself).
+    """
     if s.n_slots > REGISTERED_MAX_EPISODE_STEPS:
         gym.logger.warn(f"this scenario's mission has n_slots = {s.n_slots} slots, but gymnasium.make applies the "
                         f"registered TimeLimit of {REGISTERED_MAX_EPISODE_STEPS} steps: pass "
@@ -196,7 +197,7 @@ def warn_time_limit(s: Scenario) -> None:
 
 
 class ISCCEnv(gym.Env):
-    """Allocate each slot's time-frequency resources of an ISCC drone-tracking loop.
+    r"""Allocate each slot's time-frequency resources of an ISCC drone-tracking loop.
 
     ## Description
 
@@ -215,7 +216,7 @@ class ISCCEnv(gym.Env):
     ## Action Space
 
     ``Box(-1, 1, (3,), float32)``, mapped inside the env onto the simplex by
-    :func:`action_to_split`: :math:`w_i = (a_i + 1)/2`, :math:`\\alpha = w / \\sum w` (equal thirds if
+    :func:`action_to_split`: :math:`w_i = (a_i + 1)/2`, :math:`\alpha = w / \sum w` (equal thirds if
     all :math:`w_i = 0`). No minimum share: any split is reachable (:func:`split_to_action` gives its
     action), including zero shares (zero sensing: the radar measurement carries no information; zero
     control: every command is lost; zero data: no rate). ``info["alpha"]`` is the applied split.
@@ -254,9 +255,9 @@ class ISCCEnv(gym.Env):
     ## Rewards
 
     .. math::
-        r_n = -\\|\\mathbf p_{n+1} - \\mathbf p_{\\mathrm{ref},n+1}\\| - w_\\mathrm{rate}\\,
-        \\frac{(R_\\min - \\mathcal R_{\\mathrm{comm},n})^+}{R_\\min}
-        - w_\\mathrm{stab}\\, \\mathbb 1[\\varepsilon_{\\mathrm{ctrl},n} > \\varepsilon^\\star]
+        r_n = -\|\mathbf p_{n+1} - \mathbf p_{\mathrm{ref},n+1}\| - w_\mathrm{rate}\,
+        \frac{(R_\min - \mathcal R_{\mathrm{comm},n})^+}{R_\min}
+        - w_\mathrm{stab}\, \mathbb 1[\varepsilon_{\mathrm{ctrl},n} > \varepsilon^\star]
 
     (tracking error in m, the weights ``w_rate``, ``w_stab`` of the Scenario). The two violations are
     also reported as costs for constrained RL: ``info["cost_rate"]`` (normalised shortfall, in

@@ -21,15 +21,16 @@ _INV_SQRT2 = 1.0 / np.sqrt(2.0)
 
 
 def q_func(x):
-    """Gaussian tail :math:`Q(x) = \\tfrac12 \\operatorname{erfc}(x/\\sqrt2)`.
+    r"""Gaussian tail :math:`Q(x) = \tfrac12 \operatorname{erfc}(x/\sqrt2)`.
 
-    For x above about 37 the result is subnormal or 0 (a gradual underflow, not an error)."""
+    For x above about 37 the result is subnormal or 0 (a gradual underflow, not an error).
+    """
     with np.errstate(under="ignore"):
         return 0.5 * erfc(np.asarray(x, dtype=float) * _INV_SQRT2)
 
 
 def q_inv(p):
-    """Inverse Gaussian tail :math:`Q^{-1}(p) = -\\Phi^{-1}(p)`."""
+    r"""Inverse Gaussian tail :math:`Q^{-1}(p) = -\Phi^{-1}(p)`."""
     return -ndtri(np.asarray(p, dtype=float))
 
 
@@ -46,7 +47,8 @@ def dispersion(snr):
 
 def link_terms(snr):
     r"""Capacity :math:`\log_2(1+\gamma)` and :math:`\sqrt{V(\gamma)}` of linear SNRs, the two SNR terms
-    every FBL quantity here is built from: :func:`link_terms_one` over arrays."""
+    every FBL quantity here is built from: :func:`link_terms_one` over arrays.
+    """
     return _link_terms_ufunc(np.asarray(snr, dtype=float))
 
 
@@ -118,8 +120,10 @@ def slot_link(s: Scenario, alpha_ctrl, alpha_comm, snr):
 
 
 def min_shares(s: Scenario, snr, eps_max, rate_bps):
-    r"""Smallest control share with drop probability at most ``eps_max`` and smallest data share
-    carrying ``rate_bps``, at SNR ``snr`` (closed forms of eq:ctrl_bler and eq:rate_equation):
+    r"""Smallest control and data shares of a slot at SNR ``snr``.
+
+    The control share with drop probability at most ``eps_max`` and the data share carrying
+    ``rate_bps`` (closed forms of eq:ctrl_bler and eq:rate_equation):
 
     .. math::
         \alpha_\mathrm{ctrl}^\star(\gamma) = \frac{S}{T_d B\left[\log_2(1+\gamma)
@@ -137,18 +141,18 @@ def min_shares(s: Scenario, snr, eps_max, rate_bps):
 
 
 def ctrl_goodput_bits(s: Scenario, alpha_ctrl, snr, ignore_loss: bool = False):
-    """Effective control-link supply :math:`g(\\alpha_\\mathrm{ctrl}) = (1-\\varepsilon_\\mathrm{ctrl})
-    \\mathcal R_\\mathrm{ctrl}\\,\\Delta t` in bits per slot, and its derivative in ``alpha_ctrl``.
+    r"""Effective control-link supply :math:`g(\alpha_\mathrm{ctrl}) = (1-\varepsilon_\mathrm{ctrl})
+    \mathcal R_\mathrm{ctrl}\,\Delta t` in bits per slot, and its derivative in ``alpha_ctrl``.
 
-    :math:`\\varepsilon_\\mathrm{ctrl}` is eq:ctrl_bler and :math:`\\mathcal R_\\mathrm{ctrl}` the FBL
+    :math:`\varepsilon_\mathrm{ctrl}` is eq:ctrl_bler and :math:`\mathcal R_\mathrm{ctrl}` the FBL
     rate eq:rate_equation (target BLER ``ctrl_target_bler``) at the linear SNR ``snr``. The
     left-hand side of cons:rate_cost, per slot so that it compares with L(b) in bits per control
-    sample. ``ignore_loss=True`` sets :math:`\\varepsilon_\\mathrm{ctrl} = 0` (the design that ignores
+    sample. ``ignore_loss=True`` sets :math:`\varepsilon_\mathrm{ctrl} = 0` (the design that ignores
     packet loss).
 
     .. math::
-        g' = (1-\\varepsilon)\\mathcal R'\\Delta t - \\varepsilon'\\mathcal R\\Delta t,\\qquad
-        \\varepsilon' = -\\phi(x)\\sqrt{L_\\mathrm{ctrl}/V}\\,\\frac{S}{T_d B\\alpha^2}
+        g' = (1-\varepsilon)\mathcal R'\Delta t - \varepsilon'\mathcal R\Delta t,\qquad
+        \varepsilon' = -\phi(x)\sqrt{L_\mathrm{ctrl}/V}\,\frac{S}{T_d B\alpha^2}
 
     Returns
     -------
@@ -178,7 +182,8 @@ def link_terms_one(snr):
 @njit(cache=True, error_model="numpy", inline="always")
 def ctrl_bler_arg_one(cap, sqrt_v, sqrt_l, bits_per_hz, alpha_ctrl):
     """The argument x of eq:ctrl_bler, eps = Q(x), of one slot from :func:`link_terms_one` (``sqrt_l``,
-    ``bits_per_hz`` of :func:`link_constants`); floors alpha >= 1e-30 and sqrt(V) >= 1e-150."""
+    ``bits_per_hz`` of :func:`link_constants`); floors alpha >= 1e-30 and sqrt(V) >= 1e-150.
+    """
     need = bits_per_hz / max(alpha_ctrl, 1e-30)
     return sqrt_l / max(sqrt_v, 1e-150) * (cap - need)
 
@@ -206,8 +211,9 @@ def rate_one(alpha, bandwidth_hz, cap, sqrt_v, back_off):
 
 @njit(cache=True, error_model="numpy", inline="always")
 def delivered_one(eps, z):
-    """Whether the control packet arrives: :math:`\\Phi(z) \\ge \\varepsilon` for a standard normal z
-    (probability 1 - eps; never at eps = 1)."""
+    r"""Whether the control packet arrives: :math:`\Phi(z) \ge \varepsilon` for a standard normal z
+    (probability 1 - eps; never at eps = 1).
+    """
     return eps < 1.0 and 0.5 * math.erfc(-z * _INV_SQRT2_F) >= eps
 
 
@@ -244,7 +250,8 @@ def link_params(s: Scenario):
 @vectorize(["float64(float64, float64, float64, float64)"], cache=True)
 def ctrl_bler_ufunc(alpha_ctrl, snr, sqrt_l, bits_per_hz):
     """eq:ctrl_bler as a numpy ufunc of (alpha_ctrl, linear SNR, sqrt(L_ctrl), S / (T_d B)) from the
-    compiled :func:`link_terms_one` and :func:`ctrl_bler_one`: the env's loss probability, bit for bit."""
+    compiled :func:`link_terms_one` and :func:`ctrl_bler_one`: the env's loss probability, bit for bit.
+    """
     cap, sqrt_v = link_terms_one(snr)
     return ctrl_bler_one(cap, sqrt_v, sqrt_l, bits_per_hz, alpha_ctrl)
 

@@ -15,9 +15,9 @@ __all__ = ["isac_observation_matrix", "kf_update_whitened_one", "kf_predict_one"
 
 
 def isac_observation_matrix(los_unit):
-    """:math:`\\mathbf C_n = \\mathrm{blkdiag}(\\mathbf I_3, \\mathbf g_n^T)`, shape (..., 4, 6).
+    r""":math:`\mathbf C_n = \mathrm{blkdiag}(\mathbf I_3, \mathbf g_n^T)`, shape (..., 4, 6).
 
-    Position is observed in 3-D; velocity only along the LoS unit vector :math:`\\mathbf g_n`.
+    Position is observed in 3-D; velocity only along the LoS unit vector :math:`\mathbf g_n`.
     """
     g = np.asarray(los_unit, dtype=float)
     c = np.zeros(g.shape[:-1] + (4, 6))
@@ -73,7 +73,8 @@ def kf_update_whitened_one(x, p, y, w, x_post, p_post, h):
 @njit(cache=True, error_model="numpy", inline="always")
 def kf_predict_one(dt, x_post, p_post, bu, sigma_w, x_hat_next, p_next, pa):
     """:func:`kf_predict` of one drone with A = [[I, dt I], [0, I]] (eq:AB_matrices), blockwise:
-    writes ``x_hat_next`` (6) and the symmetrised ``p_next`` (6, 6); ``pa`` (6, 6) is scratch."""
+    writes ``x_hat_next`` (6) and the symmetrised ``p_next`` (6, 6); ``pa`` (6, 6) is scratch.
+    """
     for j in range(6):
         axh = x_post[j] + dt * x_post[j + 3] if j < 3 else x_post[j]
         x_hat_next[j] = axh + bu[j]

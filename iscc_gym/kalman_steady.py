@@ -1,5 +1,6 @@
 """Steady states of the Kalman filter: one axis of the double integrator (batched, by the doubling
-algorithm) and the GNSS-fed LQG loop of the paper's Fig. 9 comparison."""
+algorithm) and the GNSS-fed LQG loop of the paper's Fig. 9 comparison.
+"""
 
 from __future__ import annotations
 
@@ -32,7 +33,7 @@ def _inv(x):
 
 
 def _congruence(m, s):
-    """:math:`\\mathbf M\\mathbf S\\mathbf M^T` for symmetric S (both as 4-tuples); symmetric result."""
+    r""":math:`\mathbf M\mathbf S\mathbf M^T` for symmetric S (both as 4-tuples); symmetric result."""
     m00, m01, m10, m11 = m
     s00, s01, _, s11 = s
     t00, t01 = m00 * s00 + m01 * s01, m00 * s01 + m01 * s11  # first row of M S
@@ -52,13 +53,13 @@ def _sym(x):
 
 def axis_kalman_steady_state(dt_s: float, var_pos_m2: float, var_vel_m2s2: float, meas_pos_var_m2,
                              meas_vel_var_m2s2=None, tol: float = 1e-12, max_iter: int = 60):
-    """Steady-state Kalman covariances of one axis of the double integrator, batched.
+    r"""Steady-state Kalman covariances of one axis of the double integrator, batched.
 
-    State (p, v), :math:`\\mathbf A_1 = [[1, \\Delta t], [0, 1]]`, process noise
-    :math:`\\mathrm{diag}(\\sigma_p^2, \\sigma_v^2)`, measurement of p with variance
+    State (p, v), :math:`\mathbf A_1 = [[1, \Delta t], [0, 1]]`, process noise
+    :math:`\mathrm{diag}(\sigma_p^2, \sigma_v^2)`, measurement of p with variance
     ``meas_pos_var_m2`` and (optionally) of v with variance ``meas_vel_var_m2s2``. The filtering DARE
-    :math:`\\mathbf X = \\mathbf A_1\\mathbf X(\\mathbf I + \\mathbf G\\mathbf X)^{-1}\\mathbf A_1^T
-    + \\mathbf W`, :math:`\\mathbf G = \\mathbf C^T\\mathbf R^{-1}\\mathbf C`, is solved by the
+    :math:`\mathbf X = \mathbf A_1\mathbf X(\mathbf I + \mathbf G\mathbf X)^{-1}\mathbf A_1^T
+    + \mathbf W`, :math:`\mathbf G = \mathbf C^T\mathbf R^{-1}\mathbf C`, is solved by the
     structure-preserving doubling algorithm (Chu, Fan and Lin, 2005; quadratic convergence), written
     out entry by entry so that it vectorises over any number of filters.
 
@@ -76,9 +77,9 @@ def axis_kalman_steady_state(dt_s: float, var_pos_m2: float, var_vel_m2s2: float
     Returns
     -------
     p_prior : ndarray, shape (..., 2, 2)
-        :math:`\\mathbf P_{n|n-1}`.
+        :math:`\mathbf P_{n|n-1}`.
     sigma_est : ndarray, shape (..., 2, 2)
-        :math:`\\Sigma_\\mathrm{est} = \\mathbf X(\\mathbf I + \\mathbf G\\mathbf X)^{-1}`.
+        :math:`\Sigma_\mathrm{est} = \mathbf X(\mathbf I + \mathbf G\mathbf X)^{-1}`.
     """
     rp = np.asarray(meas_pos_var_m2, dtype=float)
     rv = np.full(rp.shape, np.inf) if meas_vel_var_m2s2 is None else np.broadcast_to(

@@ -76,7 +76,8 @@ def observe_one(c, x_hat, p, shadow, n, ref, last_received, last_peb, out):
     """The observation of one loop (table of :class:`iscc_gym.env.ISCCEnv`, scalings
     :data:`iscc_gym.schema.OBS_SCALING`; what :func:`iscc_gym.loop.preview` predicts), written into
     ``out`` (23); returns False where an entry could not be evaluated (NaN, written as 0) or the
-    estimate is not finite."""
+    estimate is not finite.
+    """
     dist, gx, gy, gz, ct, st, cp, sp = direction_one(c.h_gbs, x_hat[0], x_hat[1], x_hat[2])
     shadow_db = shadowing_db_one(c.sf_a, c.sf_b, x_hat[2], shadow)
     snr = link_snr_one(c.snr_k, beam_gain_one(c, ct, st, cp, sp), dist, shadow_db)
@@ -135,7 +136,8 @@ def split_one(a0, a1, a2):
 @njit(cache=True, error_model="numpy")
 def split_batch(action, alpha):
     """:func:`split_one` over the rows of ``action`` (n, 3) into ``alpha`` (n, 3) (the numpy API
-    :func:`iscc_gym.task.action_to_split`)."""
+    :func:`iscc_gym.task.action_to_split`).
+    """
     for i in range(action.shape[0]):
         alpha[i, 0], alpha[i, 1], alpha[i, 2] = split_one(action[i, 0], action[i, 1], action[i, 2])
 
@@ -144,7 +146,8 @@ def split_batch(action, alpha):
 def reward_from_costs_one(max_err, w_rate, w_stab, err, cost_rate, cost_stab):
     """The reward of a slot from its tracking error and costs (:class:`iscc_gym.env.ISCCEnv`, Rewards):
     ``-min(err, max_err) - w_rate cost_rate - w_stab cost_stab`` (also of expected costs: the
-    analytic evaluator's expected reward)."""
+    analytic evaluator's expected reward).
+    """
     return -(err if err <= max_err else max_err) - w_rate * cost_rate - w_stab * cost_stab
 
 
@@ -158,7 +161,8 @@ def reward_from_costs(max_err, w_rate, w_stab, err, cost_rate, cost_stab):
 def reward_one(c, err, rate, eps, terminated, n_next):
     """The slot's ``(cost_rate, cost_stability, reward)`` (:class:`iscc_gym.env.ISCCEnv`, Rewards): a
     rate or loss probability that is NaN counts as a violation; an episode that terminates pays
-    ``max_tracking_error_m`` for each remaining slot."""
+    ``max_tracking_error_m`` for each remaining slot.
+    """
     max_err = c.max_err
     rate_min = c.rate_min
     if rate_min <= 0.0:
@@ -224,7 +228,8 @@ def env_step_batch(c, mats, x, x_hat, p, shadow, n, ref, key, action, z, active,
     written into the outputs: next x, x_hat, p, shadow, ``out`` (B, N_ENV_COLUMNS) and ``obs``
     (B, 23) float32. ``z`` holds the slot's normals (B, N_DRAWS), or has no rows: then each loop
     draws its own from its episode key (noise.slot_normals(key[i], n[i])). Loops with ``active[i]``
-    False are left as they are (state copied, zero outputs)."""
+    False are left as they are (state copied, zero outputs).
+    """
     _env_rows(c, mats, x, x_hat, p, shadow, n, ref, key, action, z, active, 0, x.shape[0],
               x_next, x_hat_next, p_next, shadow_next, out, obs)
 
@@ -234,7 +239,8 @@ def env_step_batch_parallel(c, mats, x, x_hat, p, shadow, n, ref, key, action, z
                             x_next, x_hat_next, p_next, shadow_next, out, obs, chunk):
     """:func:`env_step_batch` with chunks of ``chunk`` rows spread over all cores: each row goes
     through the same compiled :func:`_env_rows`, so results equal the serial kernel's bit for bit
-    whatever the chunking."""
+    whatever the chunking.
+    """
     nb = x.shape[0]
     n_chunks = (nb + chunk - 1) // chunk
     for k in prange(n_chunks):
@@ -245,7 +251,8 @@ def env_step_batch_parallel(c, mats, x, x_hat, p, shadow, n, ref, key, action, z
 
 def parallel_chunk(nb: int) -> int:
     """Rows per task: two tasks per thread, at least 32 rows each (measured on 2 cores: 1024 envs
-    ~0.9 M env-steps/s with 64-512 rows per task, ~0.5 M with 16)."""
+    ~0.9 M env-steps/s with 64-512 rows per task, ~0.5 M with 16).
+    """
     import numba
 
     tasks = 2 * numba.get_num_threads()

@@ -62,7 +62,7 @@ __all__ = ["LoopState", "N_DRAWS", "init_state", "step", "preview", "reference_a
 
 
 class LoopState(NamedTuple):
-    """State of a batch of B closed loops at the start of slot n (before allocation); an immutable
+    r"""State of a batch of B closed loops at the start of slot n (before allocation); an immutable
     named tuple (cheap to build on the env's hot path).
 
     Attributes
@@ -70,9 +70,9 @@ class LoopState(NamedTuple):
     x : (B, 6)
         True drone state [p, v] in m, m/s.
     x_hat : (B, 6)
-        Predicted estimate :math:`\\hat{\\mathbf x}_{n|n-1}`.
+        Predicted estimate :math:`\hat{\mathbf x}_{n|n-1}`.
     p : (B, 6, 6)
-        Predicted error covariance :math:`\\mathbf P_{n|n-1}`.
+        Predicted error covariance :math:`\mathbf P_{n|n-1}`.
     shadow : (B,)
         Unit-variance shadowing state (shadowing in dB is sigma_SF(h) * shadow).
     n : (B,) int
@@ -101,7 +101,8 @@ class LoopState(NamedTuple):
 
     def with_rows(self, idx, sub: LoopState) -> LoopState:
         """A copy of this batch with loops ``idx`` replaced by ``sub``. The per-slot arrays are
-        copied; the (large, constant per episode) reference array is updated in place."""
+        copied; the (large, constant per episode) reference array is updated in place.
+        """
         fields = {}
         for name in ("x", "x_hat", "p", "shadow", "n", "key"):
             arr = getattr(self, name).copy()
@@ -118,7 +119,8 @@ class LoopState(NamedTuple):
 
 def slot_noise(state: LoopState, rng=None) -> np.ndarray:
     """The slot's :data:`N_DRAWS` standard normals, (N_DRAWS,) or (B, N_DRAWS): the episode stream
-    of the state's key at its slot (``rng`` None), else drawn from ``rng`` (:func:`standard_normals`)."""
+    of the state's key at its slot (``rng`` None), else drawn from ``rng`` (:func:`standard_normals`).
+    """
     if rng is None:
         return slot_normals(state.key, state.n)
     return standard_normals(rng, state.batch_size)
@@ -135,12 +137,12 @@ def reference_array(ref: Reference):
 
 
 def init_state(s: Scenario, refs, rng) -> LoopState:
-    """Initial state at slot 0: drone near the reference start, estimate at the reference start.
+    r"""Initial state at slot 0: drone near the reference start, estimate at the reference start.
 
     .. math::
-        \\mathbf x_0 = \\mathbf x_{\\mathrm{ref},0} + \\mathcal N(\\mathbf 0, \\mathbf P_0),\\quad
-        \\hat{\\mathbf x}_{0|-1} = \\mathbf x_{\\mathrm{ref},0},\\quad
-        \\mathbf P_0 = \\mathrm{blkdiag}(\\sigma_{p0}^2\\mathbf I_3, \\sigma_{v0}^2\\mathbf I_3)
+        \mathbf x_0 = \mathbf x_{\mathrm{ref},0} + \mathcal N(\mathbf 0, \mathbf P_0),\quad
+        \hat{\mathbf x}_{0|-1} = \mathbf x_{\mathrm{ref},0},\quad
+        \mathbf P_0 = \mathrm{blkdiag}(\sigma_{p0}^2\mathbf I_3, \sigma_{v0}^2\mathbf I_3)
 
     Parameters
     ----------
@@ -191,7 +193,8 @@ def _norm(v):
 
 def supported(s: Scenario) -> bool:
     """Whether the compiled slot (:func:`step_one`) covers this scenario (every beamformer of
-    ``Scenario.beamforming``: the matched one in closed form, broadside by sums over the array)."""
+    ``Scenario.beamforming``: the matched one in closed form, broadside by sums over the array).
+    """
     return s.beamforming in ("matched", "broadside")
 
 
@@ -293,7 +296,8 @@ def step_one(c, mats, xi, x_hat, p, shadow, ni, ref, a_sen, a_ctrl, a_comm, zi,
              x_next, x_hat_next, p_next, mt, work):
     """:func:`step_reference` for one drone (``c``, ``mats``: :func:`iscc_gym.params.slot_params`);
     writes the next state and the metrics row ``mt`` (:data:`iscc_gym.schema.METRIC_NAMES`); returns
-    the next shadowing state. ``zi``: the slot's normals (:data:`iscc_gym.schema.DRAWS`)."""
+    the next shadowing state. ``zi``: the slot's normals (:data:`iscc_gym.schema.DRAWS`).
+    """
     w4, w6, y, x_post, p_post, u, bu, pa, h = work
     px, py, pz = xi[0], xi[1], xi[2]
     # channel: geometry, large-scale SNR, fading
@@ -366,7 +370,8 @@ def step_one(c, mats, xi, x_hat, p, shadow, ni, ref, a_sen, a_ctrl, a_comm, zi,
 @njit(cache=True, error_model="numpy")
 def work_space():
     """Scratch space of one drone's slot, carved out of one allocation (zeros where only some
-    entries are written: the observation matrices)."""
+    entries are written: the observation matrices).
+    """
     buf = np.zeros(4 * 36 + 27)
     mats = buf[:4 * 36].reshape(4, 6, 6)
     vec = buf[4 * 36:]
@@ -377,7 +382,8 @@ def work_space():
 def step_batch(cp, mats, x, x_hat, p, shadow, n, ref, alpha, z, x_next, x_hat_next, p_next, shadow_next, metrics):
     """:func:`step_one` over a batch, written into the output arrays (next x, x_hat, p, shadow and the
     metrics (B, N_METRICS)); outputs are passed in because returning fresh arrays from compiled code
-    costs more than the slot itself at small batches. ``cp``: the parameter record array (1,)."""
+    costs more than the slot itself at small batches. ``cp``: the parameter record array (1,).
+    """
     c = cp[0]
     work = work_space()
     for i in range(x.shape[0]):
@@ -388,6 +394,7 @@ def step_batch(cp, mats, x, x_hat, p, shadow, n, ref, alpha, z, x_next, x_hat_ne
 
 def new_outputs(nb: int, columns: int):
     """Fresh output arrays for the compiled batch functions: next x, x_hat, p, shadow, the columns
-    array, and the float32 observation."""
+    array, and the float32 observation.
+    """
     return (np.empty((nb, 6)), np.empty((nb, 6)), np.empty((nb, 6, 6)), np.empty(nb), np.empty((nb, columns)),
             np.empty((nb, N_OBS), np.float32))

@@ -1,4 +1,4 @@
-"""Per-episode random streams: each slot's standard normals as a pure function of (key, slot).
+r"""Per-episode random streams: each slot's standard normals as a pure function of (key, slot).
 
 ``reset`` draws one 64-bit key per episode from the env's Generator (:func:`draw_keys`); the slot's
 :data:`N_DRAWS` standard normals are then :func:`slot_normals` ``(key, n)``. The transition is thus a
@@ -7,7 +7,7 @@ a batch reproduces single loops bit for bit, a state can be copied and continued
 stepped from the same state meets the same noise (common random numbers).
 
 Generator: the draws of slot n are the SplitMix64 outputs (Steele, Lea & Flood, *Fast splittable
-pseudorandom number generators*, OOPSLA 2014) at counters :math:`n\\,2^{24} + t + 1`, t = 0, 1, ...,
+pseudorandom number generators*, OOPSLA 2014) at counters :math:`n\,2^{24} + t + 1`, t = 0, 1, ...,
 of the stream seeded with the key; each 64-bit output makes one normal by the 256-layer ziggurat
 (Marsaglia & Tsang, *The ziggurat method for generating random variables*, JSS 2000) with NumPy's
 table layout. Slot streams cannot overlap (a slot uses about 18 of its 2^24 counters).
@@ -34,11 +34,11 @@ ZIGGURAT_R = 3.6541528853610088
 
 
 def _ziggurat_tables(r: float = ZIGGURAT_R, layers: int = 256):
-    """``(k, w, f)``: acceptance thresholds (uint64), scales and densities of the ziggurat.
+    r"""``(k, w, f)``: acceptance thresholds (uint64), scales and densities of the ziggurat.
 
     Layer i >= 1 is the box [0, x_i] x [f(x_i), f(x_{i-1})] with x_0 = 0 and x_255 = r; every layer
     and the base (the box [0, V / f(r)] x [0, f(r)], its part beyond r standing in for the tail) has
-    the area V of the base, :math:`V = r f(r) + \\int_r^\\infty f`, :math:`f(x) = e^{-x^2/2}`.
+    the area V of the base, :math:`V = r f(r) + \int_r^\infty f`, :math:`f(x) = e^{-x^2/2}`.
     """
     def f(x):
         return math.exp(-0.5 * x * x)
@@ -125,12 +125,12 @@ def _fill_batch(keys, n, out):
 
 
 def slot_normals(key, n, k: int = N_DRAWS) -> np.ndarray:
-    """The standard normals of slot ``n`` of the episode with ``key``.
+    r"""The standard normals of slot ``n`` of the episode with ``key``.
 
     .. math::
-        z_{n,j} = \\mathrm{ziggurat}\\big(\\mathrm{mix64}(\\kappa + (n\\,2^{24} + t_j + 1)\\,\\gamma)\\big)
+        z_{n,j} = \mathrm{ziggurat}\big(\mathrm{mix64}(\kappa + (n\,2^{24} + t_j + 1)\,\gamma)\big)
 
-    with :math:`\\kappa` the key, :math:`\\gamma` = 0x9E3779B97F4A7C15 and :math:`t_j` the counter
+    with :math:`\kappa` the key, :math:`\gamma` = 0x9E3779B97F4A7C15 and :math:`t_j` the counter
     the j-th normal starts at (one 64-bit word per normal, more on the ziggurat's rare rejections).
 
     Parameters
@@ -160,7 +160,8 @@ def slot_normals(key, n, k: int = N_DRAWS) -> np.ndarray:
 def _per_loop(rng, batch: int | None, draw):
     """``draw(g, size)`` for an unbatched loop (``batch=None``, one Generator, ``size=None``), else
     for a batch: from one Generator (``size=batch``) or from a sequence of ``batch`` Generators
-    (row i from Generator i, exactly as an unbatched loop with that Generator would draw it)."""
+    (row i from Generator i, exactly as an unbatched loop with that Generator would draw it).
+    """
     if batch is None:
         if not isinstance(rng, np.random.Generator):
             raise TypeError("an unbatched loop takes one numpy Generator")
@@ -174,11 +175,13 @@ def _per_loop(rng, batch: int | None, draw):
 
 def standard_normals(rng, batch: int | None, k: int = N_DRAWS) -> np.ndarray:
     """Standard normals for one slot drawn from Generators: shape (k,) for an unbatched loop
-    (``batch=None``), else (batch, k) from one Generator or one Generator per loop."""
+    (``batch=None``), else (batch, k) from one Generator or one Generator per loop.
+    """
     return _per_loop(rng, batch, lambda g, size: g.standard_normal(k if size is None else (size, k)))
 
 
 def draw_keys(rng, batch: int | None) -> np.ndarray:
     """Episode keys (uint64) from Generators: a 0-d array for an unbatched loop (``batch=None``),
-    else (batch,) from one Generator or one Generator per loop."""
+    else (batch,) from one Generator or one Generator per loop.
+    """
     return np.asarray(_per_loop(rng, batch, lambda g, size: g.integers(0, 2**64, size=size, dtype=np.uint64)))

@@ -47,7 +47,8 @@ MATS = {"a": 0, "b": 1, "k": 2, "sigma_w": 3, "diags": 4}
 @per_scenario
 def slot_params(s: Scenario):
     """``(c, mats)``: the :data:`SLOT_PARAMS` record (a read-only structured array of shape (1,)) and
-    the packed matrices (5, 6, 6) of :data:`MATS` of one scenario (read-only, cached)."""
+    the packed matrices (5, 6, 6) of :data:`MATS` of one scenario (read-only, cached).
+    """
     mm = model_matrices(s)
     eps_star = scenario_eps_star(s)
     c = np.zeros(1, SLOT_PARAMS)

@@ -1,5 +1,6 @@
 """Quadrature rules of the analytic evaluator: the expected norm of a Gaussian vector in R^3 and
-the nodes of the Rician power gain."""
+the nodes of the Rician power gain.
+"""
 
 from __future__ import annotations
 
@@ -33,12 +34,12 @@ _MEAN_CHI3 = 2.0 * math.sqrt(2.0 / math.pi)
 
 
 def expected_norm(var_m2):
-    """:math:`\\mathbb E\\|\\mathbf x\\|` of a zero-mean Gaussian vector in R^3 with covariance
+    r""":math:`\mathbb E\|\mathbf x\|` of a zero-mean Gaussian vector in R^3 with covariance
     eigenvalues ``var_m2`` (..., 3).
 
-    With :math:`\\mathbf x = \\Lambda^{1/2} r\\mathbf u` (:math:`r\\sim\\chi_3` independent of the
-    uniform direction :math:`\\mathbf u`), :math:`\\mathbb E\\|\\mathbf x\\| = \\mathbb E[\\chi_3]\\,
-    \\mathbb E_\\mathbf u\\sqrt{\\sum_i\\lambda_i u_i^2}`, :math:`\\mathbb E[\\chi_3] = 2\\sqrt{2/\\pi}`;
+    With :math:`\mathbf x = \Lambda^{1/2} r\mathbf u` (:math:`r\sim\chi_3` independent of the
+    uniform direction :math:`\mathbf u`), :math:`\mathbb E\|\mathbf x\| = \mathbb E[\chi_3]\,
+    \mathbb E_\mathbf u\sqrt{\sum_i\lambda_i u_i^2}`, :math:`\mathbb E[\chi_3] = 2\sqrt{2/\pi}`;
     the direction average is a 6 x 6 Gauss-Legendre rule on the octant (relative error below 3e-4
     for eigenvalue ratios up to 100, below 1e-3 in the degenerate limits).
     """
@@ -48,9 +49,9 @@ def expected_norm(var_m2):
 
 
 def rician_power_nodes(k_lin: float):
-    """Quadrature nodes and weights of the unit-mean Rician power gain :math:`|g|^2`.
+    r"""Quadrature nodes and weights of the unit-mean Rician power gain :math:`|g|^2`.
 
-    :math:`|g|^2 = \\sigma^2\\chi'^2_2(2K)` with :math:`\\sigma^2 = 1/(2(K+1))` (``channel.rician_power_gain``);
+    :math:`|g|^2 = \sigma^2\chi'^2_2(2K)` with :math:`\sigma^2 = 1/(2(K+1))` (``channel.rician_power_gain``);
     the nodes are the quantiles at the midpoints of 30 probability bins refined in the lower tail
     (deep fades drive the loss rate), the weights the bins' probabilities.
 

@@ -1,5 +1,6 @@
 """Validation of a :class:`iscc_gym.scenario.Scenario`: the allowed choices and range of every field,
-and the checks that keep every quantity of a slot finite and every array small."""
+and the checks that keep every quantity of a slot finite and every array small.
+"""
 
 from __future__ import annotations
 

@@ -52,11 +52,11 @@ __all__ = [
 
 
 def sensing_path_loss_db(s: Scenario, dist_m):
-    """Two-way radar path loss in dB (Sec. II-C).
+    r"""Two-way radar path loss in dB (Sec. II-C).
 
     .. math::
-        \\mathcal L_S = 2\\mathcal L(l) - 10\\log_{10}\\sigma_\\mathrm{RCS}
-        + 10\\log_{10}\\frac{\\lambda^2}{4\\pi}
+        \mathcal L_S = 2\mathcal L(l) - 10\log_{10}\sigma_\mathrm{RCS}
+        + 10\log_{10}\frac{\lambda^2}{4\pi}
     """
     lam = s.wavelength_m
     return (2.0 * path_loss_db(s, dist_m) - 10.0 * np.log10(s.rcs_m2)
@@ -64,19 +64,20 @@ def sensing_path_loss_db(s: Scenario, dist_m):
 
 
 def sensing_noise_var_w(s: Scenario) -> float:
-    """Echo noise variance :math:`\\sigma^2` per complex dimension, in W.
+    r"""Echo noise variance :math:`\sigma^2` per complex dimension, in W.
 
     The paper never gives it. ``"full_band"``: :math:`N_0 B` (its per-subcarrier communication noise
-    :math:`n_C \\sim \\mathcal{CN}(0, N_0 B)`); ``"per_subcarrier"``: :math:`N_0\\Delta f`.
+    :math:`n_C \sim \mathcal{CN}(0, N_0 B)`); ``"per_subcarrier"``: :math:`N_0\Delta f`.
     """
     bw = s.bandwidth_hz if s.sensing_noise_convention == "full_band" else s.subcarrier_spacing_hz
     return float(dbm_to_w(s.noise_psd_dbm_hz) * bw)
 
 
 def echo_amplitude_sq(s: Scenario, dist_m, shadow_db, fading_gain):
-    """Received echo power per element and subcarrier before array gain,
-    :math:`P_k \\beta_S |g_S|^2`, in W (with :math:`P_k = P_t/\\mathcal K`), times the calibration
-    ``sensing_snr_offset_db``."""
+    r"""Received echo power per element and subcarrier before array gain,
+    :math:`P_k \beta_S |g_S|^2`, in W (with :math:`P_k = P_t/\mathcal K`), times the calibration
+    ``sensing_snr_offset_db``.
+    """
     # sensing_path_loss_db(l) = L_S(1 m) + 44 log10 l: the l-independent part is cached
     return echo_constant(s) * dist_m ** -4.4 * 10.0 ** (-0.1 * shadow_db) * fading_gain
 
@@ -84,30 +85,31 @@ def echo_amplitude_sq(s: Scenario, dist_m, shadow_db, fading_gain):
 @per_scenario
 def echo_constant(s: Scenario) -> float:
     """The range-independent factor of :func:`echo_amplitude_sq` (power per subcarrier, radar path
-    loss at 1 m, calibration offset)."""
+    loss at 1 m, calibration offset).
+    """
     p_k = float(dbm_to_w(s.tx_power_dbm)) / s.n_subcarriers
     return p_k * 10.0 ** (-0.1 * (float(sensing_path_loss_db(s, 1.0)) - s.sensing_snr_offset_db))
 
 
 def signature_derivatives(s: Scenario, azimuth_rad, elevation_rad, w=None):
-    """Two-way spatial signature and its angle derivatives, with the beamformer held fixed.
+    r"""Two-way spatial signature and its angle derivatives, with the beamformer held fixed.
 
     .. math::
-        \\boldsymbol\\eta = \\mathbf a\\,(\\mathbf a^H \\mathbf w),\\qquad
-        \\partial_\\theta \\boldsymbol\\eta = \\partial_\\theta\\mathbf a\\,(\\mathbf a^H\\mathbf w)
-        + \\mathbf a\\,(\\partial_\\theta \\mathbf a^H \\mathbf w)
+        \boldsymbol\eta = \mathbf a\,(\mathbf a^H \mathbf w),\qquad
+        \partial_\theta \boldsymbol\eta = \partial_\theta\mathbf a\,(\mathbf a^H\mathbf w)
+        + \mathbf a\,(\partial_\theta \mathbf a^H \mathbf w)
 
-    The paper writes :math:`\\mathbf a^T\\mathbf w`; we use the conjugate :math:`\\mathbf a^H\\mathbf w`
-    so that one beamformer has the same gain :math:`|\\mathbf a^H\\mathbf w|^2` on the
+    The paper writes :math:`\mathbf a^T\mathbf w`; we use the conjugate :math:`\mathbf a^H\mathbf w`
+    so that one beamformer has the same gain :math:`|\mathbf a^H\mathbf w|^2` on the
     communication and sensing links (``docs/model.md``).
 
     Returns
     -------
     eta_sq : ndarray, shape (...)
-        :math:`\\|\\boldsymbol\\eta\\|^2`.
+        :math:`\|\boldsymbol\eta\|^2`.
     d_tt, d_pp, d_tp : ndarray, shape (...)
-        :math:`\\|\\partial_\\theta\\boldsymbol\\eta\\|^2`, :math:`\\|\\partial_\\varphi\\boldsymbol\\eta\\|^2`,
-        :math:`\\Re\\{\\partial_\\theta\\boldsymbol\\eta^H\\partial_\\varphi\\boldsymbol\\eta\\}`.
+        :math:`\|\partial_\theta\boldsymbol\eta\|^2`, :math:`\|\partial_\varphi\boldsymbol\eta\|^2`,
+        :math:`\Re\{\partial_\theta\boldsymbol\eta^H\partial_\varphi\boldsymbol\eta\}`.
     """
     if w is None and s.beamforming == "matched":
         th = np.asarray(azimuth_rad, dtype=float)
@@ -141,18 +143,18 @@ def index_moments(s: Scenario):
 
 
 def matched_signature_terms(s: Scenario, ct, st, cp, sp):
-    """:func:`signature_derivatives` for the matched beamformer, in closed form.
+    r""":func:`signature_derivatives` for the matched beamformer, in closed form.
 
-    With :math:`\\mathbf w = \\mathbf a/\\sqrt N` and the phase reference at the array centre,
-    :math:`\\mathbf a^H\\mathbf w = \\sqrt N` and :math:`\\partial\\mathbf a^H\\mathbf w = 0`, so
+    With :math:`\mathbf w = \mathbf a/\sqrt N` and the phase reference at the array centre,
+    :math:`\mathbf a^H\mathbf w = \sqrt N` and :math:`\partial\mathbf a^H\mathbf w = 0`, so
 
     .. math::
-        \\|\\boldsymbol\\eta\\|^2 = N^2,\\qquad
-        \\Re\\{\\partial_a\\boldsymbol\\eta^H\\partial_b\\boldsymbol\\eta\\} = N k^2 \\left(
-        \\partial_a u_x\\,\\partial_b u_x \\sum i^2 + \\partial_a u_y\\,\\partial_b u_y \\sum j^2\\right)
+        \|\boldsymbol\eta\|^2 = N^2,\qquad
+        \Re\{\partial_a\boldsymbol\eta^H\partial_b\boldsymbol\eta\} = N k^2 \left(
+        \partial_a u_x\,\partial_b u_x \sum i^2 + \partial_a u_y\,\partial_b u_y \sum j^2\right)
 
-    with :math:`k = 2\\pi d_\\lambda/\\lambda` and the sums over the centred element grid
-    (:math:`\\sum ij = 0`). Arguments are cos/sin of azimuth and elevation.
+    with :math:`k = 2\pi d_\lambda/\lambda` and the sums over the centred element grid
+    (:math:`\sum ij = 0`). Arguments are cos/sin of azimuth and elevation.
     """
     _, (tx, ty), (px, py) = direction_cosines_trig(s, ct, st, cp, sp)
     sxx, syy, eta_sq = index_moments(s)
@@ -161,20 +163,20 @@ def matched_signature_terms(s: Scenario, ct, st, cp, sp):
 
 
 def fim(s: Scenario, alpha_sen, pos_m, shadow_db, fading_gain=1.0):
-    """Closed-form Fisher information of :math:`\\boldsymbol\\xi = [\\tau_S, \\theta, \\varphi, \\nu_S]`,
+    r"""Closed-form Fisher information of :math:`\boldsymbol\xi = [\tau_S, \theta, \varphi, \nu_S]`,
     eq:FIM_tau -- eq:FIM_zero.
 
     .. math::
-        J_{\\tau\\tau} &= \\frac{8(\\pi\\Delta f)^2 P_k\\beta_S\\|\\boldsymbol\\eta\\|^2\\mathcal M
-        (\\alpha_\\mathrm{sen}\\mathcal K)^3}{3\\sigma^2},\\qquad
-        J_{\\nu\\nu} = \\frac{8(\\pi T_S)^2 P_k\\beta_S\\|\\boldsymbol\\eta\\|^2
-        \\alpha_\\mathrm{sen}\\mathcal K \\mathcal M^3}{3\\sigma^2},\\\\
-        J_{ab} &= \\frac{2 P_k\\beta_S \\mathcal M\\alpha_\\mathrm{sen}\\mathcal K}{\\sigma^2}
-        \\Re\\{\\partial_a\\boldsymbol\\eta^H\\partial_b\\boldsymbol\\eta\\},\\quad a,b\\in\\{\\theta,\\varphi\\}
+        J_{\tau\tau} &= \frac{8(\pi\Delta f)^2 P_k\beta_S\|\boldsymbol\eta\|^2\mathcal M
+        (\alpha_\mathrm{sen}\mathcal K)^3}{3\sigma^2},\qquad
+        J_{\nu\nu} = \frac{8(\pi T_S)^2 P_k\beta_S\|\boldsymbol\eta\|^2
+        \alpha_\mathrm{sen}\mathcal K \mathcal M^3}{3\sigma^2},\\
+        J_{ab} &= \frac{2 P_k\beta_S \mathcal M\alpha_\mathrm{sen}\mathcal K}{\sigma^2}
+        \Re\{\partial_a\boldsymbol\eta^H\partial_b\boldsymbol\eta\},\quad a,b\in\{\theta,\varphi\}
 
     (angle entries from the FIM definition; with ``fim_angle_convention="printed"`` they carry the
-    printed factor :math:`\\|\\boldsymbol\\eta\\|^2/4` on top). :math:`J_{\\tau\\theta} =
-    J_{\\tau\\varphi} = 0` and :math:`\\nu_S` is decoupled, as in the paper.
+    printed factor :math:`\|\boldsymbol\eta\|^2/4` on top). :math:`J_{\tau\theta} =
+    J_{\tau\varphi} = 0` and :math:`\nu_S` is decoupled, as in the paper.
 
     Parameters
     ----------
@@ -225,17 +227,17 @@ def fim_terms(s: Scenario, alpha_sen, dist_m, shadow_db, fading_gain, signature)
 
 
 def crlb(s: Scenario, alpha_sen, pos_m, shadow_db, fading_gain=1.0):
-    """Observation-noise covariances of the ISAC measurement, eq:CRLB_pos and CRLB_vr.
+    r"""Observation-noise covariances of the ISAC measurement, eq:CRLB_pos and CRLB_vr.
 
     .. math::
-        \\mathrm{CRLB}_\\mathbf p = \\big(\\Upsilon_\\mathbf p^{-T}\\mathbf J_\\mathbf p
-        \\Upsilon_\\mathbf p^{-1} + \\sigma_0^{-2}\\mathbf I_3\\big)^{-1},\\qquad
-        \\mathrm{CRLB}_{v_r} = \\left(\\frac{\\lambda}{2}\\right)^2 J_{\\nu\\nu}^{-1}
+        \mathrm{CRLB}_\mathbf p = \big(\Upsilon_\mathbf p^{-T}\mathbf J_\mathbf p
+        \Upsilon_\mathbf p^{-1} + \sigma_0^{-2}\mathbf I_3\big)^{-1},\qquad
+        \mathrm{CRLB}_{v_r} = \left(\frac{\lambda}{2}\right)^2 J_{\nu\nu}^{-1}
 
-    where :math:`\\sigma_0^2` is ``sensing_prior_var_m2`` (a weak prior that only matters where the
-    angle information vanishes; without it this is :math:`\\Upsilon\\mathbf J^{-1}\\Upsilon^T`).
+    where :math:`\sigma_0^2` is ``sensing_prior_var_m2`` (a weak prior that only matters where the
+    angle information vanishes; without it this is :math:`\Upsilon\mathbf J^{-1}\Upsilon^T`).
     Computed in the local frame of :func:`crlb_local` and rotated back,
-    :math:`\\mathrm{CRLB}_\\mathbf p = \\mathbf U\\mathbf M\\mathbf U^T`.
+    :math:`\mathrm{CRLB}_\mathbf p = \mathbf U\mathbf M\mathbf U^T`.
     ``alpha_sen = 0`` gives the prior alone (also ``sensing_prior_var_m2`` in (m/s)^2 for v_r).
 
     Returns
@@ -254,11 +256,12 @@ def crlb(s: Scenario, alpha_sen, pos_m, shadow_db, fading_gain=1.0):
 
 
 def local_frame(los_unit, trig):
-    """Orthonormal frame :math:`\\mathbf U = [\\mathbf g, \\mathbf e_\\theta, \\mathbf e_\\varphi]`
+    r"""Orthonormal frame :math:`\mathbf U = [\mathbf g, \mathbf e_\theta, \mathbf e_\varphi]`
     (columns) of range, azimuth and elevation directions, shape (..., 3, 3):
-    :math:`\\mathbf e_\\theta = [-\\sin\\theta, \\cos\\theta, 0]`,
-    :math:`\\mathbf e_\\varphi = [-\\sin\\varphi\\cos\\theta, -\\sin\\varphi\\sin\\theta,
-    \\cos\\varphi]`."""
+    :math:`\mathbf e_\theta = [-\sin\theta, \cos\theta, 0]`,
+    :math:`\mathbf e_\varphi = [-\sin\varphi\cos\theta, -\sin\varphi\sin\theta,
+    \cos\varphi]`.
+    """
     ct, st, cp, sp = trig
     u = np.empty(np.shape(ct) + (3, 3))
     u[..., :, 0] = los_unit
@@ -268,17 +271,17 @@ def local_frame(los_unit, trig):
 
 
 def whitened_observation_matrix(los_unit, trig, m_r, m_tt, m_tp, m_pp, crlb_vr):
-    """Observation matrix of the whitened ISAC measurement, shape (..., 4, 6).
+    r"""Observation matrix of the whitened ISAC measurement, shape (..., 4, 6).
 
-    With :math:`\\Sigma_\\upsilon = \\mathrm{blkdiag}(\\mathbf U\\mathbf M\\mathbf U^T, \\mathrm{CRLB}_{v_r})`,
-    :math:`\\mathbf M = \\mathbf L\\mathbf L^T` (Cholesky, closed form) and
-    :math:`\\mathbf W = \\mathrm{blkdiag}(\\mathbf L^{-1}\\mathbf U^T, \\mathrm{CRLB}_{v_r}^{-1/2})`,
-    the measurement :math:`\\mathbf W\\mathbf y_n = \\mathbf W\\mathbf C_n\\mathbf x_n +
-    \\mathbf z_n`, :math:`\\mathbf z_n\\sim\\mathcal N(\\mathbf 0, \\mathbf I_4)`, carries the same
+    With :math:`\Sigma_\upsilon = \mathrm{blkdiag}(\mathbf U\mathbf M\mathbf U^T, \mathrm{CRLB}_{v_r})`,
+    :math:`\mathbf M = \mathbf L\mathbf L^T` (Cholesky, closed form) and
+    :math:`\mathbf W = \mathrm{blkdiag}(\mathbf L^{-1}\mathbf U^T, \mathrm{CRLB}_{v_r}^{-1/2})`,
+    the measurement :math:`\mathbf W\mathbf y_n = \mathbf W\mathbf C_n\mathbf x_n +
+    \mathbf z_n`, :math:`\mathbf z_n\sim\mathcal N(\mathbf 0, \mathbf I_4)`, carries the same
     information as eq:observation_model (the Kalman posterior is unchanged). Returns
-    :math:`\\mathbf W\\mathbf C_n`; rows: :math:`\\mathbf g^T/\\sqrt{m_r}`,
-    :math:`\\mathbf e_\\theta^T/l_{11}`, :math:`(\\mathbf e_\\varphi - (l_{21}/l_{11})\\mathbf e_\\theta)^T/l_{22}`
-    on the position, :math:`\\mathbf g^T/\\sqrt{\\mathrm{CRLB}_{v_r}}` on the velocity.
+    :math:`\mathbf W\mathbf C_n`; rows: :math:`\mathbf g^T/\sqrt{m_r}`,
+    :math:`\mathbf e_\theta^T/l_{11}`, :math:`(\mathbf e_\varphi - (l_{21}/l_{11})\mathbf e_\theta)^T/l_{22}`
+    on the position, :math:`\mathbf g^T/\sqrt{\mathrm{CRLB}_{v_r}}` on the velocity.
     Arguments as returned by :func:`crlb_local` and :func:`iscc_gym.channel.direction_trig`.
     """
     ct, st, cp, sp = trig
@@ -298,14 +301,14 @@ def whitened_observation_matrix(los_unit, trig, m_r, m_tt, m_tp, m_pp, crlb_vr):
 
 
 def crlb_local(s: Scenario, alpha_sen, dist_m, trig, shadow_db, fading_gain=1.0):
-    """Position CRLB in the local frame :func:`local_frame` and the radial-velocity CRLB.
+    r"""Position CRLB in the local frame :func:`local_frame` and the radial-velocity CRLB.
 
-    The position information :math:`\\Upsilon^{-T}\\mathbf J_\\mathbf p\\Upsilon^{-1}` is, in the
-    frame :math:`(\\mathbf g, \\mathbf e_\\theta, \\mathbf e_\\varphi)`,
-    :math:`\\mathrm{blkdiag}\\big((2/c)^2 J_{\\tau\\tau},\\ \\mathbf D\\mathbf J_{\\theta\\varphi}
-    \\mathbf D\\big)` with :math:`\\mathbf D = \\mathrm{diag}(1/(l\\cos\\varphi), 1/l)`
-    (:math:`\\partial\\theta/\\partial\\mathbf p = \\mathbf e_\\theta/(l\\cos\\varphi)`,
-    :math:`\\partial\\varphi/\\partial\\mathbf p = \\mathbf e_\\varphi/l`), so adding the prior and
+    The position information :math:`\Upsilon^{-T}\mathbf J_\mathbf p\Upsilon^{-1}` is, in the
+    frame :math:`(\mathbf g, \mathbf e_\theta, \mathbf e_\varphi)`,
+    :math:`\mathrm{blkdiag}\big((2/c)^2 J_{\tau\tau},\ \mathbf D\mathbf J_{\theta\varphi}
+    \mathbf D\big)` with :math:`\mathbf D = \mathrm{diag}(1/(l\cos\varphi), 1/l)`
+    (:math:`\partial\theta/\partial\mathbf p = \mathbf e_\theta/(l\cos\varphi)`,
+    :math:`\partial\varphi/\partial\mathbf p = \mathbf e_\varphi/l`), so adding the prior and
     inverting takes a scalar and a 2 x 2 closed form.
 
     Returns
@@ -327,12 +330,12 @@ def crlb_local(s: Scenario, alpha_sen, dist_m, trig, shadow_db, fading_gain=1.0)
 
 
 def peb(crlb_p):
-    """Position error bound :math:`\\mathrm{PEB} = \\sqrt{\\operatorname{Tr}\\,\\mathrm{CRLB}_\\mathbf p}` in m."""
+    r"""Position error bound :math:`\mathrm{PEB} = \sqrt{\operatorname{Tr}\,\mathrm{CRLB}_\mathbf p}` in m."""
     return np.sqrt(np.trace(crlb_p, axis1=-2, axis2=-1))
 
 
 def veb(crlb_vr):
-    """Velocity error bound :math:`\\mathrm{VEB} = \\sqrt{\\mathrm{CRLB}_{v_r}}` in m/s."""
+    r"""Velocity error bound :math:`\mathrm{VEB} = \sqrt{\mathrm{CRLB}_{v_r}}` in m/s."""
     return np.sqrt(crlb_vr)
 
 
@@ -348,7 +351,8 @@ def crlb_local_one(c, a_sen, dist, ct, st, cp, sp, shadow_db, fading):
     :func:`echo_amplitude_sq`), returning ``(m_r, m_tt, m_tp, m_pp, crlb_vr)``.
 
     ``c``: a record with the fields of :data:`SENSING_PARAMS` (:func:`sensing_params`, or the slot's
-    :data:`iscc_gym.params.SLOT_PARAMS`, which holds them too)."""
+    :data:`iscc_gym.params.SLOT_PARAMS`, which holds them too).
+    """
     if c.broadside == 0.0:  # matched_signature_terms
         orient = c.orient
         if orient == 0.0:  # channel.direction_cosines_trig, horizontal
@@ -424,7 +428,8 @@ def crlb_from_info(info_range, info_az, info_cross, info_el, j_nu, prior, lam_ha
 @njit(cache=True, error_model="numpy", inline="always")
 def whitened_rows_one(gx, gy, gz, ct, st, cp, sp, m_r, m_tt, m_tp, m_pp, crlb_vr, w):
     """:func:`whitened_observation_matrix` of one drone, written into the non-zero entries of ``w``
-    (4, 6) (the others must be zero)."""
+    (4, 6) (the others must be zero).
+    """
     l11 = math.sqrt(m_tt)
     l21 = m_tp / l11
     inv_l22 = 1.0 / math.sqrt(m_pp - l21 * l21)

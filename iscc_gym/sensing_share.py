@@ -1,6 +1,7 @@
 """The CRLB as an explicit function of the sensing share alpha_sen (the SCA objective f_sen of
 Sec. IV-B and the analytic evaluator's measurement noise), from the closed-form FIM of
-:mod:`iscc_gym.sensing` at alpha_sen = 1."""
+:mod:`iscc_gym.sensing` at alpha_sen = 1.
+"""
 
 from __future__ import annotations
 
@@ -17,22 +18,22 @@ __all__ = ["SensingCoefficients", "sensing_coefficients", "local_crlb", "crlb_tr
 
 @dataclass(frozen=True)
 class SensingCoefficients:
-    """Position-domain Fisher information of the ISAC measurement at ``alpha_sen = 1``.
+    r"""Position-domain Fisher information of the ISAC measurement at ``alpha_sen = 1``.
 
-    The closed-form FIM (eq:FIM_tau -- eq:FIM_zero) scales as :math:`\\alpha_\\mathrm{sen}^3` in the
-    range (delay) entry and as :math:`\\alpha_\\mathrm{sen}` in the angle and Doppler entries, so the
+    The closed-form FIM (eq:FIM_tau -- eq:FIM_zero) scales as :math:`\alpha_\mathrm{sen}^3` in the
+    range (delay) entry and as :math:`\alpha_\mathrm{sen}` in the angle and Doppler entries, so the
     CRLB at any share follows from these coefficients (:func:`local_crlb`). Frame: range direction
-    :math:`\\mathbf g`, azimuth direction :math:`\\mathbf e_\\theta`, elevation direction
-    :math:`\\mathbf e_\\varphi` (:func:`iscc_gym.sensing.local_frame`).
+    :math:`\mathbf g`, azimuth direction :math:`\mathbf e_\theta`, elevation direction
+    :math:`\mathbf e_\varphi` (:func:`iscc_gym.sensing.local_frame`).
 
     Attributes
     ----------
     info_range : ndarray, m^-2
-        :math:`(2/c)^2 J_{\\tau\\tau}` at :math:`\\alpha_\\mathrm{sen}=1`.
+        :math:`(2/c)^2 J_{\tau\tau}` at :math:`\alpha_\mathrm{sen}=1`.
     info_az, info_cross, info_el : ndarray, m^-2
-        Entries of :math:`\\mathbf D\\mathbf J_{\\theta\\varphi}\\mathbf D` (azimuth, cross, elevation).
+        Entries of :math:`\mathbf D\mathbf J_{\theta\varphi}\mathbf D` (azimuth, cross, elevation).
     info_vr : ndarray, (m/s)^-2
-        :math:`J_{\\nu\\nu}/(\\lambda/2)^2`.
+        :math:`J_{\nu\nu}/(\lambda/2)^2`.
     prior : float, m^-2
         ``1 / sensing_prior_var_m2`` (added to every diagonal entry, as in ``sensing.crlb_local``).
     """
@@ -47,7 +48,8 @@ class SensingCoefficients:
 
 def sensing_coefficients(s: Scenario, dist_m, trig, shadow_db=0.0, fading_gain=1.0) -> SensingCoefficients:
     """:class:`SensingCoefficients` at ranges ``dist_m`` and directions ``trig`` (the output of
-    :func:`iscc_gym.channel.direction_trig`), for the given shadowing (dB) and fading gain."""
+    :func:`iscc_gym.channel.direction_trig`), for the given shadowing (dB) and fading gain.
+    """
     ct, st, cp, sp = trig
     signature = (matched_signature_terms(s, ct, st, cp, sp) if s.beamforming == "matched" else
                  signature_derivatives(s, np.arctan2(st, ct), np.arctan2(sp, cp)))
@@ -81,7 +83,7 @@ def local_crlb(coef: SensingCoefficients, alpha_sen):
 
 
 def crlb_trace(coef: SensingCoefficients, alpha_sen):
-    """:math:`f_\\mathrm{sen}(\\alpha_\\mathrm{sen}) = \\operatorname{Tr}\\mathrm{CRLB}_\\mathbf p`
+    r""":math:`f_\mathrm{sen}(\alpha_\mathrm{sen}) = \operatorname{Tr}\mathrm{CRLB}_\mathbf p`
     (PEB squared, m^2) and its derivative in ``alpha_sen`` (the SCA objective, Sec. IV-B).
 
     Returns
@@ -94,12 +96,12 @@ def crlb_trace(coef: SensingCoefficients, alpha_sen):
 
 @njit(cache=True, error_model="numpy")
 def crlb_trace_one(info_range, info_az, info_cross, info_el, prior, alpha_sen):
-    """:func:`crlb_trace` of one position (scalars of :class:`SensingCoefficients`): ``(trace, dtrace)``.
+    r""":func:`crlb_trace` of one position (scalars of :class:`SensingCoefficients`): ``(trace, dtrace)``.
 
     The CRLB is :func:`iscc_gym.sensing.crlb_from_info_one`; its derivative is
-    :math:`\\partial\\mathbf M/\\partial\\alpha = -\\mathbf M\\,(\\partial\\mathbf J/\\partial\\alpha)\\,
-    \\mathbf M`, with
-    :math:`\\partial\\mathbf J/\\partial\\alpha` the information at alpha_sen = 1 (3 alpha^2 of it in range).
+    :math:`\partial\mathbf M/\partial\alpha = -\mathbf M\,(\partial\mathbf J/\partial\alpha)\,
+    \mathbf M`, with
+    :math:`\partial\mathbf J/\partial\alpha` the information at alpha_sen = 1 (3 alpha^2 of it in range).
     """
     a = alpha_sen
     m_r, m_tt, m_tp, m_pp, _ = crlb_from_info_one(a * a * a * info_range, a * info_az, a * info_cross,

@@ -1,5 +1,6 @@
 """Mean-square stability under packet loss, steady-state covariances, LQG cost and rate-cost
-function (the paper, Sec. III-B, III-C and IV-C)."""
+function (the paper, Sec. III-B, III-C and IV-C).
+"""
 
 from __future__ import annotations
 
@@ -30,11 +31,11 @@ __all__ = [
 
 
 def stability_matrix(a, b, k, eps):
-    """Second-moment transition matrix, eq:M.
+    r"""Second-moment transition matrix, eq:M.
 
     .. math::
-        \\mathbf M = (1-\\varepsilon)\\,(\\mathbf A-\\mathbf B\\mathbf K)\\otimes(\\mathbf A-\\mathbf B\\mathbf K)
-        + \\varepsilon\\,\\mathbf A\\otimes\\mathbf A
+        \mathbf M = (1-\varepsilon)\,(\mathbf A-\mathbf B\mathbf K)\otimes(\mathbf A-\mathbf B\mathbf K)
+        + \varepsilon\,\mathbf A\otimes\mathbf A
 
     Returns an array of shape (36, 36).
     """
@@ -43,18 +44,18 @@ def stability_matrix(a, b, k, eps):
 
 
 def spectral_radius(m):
-    """:math:`\\rho(\\mathbf M) = \\max_i |\\lambda_i(\\mathbf M)|`."""
+    r""":math:`\rho(\mathbf M) = \max_i |\lambda_i(\mathbf M)|`."""
     return float(np.max(np.abs(np.linalg.eigvals(m))))
 
 
 def eps_star(a, b, k, xtol: float = 1e-12):
-    """Largest control packet-loss rate that keeps the loop mean-square stable:
-    the first root of :math:`\\rho(\\mathbf M(\\varepsilon)) = 1` on (0, 1) (Sec. IV-C.1).
+    r"""Largest control packet-loss rate that keeps the loop mean-square stable:
+    the first root of :math:`\rho(\mathbf M(\varepsilon)) = 1` on (0, 1) (Sec. IV-C.1).
 
-    The root is bracketed on a grid of 200 loss rates (at :math:`\\varepsilon = 1`,
-    :math:`\\rho(\\mathbf A\\otimes\\mathbf A) = 1` exactly for the double integrator, so the end
+    The root is bracketed on a grid of 200 loss rates (at :math:`\varepsilon = 1`,
+    :math:`\rho(\mathbf A\otimes\mathbf A) = 1` exactly for the double integrator, so the end
     point itself cannot serve as a bracket) and refined with Brent's method. Returns 1.0 if
-    :math:`\\rho(\\mathbf M) < 1` on the whole grid.
+    :math:`\rho(\mathbf M) < 1` on the whole grid.
     """
     def f(e):
         return spectral_radius(stability_matrix(a, b, k, e)) - 1.0
@@ -78,7 +79,7 @@ def scenario_eps_star(s: Scenario) -> float:
 
 
 def alpha_ctrl_star(s: Scenario, snr, eps_max: float, xtol: float = 1e-12):
-    """Smallest control share with :math:`\\varepsilon_\\mathrm{ctrl}(\\alpha,\\gamma) \\le \\varepsilon^\\star`,
+    r"""Smallest control share with :math:`\varepsilon_\mathrm{ctrl}(\alpha,\gamma) \le \varepsilon^\star`,
     the root of eq:ctrl_bler minus ``eps_max`` (Sec. IV-C.1).
 
     ``snr`` is a scalar linear SNR. Returns ``nan`` if even alpha_ctrl = 1 is not enough.
@@ -92,15 +93,15 @@ def alpha_ctrl_star(s: Scenario, snr, eps_max: float, xtol: float = 1e-12):
 
 
 def kalman_steady_state(a, c, sigma_w, sigma_v):
-    """Steady-state Kalman covariances for a fixed observation model, via the filtering DARE.
+    r"""Steady-state Kalman covariances for a fixed observation model, via the filtering DARE.
 
     Returns
     -------
     p_prior : (6, 6)
-        Predicted error covariance :math:`\\mathbf P_{n|n-1}` (solution of the filtering DARE).
+        Predicted error covariance :math:`\mathbf P_{n|n-1}` (solution of the filtering DARE).
     sigma_est : (6, 6)
-        Filtered error covariance :math:`\\Sigma_\\mathrm{est} = \\mathbf P - \\mathbf P\\mathbf C^T
-        (\\mathbf C\\mathbf P\\mathbf C^T + \\Sigma_\\upsilon)^{-1}\\mathbf C\\mathbf P` (eq:omega_tilde_cov).
+        Filtered error covariance :math:`\Sigma_\mathrm{est} = \mathbf P - \mathbf P\mathbf C^T
+        (\mathbf C\mathbf P\mathbf C^T + \Sigma_\upsilon)^{-1}\mathbf C\mathbf P` (eq:omega_tilde_cov).
     """
     p = scipy.linalg.solve_discrete_are(a.T, c.T, sigma_w, sigma_v)
     p = 0.5 * (p + p.T)
@@ -110,20 +111,20 @@ def kalman_steady_state(a, c, sigma_w, sigma_v):
 
 
 def equivalent_noise_cov(sigma_w, b, k, sigma_est, eps):
-    """Covariance of the equivalent process noise, eq:omega_tilde_cov.
+    r"""Covariance of the equivalent process noise, eq:omega_tilde_cov.
 
-    .. math:: \\Sigma_{\\tilde\\omega} = \\Sigma_\\omega + (1-\\varepsilon)\\mathbf B\\mathbf K
-              \\Sigma_\\mathrm{est}\\mathbf K^T\\mathbf B^T
+    .. math:: \Sigma_{\tilde\omega} = \Sigma_\omega + (1-\varepsilon)\mathbf B\mathbf K
+              \Sigma_\mathrm{est}\mathbf K^T\mathbf B^T
     """
     bk = b @ k
     return sigma_w + (1.0 - eps) * bk @ sigma_est @ bk.T
 
 
 def steady_state_covariance(a, b, k, eps, sigma_wt):
-    """Steady state of eq:covariance_recursion,
-    :math:`\\mathrm{vec}(\\Sigma_\\infty) = (\\mathbf I - \\mathbf M)^{-1}\\mathrm{vec}(\\Sigma_{\\tilde\\omega})`.
+    r"""Steady state of eq:covariance_recursion,
+    :math:`\mathrm{vec}(\Sigma_\infty) = (\mathbf I - \mathbf M)^{-1}\mathrm{vec}(\Sigma_{\tilde\omega})`.
 
-    Raises ``ValueError`` if :math:`\\rho(\\mathbf M) \\ge 1` (no steady state).
+    Raises ``ValueError`` if :math:`\rho(\mathbf M) \ge 1` (no steady state).
     """
     m = stability_matrix(a, b, k, eps)
     if spectral_radius(m) >= 1.0:
@@ -135,14 +136,14 @@ def steady_state_covariance(a, b, k, eps, sigma_wt):
 
 
 def lqg_cost(q, r, k, eps, sigma_x, sigma_est):
-    """Average LQG cost b of eq:LQG_cost at steady state.
+    r"""Average LQG cost b of eq:LQG_cost at steady state.
 
     .. math::
-        b = \\operatorname{Tr}(\\mathbf Q\\Sigma_\\infty) + (1-\\varepsilon)\\operatorname{Tr}\\big(
-        \\mathbf R\\mathbf K(\\Sigma_\\infty - \\Sigma_\\mathrm{est})\\mathbf K^T\\big)
+        b = \operatorname{Tr}(\mathbf Q\Sigma_\infty) + (1-\varepsilon)\operatorname{Tr}\big(
+        \mathbf R\mathbf K(\Sigma_\infty - \Sigma_\mathrm{est})\mathbf K^T\big)
 
-    since :math:`\\tilde{\\mathbf u} = -\\delta\\mathbf K\\hat{\\mathbf x}` and
-    :math:`\\mathbb E[\\hat{\\mathbf x}\\hat{\\mathbf x}^T] = \\Sigma_\\infty - \\Sigma_\\mathrm{est}`
+    since :math:`\tilde{\mathbf u} = -\delta\mathbf K\hat{\mathbf x}` and
+    :math:`\mathbb E[\hat{\mathbf x}\hat{\mathbf x}^T] = \Sigma_\infty - \Sigma_\mathrm{est}`
     (orthogonality of the Kalman estimate), in tracking-error coordinates.
     """
     u_cov = k @ (sigma_x - sigma_est) @ k.T
@@ -150,11 +151,11 @@ def lqg_cost(q, r, k, eps, sigma_x, sigma_est):
 
 
 def riccati_s_d(a, b, q, r, eps, tol: float = 1e-10, max_iter: int = 100_000):
-    """Solve the coupled equations eq:Riccati_D and eq:Riccati_S by fixed-point iteration.
+    r"""Solve the coupled equations eq:Riccati_D and eq:Riccati_S by fixed-point iteration.
 
     .. math::
-        \\mathbf D = (1-\\varepsilon)\\mathbf S\\mathbf B(\\mathbf R+\\mathbf B^T\\mathbf S\\mathbf B)^{-1}
-        \\mathbf B^T\\mathbf S,\\qquad \\mathbf S = \\mathbf Q + \\mathbf A^T(\\mathbf S - \\mathbf D)\\mathbf A
+        \mathbf D = (1-\varepsilon)\mathbf S\mathbf B(\mathbf R+\mathbf B^T\mathbf S\mathbf B)^{-1}
+        \mathbf B^T\mathbf S,\qquad \mathbf S = \mathbf Q + \mathbf A^T(\mathbf S - \mathbf D)\mathbf A
 
     For eps = 0 this is the control DARE. Raises ``ValueError`` if the iteration diverges (the
     loss rate is beyond what the modified Riccati equation tolerates).
@@ -178,14 +179,16 @@ def riccati_s_d(a, b, q, r, eps, tol: float = 1e-10, max_iter: int = 100_000):
 
 
 def lqg_cost_floor(p_dare, sigma_w):
-    """:math:`b_\\min = \\operatorname{Tr}(\\mathbf P\\Sigma_\\omega)`: the average LQR cost with perfect
-    state and no loss (eq:Lb), with P the control DARE solution."""
+    r""":math:`b_\min = \operatorname{Tr}(\mathbf P\Sigma_\omega)`: the average LQR cost with perfect
+    state and no loss (eq:Lb), with P the control DARE solution.
+    """
     return float(np.trace(p_dare @ sigma_w))
 
 
 def entropy_power(cov):
-    """Entropy power of a Gaussian vector,
-    :math:`N = \\frac{1}{2\\pi e}\\exp(\\tfrac{2}{n}h) = (\\det\\Sigma)^{1/n}`."""
+    r"""Entropy power of a Gaussian vector,
+    :math:`N = \frac{1}{2\pi e}\exp(\tfrac{2}{n}h) = (\det\Sigma)^{1/n}`.
+    """
     n = cov.shape[-1]
     sign, logdet = np.linalg.slogdet(cov)
     if sign <= 0:
@@ -194,17 +197,17 @@ def entropy_power(cov):
 
 
 def rate_cost_bits(a, b_target, b_min, noise_entropy_power, d, determinant: str = "pseudo"):
-    """Rate-cost function L(b) of eq:Lb, in bits per control sample (slot).
+    r"""Rate-cost function L(b) of eq:Lb, in bits per control sample (slot).
 
     .. math::
-        L(b) = \\log_2|\\det\\mathbf A| + \\frac{n}{2}\\log_2\\left(1 + \\frac{n\\,N(\\tilde\\omega)\\,
-        |\\det\\mathbf D|^{1/n}}{b - b_\\min}\\right),\\quad n = 6
+        L(b) = \log_2|\det\mathbf A| + \frac{n}{2}\log_2\left(1 + \frac{n\,N(\tilde\omega)\,
+        |\det\mathbf D|^{1/n}}{b - b_\min}\right),\quad n = 6
 
-    :math:`\\mathbf D` of eq:Riccati_D has rank 3 (B is 6 x 3), so the printed ``determinant="printed"``
-    gives :math:`\\det\\mathbf D = 0` and :math:`L(b) = \\log_2|\\det\\mathbf A| = 0` for every b.
-    ``determinant="pseudo"`` (default) replaces :math:`n` and :math:`\\det` in the second term by the
+    :math:`\mathbf D` of eq:Riccati_D has rank 3 (B is 6 x 3), so the printed ``determinant="printed"``
+    gives :math:`\det\mathbf D = 0` and :math:`L(b) = \log_2|\det\mathbf A| = 0` for every b.
+    ``determinant="pseudo"`` (default) replaces :math:`n` and :math:`\det` in the second term by the
     rank r of D and its pseudo-determinant (product of the non-zero eigenvalues), see docs/model.md.
-    Returns ``inf`` for :math:`b \\le b_\\min`.
+    Returns ``inf`` for :math:`b \le b_\min`.
     """
     n = a.shape[0]
     if b_target <= b_min:
@@ -224,15 +227,15 @@ def rate_cost_bits(a, b_target, b_min, noise_entropy_power, d, determinant: str 
 
 
 class LossOperator:
-    """The per-axis closed-loop map :math:`\\mathrm{vec}\\,\\Sigma = (\\mathbf I - \\mathbf M_1(\\varepsilon))^{-1}
-    \\mathrm{vec}\\,\\mathbf N` as a rational function of the loss rate.
+    r"""The per-axis closed-loop map :math:`\mathrm{vec}\,\Sigma = (\mathbf I - \mathbf M_1(\varepsilon))^{-1}
+    \mathrm{vec}\,\mathbf N` as a rational function of the loss rate.
 
-    With :math:`\\mathbf M_1(\\varepsilon) = \\mathbf M_\\mathrm{cl} + \\varepsilon\\Delta`,
-    :math:`(\\mathbf I - \\mathbf M_1)^{-1} = \\mathbf X_0(\\mathbf I - \\varepsilon\\mathbf Y)^{-1}`,
-    :math:`\\mathbf X_0 = (\\mathbf I - \\mathbf M_\\mathrm{cl})^{-1}`, :math:`\\mathbf Y = \\Delta\\mathbf X_0`,
-    and by Cayley-Hamilton :math:`(\\mathbf I - \\varepsilon\\mathbf Y)^{-1} = \\sum_{d=0}^{3}\\varepsilon^d
-    \\mathbf C_d / \\det(\\mathbf I - \\varepsilon\\mathbf Y)`, :math:`\\mathbf C_d = \\sum_{k\\le d}
-    c_{d-k}\\mathbf Y^k` with :math:`c` the characteristic-polynomial coefficients of Y.
+    With :math:`\mathbf M_1(\varepsilon) = \mathbf M_\mathrm{cl} + \varepsilon\Delta`,
+    :math:`(\mathbf I - \mathbf M_1)^{-1} = \mathbf X_0(\mathbf I - \varepsilon\mathbf Y)^{-1}`,
+    :math:`\mathbf X_0 = (\mathbf I - \mathbf M_\mathrm{cl})^{-1}`, :math:`\mathbf Y = \Delta\mathbf X_0`,
+    and by Cayley-Hamilton :math:`(\mathbf I - \varepsilon\mathbf Y)^{-1} = \sum_{d=0}^{3}\varepsilon^d
+    \mathbf C_d / \det(\mathbf I - \varepsilon\mathbf Y)`, :math:`\mathbf C_d = \sum_{k\le d}
+    c_{d-k}\mathbf Y^k` with :math:`c` the characteristic-polynomial coefficients of Y.
     """
 
     _OUT = (0, 2, 3)  # column-major vec indices of the (0,0), (0,1), (1,1) entries
@@ -251,17 +254,17 @@ class LossOperator:
         self.det_coef = c  # det(I - eps Y) = sum_i c_i eps^i
 
     def project(self, n_mat, weights):
-        """Numerator coefficients of linear functionals of the steady state.
+        r"""Numerator coefficients of linear functionals of the steady state.
 
         ``n_mat`` (..., 2, 2): noise matrices N; ``weights`` (k, 3): functionals
-        :math:`w_0\\Sigma_{00} + w_1\\Sigma_{01} + w_2\\Sigma_{11}`. Returns (..., k, 4 degrees).
+        :math:`w_0\Sigma_{00} + w_1\Sigma_{01} + w_2\Sigma_{11}`. Returns (..., k, 4 degrees).
         """
         vec = np.stack([n_mat[..., 0, 0], n_mat[..., 1, 0], n_mat[..., 0, 1], n_mat[..., 1, 1]], -1)
         lin = np.einsum("ke,evd->vkd", np.asarray(weights, dtype=float), self.lin).reshape(4, -1)
         return (vec @ lin).reshape(vec.shape[:-1] + (len(weights), 4))
 
     def evaluate(self, eta_a, eta_b, eps):
-        """Steady-state outputs for noise :math:`\\mathbf N_a + (1-\\varepsilon)\\mathbf N_b`.
+        r"""Steady-state outputs for noise :math:`\mathbf N_a + (1-\varepsilon)\mathbf N_b`.
 
         ``eta_*`` (..., 4 degrees) are :meth:`project` outputs (or linear combinations of them);
         ``eps`` broadcasts against ``eta_*[..., 0]``. Returns shape ``eta_*.shape[:-1]``.
@@ -274,7 +277,7 @@ class LossOperator:
         return num / det
 
     def spectral_radius(self, eps):
-        """:math:`\\rho(\\mathbf M(\\varepsilon))` of eq:M (equal to that of the per-axis 4 x 4 map)."""
+        r""":math:`\rho(\mathbf M(\varepsilon))` of eq:M (equal to that of the per-axis 4 x 4 map)."""
         e = np.atleast_1d(np.asarray(eps, dtype=float))
         m = (1.0 - e)[:, None, None] * self.m_cl + e[:, None, None] * self.m_a
         return np.max(np.abs(np.linalg.eigvals(m)), axis=-1)

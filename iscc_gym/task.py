@@ -17,9 +17,9 @@ __all__ = ["action_to_split", "split_to_action", "reward_and_costs"]
 
 
 def action_to_split(action):
-    """Map an action in [-1, 1]^3 onto the simplex (alpha_sen, alpha_ctrl, alpha_comm).
+    r"""Map an action in [-1, 1]^3 onto the simplex (alpha_sen, alpha_ctrl, alpha_comm).
 
-    .. math:: w_i = (\\mathrm{clip}(a_i, -1, 1) + 1)/2,\\qquad \\alpha_i = w_i / \\textstyle\\sum_j w_j
+    .. math:: w_i = (\mathrm{clip}(a_i, -1, 1) + 1)/2,\qquad \alpha_i = w_i / \textstyle\sum_j w_j
 
     and the equal split where every w_i = 0. Every split is reachable (see :func:`split_to_action`),
     including zero shares: there is no minimum share. Broadcasts over leading axes (shape (..., 3)).

@@ -37,7 +37,8 @@ _parallel = _from_environment()
 
 def set_parallel(on: bool) -> None:
     """Step batches of at least :data:`PARALLEL_MIN_BATCH` loops on all of numba's threads (``True``) or
-    serially (``False``, the default). Results are identical either way."""
+    serially (``False``, the default). Results are identical either way.
+    """
     global _parallel
     if not isinstance(on, bool):
         raise TypeError(f"set_parallel(on={on!r}): use True or False")

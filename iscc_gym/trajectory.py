@@ -1,5 +1,6 @@
 """Reference trajectories: Poisson waypoints in the coverage region and a cubic spline through them
-(the paper, Sec. V-A)."""
+(the paper, Sec. V-A).
+"""
 
 from __future__ import annotations
 
@@ -16,9 +17,9 @@ __all__ = ["coverage_volume_km3", "coverage_box_fraction", "in_coverage", "sampl
 
 
 def coverage_volume_km3(s: Scenario) -> float:
-    """Volume of the coverage region :math:`\\{\\|\\mathbf p\\| \\le R,\\ h_\\min < p_z \\le h_\\max\\}` in km^3.
+    r"""Volume of the coverage region :math:`\{\|\mathbf p\| \le R,\ h_\min < p_z \le h_\max\}` in km^3.
 
-    .. math:: V = \\int_{h_\\min}^{h_\\max} \\pi (R^2 - z^2)\\,dz
+    .. math:: V = \int_{h_\min}^{h_\max} \pi (R^2 - z^2)\,dz
     """
     r, lo, hi = s.coverage_radius_m, s.altitude_min_m, s.altitude_max_m
     return float(np.pi * (r * r * (hi - lo) - (hi**3 - lo**3) / 3.0)) * 1e-9
@@ -79,7 +80,8 @@ POINT_REDRAWS = 10_000
 
 def _conditioned_poisson(mean: float, n_min: int, rng: np.random.Generator) -> int:
     """One draw of a Poisson(mean) count conditioned on at least ``n_min``, by inversion of its pmf
-    (computed in logs from ``n_min`` up to where the tail is below 1e-17 of the mass)."""
+    (computed in logs from ``n_min`` up to where the tail is below 1e-17 of the mass).
+    """
     if mean <= 0.0:
         return n_min
     hi = n_min + int(mean + 40.0 * math.sqrt(mean) + 60.0)
@@ -92,7 +94,8 @@ def _conditioned_poisson(mean: float, n_min: int, rng: np.random.Generator) -> i
 
 def coverage_box_fraction(s: Scenario) -> float:
     """Share of the bounding box [-R, R]^2 x [h_min, h_max] that the coverage region fills (the acceptance
-    rate of :func:`sample_waypoints`' rejection sampling)."""
+    rate of :func:`sample_waypoints`' rejection sampling).
+    """
     r = s.coverage_radius_m
     return coverage_volume_km3(s) * 1e9 / (4.0 * r * r * (s.altitude_max_m - s.altitude_min_m))
 
@@ -120,7 +123,7 @@ class Reference:
 
     @property
     def state(self):
-        """Reference state :math:`\\mathbf x_{\\mathrm{ref},n} = [\\mathbf p^T, \\mathbf v^T]^T`, (N+1, 6)."""
+        r"""Reference state :math:`\mathbf x_{\mathrm{ref},n} = [\mathbf p^T, \mathbf v^T]^T`, (N+1, 6)."""
         return np.concatenate([self.pos_m, self.vel_mps], axis=-1)
 
 

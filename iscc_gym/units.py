@@ -16,7 +16,7 @@ def db_to_lin(x_db):
 
 
 def lin_to_db(x):
-    """Linear power ratio -> dB, :math:`10\\log_{10} x`."""
+    r"""Linear power ratio -> dB, :math:`10\log_{10} x`."""
     return 10.0 * np.log10(np.asarray(x, dtype=float))
 
 

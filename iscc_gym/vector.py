@@ -227,13 +227,15 @@ def reset_bytes(s: Scenario) -> int:
     """Peak memory of one sub-env in bytes while all are reset, about 304 bytes a slot (1.5 MB at 5,000
     slots, measured 1.49): the episode's reference kept in the state (72 bytes a slot), and during a
     reset the sampled :class:`iscc_gym.trajectory.Reference` (80), its (N+1, 9) array and the batch's
-    copy of it (72 each) beside the previous episode's; plus the small per-slot state."""
+    copy of it (72 each) beside the previous episode's; plus the small per-slot state.
+    """
     return 304 * (s.n_slots + 1) + 16384
 
 
 def available_memory_bytes() -> int | None:
     """Memory the system can give this process now: ``MemAvailable`` of ``/proc/meminfo`` (Linux), else
-    free physical pages x page size; None where neither is known."""
+    free physical pages x page size; None where neither is known.
+    """
     try:
         with open("/proc/meminfo") as f:
             for line in f:
@@ -249,7 +251,8 @@ def available_memory_bytes() -> int | None:
 
 def check_memory(s: Scenario, num_envs: int) -> None:
     """Raise ``ValueError`` naming ``num_envs`` when its episodes would not fit in the available memory
-    (:func:`reset_bytes` per sub-env against :func:`available_memory_bytes`)."""
+    (:func:`reset_bytes` per sub-env against :func:`available_memory_bytes`).
+    """
     need = num_envs * reset_bytes(s)
     have = available_memory_bytes()
     if have is not None and need > have:

@@ -1,5 +1,6 @@
 """Configuration of a training run: :class:`Args` (command-line settings), the hyperparameter file in
-rl-zoo3's layout (``train/hyperparams.yml``) and their resolution and checks."""
+rl-zoo3's layout (``train/hyperparams.yml``) and their resolution and checks.
+"""
 
 from __future__ import annotations
 
@@ -240,7 +241,8 @@ def resolve_args(args: Args) -> tuple[Args, dict]:
     """``(args, hyperparameters)``: the run settings that ``args`` leaves at None filled from the
     YAML entry (``n_timesteps``, ``n_envs``, ``normalize``, ``init_*``), else from :data:`RUN_DEFAULTS`;
     rl-zoo3's ``env_kwargs`` join ``env_overrides`` (a flag wins); the returned hyperparameters are the
-    algorithm's keyword arguments only."""
+    algorithm's keyword arguments only.
+    """
     hp = load_hyperparams(args.hyperparams, args.env_id, args.algo, args.overrides)
     filled: dict[str, Any] = {}
     for key, name in RUN_KEYS.items():
@@ -329,7 +331,8 @@ def _resolve_policy_kwargs(hp: dict) -> dict:
 
 def _action_noise(kw: dict, n_envs: int, dim: int) -> dict:
     """rl-zoo3's ``noise_type`` (``normal`` | ``ornstein-uhlenbeck``) and ``noise_std`` keys as SB3's
-    ``action_noise`` (one independent noise process per env) for SAC/TD3."""
+    ``action_noise`` (one independent noise process per env) for SAC/TD3.
+    """
     kw = dict(kw)
     kind, std = kw.pop("noise_type", None), kw.pop("noise_std", None)
     if kind is None:

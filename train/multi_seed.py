@@ -1,5 +1,6 @@
 """Several seeds of one training configuration (``python -m train --seeds 0,1,2``): one run per seed,
-each scored on the held-out missions (:func:`evaluate_run`), and the table of their rewards."""
+each scored on the held-out missions (:func:`evaluate_run`), and the table of their rewards.
+"""
 
 from __future__ import annotations
 

@@ -1,5 +1,6 @@
 """Run directories of ``python -m train``: what a run writes (model units with their manifest,
-evaluations, learning curve), how an interrupted or finished run is recognised and resumed."""
+evaluations, learning curve), how an interrupted or finished run is recognised and resumed.
+"""
 
 from __future__ import annotations
 
@@ -60,7 +61,8 @@ def save_unit(directory: str | os.PathLike, model, vecnormalize=None, *, model_n
 
 def latest_checkpoint(ckpt_dir: str | os.PathLike) -> tuple[Path | None, dict | None, list[str]]:
     """``(directory, manifest, skipped)`` of the newest complete checkpoint ``ckpt_dir/step_<N>``
-    (None, None if there is none); ``skipped`` says why each newer one was passed over."""
+    (None, None if there is none); ``skipped`` says why each newer one was passed over.
+    """
     found = []
     for p in Path(ckpt_dir).glob("step_*"):
         m = re.fullmatch(r"step_(\d+)", p.name)
@@ -89,7 +91,8 @@ def _is_run_dir(out: Path) -> bool:
 def _prepare_out(args: Args) -> tuple[Path | None, dict | None]:
     """Check ``args.out`` for the run: new or empty, or ``overwrite`` (its run files deleted), or
     ``resume`` from its newest complete checkpoint with the same :data:`IDENTITY`. Returns the
-    checkpoint's directory and manifest (None, None without ``resume``)."""
+    checkpoint's directory and manifest (None, None without ``resume``).
+    """
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise FileExistsError(f"out {out} is a file; name a directory")
@@ -137,7 +140,8 @@ def save_evaluations(path: str | os.PathLike, timesteps, results, ep_lengths) ->
 def _read_history(out: Path, upto: int) -> tuple[dict, list[dict], float]:
     """What a resumed run continues: the evaluations and learning-curve rows of ``out`` up to step
     ``upto`` (later ones belong to the continuation that was cut off, replayed now), and the reward
-    of the best model kept in ``out/best`` (-inf if there is none, or it is incomplete)."""
+    of the best model kept in ``out/best`` (-inf if there is none, or it is incomplete).
+    """
     history = {"timesteps": [], "results": [], "ep_lengths": []}
     npz = out / "eval" / "evaluations.npz"
     if npz.exists():

@@ -1,6 +1,7 @@
 """Where an Optuna study lives and what it exports: the storage (a SQLite file by default, any
 database URL for many machines), the seeded sampler and pruner, and the best trial as an entry of
-the hyperparameter file."""
+the hyperparameter file.
+"""
 
 from __future__ import annotations
 

@@ -163,7 +163,8 @@ def _eval_callback(eval_env, args: Args, out: Path, identity: dict, history: dic
     re-seeded with :data:`EVAL_SEED_START`: a VecEnv forgets its seeds after a reset, and ``best`` is
     chosen on one fixed set of episodes), continuing ``history`` (``evaluations.npz`` of the run it
     resumes), keeping the best model unless beaten, saved as a unit with its own VecNormalize
-    statistics in ``out/best``; every file written atomically."""
+    statistics in ``out/best``; every file written atomically.
+    """
     from stable_baselines3.common.callbacks import EvalCallback
     from stable_baselines3.common.evaluation import evaluate_policy
     from stable_baselines3.common.vec_env import sync_envs_normalization
@@ -210,7 +211,8 @@ def _eval_callback(eval_env, args: Args, out: Path, identity: dict, history: dic
 
 def _curve_callback(rows: list[dict] | None = None):
     """A callback recording (timesteps, wall time, mean training episode reward) at every rollout end,
-    after ``rows`` (of the run it resumes; wall time goes on from theirs)."""
+    after ``rows`` (of the run it resumes; wall time goes on from theirs).
+    """
     from stable_baselines3.common.callbacks import BaseCallback
 
     class _Curve(BaseCallback):
@@ -234,7 +236,8 @@ def _curve_callback(rows: list[dict] | None = None):
 def _checkpoint_callback(every_calls: int, save, at_rollout_end: bool = False):
     """Calls ``save(model)`` every ``every_calls`` steps of the VecEnv; ``at_rollout_end``: at the end of
     the rollout of that step (SAC/TD3: after the step's transitions are in the replay buffer, which
-    happens after the step's callbacks)."""
+    happens after the step's callbacks).
+    """
     from stable_baselines3.common.callbacks import BaseCallback
 
     class Checkpoints(BaseCallback):
@@ -258,7 +261,8 @@ def _checkpoint_callback(every_calls: int, save, at_rollout_end: bool = False):
 
 def _progress(args: Args) -> bool:
     """Whether to show SB3's progress bar: ``progress_bar``, else on a terminal unless ``quiet``
-    (and only if tqdm and rich are installed)."""
+    (and only if tqdm and rich are installed).
+    """
     import importlib.util
     import sys
 
@@ -377,7 +381,8 @@ PICKLE_WARNING = ("Model files (.zip) and vecnormalize.pkl are pickles: loading 
 def build_parser(prog: str = "python -m train") -> argparse.ArgumentParser:
     """The parser of ``python -m train``: every :class:`Args` field is a flag (help: :data:`FIELD_HELP`),
     ``--set`` / ``--env-set`` override hyperparameters / Scenario fields, and :mod:`train.study` adds
-    ``--optimize``, ``--seeds``."""
+    ``--optimize``, ``--seeds``.
+    """
     ap = argparse.ArgumentParser(
         prog=prog, description=__doc__.split("\n")[0],
         epilog="Writes into OUT: model.zip and vecnormalize.pkl (the final model and its statistics), best/ "
@@ -429,7 +434,8 @@ def args_from_namespace(ap: argparse.ArgumentParser, ns: argparse.Namespace) -> 
 
 def parse_value(text: str):
     """A ``--set`` / ``--env-set`` value: YAML, with numbers YAML 1.1 leaves as strings (``5e-5``,
-    ``1e6``) read as numbers."""
+    ``1e6``) read as numbers.
+    """
     value = yaml.safe_load(text)
     if isinstance(value, str):
         try:
@@ -441,14 +447,16 @@ def parse_value(text: str):
 
 def parse_args(argv: list[str] | None = None) -> Args:
     """``Args`` from the command line (every field is a flag; ``--set key=value`` overrides a
-    hyperparameter, the value parsed as YAML)."""
+    hyperparameter, the value parsed as YAML).
+    """
     ap = build_parser()
     return args_from_namespace(ap, ap.parse_args(argv))
 
 
 def cli(argv: list[str] | None = None, prog: str = "python -m train") -> dict:
     """``python -m train``: train once, or run a study (``--optimize``) or several seeds (``--seeds``);
-    returns the summary (for Python callers; the console commands end through :func:`console`)."""
+    returns the summary (for Python callers; the console commands end through :func:`console`).
+    """
     ap = build_parser(prog)
     ns = ap.parse_args(argv)
     args = args_from_namespace(ap, ns)
@@ -464,7 +472,8 @@ def cli(argv: list[str] | None = None, prog: str = "python -m train") -> dict:
 
 def console(argv: list[str] | None = None, prog: str = "iscc-train") -> int:
     """The ``iscc-train`` / ``python -m train`` entry point: exit code 0 on success, 2 with one line
-    for a user's mistake (:func:`iscc_gym.cli.run`)."""
+    for a user's mistake (:func:`iscc_gym.cli.run`).
+    """
     from iscc_gym.cli import run
 
     return run(lambda a: cli(a, prog=prog), argv, prog)

@@ -35,6 +35,7 @@ from iscc_gym.eval.options import (
     Parser,
     check_writable_dir,
     check_writable_file,
+    docs_command,
     nonneg_int,
     parse_seeds,
     positive_int,
@@ -238,8 +239,7 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> dict:
             print(f"wrote {p}")
         res.pop("traces")
     if args.write_docs:
-        argv_list = list(sys.argv[1:] if argv is None else argv)
-        cmd = " ".join(["python -m eval", *[a for a in argv_list if a not in ("--write-docs", "--quiet")]])
+        cmd = docs_command("python -m eval", argv)
         publish("comparison", "Learned vs scripted allocation", markdown_table(res, cmd))
     if args.json:
         save_json(args.json, res)

@@ -15,7 +15,7 @@ import tempfile
 from pathlib import Path
 
 __all__ = ["Parser", "PICKLE_WARNING", "positive_int", "nonneg_int", "parse_seeds", "check_writable_file",
-           "check_writable_dir", "show_progress", "progress_bar", "Stages", "run_console"]
+           "check_writable_dir", "show_progress", "progress_bar", "Stages", "run_console", "docs_command"]
 
 #: Said in ``--help`` wherever a path to a trained model is accepted.
 PICKLE_WARNING = ("A model .zip and its vecnormalize.pkl are pickles: loading them executes code they contain, so "
@@ -207,3 +207,27 @@ def run_claims_command(args, run, draw, check_seeds, report=None) -> dict:
         write_atomic(args.json, json.dumps(res, indent=1))
         print(f"wrote {args.json}")
     return res
+
+
+#: Flags that say where a run's output goes or how it is shown, not what it computes: left out of the
+#: command quoted in generated docs (a local ``--json /tmp/x.json`` is no part of how to regenerate them).
+_OUTPUT_FLAGS = {"--write-docs": 0, "--quiet": 0, "--json": 1, "--plots": 1, "--figures": 1}
+
+
+def docs_command(prog: str, argv: list[str] | None = None) -> str:
+    """The command line quoted in generated docs: ``prog`` and ``argv`` (default ``sys.argv[1:]``)
+    without the output flags (:data:`_OUTPUT_FLAGS`, with their values).
+    """
+    import sys
+
+    args = list(sys.argv[1:] if argv is None else argv)
+    out, i = [prog], 0
+    while i < len(args):
+        a = args[i]
+        name = a.split("=", 1)[0]
+        if name in _OUTPUT_FLAGS:
+            i += 1 + (_OUTPUT_FLAGS[name] if "=" not in a else 0)
+            continue
+        out.append(a)
+        i += 1
+    return " ".join(out)

@@ -27,7 +27,15 @@ from iscc_gym.agents import MarginPolicy, MyopicPolicy
 from iscc_gym.agents.base import SplitPolicy
 from iscc_gym.agents.margin import margin_split, predicted_needs
 from iscc_gym.eval.evaluate import mean_ci, run_episodes
-from iscc_gym.eval.options import Parser, nonneg_int, positive_int, progress_bar, run_console, show_progress
+from iscc_gym.eval.options import (
+    Parser,
+    docs_command,
+    nonneg_int,
+    positive_int,
+    progress_bar,
+    run_console,
+    show_progress,
+)
 from iscc_gym.eval.tune import TUNE_SEED_START, check_tuning_seeds
 
 from iscc_gym.env import OBS_NAMES
@@ -139,8 +147,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.probes") -> 
     show = show_progress(args.quiet)
     with progress_bar(N_PROBES[not args.no_myopic], "python -m eval.probes", unit="policy", enabled=show) as bar:
         rows = probes(seeds, myopic=not args.no_myopic, progress=bar.update if show else None)
-    cmd = " ".join(["python -m eval.probes", *[a for a in (argv if argv is not None else sys.argv[1:])
-                                              if a not in ("--write-docs", "--quiet")]])
+    cmd = docs_command("python -m eval.probes", argv)
     table = markdown(rows, cmd, seeds)
     print(table)
     if args.write_docs:

@@ -24,6 +24,7 @@ from iscc_gym.eval.options import (
     PICKLE_WARNING,
     Parser,
     check_writable_file,
+    docs_command,
     nonneg_int,
     positive_int,
     progress_bar,
@@ -133,8 +134,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.seeds") -> d
                       unit="slot", enabled=show, unit_scale=True) as bar:
         res = compare_seeds(args.root, range(args.seed_start, args.seed_start + args.episodes), args.scenario,
                             max_steps=args.max_steps, progress=bar.update if show else None)
-    cmd = " ".join(["python -m eval.seeds", *[a for a in (argv if argv is not None else sys.argv[1:])
-                                             if a not in ("--write-docs", "--quiet")]])
+    cmd = docs_command("python -m eval.seeds", argv)
     table = markdown(res, cmd)
     print(table)
     if args.write_docs:

@@ -217,3 +217,12 @@ def test_a_failing_worker_stops_the_others_at_once():
         time.sleep(0.05)
     assert not [p for p in multiprocessing.active_children() if p.is_alive()]
     assert time.perf_counter() - t0 < 20
+
+
+def test_docs_quote_the_command_without_its_output_flags():
+    from iscc_gym.eval.options import docs_command
+
+    assert docs_command("python -m eval", ["--json", "/tmp/x.json", "--write-docs", "--episodes", "20",
+                                           "--plots=figs", "--quiet"]) == "python -m eval --episodes 20"
+    seeds = docs_command("python -m eval.seeds", ["runs/seeds", "--json=/tmp/s.json"])
+    assert seeds == "python -m eval.seeds runs/seeds"

@@ -233,7 +233,7 @@ def draw(res: dict, figures_dir) -> dict[str, str]:
     """``sensitivity_constants``: SCA's split, its tracking error and the violation fraction over
     ``rate_min_bps`` (top row) and ``loss_design_fraction`` (bottom row). Returns {name: path}.
     """
-    from iscc_gym.eval.fading import _figure, _save
+    from iscc_gym.eval.fading_draw import _figure, _save
 
     fig = _figure((14, 7.5))
     axes = fig.subplots(2, 3)

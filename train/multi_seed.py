@@ -82,6 +82,19 @@ def evaluate_run(args: Args) -> tuple[float, float]:
 
 # --- several seeds of one configuration -------------------------------------------------------------------
 
+def check_run_config(args: Args) -> tuple[Args, dict]:
+    """The resolved ``args`` and hyperparameters of a training run, checked before any run starts;
+    a bad value raises :class:`StudyConfigError` (one line naming it).
+    """
+    try:
+        _check(args)
+        resolved, hp = resolve_args(args)
+        check_hyperparams(args.algo, _resolve_policy_kwargs(hp))
+    except ValueError as e:
+        raise StudyConfigError(str(e)) from None
+    return resolved, hp
+
+
 def run_seeds(args: Args, seeds: list[int]) -> dict:
     """Train the configuration of ``args`` once per seed into ``OUT/seed_<s>`` and summarise.
 
@@ -103,12 +116,7 @@ def run_seeds(args: Args, seeds: list[int]) -> dict:
     """
     if not seeds:
         raise StudyConfigError("--seeds: name at least one seed, e.g. --seeds 0,1,2")
-    try:
-        _check(args)
-        resolved, hp = resolve_args(args)
-        check_hyperparams(args.algo, _resolve_policy_kwargs(hp))
-    except ValueError as e:
-        raise StudyConfigError(str(e)) from None
+    resolved, hp = check_run_config(args)
     rows = []
     for seed in seeds:
         run = dataclasses.replace(args, seed=seed, out=str(Path(args.out) / f"seed_{seed}"))

@@ -45,9 +45,6 @@ from typing import TYPE_CHECKING, Any
 import yaml
 from iscc_gym.train.train import (
     Args,
-    _check,
-    _resolve_policy_kwargs,
-    check_hyperparams,
     load_hyperparams,
     main,
     resolve_args,
@@ -56,7 +53,7 @@ from iscc_gym.train.train import (
 if TYPE_CHECKING:  # pragma: no cover
     import optuna
 
-from .multi_seed import evaluate_run, parse_seeds, run_seeds
+from .multi_seed import check_run_config, evaluate_run, parse_seeds, run_seeds
 from .study_io import (
     PRUNERS,
     SAMPLERS,
@@ -209,12 +206,7 @@ def _check_study(args: Args, study: StudyArgs) -> None:
         raise StudyConfigError(f"--n-startup-trials {study.n_startup_trials}: use an integer >= 0")
     if args.resume:
         raise StudyConfigError("--resume: a study starts every trial afresh; drop --resume")
-    try:
-        _check(args)
-        _, hp = resolve_args(args)
-        check_hyperparams(args.algo, _resolve_policy_kwargs(hp))
-    except ValueError as e:
-        raise StudyConfigError(str(e)) from None
+    _, hp = check_run_config(args)
 
 
 # --- the search space and the trial -----------------------------------------------------------------------

@@ -46,7 +46,7 @@ from iscc_gym.averages import TrajectorySample, mean_bounds, mean_comm_rate_bps,
 from iscc_gym.channel import geometry
 from iscc_gym.docs import README_PATH, RESULTS_PATH, docs_path
 from iscc_gym.dynamics import model_matrices
-from iscc_gym.fbl import ctrl_bler, dispersion, q_inv
+from iscc_gym.fbl import ctrl_bler, min_shares
 from iscc_gym.files import write_atomic
 from iscc_gym.sensing import (
     crlb,
@@ -136,8 +136,8 @@ def calibrate(s: Scenario, sample: TrajectorySample, eps_max: float, quick: bool
 
     comm_off = float(brentq(rate_gap, -80.0, 80.0, xtol=1e-6))
     snr = mean_snr(s.replace(comm_snr_offset_db=comm_off), sample)
-    c = np.log2(1.0 + snr) - q_inv(eps_max) * np.sqrt(dispersion(snr) / s.ctrl_blocklength)
-    deadline = s.ctrl_packet_bits / (PAPER["alpha_ctrl_star"] * s.bandwidth_hz * c)
+    # the smallest share at eps* scales as 1 / T_d (eq:ctrl_bler solved for alpha, fbl.min_shares)
+    deadline = s.ctrl_deadline_s * float(min_shares(s, snr, eps_max, 0.0)[0]) / PAPER["alpha_ctrl_star"]
     sen = calibrate_sensing_offset(s, n_missions=256 if quick else CALIBRATION_MISSIONS,
                                    rtol=1e-3 if quick else 1e-4)
     return {"comm_snr_offset_db": comm_off, "ctrl_deadline_s": float(deadline),

@@ -7,6 +7,7 @@ from __future__ import annotations
 from dataclasses import dataclass, fields
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 __all__ = ["AllocationMetrics", "check_alpha"]
 
@@ -91,7 +92,7 @@ class AllocationMetrics:
         return out
 
 
-def check_alpha(alpha):
+def check_alpha(alpha: ArrayLike):
     a = np.asarray(alpha, dtype=float)
     if a.ndim not in (1, 2) or a.shape[-1] != 3:
         raise ValueError(f"alpha must have shape (3,) or (n, 3), got {a.shape}")

@@ -9,6 +9,7 @@ import math
 
 import numpy as np
 from numba import njit
+from numpy.typing import ArrayLike
 
 from .scenario import Scenario, per_scenario
 from .units import db_to_lin, dbm_to_w
@@ -43,7 +44,7 @@ __all__ = [
 ]
 
 
-def geometry(s: Scenario, pos_m):
+def geometry(s: Scenario, pos_m: ArrayLike):
     r"""Range, azimuth, elevation and LoS unit vector of the drone seen from the GBS antenna.
 
     .. math::
@@ -72,7 +73,7 @@ def geometry(s: Scenario, pos_m):
     return dist, az, el, los
 
 
-def path_loss_db(s: Scenario, dist_m):
+def path_loss_db(s: Scenario, dist_m: ArrayLike):
     r"""3GPP TR 36.777 UMa-AV LoS path loss in dB.
 
     .. math:: \mathcal{L}(l) = 28.0 + 22\log_{10}(l) + 20\log_{10}(f_c)
@@ -82,7 +83,7 @@ def path_loss_db(s: Scenario, dist_m):
     return 28.0 + 22.0 * np.log10(dist_m) + 20.0 * np.log10(s.carrier_freq_ghz)
 
 
-def shadowing_std_db(s: Scenario, altitude_m):
+def shadowing_std_db(s: Scenario, altitude_m: ArrayLike):
     r"""Shadowing standard deviation :math:`\sigma_\mathrm{SF}(h) = 4.64 e^{-0.0066 h}` dB (Table I).
 
     ``altitude_m`` is the drone height above ground in m.
@@ -90,7 +91,7 @@ def shadowing_std_db(s: Scenario, altitude_m):
     return s.shadowing_a_db * np.exp(-s.shadowing_b_per_m * altitude_m)
 
 
-def shadowing_step(s: Scenario, shadow_norm, moved_m, z):
+def shadowing_step(s: Scenario, shadow_norm: ArrayLike, moved_m: ArrayLike, z: ArrayLike):
     r"""Advance the unit-variance shadowing process by a travelled distance (Gudmundson AR(1)).
 
     .. math:: s_{n+1} = \rho s_n + \sqrt{1-\rho^2}\, z_n,\quad \rho = e^{-d_n / d_\mathrm{corr}}
@@ -112,7 +113,7 @@ def shadowing_step(s: Scenario, shadow_norm, moved_m, z):
     return rho * shadow_norm + np.sqrt(1.0 - rho * rho) * z
 
 
-def rician_power_gain(s: Scenario, z_re, z_im):
+def rician_power_gain(s: Scenario, z_re: ArrayLike, z_im: ArrayLike):
     r"""Small-scale power gain :math:`|g|^2` of a unit-mean-power Rician coefficient.
 
     .. math::
@@ -143,7 +144,7 @@ def _element_indices(s: Scenario):
     return np.repeat(ix, s.n_y), np.tile(iy, s.n_x)
 
 
-def direction_trig(los_unit):
+def direction_trig(los_unit: ArrayLike):
     r"""Sines and cosines of the azimuth and elevation of a unit LoS vector, without trigonometry.
 
     .. math::
@@ -160,7 +161,7 @@ def direction_trig(los_unit):
     return gx * inv + zenith, gy * inv, cp, gz
 
 
-def direction_cosines(s: Scenario, azimuth_rad, elevation_rad):
+def direction_cosines(s: Scenario, azimuth_rad: ArrayLike, elevation_rad: ArrayLike):
     r"""The two phase-progression terms (u_x, u_y) of the UPA and their angle derivatives.
 
     ``array_orientation`` selects the response (see :class:`Scenario`):
@@ -181,7 +182,7 @@ def direction_cosines(s: Scenario, azimuth_rad, elevation_rad):
     return np.stack(u, -1), np.stack(dth, -1), np.stack(dph, -1)
 
 
-def direction_cosines_trig(s: Scenario, ct, st, cp, sp):
+def direction_cosines_trig(s: Scenario, ct: ArrayLike, st: ArrayLike, cp: ArrayLike, sp: ArrayLike):
     """:func:`direction_cosines` from the angles' cosines and sines; returns three (x, y) tuples."""
     if s.array_orientation == "horizontal":
         return (cp * ct, cp * st), (-cp * st, cp * ct), (-sp * ct, -sp * st)
@@ -191,7 +192,7 @@ def direction_cosines_trig(s: Scenario, ct, st, cp, sp):
     return (cp * st, sp + zero), (cp * ct, zero), (-sp * st, cp + zero)  # vertical
 
 
-def array_response(s: Scenario, azimuth_rad, elevation_rad):
+def array_response(s: Scenario, azimuth_rad: ArrayLike, elevation_rad: ArrayLike):
     r"""UPA response :math:`\mathbf a(\theta,\varphi) = \mathbf a_x \otimes \mathbf a_y` and derivatives.
 
     .. math::
@@ -215,7 +216,7 @@ def array_response(s: Scenario, azimuth_rad, elevation_rad):
     return a, 1j * dphase_th * a, 1j * dphase_ph * a
 
 
-def beamformer(s: Scenario, azimuth_rad, elevation_rad):
+def beamformer(s: Scenario, azimuth_rad: ArrayLike, elevation_rad: ArrayLike):
     r"""Unit-norm transmit beamformer w, shape (..., N).
 
     ``"matched"``: :math:`\mathbf w = \mathbf a(\theta,\varphi)/\sqrt N` (steered at the given
@@ -229,7 +230,7 @@ def beamformer(s: Scenario, azimuth_rad, elevation_rad):
     return np.full(shape + (n,), 1.0 / np.sqrt(n), dtype=complex)
 
 
-def beamforming_gain(a, w):
+def beamforming_gain(a: ArrayLike, w: ArrayLike):
     r"""Beamforming gain :math:`G(\theta,\varphi) = |\mathbf a^H \mathbf w|^2` (Sec. II-B)."""
     return np.abs(np.einsum("...i,...i->...", np.conj(a), w)) ** 2
 
@@ -239,7 +240,7 @@ def noise_power_w(s: Scenario):
     return float(dbm_to_w(s.noise_psd_dbm_hz) * s.bandwidth_hz)
 
 
-def large_scale_snr(s: Scenario, pos_m, shadow_db, gain=None):
+def large_scale_snr(s: Scenario, pos_m: ArrayLike, shadow_db: ArrayLike, gain: ArrayLike = None):
     r"""Link SNR without small-scale fading (:math:`|g|^2 = 1`), linear.
 
     .. math::
@@ -273,7 +274,7 @@ def matched_gain(s: Scenario) -> float:
     return float(s.n_antennas)
 
 
-def beam_gain(s: Scenario, trig):
+def beam_gain(s: Scenario, trig: tuple[ArrayLike, ArrayLike, ArrayLike, ArrayLike]):
     """Beamforming gain towards a direction given by :func:`direction_trig`'s output (matched: N)."""
     if s.beamforming == "matched":
         return matched_gain(s)
@@ -283,7 +284,7 @@ def beam_gain(s: Scenario, trig):
     return beamforming_gain(a, beamformer(s, az, el))
 
 
-def link_snr(s: Scenario, dist_m, shadow_db, gain):
+def link_snr(s: Scenario, dist_m: ArrayLike, shadow_db: ArrayLike, gain: ArrayLike):
     r""":func:`large_scale_snr` from the range, the shadowing and the beamforming gain.
 
     The dB budget :math:`P - \mathcal L(l) - \varepsilon + \Delta - N_0B` in linear form,

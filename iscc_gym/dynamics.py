@@ -5,6 +5,7 @@ from __future__ import annotations
 import control
 import numpy as np
 from numba import njit
+from numpy.typing import ArrayLike
 
 from .scenario import Scenario, per_scenario
 
@@ -65,7 +66,7 @@ def lqg_weights(s: Scenario):
     return np.diag([s.lqg_q_pos] * 3 + [s.lqg_q_vel] * 3), s.lqg_r * np.eye(3)
 
 
-def lqr_gain(a, b, q, r):
+def lqr_gain(a: ArrayLike, b: ArrayLike, q: ArrayLike, r: ArrayLike):
     r"""Feedback gain from the DARE via python-control (eq:LQG_control_input).
 
     .. math::

@@ -10,6 +10,7 @@ import gymnasium as gym
 import numba
 import numpy as np
 from gymnasium import spaces
+from numpy.typing import ArrayLike
 
 from . import kernel, loop, threads
 from .render import Renderer
@@ -35,7 +36,7 @@ __all__ = ["ISCCEnv", "action_to_split", "split_to_action", "observe", "reward_a
            "STEP_COLUMNS", "check_seed"]
 
 
-def observe(s: Scenario, state: loop.LoopState, last_received, last_peb_m):
+def observe(s: Scenario, state: loop.LoopState, last_received: ArrayLike, last_peb_m: ArrayLike):
     """The observation of :class:`ISCCEnv` (table in its docstring), shape (B, 23), float32.
 
     A pure function of a batch of loop states and the last slot's outcome (arrays of shape (B,)),
@@ -52,7 +53,7 @@ def observe(s: Scenario, state: loop.LoopState, last_received, last_peb_m):
     return obs
 
 
-def decode_observation(obs, s: Scenario) -> dict:
+def decode_observation(obs: ArrayLike, s: Scenario) -> dict:
     """Named physical values of observations (any leading batch shape), inverting the scalings of
     :data:`iscc_gym.schema.OBS_SCALING` (the table of :class:`ISCCEnv`).
 
@@ -106,7 +107,8 @@ _STEP_FIELDS = ("tracking_error_m", "estimation_error_m", "snr_db", "snr_large_s
 _read_step = operator.itemgetter(*(COL[name] for name in _STEP_FIELDS))
 
 
-def env_step(s: Scenario, state: loop.LoopState, actions, normals=None, active=None):
+def env_step(s: Scenario, state: loop.LoopState, actions: ArrayLike, normals: ArrayLike = None,
+             active: ArrayLike = None):
     """One env step of a batch of loops: action map, slot transition, reward, costs, next observation.
 
     The single env (a batch of one) and the vector env both call it, so drone i of a batch
@@ -161,7 +163,7 @@ def _all_active(nb: int) -> np.ndarray:
     return mask
 
 
-def check_seed(seed, name: str = "seed"):
+def check_seed(seed: ArrayLike, name: str = "seed"):
     """``seed`` as Gymnasium's generator takes it (None or a Python int >= 0), or a clear error.
 
     Raises

@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 from numba import guvectorize, njit, vectorize
+from numpy.typing import ArrayLike
 from scipy.special import erfc, ndtri
 
 from .scenario import Scenario, per_scenario
@@ -20,7 +21,7 @@ __all__ = ["dispersion", "q_func", "q_inv", "link_terms", "fbl_rate_bps", "comm_
 _INV_SQRT2 = 1.0 / np.sqrt(2.0)
 
 
-def q_func(x):
+def q_func(x: ArrayLike):
     r"""Gaussian tail :math:`Q(x) = \tfrac12 \operatorname{erfc}(x/\sqrt2)`.
 
     For x above about 37 the result is subnormal or 0 (a gradual underflow, not an error).
@@ -29,12 +30,12 @@ def q_func(x):
         return 0.5 * erfc(np.asarray(x, dtype=float) * _INV_SQRT2)
 
 
-def q_inv(p):
+def q_inv(p: ArrayLike):
     r"""Inverse Gaussian tail :math:`Q^{-1}(p) = -\Phi^{-1}(p)`."""
     return -ndtri(np.asarray(p, dtype=float))
 
 
-def dispersion(snr):
+def dispersion(snr: ArrayLike):
     r"""Channel dispersion of the AWGN channel in bits^2 per channel use.
 
     .. math:: V(\gamma) = (\log_2 e)^2 \left[1 - (1+\gamma)^{-2}\right]
@@ -45,14 +46,14 @@ def dispersion(snr):
     return link_terms(snr)[1] ** 2
 
 
-def link_terms(snr):
+def link_terms(snr: ArrayLike):
     r"""Capacity :math:`\log_2(1+\gamma)` and :math:`\sqrt{V(\gamma)}` of linear SNRs, the two SNR terms
     every FBL quantity here is built from: :func:`link_terms_one` over arrays.
     """
     return _link_terms_ufunc(np.asarray(snr, dtype=float))
 
 
-def fbl_rate_bps(alpha, bandwidth_hz, snr, blocklength, bler):
+def fbl_rate_bps(alpha: ArrayLike, bandwidth_hz: ArrayLike, snr: ArrayLike, blocklength: ArrayLike, bler: ArrayLike):
     r"""Effective FBL rate of a share ``alpha`` of the band, eq:rate_equation, in bit/s.
 
     .. math::
@@ -72,17 +73,17 @@ def link_constants(s: Scenario):
             s.ctrl_packet_bits / (s.ctrl_deadline_s * s.bandwidth_hz), np.sqrt(s.ctrl_blocklength))
 
 
-def comm_rate_bps(s: Scenario, alpha_comm, snr):
+def comm_rate_bps(s: Scenario, alpha_comm: ArrayLike, snr: ArrayLike):
     r"""Data-link FBL rate :math:`\mathcal R_\mathrm{comm}` (L_comm, eps_comm of Table I)."""
     return _rate_ufunc(alpha_comm, snr, s.bandwidth_hz, link_constants(s)[0])
 
 
-def ctrl_rate_bps(s: Scenario, alpha_ctrl, snr):
+def ctrl_rate_bps(s: Scenario, alpha_ctrl: ArrayLike, snr: ArrayLike):
     r"""Control-link FBL rate :math:`\mathcal R_\mathrm{ctrl}` (L_ctrl, eps_ctrl of Table I)."""
     return _rate_ufunc(alpha_ctrl, snr, s.bandwidth_hz, link_constants(s)[1])
 
 
-def ctrl_bler(s: Scenario, alpha_ctrl, snr):
+def ctrl_bler(s: Scenario, alpha_ctrl: ArrayLike, snr: ArrayLike):
     r"""Control packet-drop probability under the delivery deadline, eq:ctrl_bler.
 
     .. math::
@@ -97,7 +98,7 @@ def ctrl_bler(s: Scenario, alpha_ctrl, snr):
     return ctrl_bler_ufunc(alpha_ctrl, snr, sqrt_l, bits_per_hz)
 
 
-def ctrl_bler_and_slope(s: Scenario, alpha_ctrl, snr):
+def ctrl_bler_and_slope(s: Scenario, alpha_ctrl: ArrayLike, snr: ArrayLike):
     r"""eq:ctrl_bler and its derivative in ``alpha_ctrl`` (:func:`ctrl_bler_slope_one` over arrays).
 
     .. math::
@@ -109,7 +110,7 @@ def ctrl_bler_and_slope(s: Scenario, alpha_ctrl, snr):
     return _ctrl_bler_slope_ufunc(alpha_ctrl, snr, sqrt_l, bits_per_hz)
 
 
-def slot_link(s: Scenario, alpha_ctrl, alpha_comm, snr):
+def slot_link(s: Scenario, alpha_ctrl: ArrayLike, alpha_comm: ArrayLike, snr: ArrayLike):
     """The slot's control drop probability (eq:ctrl_bler) and both FBL rates (eq:rate_equation).
 
     Returns ``(eps_ctrl, rate_ctrl_bps, rate_comm_bps)``. Floors (alpha >= 1e-30,
@@ -119,7 +120,7 @@ def slot_link(s: Scenario, alpha_ctrl, alpha_comm, snr):
     return ctrl_bler(s, alpha_ctrl, snr), ctrl_rate_bps(s, alpha_ctrl, snr), comm_rate_bps(s, alpha_comm, snr)
 
 
-def min_shares(s: Scenario, snr, eps_max, rate_bps):
+def min_shares(s: Scenario, snr: ArrayLike, eps_max: ArrayLike, rate_bps: ArrayLike):
     r"""Smallest control and data shares of a slot at SNR ``snr``.
 
     The control share with drop probability at most ``eps_max`` and the data share carrying
@@ -140,7 +141,7 @@ def min_shares(s: Scenario, snr, eps_max, rate_bps):
             _min_comm_share_ufunc(snr, rate_bps, s.bandwidth_hz, k_comm))
 
 
-def ctrl_goodput_bits(s: Scenario, alpha_ctrl, snr, ignore_loss: bool = False):
+def ctrl_goodput_bits(s: Scenario, alpha_ctrl: ArrayLike, snr: ArrayLike, ignore_loss: bool = False):
     r"""Effective control-link supply :math:`g(\alpha_\mathrm{ctrl}) = (1-\varepsilon_\mathrm{ctrl})
     \mathcal R_\mathrm{ctrl}\,\Delta t` in bits per slot, and its derivative in ``alpha_ctrl``.
 
@@ -256,7 +257,7 @@ def ctrl_bler_ufunc(alpha_ctrl, snr, sqrt_l, bits_per_hz):
     return ctrl_bler_one(cap, sqrt_v, sqrt_l, bits_per_hz, alpha_ctrl)
 
 
-def ctrl_bler_compiled(s: Scenario, alpha_ctrl, snr):
+def ctrl_bler_compiled(s: Scenario, alpha_ctrl: ArrayLike, snr: ArrayLike):
     """:func:`ctrl_bler` (kept name: both are the compiled :func:`ctrl_bler_one` over arrays)."""
     return ctrl_bler(s, alpha_ctrl, snr)
 

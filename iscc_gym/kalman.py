@@ -10,11 +10,12 @@ from __future__ import annotations
 
 import numpy as np
 from numba import njit
+from numpy.typing import ArrayLike
 
 __all__ = ["isac_observation_matrix", "kf_update_whitened_one", "kf_predict_one"]
 
 
-def isac_observation_matrix(los_unit):
+def isac_observation_matrix(los_unit: ArrayLike):
     r""":math:`\mathbf C_n = \mathrm{blkdiag}(\mathbf I_3, \mathbf g_n^T)`, shape (..., 4, 6).
 
     Position is observed in 3-D; velocity only along the LoS unit vector :math:`\mathbf g_n`.

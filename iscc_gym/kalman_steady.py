@@ -8,6 +8,7 @@ import math
 
 import numpy as np
 import scipy.linalg
+from numpy.typing import ArrayLike
 
 from .dynamics import axis_matrices, model_matrices
 from .scenario import Scenario
@@ -51,8 +52,8 @@ def _sym(x):
     return (x[0], off, off, x[3])
 
 
-def axis_kalman_steady_state(dt_s: float, var_pos_m2: float, var_vel_m2s2: float, meas_pos_var_m2,
-                             meas_vel_var_m2s2=None, tol: float = 1e-12, max_iter: int = 60):
+def axis_kalman_steady_state(dt_s: float, var_pos_m2: float, var_vel_m2s2: float, meas_pos_var_m2: ArrayLike,
+                             meas_vel_var_m2s2: ArrayLike = None, tol: float = 1e-12, max_iter: int = 60):
     r"""Steady-state Kalman covariances of one axis of the double integrator, batched.
 
     State (p, v), :math:`\mathbf A_1 = [[1, \Delta t], [0, 1]]`, process noise

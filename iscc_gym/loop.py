@@ -20,6 +20,7 @@ from typing import NamedTuple
 
 import numpy as np
 from numba import njit
+from numpy.typing import ArrayLike
 
 from .channel import (
     beam_gain,
@@ -117,7 +118,7 @@ class LoopState(NamedTuple):
         return None if self.x.ndim == 1 else self.x.shape[0]
 
 
-def slot_noise(state: LoopState, rng=None) -> np.ndarray:
+def slot_noise(state: LoopState, rng: np.random.Generator = None) -> np.ndarray:
     """The slot's :data:`N_DRAWS` standard normals, (N_DRAWS,) or (B, N_DRAWS): the episode stream
     of the state's key at its slot (``rng`` None), else drawn from ``rng`` (:func:`standard_normals`).
     """
@@ -136,7 +137,7 @@ def reference_array(ref: Reference):
     return np.concatenate([ref.pos_m, ref.vel_mps, ref.acc_mps2], -1)
 
 
-def init_state(s: Scenario, refs, rng) -> LoopState:
+def init_state(s: Scenario, refs: ArrayLike, rng: np.random.Generator) -> LoopState:
     r"""Initial state at slot 0: drone near the reference start, estimate at the reference start.
 
     .. math::
@@ -198,7 +199,7 @@ def supported(s: Scenario) -> bool:
     return s.beamforming in ("matched", "broadside")
 
 
-def step(s: Scenario, state: LoopState, alpha, rng=None):
+def step(s: Scenario, state: LoopState, alpha: ArrayLike, rng: np.random.Generator = None):
     """Advance every loop by one slot.
 
     Parameters

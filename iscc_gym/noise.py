@@ -23,6 +23,7 @@ from collections.abc import Sequence
 
 import numpy as np
 from numba import njit
+from numpy.typing import ArrayLike
 
 from .schema import N_DRAWS  # the layout of a slot's draws: iscc_gym.schema.DRAWS
 
@@ -124,7 +125,7 @@ def _fill_batch(keys, n, out):
         fill_slot_normals(keys[i], n[i], out[i])
 
 
-def slot_normals(key, n, k: int = N_DRAWS) -> np.ndarray:
+def slot_normals(key: ArrayLike, n: ArrayLike, k: int = N_DRAWS) -> np.ndarray:
     r"""The standard normals of slot ``n`` of the episode with ``key``.
 
     .. math::
@@ -173,14 +174,14 @@ def _per_loop(rng, batch: int | None, draw):
     raise TypeError("rng must be a numpy Generator or a sequence of one Generator per drone")
 
 
-def standard_normals(rng, batch: int | None, k: int = N_DRAWS) -> np.ndarray:
+def standard_normals(rng: np.random.Generator, batch: int | None, k: int = N_DRAWS) -> np.ndarray:
     """Standard normals for one slot drawn from Generators: shape (k,) for an unbatched loop
     (``batch=None``), else (batch, k) from one Generator or one Generator per loop.
     """
     return _per_loop(rng, batch, lambda g, size: g.standard_normal(k if size is None else (size, k)))
 
 
-def draw_keys(rng, batch: int | None) -> np.ndarray:
+def draw_keys(rng: np.random.Generator, batch: int | None) -> np.ndarray:
     """Episode keys (uint64) from Generators: a 0-d array for an unbatched loop (``batch=None``),
     else (batch,) from one Generator or one Generator per loop.
     """

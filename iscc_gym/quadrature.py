@@ -9,6 +9,7 @@ import math
 
 import numpy as np
 from numpy.polynomial.legendre import leggauss
+from numpy.typing import ArrayLike
 from scipy.stats import ncx2
 
 __all__ = ["expected_norm", "rician_power_nodes"]
@@ -33,7 +34,7 @@ def _sphere_rule(n: int = 6):
 _MEAN_CHI3 = 2.0 * math.sqrt(2.0 / math.pi)
 
 
-def expected_norm(var_m2):
+def expected_norm(var_m2: ArrayLike):
     r""":math:`\mathbb E\|\mathbf x\|` of a zero-mean Gaussian vector in R^3 with covariance
     eigenvalues ``var_m2`` (..., 3).
 

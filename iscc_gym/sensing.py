@@ -10,6 +10,7 @@ import math
 
 import numpy as np
 from numba import njit, vectorize
+from numpy.typing import ArrayLike
 
 from .channel import (
     array_response,
@@ -51,7 +52,7 @@ __all__ = [
 ]
 
 
-def sensing_path_loss_db(s: Scenario, dist_m):
+def sensing_path_loss_db(s: Scenario, dist_m: ArrayLike):
     r"""Two-way radar path loss in dB (Sec. II-C).
 
     .. math::
@@ -73,7 +74,7 @@ def sensing_noise_var_w(s: Scenario) -> float:
     return float(dbm_to_w(s.noise_psd_dbm_hz) * bw)
 
 
-def echo_amplitude_sq(s: Scenario, dist_m, shadow_db, fading_gain):
+def echo_amplitude_sq(s: Scenario, dist_m: ArrayLike, shadow_db: ArrayLike, fading_gain: ArrayLike):
     r"""Received echo power per element and subcarrier before array gain,
     :math:`P_k \beta_S |g_S|^2`, in W (with :math:`P_k = P_t/\mathcal K`), times the calibration
     ``sensing_snr_offset_db``.
@@ -91,7 +92,7 @@ def echo_constant(s: Scenario) -> float:
     return p_k * 10.0 ** (-0.1 * (float(sensing_path_loss_db(s, 1.0)) - s.sensing_snr_offset_db))
 
 
-def signature_derivatives(s: Scenario, azimuth_rad, elevation_rad, w=None):
+def signature_derivatives(s: Scenario, azimuth_rad: ArrayLike, elevation_rad: ArrayLike, w: ArrayLike = None):
     r"""Two-way spatial signature and its angle derivatives, with the beamformer held fixed.
 
     .. math::
@@ -142,7 +143,7 @@ def index_moments(s: Scenario):
     return c * s.n_y * float(ix @ ix), c * s.n_x * float(iy @ iy), float(n * n)
 
 
-def matched_signature_terms(s: Scenario, ct, st, cp, sp):
+def matched_signature_terms(s: Scenario, ct: ArrayLike, st: ArrayLike, cp: ArrayLike, sp: ArrayLike):
     r""":func:`signature_derivatives` for the matched beamformer, in closed form.
 
     With :math:`\mathbf w = \mathbf a/\sqrt N` and the phase reference at the array centre,
@@ -162,7 +163,7 @@ def matched_signature_terms(s: Scenario, ct, st, cp, sp):
             sxx * (tx * px) + syy * (ty * py))
 
 
-def fim(s: Scenario, alpha_sen, pos_m, shadow_db, fading_gain=1.0):
+def fim(s: Scenario, alpha_sen: ArrayLike, pos_m: ArrayLike, shadow_db: ArrayLike, fading_gain: ArrayLike = 1.0):
     r"""Closed-form Fisher information of :math:`\boldsymbol\xi = [\tau_S, \theta, \varphi, \nu_S]`,
     eq:FIM_tau -- eq:FIM_zero.
 
@@ -209,7 +210,8 @@ def fim_constants(s: Scenario):
             (8.0 / 3.0) * (np.pi * s.symbol_duration_s) ** 2 * m * m)
 
 
-def fim_terms(s: Scenario, alpha_sen, dist_m, shadow_db, fading_gain, signature):
+def fim_terms(s: Scenario, alpha_sen: ArrayLike, dist_m: ArrayLike, shadow_db: ArrayLike, fading_gain: ArrayLike,
+              signature: tuple[ArrayLike, ...]):
     """Core of :func:`fim` from the range and :func:`signature_derivatives`' output.
 
     Returns ``(j_tau, j_nu, j_thth, j_phph, j_thph)``.
@@ -226,7 +228,7 @@ def fim_terms(s: Scenario, alpha_sen, dist_m, shadow_db, fading_gain, signature)
     return j_tau, j_nu, ang * d_tt, ang * d_pp, ang * d_tp
 
 
-def crlb(s: Scenario, alpha_sen, pos_m, shadow_db, fading_gain=1.0):
+def crlb(s: Scenario, alpha_sen: ArrayLike, pos_m: ArrayLike, shadow_db: ArrayLike, fading_gain: ArrayLike = 1.0):
     r"""Observation-noise covariances of the ISAC measurement, eq:CRLB_pos and CRLB_vr.
 
     .. math::
@@ -255,7 +257,7 @@ def crlb(s: Scenario, alpha_sen, pos_m, shadow_db, fading_gain=1.0):
     return u @ m @ np.swapaxes(u, -1, -2), crlb_vr
 
 
-def local_frame(los_unit, trig):
+def local_frame(los_unit: ArrayLike, trig: tuple[ArrayLike, ArrayLike, ArrayLike, ArrayLike]):
     r"""Orthonormal frame :math:`\mathbf U = [\mathbf g, \mathbf e_\theta, \mathbf e_\varphi]`
     (columns) of range, azimuth and elevation directions, shape (..., 3, 3):
     :math:`\mathbf e_\theta = [-\sin\theta, \cos\theta, 0]`,
@@ -270,7 +272,9 @@ def local_frame(los_unit, trig):
     return u
 
 
-def whitened_observation_matrix(los_unit, trig, m_r, m_tt, m_tp, m_pp, crlb_vr):
+def whitened_observation_matrix(los_unit: ArrayLike, trig: tuple[ArrayLike, ArrayLike, ArrayLike, ArrayLike],
+                                m_r: ArrayLike, m_tt: ArrayLike, m_tp: ArrayLike, m_pp: ArrayLike,
+                                crlb_vr: ArrayLike):
     r"""Observation matrix of the whitened ISAC measurement, shape (..., 4, 6).
 
     With :math:`\Sigma_\upsilon = \mathrm{blkdiag}(\mathbf U\mathbf M\mathbf U^T, \mathrm{CRLB}_{v_r})`,
@@ -300,7 +304,8 @@ def whitened_observation_matrix(los_unit, trig, m_r, m_tt, m_tp, m_pp, crlb_vr):
     return w
 
 
-def crlb_local(s: Scenario, alpha_sen, dist_m, trig, shadow_db, fading_gain=1.0):
+def crlb_local(s: Scenario, alpha_sen: ArrayLike, dist_m: ArrayLike, trig: tuple[ArrayLike, ArrayLike, ArrayLike,
+               ArrayLike], shadow_db: ArrayLike, fading_gain: ArrayLike = 1.0):
     r"""Position CRLB in the local frame :func:`local_frame` and the radial-velocity CRLB.
 
     The position information :math:`\Upsilon^{-T}\mathbf J_\mathbf p\Upsilon^{-1}` is, in the
@@ -329,12 +334,12 @@ def crlb_local(s: Scenario, alpha_sen, dist_m, trig, shadow_db, fading_gain=1.0)
                           j_pp * inv_l * inv_l, j_nu, 1.0 / s.sensing_prior_var_m2, (0.5 * s.wavelength_m) ** 2)
 
 
-def peb(crlb_p):
+def peb(crlb_p: ArrayLike):
     r"""Position error bound :math:`\mathrm{PEB} = \sqrt{\operatorname{Tr}\,\mathrm{CRLB}_\mathbf p}` in m."""
     return np.sqrt(np.trace(crlb_p, axis1=-2, axis2=-1))
 
 
-def veb(crlb_vr):
+def veb(crlb_vr: ArrayLike):
     r"""Velocity error bound :math:`\mathrm{VEB} = \sqrt{\mathrm{CRLB}_{v_r}}` in m/s."""
     return np.sqrt(crlb_vr)
 
@@ -419,7 +424,8 @@ def _crlb_from_info_ufunc(info_range, info_az, info_cross, info_el, j_nu, prior,
     return crlb_from_info_one(info_range, info_az, info_cross, info_el, j_nu, prior, lam_half_sq)[which]
 
 
-def crlb_from_info(info_range, info_az, info_cross, info_el, j_nu, prior, lam_half_sq):
+def crlb_from_info(info_range: ArrayLike, info_az: ArrayLike, info_cross: ArrayLike, info_el: ArrayLike,
+                   j_nu: ArrayLike, prior: ArrayLike, lam_half_sq: ArrayLike):
     """:func:`crlb_from_info_one` over arrays: ``(m_r, m_tt, m_tp, m_pp, crlb_vr)``."""
     return tuple(_crlb_from_info_ufunc(info_range, info_az, info_cross, info_el, j_nu, prior, lam_half_sq, k)
                  for k in range(5))
@@ -489,7 +495,8 @@ def _crlb_local_loop(cp, a_sen, dist, ct, st, cp_, sp, shadow_db, fading, out):
             c, a_sen[i], dist[i], ct[i], st[i], cp_[i], sp[i], shadow_db[i], fading[i])
 
 
-def crlb_local_compiled(s: Scenario, alpha_sen, dist_m, trig, shadow_db, fading_gain=1.0):
+def crlb_local_compiled(s: Scenario, alpha_sen: ArrayLike, dist_m: ArrayLike, trig: tuple[ArrayLike, ArrayLike,
+                        ArrayLike, ArrayLike], shadow_db: ArrayLike, fading_gain: ArrayLike = 1.0):
     """:func:`crlb_local` evaluated by the compiled :func:`crlb_local_one` (the env's CRLB, bit for
     bit), for numpy arrays of any broadcastable shapes.
 

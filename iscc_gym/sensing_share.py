@@ -9,6 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numba import guvectorize, njit
+from numpy.typing import ArrayLike
 
 from .scenario import SPEED_OF_LIGHT_MPS, Scenario
 from .sensing import crlb_from_info, crlb_from_info_one, fim_terms, matched_signature_terms, signature_derivatives
@@ -46,7 +47,8 @@ class SensingCoefficients:
     prior: float
 
 
-def sensing_coefficients(s: Scenario, dist_m, trig, shadow_db=0.0, fading_gain=1.0) -> SensingCoefficients:
+def sensing_coefficients(s: Scenario, dist_m: ArrayLike, trig: tuple[ArrayLike, ArrayLike, ArrayLike, ArrayLike],
+                         shadow_db: ArrayLike = 0.0, fading_gain: ArrayLike = 1.0) -> SensingCoefficients:
     """:class:`SensingCoefficients` at ranges ``dist_m`` and directions ``trig`` (the output of
     :func:`iscc_gym.channel.direction_trig`), for the given shadowing (dB) and fading gain.
     """
@@ -68,7 +70,7 @@ def sensing_coefficients(s: Scenario, dist_m, trig, shadow_db=0.0, fading_gain=1
     )
 
 
-def local_crlb(coef: SensingCoefficients, alpha_sen):
+def local_crlb(coef: SensingCoefficients, alpha_sen: ArrayLike):
     """Local-frame CRLB at sensing share ``alpha_sen`` (equal to :func:`iscc_gym.sensing.crlb_local`).
 
     Returns
@@ -82,7 +84,7 @@ def local_crlb(coef: SensingCoefficients, alpha_sen):
                           a_s * coef.info_vr, coef.prior, 1.0)
 
 
-def crlb_trace(coef: SensingCoefficients, alpha_sen):
+def crlb_trace(coef: SensingCoefficients, alpha_sen: ArrayLike):
     r""":math:`f_\mathrm{sen}(\alpha_\mathrm{sen}) = \operatorname{Tr}\mathrm{CRLB}_\mathbf p`
     (PEB squared, m^2) and its derivative in ``alpha_sen`` (the SCA objective, Sec. IV-B).
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.linalg
+from numpy.typing import ArrayLike
 from scipy.optimize import brentq
 
 from .dynamics import model_matrices
@@ -30,7 +31,7 @@ __all__ = [
 ]
 
 
-def stability_matrix(a, b, k, eps):
+def stability_matrix(a: ArrayLike, b: ArrayLike, k: ArrayLike, eps: ArrayLike):
     r"""Second-moment transition matrix, eq:M.
 
     .. math::
@@ -43,12 +44,12 @@ def stability_matrix(a, b, k, eps):
     return (1.0 - eps) * np.kron(a_cl, a_cl) + eps * np.kron(a, a)
 
 
-def spectral_radius(m):
+def spectral_radius(m: ArrayLike):
     r""":math:`\rho(\mathbf M) = \max_i |\lambda_i(\mathbf M)|`."""
     return float(np.max(np.abs(np.linalg.eigvals(m))))
 
 
-def eps_star(a, b, k, xtol: float = 1e-12):
+def eps_star(a: ArrayLike, b: ArrayLike, k: ArrayLike, xtol: float = 1e-12):
     r"""Largest control packet-loss rate that keeps the loop mean-square stable:
     the first root of :math:`\rho(\mathbf M(\varepsilon)) = 1` on (0, 1) (Sec. IV-C.1).
 
@@ -78,7 +79,7 @@ def scenario_eps_star(s: Scenario) -> float:
     return eps_star(mm.a, mm.b, mm.k)
 
 
-def alpha_ctrl_star(s: Scenario, snr, eps_max: float, xtol: float = 1e-12):
+def alpha_ctrl_star(s: Scenario, snr: ArrayLike, eps_max: float, xtol: float = 1e-12):
     r"""Smallest control share with :math:`\varepsilon_\mathrm{ctrl}(\alpha,\gamma) \le \varepsilon^\star`,
     the root of eq:ctrl_bler minus ``eps_max`` (Sec. IV-C.1).
 
@@ -92,7 +93,7 @@ def alpha_ctrl_star(s: Scenario, snr, eps_max: float, xtol: float = 1e-12):
     return float(brentq(f, 1e-12, 1.0, xtol=xtol))
 
 
-def kalman_steady_state(a, c, sigma_w, sigma_v):
+def kalman_steady_state(a: ArrayLike, c: ArrayLike, sigma_w: ArrayLike, sigma_v: ArrayLike):
     r"""Steady-state Kalman covariances for a fixed observation model, via the filtering DARE.
 
     Returns
@@ -110,7 +111,7 @@ def kalman_steady_state(a, c, sigma_w, sigma_v):
     return p, 0.5 * (est + est.T)
 
 
-def equivalent_noise_cov(sigma_w, b, k, sigma_est, eps):
+def equivalent_noise_cov(sigma_w: ArrayLike, b: ArrayLike, k: ArrayLike, sigma_est: ArrayLike, eps: ArrayLike):
     r"""Covariance of the equivalent process noise, eq:omega_tilde_cov.
 
     .. math:: \Sigma_{\tilde\omega} = \Sigma_\omega + (1-\varepsilon)\mathbf B\mathbf K
@@ -120,7 +121,7 @@ def equivalent_noise_cov(sigma_w, b, k, sigma_est, eps):
     return sigma_w + (1.0 - eps) * bk @ sigma_est @ bk.T
 
 
-def steady_state_covariance(a, b, k, eps, sigma_wt):
+def steady_state_covariance(a: ArrayLike, b: ArrayLike, k: ArrayLike, eps: ArrayLike, sigma_wt: ArrayLike):
     r"""Steady state of eq:covariance_recursion,
     :math:`\mathrm{vec}(\Sigma_\infty) = (\mathbf I - \mathbf M)^{-1}\mathrm{vec}(\Sigma_{\tilde\omega})`.
 
@@ -135,7 +136,7 @@ def steady_state_covariance(a, b, k, eps, sigma_wt):
     return 0.5 * (sig + sig.T)
 
 
-def lqg_cost(q, r, k, eps, sigma_x, sigma_est):
+def lqg_cost(q: ArrayLike, r: ArrayLike, k: ArrayLike, eps: ArrayLike, sigma_x: ArrayLike, sigma_est: ArrayLike):
     r"""Average LQG cost b of eq:LQG_cost at steady state.
 
     .. math::
@@ -150,7 +151,8 @@ def lqg_cost(q, r, k, eps, sigma_x, sigma_est):
     return float(np.trace(q @ sigma_x) + (1.0 - eps) * np.trace(r @ u_cov))
 
 
-def riccati_s_d(a, b, q, r, eps, tol: float = 1e-10, max_iter: int = 100_000):
+def riccati_s_d(a: ArrayLike, b: ArrayLike, q: ArrayLike, r: ArrayLike, eps: ArrayLike, tol: float = 1e-10,
+                max_iter: int = 100_000):
     r"""Solve the coupled equations eq:Riccati_D and eq:Riccati_S by fixed-point iteration.
 
     .. math::
@@ -178,14 +180,14 @@ def riccati_s_d(a, b, q, r, eps, tol: float = 1e-10, max_iter: int = 100_000):
     return s_mat, 0.5 * (d + d.T)
 
 
-def lqg_cost_floor(p_dare, sigma_w):
+def lqg_cost_floor(p_dare: ArrayLike, sigma_w: ArrayLike):
     r""":math:`b_\min = \operatorname{Tr}(\mathbf P\Sigma_\omega)`: the average LQR cost with perfect
     state and no loss (eq:Lb), with P the control DARE solution.
     """
     return float(np.trace(p_dare @ sigma_w))
 
 
-def entropy_power(cov):
+def entropy_power(cov: ArrayLike):
     r"""Entropy power of a Gaussian vector,
     :math:`N = \frac{1}{2\pi e}\exp(\tfrac{2}{n}h) = (\det\Sigma)^{1/n}`.
     """
@@ -196,7 +198,8 @@ def entropy_power(cov):
     return float(np.exp(logdet / n))
 
 
-def rate_cost_bits(a, b_target, b_min, noise_entropy_power, d, determinant: str = "pseudo"):
+def rate_cost_bits(a: ArrayLike, b_target: ArrayLike, b_min: ArrayLike, noise_entropy_power: ArrayLike, d: ArrayLike,
+                   determinant: str = "pseudo"):
     r"""Rate-cost function L(b) of eq:Lb, in bits per control sample (slot).
 
     .. math::

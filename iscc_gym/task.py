@@ -9,6 +9,7 @@ what the env step applies); these functions evaluate the same code on numpy arra
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from . import kernel
 from .scenario import Scenario
@@ -16,7 +17,7 @@ from .scenario import Scenario
 __all__ = ["action_to_split", "split_to_action", "reward_and_costs"]
 
 
-def action_to_split(action):
+def action_to_split(action: ArrayLike):
     r"""Map an action in [-1, 1]^3 onto the simplex (alpha_sen, alpha_ctrl, alpha_comm).
 
     .. math:: w_i = (\mathrm{clip}(a_i, -1, 1) + 1)/2,\qquad \alpha_i = w_i / \textstyle\sum_j w_j
@@ -33,7 +34,7 @@ def action_to_split(action):
     return out
 
 
-def split_to_action(alpha):
+def split_to_action(alpha: ArrayLike):
     """Inverse of :func:`action_to_split`: the action whose split is ``alpha`` (largest share at +1).
 
     ``alpha`` must be non-negative and sum to 1 along the last axis.
@@ -44,7 +45,7 @@ def split_to_action(alpha):
     return (2.0 * a / a.max(axis=-1, keepdims=True) - 1.0).astype(np.float32)
 
 
-def reward_and_costs(s: Scenario, metrics: dict, n_next, evaluable=True):
+def reward_and_costs(s: Scenario, metrics: dict, n_next: ArrayLike, evaluable: ArrayLike = True):
     """Costs, reward and episode end of a slot from :func:`iscc_gym.loop.step`'s metrics (numpy,
     any batch shape): ``(cost_rate, cost_stability, reward, terminated, truncated)``. The reward is
     :func:`iscc_gym.kernel.reward_one` (written once, also what the compiled env step uses).

@@ -8,6 +8,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.interpolate import CubicSpline
 
 from .scenario import Scenario
@@ -25,7 +26,7 @@ def coverage_volume_km3(s: Scenario) -> float:
     return float(np.pi * (r * r * (hi - lo) - (hi**3 - lo**3) / 3.0)) * 1e-9
 
 
-def in_coverage(s: Scenario, pos_m):
+def in_coverage(s: Scenario, pos_m: ArrayLike):
     """True where a point lies in the coverage region (upper hemisphere, altitude band)."""
     p = np.asarray(pos_m, dtype=float)
     return ((np.linalg.norm(p, axis=-1) <= s.coverage_radius_m)
@@ -100,7 +101,7 @@ def coverage_box_fraction(s: Scenario) -> float:
     return coverage_volume_km3(s) * 1e9 / (4.0 * r * r * (s.altitude_max_m - s.altitude_min_m))
 
 
-def order_waypoints(points):
+def order_waypoints(points: ArrayLike):
     """Visit order: a greedy nearest-neighbour tour from the first point (the paper gives none)."""
     pts = np.asarray(points, dtype=float)
     left = list(range(1, len(pts)))
@@ -127,7 +128,7 @@ class Reference:
         return np.concatenate([self.pos_m, self.vel_mps], axis=-1)
 
 
-def spline_reference(s: Scenario, waypoints):
+def spline_reference(s: Scenario, waypoints: ArrayLike):
     """Cubic spline through ordered waypoints over the mission, sampled every dt.
 
     Knot times are proportional to the cumulative chord length (near-constant speed) and span

@@ -5,6 +5,7 @@ rl-zoo3's layout (``train/hyperparams.yml``) and their resolution and checks.
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -59,6 +60,9 @@ class Args:
     torch_threads: int = 1  # threads of torch (1 is fastest here: python -m eval.bench)
     numba_threads: int | None = None  # threads of the env's compiled kernel (None: numba's default, all cores)
     verbose: int = 0
+    # constrained training (train/lagrangian.py): outage-fraction limits, e.g. "rate=0.05,stability=0.0"
+    cost_limit: str | None = None
+    lagrange_lr: float = 0.05  # step of the multipliers' dual ascent per rollout
 
 
 #: The ``--help`` text of every :class:`Args` field.
@@ -91,6 +95,9 @@ FIELD_HELP = {
     "torch_threads": "torch threads (1 is fastest here: python -m eval.bench)",
     "numba_threads": "threads of the env's compiled kernel (default: all cores)",
     "verbose": "SB3 verbosity: 0 quiet, 1 training logs, 2 debug",
+    "cost_limit": "constrained training (Lagrangian, train/lagrangian.py): the fraction of slots allowed to "
+                  "violate each constraint, e.g. rate=0.05,stability=0.0 (default: none, the fixed-weight reward)",
+    "lagrange_lr": "step of the Lagrange multipliers' dual ascent, once per rollout",
 }
 
 #: Run settings a YAML entry may hold beside the algorithm's hyperparameters (rl-zoo3's names), mapped
@@ -382,6 +389,14 @@ def _check(args: Args) -> None:
         raise ValueError(f"algo = {args.algo!r}; use one of {ALGOS}")
     if args.vec_env not in VEC_ENVS:
         raise ValueError(f"vec_env = {args.vec_env!r}; use one of {VEC_ENVS}")
+    if args.cost_limit is not None:
+        from .lagrangian import parse_cost_limits
+
+        parse_cost_limits(args.cost_limit)
+        if not (args.lagrange_lr > 0.0 and math.isfinite(args.lagrange_lr)):
+            raise ValueError(f"lagrange_lr = {args.lagrange_lr!r}; use a positive number, e.g. 0.05")
+        if args.env_id != "iscc_gym/ISCC-v0":
+            raise ValueError(f"cost_limit: {args.env_id} has no ISCC costs in info; use iscc_gym/ISCC-v0")
     if args.vec_env == "batched" and args.env_id != "iscc_gym/ISCC-v0":
         raise ValueError("vec_env = 'batched' is the ISCC env's own batched env; use dummy or subproc for "
                          f"{args.env_id}")

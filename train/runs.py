@@ -20,7 +20,7 @@ from iscc_gym.files import atomic_target, write_atomic
 from .config import Args
 
 RUN_FILES = ("model.zip", "vecnormalize.pkl", MANIFEST, "config.yml", "summary.yml", "learning_curve.csv",
-             "learning_curve.png", "checkpoints", "best", "eval", "tb")
+             "learning_curve.png", "checkpoints", "best", "eval", "tb", "lagrange.yml")
 #: What a resumed run must share with the run it continues (SAC/TD3: ``n_envs`` too, the replay buffer's shape).
 IDENTITY = ("env_id", "algo", "scenario", "env_overrides", "normalize", "eval_episodes", "eval_max_steps")
 

@@ -87,7 +87,8 @@ def make_train_env(args: Args):
     if args.vec_env == "batched":
         from iscc_gym.agents.sb3_vec_env import ISCCBatchedVecEnv
 
-        venv = ISCCBatchedVecEnv(args.n_envs, scenario=args.scenario, **args.env_overrides)
+        keys = ("cost_rate", "cost_stability") if args.cost_limit else ()
+        venv = ISCCBatchedVecEnv(args.n_envs, scenario=args.scenario, info_keys=keys, **args.env_overrides)
         venv.seed(args.seed)
         return VecMonitor(venv)
     kwargs = {"scenario": args.scenario, **args.env_overrides} if args.env_id == "iscc_gym/ISCC-v0" else {}
@@ -293,6 +294,8 @@ def main(args: Args, callback_after_eval=None) -> dict:
     if callback_after_eval is not None and args.eval_freq <= 0:
         raise ValueError(f"eval_freq = {args.eval_freq} with a callback_after_eval; use eval_freq >= 1")
     args, hp = resolve_args(args)
+    if args.cost_limit:  # the multipliers alone price the costs, unless the run sets the weights
+        args = dataclasses.replace(args, env_overrides={"w_rate": 0.0, "w_stab": 0.0, **args.env_overrides})
     kw = check_hyperparams(args.algo, _resolve_policy_kwargs(hp))
     ckpt, manifest = _prepare_out(args)
     identity = run_identity(args)
@@ -303,6 +306,12 @@ def main(args: Args, callback_after_eval=None) -> dict:
     algo_cls = {"ppo": PPO, "sac": SAC, "td3": TD3}[args.algo]
     off_policy = args.algo in ("sac", "td3")
     venv = make_train_env(args)
+    lagrange = None
+    if args.cost_limit:
+        from .lagrangian import LagrangianVecEnv, load_lambdas, parse_cost_limits
+
+        venv = lagrange = LagrangianVecEnv(venv, parse_cost_limits(args.cost_limit),
+                                           load_lambdas(out) if ckpt is not None else None)
     warm_start = None
     ckpt_dir = out / "checkpoints"
     start = int(manifest["timesteps"]) if manifest else 0
@@ -338,6 +347,11 @@ def main(args: Args, callback_after_eval=None) -> dict:
         saved["step"] = step
 
     callbacks = [curve := _curve_callback(rows)]
+    lagrange_cb = None
+    if lagrange is not None:
+        from .lagrangian import LagrangeCallback
+
+        callbacks.append(lagrange_cb := LagrangeCallback(lagrange, args.lagrange_lr, out))
     per_env = max(1, args.n_envs)
     if args.checkpoint_freq > 0:
         callbacks.append(_checkpoint_callback(max(1, args.checkpoint_freq // per_env), checkpoint, off_policy))
@@ -370,6 +384,10 @@ def main(args: Args, callback_after_eval=None) -> dict:
                "env_steps_per_s": (remaining / wall) if remaining > 0 and wall > 0 else None,
                "evaluations": evals, "resumed_from": str(ckpt) if ckpt else None,
                "warm_start": warm_start}
+    if lagrange is not None:
+        lagrange_cb.save()
+        summary["lagrange"] = {**lagrange.as_dict(), "lr": args.lagrange_lr,
+                               "last_outage": lagrange_cb.history[-1]["outage"] if lagrange_cb.history else None}
     write_atomic(out / "summary.yml", yaml.safe_dump(summary, sort_keys=False))
     return summary
 
@@ -399,7 +417,7 @@ def build_parser(prog: str = "python -m train") -> argparse.ArgumentParser:
         if isinstance(default, bool) or f.name in ("normalize", "progress_bar"):
             ap.add_argument(flag, action=argparse.BooleanOptionalAction, default=default, help=help_)
         elif default is None:  # a run setting the YAML fills (RUN_KEYS), or numba's default
-            kind = {"init_policy": str, "init_log_std": float}.get(f.name, int)
+            kind = {"init_policy": str, "init_log_std": float, "cost_limit": str}.get(f.name, int)
             ap.add_argument(flag, type=kind, default=None, help=help_)
         else:
             ap.add_argument(flag, type=type(default), default=default, help=help_ + f" (default: {default})")

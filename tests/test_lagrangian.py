@@ -1,0 +1,91 @@
+"""Constrained training (issue 15 item 1): outage limits, the Lagrangian reward and the dual ascent."""
+
+import numpy as np
+import pytest
+import yaml
+from iscc_gym.train import Args, main
+from iscc_gym.train.lagrangian import LagrangeCallback, LagrangianVecEnv, load_lambdas, parse_cost_limits
+from stable_baselines3.common.vec_env import VecEnv
+
+
+def test_cost_limits_parse_and_refuse_bad_input():
+    assert parse_cost_limits("rate=0.05,stability=0.0") == {"rate": 0.05, "stability": 0.0}
+    assert parse_cost_limits(" rate = 0.1") == {"rate": 0.1}
+    for bad, match in (("speed=0.1", "NAME=FRACTION"), ("rate=abc", "not a number"), ("rate=1.5", "outside"),
+                       ("rate=0.1,rate=0.2", "twice"), ("rate", "NAME=FRACTION")):
+        with pytest.raises(ValueError, match=match):
+            parse_cost_limits(bad)
+
+
+class _Fake(VecEnv):
+    """Two envs whose infos carry given costs; reward 1 each step."""
+
+    def __init__(self, costs):
+        import gymnasium as gym
+
+        super().__init__(2, gym.spaces.Box(-1, 1, (1,)), gym.spaces.Box(-1, 1, (1,)))
+        self.costs, self.t = costs, 0
+
+    def reset(self):
+        return np.zeros((2, 1), np.float32)
+
+    def step_async(self, actions):
+        pass
+
+    def step_wait(self):
+        c = self.costs[self.t % len(self.costs)]
+        self.t += 1
+        infos = [{"cost_rate": c[i][0], "cost_stability": c[i][1]} for i in range(2)]
+        return np.zeros((2, 1), np.float32), np.ones(2), np.zeros(2, bool), infos
+
+    def close(self): pass
+    def get_attr(self, name, indices=None): return [None, None]
+    def set_attr(self, name, value, indices=None): pass
+    def env_method(self, name, *a, indices=None, **k): return [None, None]
+    def env_is_wrapped(self, cls, indices=None): return [False, False]
+    def seed(self, seed=None): return [None, None]
+
+
+def test_reward_minus_lambda_times_outage_and_projected_dual_ascent():
+    # env 0 violates the rate (0.3 shortfall) every step, env 1 the stability every other step
+    costs = [[(0.3, 0.0), (0.0, 1.0)], [(0.3, 0.0), (0.0, 0.0)]]
+    w = LagrangianVecEnv(_Fake(costs), {"rate": 0.25, "stability": 0.5}, {"rate": 2.0, "stability": 1.0})
+    w.reset()
+    w.step_async(None)
+    _, r, _, _ = w.step_wait()
+    np.testing.assert_allclose(r, [1.0 - 2.0, 1.0 - 1.0])  # an indicator, not the shortfall size
+    for _ in range(3):
+        w.step_async(None)
+        w.step_wait()
+    cb = LagrangeCallback(w, lr=0.4)
+    cb.init_callback(type("M", (), {"num_timesteps": 8, "get_env": lambda self: None,
+                                    "logger": __import__("stable_baselines3.common.logger",
+                                                         fromlist=["Logger"]).Logger(None, [])})())
+    cb.on_rollout_end()
+    # 8 slots: rate outage 4/8 = 0.5 (limit 0.25) -> 2 + 0.4 * 0.25; stability 2/8 (limit 0.5) -> 1 - 0.1
+    np.testing.assert_allclose(w.lambdas, [2.1, 0.9])
+    assert w.slots == 0
+    w2 = LagrangianVecEnv(_Fake([[(0.0, 0.0), (0.0, 0.0)]]), {"rate": 0.1}, {"rate": 0.01})
+    w2.step_async(None)
+    w2.step_wait()
+    LagrangeCallback.__init__(cb, w2, lr=1.0)
+    cb._on_rollout_end()
+    assert w2.lambdas[0] == 0.0  # projected onto lambda >= 0
+
+
+def test_a_constrained_run_raises_the_multiplier_of_a_violated_limit_and_saves_it(tmp_path):
+    out = tmp_path / "run"
+    summary = main(Args(total_timesteps=8192, n_envs=32, overrides={"n_steps": 64}, eval_freq=0, checkpoint_freq=0,
+                        tensorboard=False, quiet=True, cost_limit="rate=0.05,stability=0.0", lagrange_lr=0.5,
+                        out=str(out)))
+    lam = load_lambdas(out)
+    assert lam["rate"] > 0.0  # an untrained policy misses the rate in far more than 5 % of the slots
+    assert summary["lagrange"]["lambdas"] == pytest.approx(lam)
+    cfg = yaml.safe_load((out / "config.yml").read_text())
+    assert cfg["args"]["env_overrides"] == {"w_rate": 0.0, "w_stab": 0.0}
+
+
+def test_bad_limits_fail_before_training(tmp_path):
+    with pytest.raises(ValueError, match="--cost-limit"):
+        main(Args(total_timesteps=64, cost_limit="rate=2", out=str(tmp_path / "x"), quiet=True))
+    assert not (tmp_path / "x").exists()

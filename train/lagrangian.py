@@ -1,0 +1,157 @@
+r"""Constrained training: SB3 on the reward minus Lagrange multipliers times the constraint costs.
+
+``python -m train --cost-limit rate=0.05,stability=0.0`` trains on
+
+.. math::
+    r'_n = r_n - \sum_k \lambda_k\, c_{k,n},\qquad
+    c_{\mathrm{rate},n} = 1[\texttt{info["cost\_rate"]} > 0],\quad
+    c_{\mathrm{stability},n} = 1[\texttt{info["cost\_stability"]} > 0],
+
+the costs read from the env's ``info`` (no reward re-derivation), as **outage indicators**: the limit
+of a cost is the fraction of slots allowed to violate it, the way a link designer states a rate
+requirement ("met in 95 % of the slots"). The multipliers follow **projected dual ascent** (plain, not
+PID-Lagrangian), once per rollout:
+
+.. math:: \lambda_k \leftarrow \max\bigl(0,\ \lambda_k + \eta\,(\bar c_k - d_k)\bigr)
+
+with :math:`\bar c_k` the rollout's outage fraction, :math:`d_k` the limit and :math:`\eta` the
+multiplier learning rate (``--lagrange-lr``). Unless the run sets them, the env's own fixed penalty
+weights ``w_rate`` and ``w_stab`` are set to 0 for a constrained run, so the reward is minus the
+tracking error and the multipliers alone price the costs. The multipliers and outage fractions are
+logged to TensorBoard (``lagrange/``), saved in the run's ``lagrange.yml`` and its ``summary.yml``,
+and reloaded by ``--resume``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import yaml
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.vec_env import VecEnvWrapper
+
+from iscc_gym.files import write_atomic
+
+__all__ = ["COSTS", "parse_cost_limits", "LagrangianVecEnv", "LagrangeCallback", "LAGRANGE_FILE"]
+
+#: Constraint name -> the ``info`` key whose positive value marks a violating slot.
+COSTS = {"rate": "cost_rate", "stability": "cost_stability"}
+#: The run file holding the multipliers (YAML).
+LAGRANGE_FILE = "lagrange.yml"
+
+
+def parse_cost_limits(text: str) -> dict[str, float]:
+    """``"rate=0.05,stability=0.0"`` -> ``{"rate": 0.05, "stability": 0.0}``; a clear ``ValueError`` naming
+    the flag and the fix on a bad name or value (a limit is an outage fraction in [0, 1]).
+    """
+    limits: dict[str, float] = {}
+    for part in str(text).split(","):
+        name, sep, value = (x.strip() for x in part.partition("="))
+        if not sep or name not in COSTS:
+            raise ValueError(f"--cost-limit {text!r}: use NAME=FRACTION pairs with NAME in {sorted(COSTS)}, "
+                             "e.g. --cost-limit rate=0.05,stability=0.0")
+        try:
+            v = float(value)
+        except ValueError:
+            raise ValueError(f"--cost-limit {text!r}: {name}={value!r} is not a number; use a fraction in [0, 1]") \
+                from None
+        if not 0.0 <= v <= 1.0:
+            raise ValueError(f"--cost-limit {text!r}: {name}={v} is outside [0, 1]; a limit is the fraction of "
+                             "slots allowed to violate the constraint")
+        if name in limits:
+            raise ValueError(f"--cost-limit {text!r}: {name} is given twice")
+        limits[name] = v
+    return limits
+
+
+class LagrangianVecEnv(VecEnvWrapper):
+    """Rewards minus ``lambdas . outage indicators``; counts the indicators for the dual update.
+
+    Parameters
+    ----------
+    venv : VecEnv
+        Whose ``infos`` carry the keys of :data:`COSTS` (the batched env: pass them in ``info_keys``).
+    limits : dict
+        Constraint name -> outage-fraction limit (:func:`parse_cost_limits`).
+    lambdas : dict, optional
+        Starting multipliers (default 0).
+    """
+
+    def __init__(self, venv, limits: dict[str, float], lambdas: dict[str, float] | None = None):
+        super().__init__(venv)
+        self.names = list(limits)
+        self.limits = np.array([limits[k] for k in self.names], dtype=np.float64)
+        lam = lambdas or {}
+        self.lambdas = np.array([float(lam.get(k, 0.0)) for k in self.names], dtype=np.float64)
+        self.reset_counts()
+
+    def reset_counts(self) -> None:
+        self.count = np.zeros(len(self.names))
+        self.slots = 0
+
+    def reset(self):
+        return self.venv.reset()
+
+    def step_wait(self):
+        obs, rewards, dones, infos = self.venv.step_wait()
+        ind = np.zeros((len(infos), len(self.names)))
+        for i, info in enumerate(infos):
+            for j, name in enumerate(self.names):
+                key = COSTS[name]
+                if key not in info:
+                    raise KeyError(f"info has no {key!r}: a constrained run needs the env's costs in info "
+                                   f"(ISCCBatchedVecEnv(info_keys=({key!r}, ...)))")
+                ind[i, j] = float(info[key] > 0.0)
+        self.count += ind.sum(axis=0)
+        self.slots += len(infos)
+        return obs, rewards - ind @ self.lambdas, dones, infos
+
+    def as_dict(self) -> dict:
+        return {"lambdas": dict(zip(self.names, self.lambdas.tolist(), strict=True)),
+                "limits": dict(zip(self.names, self.limits.tolist(), strict=True))}
+
+
+class LagrangeCallback(BaseCallback):
+    """Projected dual ascent of :class:`LagrangianVecEnv`'s multipliers at every rollout end; logs
+    ``lagrange/lambda_<name>`` and ``lagrange/outage_<name>`` and writes ``out/lagrange.yml``.
+    """
+
+    def __init__(self, wrapper: LagrangianVecEnv, lr: float, out: str | Path | None = None):
+        super().__init__()
+        if not (lr > 0.0 and np.isfinite(lr)):
+            raise ValueError(f"lagrange_lr = {lr!r}; use a positive number, e.g. 0.05")
+        self.wrapper, self.lr, self.out = wrapper, float(lr), out
+        self.history: list[dict] = []
+
+    def _on_step(self) -> bool:
+        return True
+
+    def _on_rollout_end(self) -> None:
+        w = self.wrapper
+        if w.slots == 0:
+            return
+        outage = w.count / w.slots
+        w.lambdas = np.maximum(0.0, w.lambdas + self.lr * (outage - w.limits))
+        for j, name in enumerate(w.names):
+            self.logger.record(f"lagrange/lambda_{name}", float(w.lambdas[j]))
+            self.logger.record(f"lagrange/outage_{name}", float(outage[j]))
+        self.history.append({"timesteps": int(self.num_timesteps),
+                             "outage": dict(zip(w.names, outage.tolist(), strict=True)),
+                             "lambdas": dict(zip(w.names, w.lambdas.tolist(), strict=True))})
+        w.reset_counts()
+        self.save()
+
+    def save(self) -> None:
+        if self.out is not None:
+            doc = {**self.wrapper.as_dict(), "lr": self.lr, "history": self.history[-200:]}
+            write_atomic(Path(self.out) / LAGRANGE_FILE, yaml.safe_dump(doc, sort_keys=False))
+
+
+def load_lambdas(out: str | Path) -> dict[str, float] | None:
+    """The multipliers saved in a run directory (``--resume``), or None."""
+    p = Path(out) / LAGRANGE_FILE
+    if not p.is_file():
+        return None
+    doc = yaml.safe_load(p.read_text()) or {}
+    return {k: float(v) for k, v in (doc.get("lambdas") or {}).items()}

@@ -1,0 +1,126 @@
+"""``python -m eval.outage``: scripted policies at a rate-outage target (issue 15 item 2).
+
+Each scripted family has one knob that trades rate outage (the fraction of slots whose data rate is
+below ``rate_min_bps``) for tracking error:
+
+* ``sca``: static SCA designed for ``knob`` x R_min (a rate design margin; the env still charges
+  R_min). A larger knob gives data more and sensing less.
+* ``margin``: the tuned margin rule with the sensing floor set to ``knob`` (a larger floor gives
+  sensing more and data less).
+* ``myopic``: the myopic optimiser with the price of a rate shortfall ``rate_weight = knob`` (a
+  larger price gives data more).
+
+The command finds, on training seeds (500,000 onwards, common random numbers, never an evaluation
+seed), the knob value whose mean rate-outage fraction meets a target: bisection on the knob, the
+outage being monotone in it. Example::
+
+    python -m eval.outage margin --target 0.10 --episodes 8
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+
+import numpy as np
+from iscc_gym.eval.evaluate import run_episodes
+from iscc_gym.eval.options import Parser, nonneg_int, positive_int, run_console
+from iscc_gym.eval.tune import TUNE_SEED_START, check_tuning_seeds
+
+from iscc_gym.scenario import Scenario, make_scenario
+
+__all__ = ["FAMILIES", "build", "outage", "find_knob", "main"]
+
+#: family -> (knob name, low, high, outage falls as the knob rises?)
+FAMILIES = {
+    "sca": ("rate design margin (x R_min)", 0.5, 1.6, True),
+    "margin": ("sensing floor", 0.0, 0.4, False),
+    "myopic": ("rate_weight", 0.0, 20.0, True),
+}
+
+
+def build(family: str, knob: float, scenario: Scenario):
+    """The policy of ``family`` at knob value ``knob`` (see the module docstring)."""
+    if family == "sca":
+        from iscc_gym.agents.sca_slot import SCAPolicy
+
+        return SCAPolicy(scenario.replace(rate_min_bps=scenario.rate_min_bps * float(knob)))
+    if family == "margin":
+        from iscc_gym.agents.margin import MarginPolicy, load_tuned
+
+        p = load_tuned("margin")["params"]
+        return MarginPolicy(p["m_ctrl"], p["m_comm"], sensing_floor=float(knob))
+    if family == "myopic":
+        from iscc_gym.agents.myopic import MyopicPolicy
+
+        return MyopicPolicy(scenario, rate_weight=float(knob))
+    raise ValueError(f"family = {family!r}; use one of {sorted(FAMILIES)}")
+
+
+def outage(family: str, knob: float, seeds, scenario: Scenario, max_steps: int | None = None) -> dict:
+    """Mean rate-outage fraction and tracking error of ``family`` at ``knob`` on ``seeds``."""
+    ep = run_episodes(build(family, knob, scenario), seeds, scenario, max_steps=max_steps)["episodes"]
+    return {"knob": float(knob), "rate_outage": float(np.mean(ep["rate_violation"])),
+            "tracking_error_m": float(np.mean(ep["tracking_error_m"])),
+            "rms_error_m": float(np.sqrt(np.mean(ep["mse_m2"]))), "lost": int(np.sum(ep["terminated"]))}
+
+
+def find_knob(family: str, target: float, seeds, scenario: Scenario, max_steps: int | None = None,
+              iterations: int = 8) -> dict:
+    """The knob value of ``family`` whose rate outage on ``seeds`` is at most ``target``, closest to it
+    (bisection between the family's bounds); ``met`` is False if even the bound cannot reach it.
+    """
+    if not 0.0 <= target <= 1.0:
+        raise ValueError(f"target = {target!r}: a rate-outage target is a fraction in [0, 1]")
+    _, lo, hi, falls = FAMILIES[family]
+    # the knob end with the smallest outage
+    safe, risky = (hi, lo) if falls else (lo, hi)
+    tried = [outage(family, safe, seeds, scenario, max_steps)]
+    if tried[-1]["rate_outage"] > target:
+        return {"family": family, "target": target, "met": False, "best": tried[-1], "tried": tried}
+    best = tried[-1]
+    for _ in range(iterations):
+        mid = 0.5 * (safe + risky)
+        r = outage(family, mid, seeds, scenario, max_steps)
+        tried.append(r)
+        if r["rate_outage"] <= target:
+            safe, best = mid, r
+        else:
+            risky = mid
+    return {"family": family, "target": target, "met": True, "best": best, "tried": tried}
+
+
+def build_parser(prog: str = "python -m eval.outage") -> Parser:
+    ap = Parser(prog=prog, description=__doc__.split("\n\n")[0])
+    ap.add_argument("family", choices=sorted(FAMILIES), help="scripted policy family")
+    ap.add_argument("--target", type=float, default=0.1, help="rate-outage target, a fraction (default: 0.1)")
+    ap.add_argument("--episodes", type=positive_int, default=8, help="training missions (default: 8)")
+    ap.add_argument("--seed-start", type=nonneg_int, default=TUNE_SEED_START,
+                    help=f"first training seed (default: {TUNE_SEED_START})")
+    ap.add_argument("--max-steps", type=positive_int, default=None, help="slots per mission (default: all)")
+    ap.add_argument("--iterations", type=positive_int, default=8, help="bisection steps (default: 8)")
+    ap.add_argument("--scenario", default="paper", help="scenario preset (default: paper)")
+    return ap
+
+
+def main(argv: list[str] | None = None, prog: str = "python -m eval.outage") -> dict:
+    args = build_parser(prog).parse_args(argv)
+    if not (math.isfinite(args.target) and 0.0 <= args.target <= 1.0):
+        raise ValueError(f"--target {args.target}: use a fraction in [0, 1], e.g. --target 0.05")
+    seeds = list(range(args.seed_start, args.seed_start + args.episodes))
+    check_tuning_seeds(seeds)
+    res = find_knob(args.family, args.target, seeds, make_scenario(args.scenario), args.max_steps, args.iterations)
+    b = res["best"]
+    name = FAMILIES[args.family][0]
+    print(f"{args.family}: {name} = {b['knob']:.4g} -> rate outage {b['rate_outage']:.3f} "
+          f"(target {args.target}{'' if res['met'] else ', NOT met'}), tracking error {b['tracking_error_m']:.4f} m "
+          f"(RMS {b['rms_error_m']:.4f}), {b['lost']} of {len(seeds)} missions lost")
+    return res
+
+
+def console(argv: list[str] | None = None, prog: str = "python -m eval.outage") -> int:
+    return run_console(main, argv, prog)
+
+
+if __name__ == "__main__":
+    sys.exit(console())

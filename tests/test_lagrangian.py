@@ -75,12 +75,14 @@ def test_reward_minus_lambda_times_outage_and_projected_dual_ascent():
 
 def test_a_constrained_run_raises_the_multiplier_of_a_violated_limit_and_saves_it(tmp_path):
     out = tmp_path / "run"
-    summary = main(Args(total_timesteps=8192, n_envs=32, overrides={"n_steps": 64}, eval_freq=0, checkpoint_freq=0,
+    summary = main(Args(total_timesteps=8192, n_envs=32, overrides={"n_steps": 64}, eval_freq=4096, eval_episodes=2,
+                        eval_max_steps=50, checkpoint_freq=0,
                         tensorboard=False, quiet=True, cost_limit="rate=0.05,stability=0.0", lagrange_lr=0.5,
                         out=str(out)))
     lam = load_lambdas(out)
     assert lam["rate"] > 0.0  # an untrained policy misses the rate in far more than 5 % of the slots
     assert summary["lagrange"]["lambdas"] == pytest.approx(lam)
+    assert len(summary["evaluations"]) == 2  # held-out evaluations run beside the Lagrangian wrapper
     cfg = yaml.safe_load((out / "config.yml").read_text())
     assert cfg["args"]["env_overrides"] == {"w_rate": 0.0, "w_stab": 0.0}
 

@@ -24,6 +24,7 @@ rl-zoo3 never reads, holds this command's own run settings (the warm start) and 
 from __future__ import annotations
 
 import argparse
+import copy
 import dataclasses
 import time
 from pathlib import Path
@@ -168,7 +169,7 @@ def _eval_callback(eval_env, args: Args, out: Path, identity: dict, history: dic
     """
     from stable_baselines3.common.callbacks import EvalCallback
     from stable_baselines3.common.evaluation import evaluate_policy
-    from stable_baselines3.common.vec_env import sync_envs_normalization
+    from stable_baselines3.common.vec_env import VecNormalize
 
     class HeldOutEvalCallback(EvalCallback):
         def _on_step(self) -> bool:
@@ -176,8 +177,11 @@ def _eval_callback(eval_env, args: Args, out: Path, identity: dict, history: dic
                 return True
             self.eval_env.seed(EVAL_SEED_START)
             vecnormalize = self.model.get_vec_normalize_env()
-            if vecnormalize is not None:
-                sync_envs_normalization(self.training_env, self.eval_env)
+            if vecnormalize is not None and isinstance(self.eval_env, VecNormalize):
+                # the training VecNormalize's statistics, whatever wrappers sit below it (a constrained
+                # run's Lagrangian wrapper has no counterpart in the evaluation env)
+                self.eval_env.obs_rms = copy.deepcopy(vecnormalize.obs_rms)
+                self.eval_env.ret_rms = copy.deepcopy(vecnormalize.ret_rms)
             rewards, lengths = evaluate_policy(self.model, self.eval_env, n_eval_episodes=self.n_eval_episodes,
                                                deterministic=self.deterministic, return_episode_rewards=True,
                                                warn=self.warn)

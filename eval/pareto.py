@@ -1,0 +1,201 @@
+"""``python -m eval.pareto``: tracking error against rate outage for every policy family (issue 15 item 3).
+
+Every scripted family is played over its knob (:data:`iscc_gym.eval.outage.FAMILIES`: static SCA's
+rate design margin, ``margin``'s sensing floor, ``myopic``'s ``rate_weight``) and every learned run
+given with ``--learned NAME=PATH`` (e.g. PPO at several ``w_rate``, PPO-Lagrangian at several cost
+limits) as one point, all on the same held-out missions (common random numbers). Each point is the
+mean rate-outage fraction and the mean and RMS tracking error with 95 % CIs over missions. The table
+marks the non-dominated points (no other point has both a lower outage and a lower error) and, per
+outage target, the point of each family with the lowest error that meets it, with the paired CI of
+its error against the best of the other families.
+
+Example::
+
+    python -m eval.pareto --episodes 20 --learned ppo=agents/trained/ppo_iscc --write-docs
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+from iscc_gym.eval.evaluate import mean_ci, run_episodes
+from iscc_gym.eval.options import Parser, check_writable_file, nonneg_int, positive_int, run_console
+from iscc_gym.eval.outage import build
+
+from iscc_gym.docs import RESULTS_PATH, docs_path, write_section
+from iscc_gym.scenario import make_scenario
+
+__all__ = ["KNOBS", "points", "non_dominated", "at_target", "markdown", "main"]
+
+#: Knob grid per scripted family.
+KNOBS = {"sca": (0.8, 1.0, 1.2, 1.4, 1.6), "margin": (0.0, 0.02, 0.05, 0.1, 0.2), "myopic": (0.5, 1.0, 2.0, 5.0, 10.0)}
+#: First held-out mission of this command (inside the evaluation range, apart from the others).
+SEED_START = 1_300_000
+
+
+def _point(family: str, knob, episodes: dict) -> dict:
+    out = np.asarray(episodes["rate_violation"], dtype=float)
+    err = np.asarray(episodes["tracking_error_m"], dtype=float)
+    mse = np.asarray(episodes["mse_m2"], dtype=float)
+    m_out, ci_out = mean_ci(out, bounds=(0.0, 1.0))
+    m_err, ci_err = mean_ci(err, bounds=(0.0, np.inf))
+    return {"family": family, "knob": knob, "rate_outage": m_out, "rate_outage_ci95": ci_out,
+            "tracking_error_m": m_err, "tracking_error_ci95": ci_err, "rms_error_m": float(np.sqrt(mse.mean())),
+            "lost": int(np.sum(episodes["terminated"])), "per_mission_error_m": err.tolist()}
+
+
+def points(seeds, scenario="paper", families=tuple(KNOBS), knobs: dict | None = None, learned: dict | None = None,
+           max_steps: int | None = None) -> list[dict]:
+    """Every family over its knob grid and every learned policy, on ``seeds`` (common random numbers)."""
+    s = make_scenario(scenario)
+    knobs = {**KNOBS, **(knobs or {})}
+    out = []
+    for fam in families:
+        for k in knobs[fam]:
+            out.append(_point(fam, float(k), run_episodes(build(fam, k, s), seeds, s, max_steps=max_steps)["episodes"]))
+    for name, path in (learned or {}).items():
+        from iscc_gym.agents.sb3_policy import SB3Policy
+
+        pol = SB3Policy.load(path)
+        out.append(_point(name, None, run_episodes(pol, seeds, s, max_steps=max_steps)["episodes"]))
+    return out
+
+
+def non_dominated(pts: list[dict]) -> list[bool]:
+    """Whether each point is on the front: no other point has outage and error both at most its own,
+    one of them strictly lower.
+    """
+    flags = []
+    for p in pts:
+        dom = any(q["rate_outage"] <= p["rate_outage"] and q["tracking_error_m"] <= p["tracking_error_m"]
+                  and (q["rate_outage"] < p["rate_outage"] or q["tracking_error_m"] < p["tracking_error_m"])
+                  for q in pts if q is not p)
+        flags.append(not dom)
+    return flags
+
+
+def at_target(pts: list[dict], target: float) -> dict:
+    """Per family, the point with the lowest error among those whose outage meets ``target`` (None if
+    none does), and the paired difference of its per-mission error against the best other family's.
+    """
+    best: dict[str, dict | None] = {}
+    for p in pts:
+        if p["rate_outage"] <= target and (best.get(p["family"]) is None
+                                           or p["tracking_error_m"] < best[p["family"]]["tracking_error_m"]):
+            best[p["family"]] = p
+        best.setdefault(p["family"], None)
+    met = {f: p for f, p in best.items() if p is not None}
+    res = {"target": target, "best": met, "unmet": sorted(f for f, p in best.items() if p is None)}
+    if met:
+        winner = min(met, key=lambda f: met[f]["tracking_error_m"])
+        res["winner"] = winner
+        res["paired_vs_winner"] = {
+            f: mean_ci(np.asarray(p["per_mission_error_m"]) - np.asarray(met[winner]["per_mission_error_m"]))
+            for f, p in met.items() if f != winner}
+    return res
+
+
+def markdown(pts: list[dict], targets, command: str, seeds) -> str:
+    front = non_dominated(pts)
+    lines = [f"Generated by `{command}`: {len(seeds)} held-out missions (seeds {seeds[0]}-{seeds[-1]}), common random "
+             "numbers; rate outage = fraction of slots with the data rate below R_min; mean [95 % CI].", "",
+             "| family | knob | rate outage | tracking error (m) | RMS error (m) | lost | non-dominated |",
+             "|---|---|---|---|---|---|---|"]
+    for p, f in zip(pts, front, strict=True):
+        knob = "" if p["knob"] is None else f"{p['knob']:g}"
+        o_lo, o_hi = p["rate_outage_ci95"]
+        e_lo, e_hi = p["tracking_error_ci95"]
+        lines.append(f"| {p['family']} | {knob} | {p['rate_outage']:.3f} [{o_lo:.3f}, {o_hi:.3f}] | "
+                     f"{p['tracking_error_m']:.4f} [{e_lo:.4f}, {e_hi:.4f}] | {p['rms_error_m']:.4f} | {p['lost']} | "
+                     f"{'yes' if f else ''} |")
+    for t in targets:
+        r = at_target(pts, t)
+        if not r["best"]:
+            lines += ["", f"At {100 * t:g} % outage: no point of any family meets the target."]
+            continue
+        w = r["best"][r["winner"]]
+        parts = [f"{f} {p['tracking_error_m']:.4f} m (knob {p['knob']})" for f, p in r["best"].items()]
+        diffs = [f"{f} {d[0]:+.4f} [{d[1][0]:+.4f}, {d[1][1]:+.4f}]" for f, d in r["paired_vs_winner"].items()]
+        lines += ["", f"At {100 * t:g} % outage: lowest error {r['winner']} ({w['tracking_error_m']:.4f} m); "
+                      + "; ".join(parts) + (f"; paired error minus the winner's: {'; '.join(diffs)}" if diffs else "")
+                  + (f"; not met by {', '.join(r['unmet'])}" if r["unmet"] else "") + "."]
+    return "\n".join(lines)
+
+
+def draw(pts: list[dict], path) -> str:
+    from iscc_gym.eval.figures import new_figure, save_figure
+
+    fig = new_figure((11, 4.2))
+    for ax, key, label in zip(fig.subplots(1, 2), ("tracking_error_m", "rms_error_m"),
+                              ("mean tracking error (m)", "RMS tracking error (m)"), strict=True):
+        for fam in dict.fromkeys(p["family"] for p in pts):
+            q = [p for p in pts if p["family"] == fam]
+            x = [p["rate_outage"] for p in q]
+            y = [p[key] for p in q]
+            xerr = np.array([[p["rate_outage"] - p["rate_outage_ci95"][0], p["rate_outage_ci95"][1] - p["rate_outage"]]
+                             for p in q]).T
+            ax.errorbar(x, y, xerr=xerr, marker="o", ms=4, capsize=2, lw=1, label=fam)
+        ax.set(xlabel="rate outage (fraction of slots below R_min)", ylabel=label)
+        ax.legend(fontsize=7)
+    fig.suptitle("Tracking error against rate outage (held-out missions, common random numbers)", fontsize=9)
+    return str(save_figure(fig, path))
+
+
+def build_parser(prog: str = "python -m eval.pareto") -> Parser:
+    ap = Parser(prog=prog, description=__doc__.split("\n\n")[0])
+    ap.add_argument("--episodes", type=positive_int, default=20, help="held-out missions (default: 20)")
+    ap.add_argument("--seed", type=nonneg_int, default=0, help="run seed: missions from 1,300,000 + 1000 x seed")
+    ap.add_argument("--families", default=",".join(KNOBS), help=f"scripted families (default: {','.join(KNOBS)})")
+    ap.add_argument("--learned", action="append", default=[], metavar="NAME=PATH",
+                    help="a trained run as one point, e.g. --learned ppo_lag=runs/ppo_lag (repeatable; pickles: "
+                         "only runs you trust)")
+    ap.add_argument("--targets", default="0.05,0.1,0.3", help="outage targets (default: 0.05,0.1,0.3)")
+    ap.add_argument("--max-steps", type=positive_int, default=None, help="slots per mission (default: all)")
+    ap.add_argument("--figure", default=None, help="write the figure to this PNG")
+    ap.add_argument("--write-docs", action="store_true", help="write the table into docs/results.md and the figure "
+                                                               "into docs/figures/pareto.png")
+    return ap
+
+
+def main(argv: list[str] | None = None, prog: str = "python -m eval.pareto") -> dict:
+    from iscc_gym.eval.fading import held_out_seeds
+    from iscc_gym.eval.options import docs_command
+
+    args = build_parser(prog).parse_args(argv)
+    families = [f.strip() for f in args.families.split(",") if f.strip()]
+    bad = [f for f in families if f not in KNOBS]
+    if bad:
+        raise ValueError(f"--families {args.families!r}: unknown {bad}; use some of {','.join(KNOBS)}")
+    learned = {}
+    for item in args.learned:
+        name, sep, path = item.partition("=")
+        if not sep or not name or not Path(path).is_dir():
+            raise ValueError(f"--learned {item!r}: give NAME=PATH with PATH a run directory (model.zip inside)")
+        learned[name] = path
+    targets = [float(t) for t in args.targets.split(",") if t.strip()]
+    if any(not 0.0 <= t <= 1.0 for t in targets):
+        raise ValueError(f"--targets {args.targets!r}: use fractions in [0, 1]")
+    if args.figure:
+        check_writable_file(args.figure, "--figure")
+    seeds = held_out_seeds(SEED_START, args.episodes, args.seed)
+    pts = points(seeds, families=families, learned=learned, max_steps=args.max_steps)
+    table = markdown(pts, targets, docs_command(prog, argv), seeds)
+    print(table)
+    res = {"points": pts, "targets": {str(t): at_target(pts, t) for t in targets}, "seeds": [seeds[0], seeds[-1]]}
+    if args.figure:
+        res["figure"] = draw(pts, args.figure)
+    if args.write_docs:
+        res["figure"] = draw(pts, docs_path("docs/figures/pareto.png"))
+        write_section(docs_path(RESULTS_PATH), "pareto", "## Pareto fronts: tracking error against rate outage\n\n"
+                      + table + "\n\n![pareto](figures/pareto.png)")
+    return res
+
+
+def console(argv: list[str] | None = None, prog: str = "python -m eval.pareto") -> int:
+    return run_console(main, argv, prog)
+
+
+if __name__ == "__main__":
+    sys.exit(console())

@@ -24,7 +24,7 @@ import numpy as np
 from scipy.special import chndtr
 
 from iscc_gym.channel import beam_gain, link_snr, matched_gain
-from iscc_gym.dynamics import model_matrices
+from iscc_gym.dynamics import axis_gain, axis_matrices
 from iscc_gym.env import decode_observation
 from iscc_gym.fbl import min_shares, slot_link
 from iscc_gym.kalman_steady import axis_kalman_steady_state
@@ -103,9 +103,8 @@ class LocalTrackingModel:
         rp, rv = np.meshgrid(10.0 ** self._lp, 10.0 ** self._lv, indexing="ij")
         self._range_tab = self._pack(*axis_kalman_steady_state(s.dt_s, qp, qv, rp, rv))  # (n_pos, n_vel, 4)
         self._cross_tab = self._pack(*axis_kalman_steady_state(s.dt_s, qp, qv, 10.0 ** self._lp))  # (n_pos, 4)
-        mm = model_matrices(s)
-        ax = [0, 3]  # one axis (position, velocity) of the isotropic A, B, K
-        a1, b1, k1 = mm.a[np.ix_(ax, ax)], mm.b[ax][:, :1], np.asarray(mm.k)[:1, ax]
+        a1, b1 = axis_matrices(s.dt_s)  # one axis (position, velocity) of the isotropic A, B, K
+        k1 = axis_gain(s)
         self._m_ok = stability_matrix(a1, b1, k1, 0.0)
         self._m_lost = stability_matrix(a1, b1, k1, 1.0)  # eq:M is affine in eps
 

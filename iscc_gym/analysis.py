@@ -70,7 +70,7 @@ from scipy.optimize import brentq
 from .allocation import AllocationMetrics, check_alpha
 from .averages import TrajectorySample, sample_positions
 from .channel import direction_trig, geometry, large_scale_snr, shadowing_std_db
-from .dynamics import axis_matrices, model_matrices
+from .dynamics import axis_gain, axis_matrices, model_matrices
 from .fbl import comm_rate_bps, ctrl_bler, ctrl_rate_bps, min_shares, q_func, q_inv
 from .kalman_steady import axis_kalman_steady_state
 from .kernel import reward_from_costs
@@ -136,7 +136,6 @@ class StaticModel:
                              f"{s.observation_source!r})")
         self.scenario = s
         self.sample = sample
-        mm = model_matrices(s)
         self.eps_star = scenario_eps_star(s)
         pos = np.asarray(sample.pos_m, dtype=float)
         self.n_positions = len(pos)
@@ -172,7 +171,7 @@ class StaticModel:
         self._eps_table = None  # (n_alpha, P), built on first use
         # --- closed loop per axis: A1, B1, K1 and eq:M as a rational function of eps
         self._a1, self._b1 = axis_matrices(s.dt_s)
-        self._k1 = np.asarray(mm.k)[:1, [0, 3]]
+        self._k1 = axis_gain(s)
         self._w1 = np.diag([s.process_noise_var_pos_m2, s.process_noise_var_vel_m2s2])
         self._poly = LossOperator(self._a1, self._b1, self._k1)
         self._kalman_cache: dict[tuple, tuple] = {}

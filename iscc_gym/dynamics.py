@@ -9,8 +9,8 @@ from numpy.typing import ArrayLike
 
 from .scenario import Scenario, per_scenario
 
-__all__ = ["axis_matrices", "system_matrices", "process_noise_cov", "lqg_weights", "lqr_gain", "model_matrices",
-           "lqg_command_one", "input_one", "propagate_one"]
+__all__ = ["axis_matrices", "axis_gain", "system_matrices", "process_noise_cov", "lqg_weights", "lqr_gain",
+           "model_matrices", "lqg_command_one", "input_one", "propagate_one"]
 
 
 def axis_matrices(dt_s: float):
@@ -104,6 +104,17 @@ class ModelMatrices:
         for v in (self.a, self.b, self.k, self.p, self.q, self.r, self.sigma_w, self.a_cl,
                   self.chol_w, self.gbs_pos, self.gnss_whiten):
             v.setflags(write=False)
+
+
+@per_scenario
+def axis_gain(s: Scenario):
+    r"""Per-axis LQ feedback gain :math:`\mathbf K_1`, shape (1, 2): the (position, velocity) entries of one
+    axis of the isotropic gain :math:`\mathbf K` of :func:`model_matrices` (for :func:`axis_matrices`'
+    :math:`\mathbf A_1`, :math:`\mathbf B_1`). Read-only.
+    """
+    k1 = np.asarray(model_matrices(s).k)[:1, [0, 3]]
+    k1.setflags(write=False)
+    return k1
 
 
 @per_scenario

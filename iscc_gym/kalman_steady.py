@@ -10,7 +10,7 @@ import numpy as np
 import scipy.linalg
 from numpy.typing import ArrayLike
 
-from .dynamics import axis_matrices, model_matrices
+from .dynamics import axis_gain, axis_matrices
 from .scenario import Scenario
 
 __all__ = ["axis_kalman_steady_state", "gnss_steady_error_m"]
@@ -86,10 +86,9 @@ def axis_kalman_steady_state(dt_s: float, var_pos_m2: float, var_vel_m2s2: float
     rv = np.full(rp.shape, np.inf) if meas_vel_var_m2s2 is None else np.broadcast_to(
         np.asarray(meas_vel_var_m2s2, dtype=float), rp.shape)
     zero = np.zeros(rp.shape)
-    one = zero + 1.0
     g0 = (1.0 / rp, zero, zero, 1.0 / rv)
     g = g0
-    a = (one, zero, zero + dt_s, one)  # A_1^T
+    a = tuple(zero + v for v in axis_matrices(dt_s)[0].T.ravel())  # A_1^T, entry by entry (row-major)
     h = (zero + var_pos_m2, zero, zero, zero + var_vel_m2s2)
     for _ in range(max_iter):
         gh = _mul(g, h)
@@ -126,7 +125,7 @@ def gnss_steady_error_m(s: Scenario, eps: float = 0.0, period_slots: int = 1, ra
     if period_slots < 1:
         raise ValueError(f"period_slots = {period_slots!r} is invalid: must be an integer >= 1")
     a, b = axis_matrices(s.dt_s)
-    bk = b @ np.asarray(model_matrices(s).k)[:1, [0, 3]]
+    bk = b @ axis_gain(s)
     w = np.diag([s.process_noise_var_pos_m2, s.process_noise_var_vel_m2s2])
     r = np.diag([s.gnss_pos_std_m**2, s.gnss_vel_std_mps**2])
     eye = np.eye(2)

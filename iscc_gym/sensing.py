@@ -14,9 +14,7 @@ from numpy.typing import ArrayLike
 
 from .channel import (
     array_response,
-    beamformer,
     broadside_sums_one,
-    direction_cosines_trig,
     direction_trig,
     geometry,
     path_loss_db,
@@ -30,7 +28,7 @@ __all__ = [
     "sensing_noise_var_w",
     "echo_amplitude_sq",
     "signature_derivatives",
-    "matched_signature_terms",
+    "signature_terms",
     "fim",
     "fim_terms",
     "crlb",
@@ -42,13 +40,17 @@ __all__ = [
     "echo_constant",
     "index_moments",
     "fim_constants",
+    "position_info",
+    "signature_one",
+    "echo_amplitude_one",
+    "fim_terms_one",
+    "position_info_one",
     "crlb_local_one",
     "crlb_from_info_one",
     "crlb_from_info",
     "whitened_rows_one",
     "SENSING_PARAMS",
     "sensing_params",
-    "crlb_local_compiled",
 ]
 
 
@@ -77,10 +79,9 @@ def sensing_noise_var_w(s: Scenario) -> float:
 def echo_amplitude_sq(s: Scenario, dist_m: ArrayLike, shadow_db: ArrayLike, fading_gain: ArrayLike):
     r"""Received echo power per element and subcarrier before array gain,
     :math:`P_k \beta_S |g_S|^2`, in W (with :math:`P_k = P_t/\mathcal K`), times the calibration
-    ``sensing_snr_offset_db``.
+    ``sensing_snr_offset_db``: the compiled :func:`echo_amplitude_one` over arrays.
     """
-    # sensing_path_loss_db(l) = L_S(1 m) + 44 log10 l: the l-independent part is cached
-    return echo_constant(s) * dist_m ** -4.4 * 10.0 ** (-0.1 * shadow_db) * fading_gain
+    return _over_arrays(_echo_loop, s, 1, dist_m, shadow_db, fading_gain)[0]
 
 
 @per_scenario
@@ -104,6 +105,9 @@ def signature_derivatives(s: Scenario, azimuth_rad: ArrayLike, elevation_rad: Ar
     so that one beamformer has the same gain :math:`|\mathbf a^H\mathbf w|^2` on the
     communication and sensing links (``docs/model.md``).
 
+    ``w=None`` (the scenario's beamformer) is the closed form :func:`signature_terms`; an explicit
+    ``w`` sums over the elements of :func:`iscc_gym.channel.array_response`.
+
     Returns
     -------
     eta_sq : ndarray, shape (...)
@@ -112,13 +116,11 @@ def signature_derivatives(s: Scenario, azimuth_rad: ArrayLike, elevation_rad: Ar
         :math:`\|\partial_\theta\boldsymbol\eta\|^2`, :math:`\|\partial_\varphi\boldsymbol\eta\|^2`,
         :math:`\Re\{\partial_\theta\boldsymbol\eta^H\partial_\varphi\boldsymbol\eta\}`.
     """
-    if w is None and s.beamforming == "matched":
+    if w is None:
         th = np.asarray(azimuth_rad, dtype=float)
         ph = np.asarray(elevation_rad, dtype=float)
-        return matched_signature_terms(s, np.cos(th), np.sin(th), np.cos(ph), np.sin(ph))
+        return signature_terms(s, np.cos(th), np.sin(th), np.cos(ph), np.sin(ph))
     a, da_t, da_p = array_response(s, azimuth_rad, elevation_rad)
-    if w is None:
-        w = beamformer(s, azimuth_rad, elevation_rad)
     t = np.einsum("...i,...i->...", np.conj(a), w)[..., None]
     dt_ = np.einsum("...i,...i->...", np.conj(da_t), w)[..., None]
     dp_ = np.einsum("...i,...i->...", np.conj(da_p), w)[..., None]
@@ -133,7 +135,7 @@ def signature_derivatives(s: Scenario, azimuth_rad: ArrayLike, elevation_rad: Ar
 
 @per_scenario
 def index_moments(s: Scenario):
-    """``(sxx, syy, eta_sq)`` of :func:`matched_signature_terms`."""
+    """``(sxx, syy, eta_sq)`` of the matched beamformer in :func:`signature_terms`."""
     # N k^2 times the sums over the grid of the squared centred element indices along each axis,
     # and ||eta||^2 = N^2 of the matched beamformer
     ix = np.arange(s.n_x) - 0.5 * (s.n_x - 1)
@@ -143,11 +145,12 @@ def index_moments(s: Scenario):
     return c * s.n_y * float(ix @ ix), c * s.n_x * float(iy @ iy), float(n * n)
 
 
-def matched_signature_terms(s: Scenario, ct: ArrayLike, st: ArrayLike, cp: ArrayLike, sp: ArrayLike):
-    r""":func:`signature_derivatives` for the matched beamformer, in closed form.
+def signature_terms(s: Scenario, ct: ArrayLike, st: ArrayLike, cp: ArrayLike, sp: ArrayLike):
+    r""":func:`signature_derivatives` of the scenario's beamformer in closed form, from cos/sin of
+    azimuth and elevation: the compiled :func:`signature_one` over arrays.
 
-    With :math:`\mathbf w = \mathbf a/\sqrt N` and the phase reference at the array centre,
-    :math:`\mathbf a^H\mathbf w = \sqrt N` and :math:`\partial\mathbf a^H\mathbf w = 0`, so
+    For the matched beamformer, with :math:`\mathbf w = \mathbf a/\sqrt N` and the phase reference at
+    the array centre, :math:`\mathbf a^H\mathbf w = \sqrt N` and :math:`\partial\mathbf a^H\mathbf w = 0`, so
 
     .. math::
         \|\boldsymbol\eta\|^2 = N^2,\qquad
@@ -155,12 +158,12 @@ def matched_signature_terms(s: Scenario, ct: ArrayLike, st: ArrayLike, cp: Array
         \partial_a u_x\,\partial_b u_x \sum i^2 + \partial_a u_y\,\partial_b u_y \sum j^2\right)
 
     with :math:`k = 2\pi d_\lambda/\lambda` and the sums over the centred element grid
-    (:math:`\sum ij = 0`). Arguments are cos/sin of azimuth and elevation.
+    (:math:`\sum ij = 0`, :func:`index_moments`). The broadside beamformer's sums are
+    :func:`iscc_gym.channel.broadside_sums_one`.
+
+    Returns ``(eta_sq, d_tt, d_pp, d_tp)`` as :func:`signature_derivatives`.
     """
-    _, (tx, ty), (px, py) = direction_cosines_trig(s, ct, st, cp, sp)
-    sxx, syy, eta_sq = index_moments(s)
-    return (eta_sq + 0.0 * tx, sxx * (tx * tx) + syy * (ty * ty), sxx * (px * px) + syy * (py * py),
-            sxx * (tx * px) + syy * (ty * py))
+    return _over_arrays(_signature_loop, s, 4, ct, st, cp, sp)
 
 
 def fim(s: Scenario, alpha_sen: ArrayLike, pos_m: ArrayLike, shadow_db: ArrayLike, fading_gain: ArrayLike = 1.0):
@@ -212,20 +215,12 @@ def fim_constants(s: Scenario):
 
 def fim_terms(s: Scenario, alpha_sen: ArrayLike, dist_m: ArrayLike, shadow_db: ArrayLike, fading_gain: ArrayLike,
               signature: tuple[ArrayLike, ...]):
-    """Core of :func:`fim` from the range and :func:`signature_derivatives`' output.
+    """Core of :func:`fim` from the range and :func:`signature_derivatives`' output: the compiled
+    :func:`echo_amplitude_one` and :func:`fim_terms_one` over arrays.
 
     Returns ``(j_tau, j_nu, j_thth, j_phph, j_thph)``.
     """
-    eta_sq, d_tt, d_pp, d_tp = signature
-    amp = echo_amplitude_sq(s, dist_m, shadow_db, fading_gain)
-    m_over_sig2, c_tau, c_nu = fim_constants(s)
-    k_sen = alpha_sen * s.n_subcarriers
-    base = amp * m_over_sig2 * k_sen
-    common = base * eta_sq
-    j_tau = common * c_tau * (k_sen * k_sen)
-    j_nu = common * c_nu
-    ang = 0.5 * common if s.fim_angle_convention == "printed" else 2.0 * base
-    return j_tau, j_nu, ang * d_tt, ang * d_pp, ang * d_tp
+    return _over_arrays(_fim_loop, s, 5, alpha_sen, dist_m, shadow_db, fading_gain, *signature)
 
 
 def crlb(s: Scenario, alpha_sen: ArrayLike, pos_m: ArrayLike, shadow_db: ArrayLike, fading_gain: ArrayLike = 1.0):
@@ -314,7 +309,8 @@ def crlb_local(s: Scenario, alpha_sen: ArrayLike, dist_m: ArrayLike, trig: tuple
     \mathbf D\big)` with :math:`\mathbf D = \mathrm{diag}(1/(l\cos\varphi), 1/l)`
     (:math:`\partial\theta/\partial\mathbf p = \mathbf e_\theta/(l\cos\varphi)`,
     :math:`\partial\varphi/\partial\mathbf p = \mathbf e_\varphi/l`), so adding the prior and
-    inverting takes a scalar and a 2 x 2 closed form.
+    inverting takes a scalar and a 2 x 2 closed form. The compiled :func:`crlb_local_one` (the
+    env's CRLB, bit for bit) over arrays of any broadcastable shapes.
 
     Returns
     -------
@@ -322,16 +318,21 @@ def crlb_local(s: Scenario, alpha_sen: ArrayLike, dist_m: ArrayLike, trig: tuple
         Range, azimuth-direction, cross and elevation-direction entries of M in m^2.
     crlb_vr : ndarray, shape (...)
     """
-    ct, st, cp, sp = trig
-    j_tau, j_nu, j_tt, j_pp, j_tp = fim_terms(s, alpha_sen, dist_m, shadow_db, fading_gain,
-                                              matched_signature_terms(s, ct, st, cp, sp)
-                                              if s.beamforming == "matched" else
-                                              signature_derivatives(s, np.arctan2(st, ct),
-                                                                    np.arctan2(sp, cp)))
-    inv_l = 1.0 / np.asarray(dist_m, dtype=float)
-    inv_lc = inv_l / np.maximum(cp, 1e-9)
-    return crlb_from_info(j_tau * (2.0 / SPEED_OF_LIGHT_MPS) ** 2, j_tt * inv_lc * inv_lc, j_tp * inv_lc * inv_l,
-                          j_pp * inv_l * inv_l, j_nu, 1.0 / s.sensing_prior_var_m2, (0.5 * s.wavelength_m) ** 2)
+    return _over_arrays(_crlb_local_loop, s, 5, alpha_sen, dist_m, *trig, shadow_db, fading_gain)
+
+
+def position_info(s: Scenario, alpha_sen: ArrayLike, dist_m: ArrayLike, trig: tuple[ArrayLike, ArrayLike, ArrayLike,
+                  ArrayLike], shadow_db: ArrayLike = 0.0, fading_gain: ArrayLike = 1.0):
+    r"""Position-domain Fisher information in the local frame before the prior, and :math:`J_{\nu\nu}`:
+    the compiled :func:`position_info_one` of :func:`fim_terms_one` over arrays.
+
+    Returns
+    -------
+    info_range, info_az, info_cross, info_el : ndarray, m^-2
+        :math:`(2/c)^2 J_{\tau\tau}` and the entries of :math:`\mathbf D\mathbf J_{\theta\varphi}\mathbf D`.
+    j_nu : ndarray, Hz^-2
+    """
+    return _over_arrays(_info_loop, s, 5, alpha_sen, dist_m, *trig, shadow_db, fading_gain)
 
 
 def peb(crlb_p: ArrayLike):
@@ -349,23 +350,14 @@ def veb(crlb_vr: ArrayLike):
 _LN10_OVER_10 = math.log(10.0) / 10.0
 
 
-@njit(cache=True, error_model="numpy")
-def crlb_local_one(c, a_sen, dist, ct, st, cp, sp, shadow_db, fading):
-    """:func:`crlb_local` of one drone (:func:`matched_signature_terms`, or the broadside beamformer's
-    :func:`signature_derivatives` by :func:`iscc_gym.channel.broadside_sums_one`; :func:`fim_terms`,
-    :func:`echo_amplitude_sq`), returning ``(m_r, m_tt, m_tp, m_pp, crlb_vr)``.
-
-    ``c``: a record with the fields of :data:`SENSING_PARAMS` (:func:`sensing_params`, or the slot's
-    :data:`iscc_gym.params.SLOT_PARAMS`, which holds them too).
+@njit(cache=True, error_model="numpy", inline="always")
+def signature_one(c, ct, st, cp, sp):
+    """:func:`signature_terms` of one direction, ``(eta_sq, d_tt, d_pp, d_tp)``: the matched beamformer
+    from :func:`index_moments`, or the broadside beamformer by :func:`iscc_gym.channel.broadside_sums_one`
+    (``c``: a record with the fields of :data:`SENSING_PARAMS`).
     """
-    if c.broadside == 0.0:  # matched_signature_terms
-        orient = c.orient
-        if orient == 0.0:  # channel.direction_cosines_trig, horizontal
-            tx, ty, qx, qy = -cp * st, cp * ct, -sp * ct, -sp * st
-        elif orient == 1.0:  # printed
-            tx, ty, qx, qy = ct * cp, ct * sp, -st * sp, st * cp
-        else:  # vertical
-            tx, ty, qx, qy = cp * ct, 0.0, -sp * st, cp
+    if c.broadside == 0.0:  # the matched beamformer (index_moments)
+        _, _, tx, ty, qx, qy = upa_terms_one(c.orient, ct, st, cp, sp)
         sxx, syy = c.sxx, c.syy
         d_tt = sxx * (tx * tx) + syy * (ty * ty)
         d_pp = sxx * (qx * qx) + syy * (qy * qy)
@@ -380,18 +372,60 @@ def crlb_local_one(c, a_sen, dist, ct, st, cp, sp, shadow_db, fading):
         d_tt = t2 * s_tt + n_ant * (d_th * d_th)
         d_pp = t2 * s_pp + n_ant * (d_ph * d_ph)
         d_tp = t2 * s_tp + n_ant * (d_th * d_ph)
-    amp = c.echo_k * math.exp(-4.4 * math.log(dist) - _LN10_OVER_10 * shadow_db) * fading
+    return eta_sq, d_tt, d_pp, d_tp
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def echo_amplitude_one(c, dist, shadow_db, fading):
+    """:func:`echo_amplitude_sq` of one slot: ``echo_constant * dist^-4.4 * 10^(-shadow_db / 10) * fading``."""
+    return c.echo_k * math.exp(-4.4 * math.log(dist) - _LN10_OVER_10 * shadow_db) * fading
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def fim_terms_one(c, a_sen, amp, eta_sq, d_tt, d_pp, d_tp):
+    """eq:FIM_tau -- eq:FIM_zero of one slot (:func:`fim`) from the echo power ``amp`` and the signature
+    terms: ``(j_tau, j_nu, j_thth, j_phph, j_thph)``.
+    """
     k_sen = a_sen * c.n_sub
     base = amp * c.m_over_sig2 * k_sen
     common = base * eta_sq
     j_tau = common * c.c_tau * (k_sen * k_sen)
     j_nu = common * c.c_nu
     ang = 0.5 * common if c.fim_printed == 1.0 else 2.0 * base
-    j_tt, j_pp, j_tp = ang * d_tt, ang * d_pp, ang * d_tp
+    return j_tau, j_nu, ang * d_tt, ang * d_pp, ang * d_tp
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def position_info_one(c, dist, cp, j_tau, j_tt, j_pp, j_tp):
+    r"""The position-domain information of :func:`crlb_local` in the local frame,
+    ``(info_range, info_az, info_cross, info_el)`` = :math:`(2/c)^2 J_{\tau\tau}` and
+    :math:`\mathbf D\mathbf J_{\theta\varphi}\mathbf D`, :math:`\mathbf D = \mathrm{diag}(1/(l\cos\varphi), 1/l)`.
+    """
     inv_l = 1.0 / dist
     inv_lc = inv_l / max(cp, 1e-9)
-    return crlb_from_info_one(j_tau * c.two_over_c_sq, j_tt * inv_lc * inv_lc, j_tp * inv_lc * inv_l,
-                              j_pp * inv_l * inv_l, j_nu, c.prior, c.lam_half_sq)
+    return j_tau * c.two_over_c_sq, j_tt * inv_lc * inv_lc, j_tp * inv_lc * inv_l, j_pp * inv_l * inv_l
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _info_one(c, a_sen, dist, ct, st, cp, sp, shadow_db, fading):
+    eta_sq, d_tt, d_pp, d_tp = signature_one(c, ct, st, cp, sp)
+    amp = echo_amplitude_one(c, dist, shadow_db, fading)
+    j_tau, j_nu, j_tt, j_pp, j_tp = fim_terms_one(c, a_sen, amp, eta_sq, d_tt, d_pp, d_tp)
+    i_r, i_az, i_x, i_el = position_info_one(c, dist, cp, j_tau, j_tt, j_pp, j_tp)
+    return i_r, i_az, i_x, i_el, j_nu
+
+
+@njit(cache=True, error_model="numpy")
+def crlb_local_one(c, a_sen, dist, ct, st, cp, sp, shadow_db, fading):
+    """:func:`crlb_local` of one drone, returning ``(m_r, m_tt, m_tp, m_pp, crlb_vr)``: :func:`signature_one`,
+    :func:`echo_amplitude_one`, :func:`fim_terms_one`, :func:`position_info_one` and the inversion
+    :func:`crlb_from_info_one`.
+
+    ``c``: a record with the fields of :data:`SENSING_PARAMS` (:func:`sensing_params`, or the slot's
+    :data:`iscc_gym.params.SLOT_PARAMS`, which holds them too).
+    """
+    i_r, i_az, i_x, i_el, j_nu = _info_one(c, a_sen, dist, ct, st, cp, sp, shadow_db, fading)
+    return crlb_from_info_one(i_r, i_az, i_x, i_el, j_nu, c.prior, c.lam_half_sq)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -487,6 +521,19 @@ def sensing_params(s: Scenario):
     return c
 
 
+# --- array forms: the compiled scalar functions over flattened, broadcast numpy arrays ----------------
+
+def _over_arrays(loop, s: Scenario, n_out: int, *arrays):
+    """Broadcast ``arrays``, run ``loop(sensing_params(s), *flat, out)`` over them and return the ``n_out``
+    outputs in the broadcast shape.
+    """
+    args = np.broadcast_arrays(*(np.asarray(v, dtype=float) for v in arrays))
+    shape = args[0].shape
+    out = np.empty((n_out, args[0].size))
+    loop(sensing_params(s), *(np.ascontiguousarray(a).reshape(-1) for a in args), out)
+    return tuple(o.reshape(shape) for o in out)
+
+
 @njit(cache=True, error_model="numpy")
 def _crlb_local_loop(cp, a_sen, dist, ct, st, cp_, sp, shadow_db, fading, out):
     c = cp[0]
@@ -495,16 +542,32 @@ def _crlb_local_loop(cp, a_sen, dist, ct, st, cp_, sp, shadow_db, fading, out):
             c, a_sen[i], dist[i], ct[i], st[i], cp_[i], sp[i], shadow_db[i], fading[i])
 
 
-def crlb_local_compiled(s: Scenario, alpha_sen: ArrayLike, dist_m: ArrayLike, trig: tuple[ArrayLike, ArrayLike,
-                        ArrayLike, ArrayLike], shadow_db: ArrayLike, fading_gain: ArrayLike = 1.0):
-    """:func:`crlb_local` evaluated by the compiled :func:`crlb_local_one` (the env's CRLB, bit for
-    bit), for numpy arrays of any broadcastable shapes.
+@njit(cache=True, error_model="numpy")
+def _info_loop(cp, a_sen, dist, ct, st, cp_, sp, shadow_db, fading, out):
+    c = cp[0]
+    for i in range(a_sen.shape[0]):
+        out[0, i], out[1, i], out[2, i], out[3, i], out[4, i] = _info_one(
+            c, a_sen[i], dist[i], ct[i], st[i], cp_[i], sp[i], shadow_db[i], fading[i])
 
-    Returns ``(m_r, m_tt, m_tp, m_pp, crlb_vr)`` as :func:`crlb_local`; agrees with it to rounding.
-    """
-    args = np.broadcast_arrays(*(np.asarray(v, dtype=float) for v in (alpha_sen, dist_m, *trig, shadow_db,
-                                                                       fading_gain)))
-    shape = args[0].shape
-    out = np.empty((5, args[0].size))
-    _crlb_local_loop(sensing_params(s), *(np.ascontiguousarray(a).reshape(-1) for a in args), out)
-    return tuple(o.reshape(shape) for o in out)
+
+@njit(cache=True, error_model="numpy")
+def _fim_loop(cp, a_sen, dist, shadow_db, fading, eta_sq, d_tt, d_pp, d_tp, out):
+    c = cp[0]
+    for i in range(a_sen.shape[0]):
+        amp = echo_amplitude_one(c, dist[i], shadow_db[i], fading[i])
+        out[0, i], out[1, i], out[2, i], out[3, i], out[4, i] = fim_terms_one(
+            c, a_sen[i], amp, eta_sq[i], d_tt[i], d_pp[i], d_tp[i])
+
+
+@njit(cache=True, error_model="numpy")
+def _signature_loop(cp, ct, st, cp_, sp, out):
+    c = cp[0]
+    for i in range(ct.shape[0]):
+        out[0, i], out[1, i], out[2, i], out[3, i] = signature_one(c, ct[i], st[i], cp_[i], sp[i])
+
+
+@njit(cache=True, error_model="numpy")
+def _echo_loop(cp, dist, shadow_db, fading, out):
+    c = cp[0]
+    for i in range(dist.shape[0]):
+        out[0, i] = echo_amplitude_one(c, dist[i], shadow_db[i], fading[i])

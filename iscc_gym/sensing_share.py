@@ -11,8 +11,8 @@ import numpy as np
 from numba import guvectorize, njit
 from numpy.typing import ArrayLike
 
-from .scenario import SPEED_OF_LIGHT_MPS, Scenario
-from .sensing import crlb_from_info, crlb_from_info_one, fim_terms, matched_signature_terms, signature_derivatives
+from .scenario import Scenario
+from .sensing import crlb_from_info, crlb_from_info_one, position_info
 
 __all__ = ["SensingCoefficients", "sensing_coefficients", "local_crlb", "crlb_trace", "crlb_trace_one"]
 
@@ -50,21 +50,16 @@ class SensingCoefficients:
 def sensing_coefficients(s: Scenario, dist_m: ArrayLike, trig: tuple[ArrayLike, ArrayLike, ArrayLike, ArrayLike],
                          shadow_db: ArrayLike = 0.0, fading_gain: ArrayLike = 1.0) -> SensingCoefficients:
     """:class:`SensingCoefficients` at ranges ``dist_m`` and directions ``trig`` (the output of
-    :func:`iscc_gym.channel.direction_trig`), for the given shadowing (dB) and fading gain.
+    :func:`iscc_gym.channel.direction_trig`), for the given shadowing (dB) and fading gain: the compiled
+    :func:`iscc_gym.sensing.position_info` at ``alpha_sen = 1``.
     """
-    ct, st, cp, sp = trig
-    signature = (matched_signature_terms(s, ct, st, cp, sp) if s.beamforming == "matched" else
-                 signature_derivatives(s, np.arctan2(st, ct), np.arctan2(sp, cp)))
-    dist = np.asarray(dist_m, dtype=float)
-    j_tau, j_nu, j_tt, j_pp, j_tp = fim_terms(s, 1.0, dist, shadow_db, fading_gain, signature)
-    inv_l = 1.0 / dist
-    inv_lc = inv_l / np.maximum(cp, 1e-9)
+    info_range, info_az, info_cross, info_el, j_nu = position_info(s, 1.0, dist_m, trig, shadow_db, fading_gain)
     lam_half_sq = (0.5 * s.wavelength_m) ** 2
     return SensingCoefficients(
-        info_range=np.asarray(j_tau * (2.0 / SPEED_OF_LIGHT_MPS) ** 2, dtype=float),
-        info_az=np.asarray(j_tt * inv_lc * inv_lc, dtype=float),
-        info_cross=np.asarray(j_tp * inv_lc * inv_l, dtype=float),
-        info_el=np.asarray(j_pp * inv_l * inv_l, dtype=float),
+        info_range=info_range,
+        info_az=info_az,
+        info_cross=info_cross,
+        info_el=info_el,
         info_vr=np.asarray(j_nu / lam_half_sq, dtype=float),
         prior=1.0 / s.sensing_prior_var_m2,
     )

@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 from oracle_env import action_to_split, reward_and_costs
 from oracle_kalman import kf_predict, kf_update
+from oracle_sensing import crlb_local
 
 from iscc_gym import loop
 from iscc_gym.channel import beam_gain, direction_trig, link_snr, rician_power_gain, shadowing_std_db, shadowing_step
@@ -35,7 +36,7 @@ from iscc_gym.schema import (
     Z_PROC,
     Z_SHADOW,
 )
-from iscc_gym.sensing import crlb_local, whitened_observation_matrix
+from iscc_gym.sensing import whitened_observation_matrix
 from iscc_gym.stability import scenario_eps_star
 
 _MEAS, _DROP, _PROC, _SHAD = slice(Z_MEAS, Z_MEAS + 6), Z_DROP, slice(Z_PROC, Z_PROC + 6), Z_SHADOW

@@ -98,3 +98,37 @@ def fim_from_definition(dmu, noise_var_w: float):
     """
     flat = np.stack([np.ravel(d) for d in dmu])
     return 2.0 / noise_var_w * np.real(np.conj(flat) @ flat.T)
+
+
+def crlb_local(s: Scenario, alpha_sen, dist_m, trig, shadow_db, fading_gain=1.0):
+    """Numpy oracle of :func:`iscc_gym.sensing.crlb_local` (the compiled one): the printed FIM
+    (eq:FIM_tau -- eq:FIM_zero, angle entries per ``fim_angle_convention``) with the signature summed over
+    the array response (:func:`iscc_gym.sensing.signature_derivatives` with an explicit beamformer), the
+    echo power from the radar path loss in dB, the prior added and the angle block inverted by
+    ``numpy.linalg.inv``. Returns ``(m_r, m_tt, m_tp, m_pp, crlb_vr)``.
+    """
+    from iscc_gym.channel import beamformer
+    from iscc_gym.sensing import sensing_noise_var_w, sensing_path_loss_db, signature_derivatives
+    from iscc_gym.units import dbm_to_w
+
+    ct, st, cp, sp = (np.asarray(v, dtype=float) for v in trig)
+    az, el = np.arctan2(st, ct), np.arctan2(sp, cp)
+    eta_sq, d_tt, d_pp, d_tp = signature_derivatives(s, az, el, w=beamformer(s, az, el))
+    dist = np.asarray(dist_m, dtype=float)
+    amp = (float(dbm_to_w(s.tx_power_dbm)) / s.n_subcarriers
+           * 10.0 ** (-(sensing_path_loss_db(s, dist) + shadow_db - s.sensing_snr_offset_db) / 10.0) * fading_gain)
+    k_sen = np.asarray(alpha_sen, dtype=float) * s.n_subcarriers
+    m, sig2 = s.n_symbols, sensing_noise_var_w(s)
+    j_tau = 8.0 * (np.pi * s.subcarrier_spacing_hz) ** 2 * amp * eta_sq * m * k_sen**3 / (3.0 * sig2)
+    j_nu = 8.0 * (np.pi * s.symbol_duration_s) ** 2 * amp * eta_sq * k_sen * m**3 / (3.0 * sig2)
+    ang = 2.0 * amp * m * k_sen / sig2
+    if s.fim_angle_convention == "printed":
+        ang = ang * eta_sq / 4.0
+    prior = 1.0 / s.sensing_prior_var_m2
+    d_az, d_el = 1.0 / (dist * np.maximum(cp, 1e-9)), 1.0 / dist
+    block = np.stack([np.stack([ang * d_tt * d_az**2 + prior, ang * d_tp * d_az * d_el], -1),
+                      np.stack([ang * d_tp * d_az * d_el, ang * d_pp * d_el**2 + prior], -1)], -2)
+    inv = np.linalg.inv(block)
+    lam_half_sq = (0.5 * s.wavelength_m) ** 2
+    m_r = 1.0 / ((2.0 / SPEED_OF_LIGHT_MPS) ** 2 * j_tau + prior)
+    return m_r, inv[..., 0, 0], inv[..., 0, 1], inv[..., 1, 1], lam_half_sq / (j_nu + lam_half_sq * prior)

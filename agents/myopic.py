@@ -28,6 +28,7 @@ from iscc_gym.dynamics import axis_gain, axis_matrices
 from iscc_gym.env import decode_observation
 from iscc_gym.fbl import min_shares, slot_link
 from iscc_gym.kalman_steady import axis_kalman_steady_state
+from iscc_gym.kernel import reward_from_costs
 from iscc_gym.quadrature import expected_norm, rician_power_nodes
 from iscc_gym.scenario import Scenario, make_scenario
 from iscc_gym.sensing_share import SensingCoefficients, local_crlb, sensing_coefficients
@@ -361,7 +362,7 @@ class MyopicPolicy(SplitPolicy):
                                            weights=self.tracking.loss_weights(eps_bar))
         t = self.tracking._error(lam, np.broadcast_to(eps_bar, lam.shape[:-1]))
         short = self.rate_shortfall(ctx, d)
-        value = -t - self.rate_weight * short - self.stability_weight * p_viol
+        value = reward_from_costs(self.tracking.e_max, self.rate_weight, self.stability_weight, t, short, p_viol)
         return value, {"tracking_error_m": t, "rate_shortfall": short, "stability_violation": p_viol,
                        "eps_ctrl": eps_bar}
 

@@ -53,8 +53,8 @@ from iscc_gym.sensing import (
     echo_amplitude_sq,
     peb,
     sensing_noise_var_w,
-    signature_derivatives,
 )
+from iscc_gym.signature import signature_derivatives
 from iscc_gym.stability import (
     alpha_ctrl_star,
     entropy_power,

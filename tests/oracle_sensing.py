@@ -103,12 +103,13 @@ def fim_from_definition(dmu, noise_var_w: float):
 def crlb_local(s: Scenario, alpha_sen, dist_m, trig, shadow_db, fading_gain=1.0):
     """Numpy oracle of :func:`iscc_gym.sensing.crlb_local` (the compiled one): the printed FIM
     (eq:FIM_tau -- eq:FIM_zero, angle entries per ``fim_angle_convention``) with the signature summed over
-    the array response (:func:`iscc_gym.sensing.signature_derivatives` with an explicit beamformer), the
+    the array response (:func:`iscc_gym.signature.signature_derivatives` with an explicit beamformer), the
     echo power from the radar path loss in dB, the prior added and the angle block inverted by
     ``numpy.linalg.inv``. Returns ``(m_r, m_tt, m_tp, m_pp, crlb_vr)``.
     """
     from iscc_gym.channel import beamformer
-    from iscc_gym.sensing import sensing_noise_var_w, sensing_path_loss_db, signature_derivatives
+    from iscc_gym.sensing import sensing_noise_var_w, sensing_path_loss_db
+    from iscc_gym.signature import signature_derivatives
     from iscc_gym.units import dbm_to_w
 
     ct, st, cp, sp = (np.asarray(v, dtype=float) for v in trig)

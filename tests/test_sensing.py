@@ -17,6 +17,7 @@ import pytest
 
 from iscc_gym import channel as ch
 from iscc_gym import sensing as se
+from iscc_gym import signature as sig
 from iscc_gym.scenario import SCENARIOS, SPEED_OF_LIGHT_MPS, Scenario
 
 C = 299_792_458.0
@@ -405,8 +406,8 @@ def test_matched_closed_form_equals_general_signature(orientation):
     s = Scenario(array_orientation=orientation)
     rng = np.random.default_rng(3)
     az, el = rng.uniform(-np.pi, np.pi, 50), rng.uniform(0.05, 1.5, 50)
-    closed = se.signature_derivatives(s, az, el)
-    general = se.signature_derivatives(s, az, el, w=ch.beamformer(s, az, el))
+    closed = sig.signature_derivatives(s, az, el)
+    general = sig.signature_derivatives(s, az, el, w=ch.beamformer(s, az, el))
     for c, g in zip(closed, general, strict=True):
         np.testing.assert_allclose(c, g, rtol=1e-10, atol=1e-9 * np.max(np.abs(g)))
 

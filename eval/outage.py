@@ -5,8 +5,8 @@ below ``rate_min_bps``) for tracking error:
 
 * ``sca``: static SCA designed for ``knob`` x R_min (a rate design margin; the env still charges
   R_min). A larger knob gives data more and sensing less.
-* ``margin``: the tuned margin rule with the sensing floor set to ``knob`` (a larger floor gives
-  sensing more and data less).
+* ``margin``: the tuned margin rule with the data multiple ``m_comm = knob`` (data gets ``knob``
+  times the share the GBS predicts it needs; a larger knob gives data more).
 * ``myopic``: the myopic optimiser with the price of a rate shortfall ``rate_weight = knob`` (a
   larger price gives data more).
 
@@ -33,9 +33,9 @@ __all__ = ["FAMILIES", "build", "outage", "find_knob", "main"]
 
 #: family -> (knob name, low, high, outage falls as the knob rises?)
 FAMILIES = {
-    "sca": ("rate design margin (x R_min)", 0.5, 1.6, True),
-    "margin": ("sensing floor", 0.0, 0.4, False),
-    "myopic": ("rate_weight", 0.0, 20.0, True),
+    "sca": ("rate design margin (x R_min)", 0.5, 4.0, True),
+    "margin": ("data multiple m_comm", 0.5, 30.0, True),
+    "myopic": ("rate_weight", 0.0, 100.0, True),
 }
 
 
@@ -49,7 +49,7 @@ def build(family: str, knob: float, scenario: Scenario):
         from iscc_gym.agents.margin import MarginPolicy, load_tuned
 
         p = load_tuned("margin")["params"]
-        return MarginPolicy(p["m_ctrl"], p["m_comm"], sensing_floor=float(knob))
+        return MarginPolicy(p["m_ctrl"], float(knob), sensing_floor=p["sensing_floor"])
     if family == "myopic":
         from iscc_gym.agents.myopic import MyopicPolicy
 
@@ -68,7 +68,8 @@ def outage(family: str, knob: float, seeds, scenario: Scenario, max_steps: int |
 def find_knob(family: str, target: float, seeds, scenario: Scenario, max_steps: int | None = None,
               iterations: int = 8) -> dict:
     """The knob value of ``family`` whose rate outage on ``seeds`` is at most ``target``, closest to it
-    (bisection between the family's bounds); ``met`` is False if even the bound cannot reach it.
+    (bisection between the family's bounds, geometric for a positive knob); ``met`` is False if even the
+    bound cannot reach it.
     """
     if not 0.0 <= target <= 1.0:
         raise ValueError(f"target = {target!r}: a rate-outage target is a fraction in [0, 1]")
@@ -80,7 +81,8 @@ def find_knob(family: str, target: float, seeds, scenario: Scenario, max_steps: 
         return {"family": family, "target": target, "met": False, "best": tried[-1], "tried": tried}
     best = tried[-1]
     for _ in range(iterations):
-        mid = 0.5 * (safe + risky)
+        # geometric where the knob is a positive multiple, so a wide range is searched evenly
+        mid = math.sqrt(safe * risky) if min(safe, risky) > 0 else 0.5 * (safe + risky)
         r = outage(family, mid, seeds, scenario, max_steps)
         tried.append(r)
         if r["rate_outage"] <= target:
@@ -100,6 +102,8 @@ def build_parser(prog: str = "python -m eval.outage") -> Parser:
     ap.add_argument("--max-steps", type=positive_int, default=None, help="slots per mission (default: all)")
     ap.add_argument("--iterations", type=positive_int, default=8, help="bisection steps (default: 8)")
     ap.add_argument("--scenario", default="paper", help="scenario preset (default: paper)")
+    ap.add_argument("--rate-min-mbps", type=float, default=None,
+                    help="the rate requirement R_min in Mbps (default: the scenario's; python -m eval.pareto uses 12)")
     return ap
 
 
@@ -109,7 +113,9 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.outage") -> 
         raise ValueError(f"--target {args.target}: use a fraction in [0, 1], e.g. --target 0.05")
     seeds = list(range(args.seed_start, args.seed_start + args.episodes))
     check_tuning_seeds(seeds)
-    res = find_knob(args.family, args.target, seeds, make_scenario(args.scenario), args.max_steps, args.iterations)
+    over = {} if args.rate_min_mbps is None else {"rate_min_bps": args.rate_min_mbps * 1e6}
+    res = find_knob(args.family, args.target, seeds, make_scenario(args.scenario, **over), args.max_steps,
+                    args.iterations)
     b = res["best"]
     name = FAMILIES[args.family][0]
     print(f"{args.family}: {name} = {b['knob']:.4g} -> rate outage {b['rate_outage']:.3f} "

@@ -420,7 +420,8 @@ def _over_arrays(loop, s: Scenario, n_out: int, *arrays):
     args = np.broadcast_arrays(*(np.asarray(v, dtype=float) for v in arrays))
     shape = args[0].shape
     out = np.empty((n_out, args[0].size))
-    loop(sensing_params(s), *(np.ascontiguousarray(a).reshape(-1) for a in args), out)
+    # copies: a view of broadcast_arrays warns when numba reads its writeable flag
+    loop(sensing_params(s), *(np.array(a, order="C").reshape(-1) for a in args), out)
     return tuple(o.reshape(shape) for o in out)
 
 

@@ -91,3 +91,32 @@ def test_bad_limits_fail_before_training(tmp_path):
     with pytest.raises(ValueError, match="--cost-limit"):
         main(Args(total_timesteps=64, cost_limit="rate=2", out=str(tmp_path / "x"), quiet=True))
     assert not (tmp_path / "x").exists()
+
+
+def test_algo_ppo_lag_is_ppo_with_the_lagrangian():
+    from iscc_gym.train.config import PPO_LAG_LIMITS
+    from iscc_gym.train.train import parse_args
+
+    a = parse_args(["--algo", "ppo-lag"])
+    assert a.algo == "ppo" and a.cost_limit == PPO_LAG_LIMITS == "rate=0.05,stability=0.0"
+    b = parse_args(["--algo", "ppo-lag", "--cost-limit", "rate=0.2"])
+    assert b.algo == "ppo" and b.cost_limit == "rate=0.2"
+    assert parse_args(["--algo", "ppo"]).cost_limit is None
+
+
+def test_the_pareto_runs_train_at_the_comparisons_rate_and_ship_their_multipliers(tmp_path, monkeypatch):
+    from iscc_gym.eval.pareto import RATE_MIN_BPS
+    from iscc_gym.train import pareto as TP
+
+    a = TP.run_args("ppo-lag/0.10")
+    assert a.algo == "ppo-lag" and a.cost_limit.startswith("rate=0.1,") and a.env_overrides == {"rate_min_bps":
+                                                                                                RATE_MIN_BPS}
+    assert TP.run_args("ppo/w3").env_overrides == {"rate_min_bps": RATE_MIN_BPS, "w_rate": 3.0}
+    with pytest.raises(ValueError, match="not a Pareto run"):
+        TP.run_args("ppo/w7")
+    monkeypatch.chdir(tmp_path)
+    TP.train_all(["ppo-lag/0.05"], total_timesteps=256, dest=tmp_path / "dest", out_root=str(tmp_path / "runs"),
+                 n_envs=4, overrides={"n_steps": 32, "batch_size": 64}, eval_freq=0)
+    shipped = tmp_path / "dest" / "ppo-lag" / "0.05"
+    assert (shipped / "model.zip").is_file() and (shipped / "lagrange.yml").is_file()
+    assert yaml.safe_load((shipped / "lagrange.yml").read_text())["limits"]["rate"] == 0.05

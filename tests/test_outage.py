@@ -25,14 +25,14 @@ def test_every_family_builds_a_policy_at_both_ends_of_its_knob(family):
 
 
 def test_the_knob_trades_outage_and_the_search_meets_the_target():
-    lo_end = O.outage("margin", 0.0, SEEDS, S, max_steps=200)
-    hi_end = O.outage("margin", 0.4, SEEDS, S, max_steps=200)
-    assert hi_end["rate_outage"] > lo_end["rate_outage"]  # more sensing floor, less data
+    lo_end = O.outage("margin", 0.5, SEEDS, S, max_steps=200)
+    hi_end = O.outage("margin", 30.0, SEEDS, S, max_steps=200)
+    assert hi_end["rate_outage"] < lo_end["rate_outage"]  # a larger data multiple, less outage
     target = 0.5 * (lo_end["rate_outage"] + hi_end["rate_outage"])
     res = O.find_knob("margin", target, SEEDS, S, max_steps=200, iterations=4)
     assert res["met"] and res["best"]["rate_outage"] <= target
     assert any(r["rate_outage"] > target for r in res["tried"])  # the bisection crossed the target
-    assert 0.0 <= res["best"]["knob"] <= 0.4
+    assert 0.5 <= res["best"]["knob"] <= 30.0
 
 
 def test_an_unreachable_target_is_reported_not_met_and_bad_targets_refused():

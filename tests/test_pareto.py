@@ -10,29 +10,44 @@ def _pt(fam, knob, outage, err, per):
             "per_mission_error_m": per}
 
 
-def test_dominance_and_the_winner_at_a_target():
+def test_dominance_and_the_front():
     pts = [_pt("a", 1, 0.10, 0.40, [0.40, 0.40]), _pt("a", 2, 0.20, 0.39, [0.39, 0.39]),
            _pt("b", 1, 0.15, 0.41, [0.41, 0.41]), _pt("b", 2, 0.05, 0.45, [0.44, 0.46])]
     assert P.non_dominated(pts) == [True, True, False, True]  # b1 is worse than a1 on both axes
-    r = P.at_target(pts, 0.12)
-    assert r["winner"] == "a" and r["best"]["a"]["knob"] == 1 and r["best"]["b"]["knob"] == 2
-    m, ci = r["paired_vs_winner"]["b"]
-    assert m == pytest.approx(0.05) and ci[0] <= 0.05 <= ci[1]
-    assert P.at_target(pts, 0.01)["best"] == {} and P.at_target(pts, 0.01)["unmet"] == ["a", "b"]
+    assert P.dominated_by(pts[2], pts) == [pts[0]]
+    assert P.learned_family("ppo-lag/0.05") == ("ppo-lag", "0.05") and P.learned_family("ppo") == ("ppo", "ppo")
 
 
-def test_the_command_plays_a_family_and_a_learned_run_on_the_same_missions(tmp_path, capsys):
-    res = P.main(["--episodes", "2", "--max-steps", "60", "--families", "margin", "--learned",
-                  "ppo=agents/trained/ppo_iscc", "--targets", "0.9", "--figure", str(tmp_path / "p.png")])
+def test_operating_points_are_chosen_on_training_seeds_then_played_held_out(tmp_path, capsys):
+    res = P.main(["--episodes", "2", "--max-steps", "60", "--families", "sca", "--learned",
+                  "ppo/shipped=agents/trained/ppo_iscc", "--targets", "0.95", "--train-episodes", "2",
+                  "--iterations", "1", "--figure", str(tmp_path / "p.png")])
     fams = [p["family"] for p in res["points"]]
-    assert fams.count("margin") == len(P.KNOBS["margin"]) and fams.count("ppo") == 1
+    assert fams.count("sca") == len(P.KNOBS["sca"]) and fams.count("ppo") == 1
     assert all(0.0 <= p["rate_outage"] <= 1.0 and np.isfinite(p["tracking_error_m"]) for p in res["points"])
+    assert res["rate_min_bps"] == P.RATE_MIN_BPS
+    r = res["targets"]["0.95"]
+    assert set(r["best"]) <= {"sca", "ppo"} and r["best"]
+    for p in r["best"].values():
+        assert p["train"]["rate_outage"] <= 0.95  # chosen on the training missions
+        assert len(p["per_mission_error_m"]) == 2  # played on the held-out ones
+    other = [f for f in r["best"] if f != r["winner"]]
+    for f in other:
+        d = np.subtract(r["best"][f]["per_mission_error_m"], r["best"][r["winner"]]["per_mission_error_m"]).mean()
+        assert r["paired_vs_winner"][f][0] == pytest.approx(d) and d >= 0.0
     assert (tmp_path / "p.png").stat().st_size > 1000
-    assert "non-dominated" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "non-dominated" in out and "At 95 % outage" in out and "Learned points against the scripted ones" in out
+
+
+def test_selection_refuses_evaluation_seeds():
+    with pytest.raises(ValueError, match="seed"):
+        P.select(0.1, [10_000, 10_001], families=("sca",), max_steps=10)
 
 
 def test_bad_input_is_refused_before_any_run():
     for argv, match in ((["--families", "nope"], "unknown"), (["--learned", "x=/no/such/dir"], "run directory"),
-                        (["--targets", "2"], "fractions")):
+                        (["--targets", "2"], "fractions"), (["--targets", "a"], "fractions"),
+                        (["--rate-min-mbps", "-1"], "rate-min-mbps")):
         with pytest.raises(ValueError, match=match):
             P.main(argv)

@@ -17,6 +17,9 @@ import yaml
 HYPERPARAMS = Path(__file__).with_name("hyperparams.yml")
 ALGOS = ("ppo", "sac", "td3")
 VEC_ENVS = ("dummy", "subproc", "batched")
+#: ``--algo ppo-lag``: PPO with the Lagrangian of train/lagrangian.py, at these limits unless
+#: ``--cost-limit`` gives others.
+PPO_LAG_LIMITS = "rate=0.05,stability=0.0"
 #: Seeds of the EvalCallback's held-out episodes start here (training seeds are small integers, the
 #: final comparison uses ``eval --seed-start``'s, 10_000 by default).
 EVAL_SEED_START = 1_000_000
@@ -68,7 +71,8 @@ class Args:
 #: The ``--help`` text of every :class:`Args` field.
 FIELD_HELP = {
     "env_id": "Gymnasium env id to train on (an entry of --hyperparams)",
-    "algo": "SB3 algorithm: ppo | sac | td3",
+    "algo": "SB3 algorithm: ppo | sac | td3 | ppo-lag (PPO with --cost-limit, by default "
+            f"{PPO_LAG_LIMITS})",
     "total_timesteps": "env steps to train (default: the YAML entry's n_timesteps, else 200000)",
     "n_envs": "parallel envs (default: the YAML entry's n_envs, else 4)",
     "vec_env": "dummy | subproc | batched (the ISCC env's own batched env, fastest)",
@@ -382,6 +386,15 @@ def linear_schedule(text: str, name: str = "learning_rate"):
         return progress_remaining * start
 
     return schedule
+
+
+def expand_algo(args: Args) -> Args:
+    """``algo = "ppo-lag"`` -> PPO with ``cost_limit`` (:data:`PPO_LAG_LIMITS` unless given); any
+    other algo unchanged.
+    """
+    if args.algo == "ppo-lag":
+        return dataclasses.replace(args, algo="ppo", cost_limit=args.cost_limit or PPO_LAG_LIMITS)
+    return args
 
 
 def _check(args: Args) -> None:

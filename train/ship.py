@@ -25,6 +25,8 @@ SHIP_DIR = ROOT / "agents" / "trained" / "ppo_iscc"
 SHIP_ARGS = Args(seed=0, out="runs/ship_ppo", checkpoint_freq=0, tensorboard=False, overwrite=True)
 ARTIFACTS = ("model.zip", "vecnormalize.pkl", "manifest.yml", "config.yml", "summary.yml", "learning_curve.csv",
              "learning_curve.png")
+#: Copied too where the run wrote them (a constrained run's multipliers).
+OPTIONAL = ("lagrange.yml",)
 
 
 def _copy(src: Path, dst: Path) -> None:
@@ -38,7 +40,8 @@ def ship(args: Args = SHIP_ARGS, dest: Path = SHIP_DIR, write_docs: bool = True)
     args, _ = resolve_args(args)
     dest.mkdir(parents=True, exist_ok=True)
     # the statistics and the rest before the model, the manifest (sizes and SHA-256 of both) last
-    for name in sorted(ARTIFACTS, key=lambda n: (n == "manifest.yml", n == "model.zip")):
+    names = ARTIFACTS + tuple(n for n in OPTIONAL if (Path(args.out) / n).is_file())
+    for name in sorted(names, key=lambda n: (n == "manifest.yml", n == "model.zip")):
         _copy(Path(args.out) / name, dest / name)
     if write_docs:
         from iscc_gym.docs import RESULTS_PATH, write_section

@@ -51,6 +51,7 @@ from .config import (
     _check,
     _resolve_policy_kwargs,
     check_hyperparams,
+    expand_algo,
     format_policy_kwargs,
     linear_schedule,
     load_hyperparams,
@@ -294,6 +295,7 @@ def main(args: Args, callback_after_eval=None) -> dict:
 
     import iscc_gym  # noqa: F401  (registers the env)
 
+    args = expand_algo(args)
     _check(args)
     if callback_after_eval is not None and args.eval_freq <= 0:
         raise ValueError(f"eval_freq = {args.eval_freq} with a callback_after_eval; use eval_freq >= 1")
@@ -451,7 +453,7 @@ def args_from_namespace(ap: argparse.ArgumentParser, ns: argparse.Namespace) -> 
         return out
 
     kw = {f.name: getattr(ns, f.name) for f in dataclasses.fields(Args) if f.name not in ("overrides", "env_overrides")}
-    return Args(overrides=pairs(ns.set, "--set"), env_overrides=pairs(ns.env_set, "--env-set"), **kw)
+    return expand_algo(Args(overrides=pairs(ns.set, "--set"), env_overrides=pairs(ns.env_set, "--env-set"), **kw))
 
 
 def parse_value(text: str):

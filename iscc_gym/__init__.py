@@ -14,7 +14,7 @@ from .env import REGISTERED_MAX_EPISODE_STEPS, ISCCEnv, action_to_split, split_t
 from .scenario import SCENARIOS, Scenario, make_scenario
 
 __all__ = ["Scenario", "SCENARIOS", "make_scenario", "ISCCEnv", "action_to_split", "split_to_action",
-           "ENV_ID"]
+           "ENV_ID", "MULTI_ENV_ID"]
 
 #: The registered environment id.
 ENV_ID = "iscc_gym/ISCC-v0"
@@ -23,6 +23,12 @@ assert SCENARIOS["paper"].n_slots == REGISTERED_MAX_EPISODE_STEPS
 if ENV_ID not in _gym.registry:
     _gym.register(id=ENV_ID, entry_point="iscc_gym.env:ISCCEnv",
                   vector_entry_point="iscc_gym.vector:ISCCVectorEnv",
+                  max_episode_steps=REGISTERED_MAX_EPISODE_STEPS)
+#: The registered id of the multi-drone env (:mod:`iscc_gym.multi`).
+MULTI_ENV_ID = "iscc_gym/ISCC-Multi-v0"
+if MULTI_ENV_ID not in _gym.registry:
+    _gym.register(id=MULTI_ENV_ID, entry_point="iscc_gym.multi:ISCCMultiEnv",
+                  vector_entry_point="iscc_gym.vector:ISCCMultiVectorEnv",
                   max_episode_steps=REGISTERED_MAX_EPISODE_STEPS)
 __version__ = "0.1.0"
 

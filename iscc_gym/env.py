@@ -108,7 +108,7 @@ _read_step = operator.itemgetter(*(COL[name] for name in _STEP_FIELDS))
 
 
 def env_step(s: Scenario, state: loop.LoopState, actions: ArrayLike, normals: ArrayLike = None,
-             active: ArrayLike = None):
+             active: ArrayLike = None, budget: ArrayLike = None):
     """One env step of a batch of loops: action map, slot transition, reward, costs, next observation.
 
     The single env (a batch of one) and the vector env both call it, so drone i of a batch
@@ -123,6 +123,9 @@ def env_step(s: Scenario, state: loop.LoopState, actions: ArrayLike, normals: Ar
         (:func:`iscc_gym.noise.slot_normals` of its key and slot, drawn inside the kernel).
     active : ndarray (B,) bool, optional
         Loops to step (default all); the others keep their state, slot index and zero outputs.
+    budget : ndarray (B,), optional
+        Each loop's share of the band, which scales its split (the multi-drone env,
+        :mod:`iscc_gym.multi`); default the whole band.
 
     Returns
     -------
@@ -139,7 +142,8 @@ def env_step(s: Scenario, state: loop.LoopState, actions: ArrayLike, normals: Ar
     c, mats = kernel.kernel_constants(s)
     x, x_hat, p, shadow, out, obs = outputs = kernel.new_outputs(nb, len(STEP_COLUMNS))
     z = _NO_NORMALS if normals is None else normals
-    args = (c, mats, state.x, state.x_hat, state.p, state.shadow, state.n, state.ref, state.key, actions, z, active)
+    b = _WHOLE_BAND if budget is None else budget
+    args = (c, mats, state.x, state.x_hat, state.p, state.shadow, state.n, state.ref, state.key, actions, b, z, active)
     # numba.get_num_threads() costs ~0.5 us: asked only for a batch the parallel kernel could take
     if nb >= PARALLEL_MIN_BATCH and threads.use_parallel(nb, numba.get_num_threads()):
         kernel.env_step_batch_parallel(*args, *outputs, kernel.parallel_chunk(nb))
@@ -151,6 +155,7 @@ def env_step(s: Scenario, state: loop.LoopState, actions: ArrayLike, normals: Ar
 
 _ALL_ACTIVE: dict[int, np.ndarray] = {}
 _NO_NORMALS = np.empty((0, N_DRAWS))  # the kernel's "draw from the keys" signal
+_WHOLE_BAND = np.empty(0)  # the kernel's "every loop has the whole band" signal
 
 
 def _all_active(nb: int) -> np.ndarray:

@@ -158,6 +158,20 @@ def reward_from_costs(max_err, w_rate, w_stab, err, cost_rate, cost_stab):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
+def terminal_penalty_one(max_err, n_slots, n_next):
+    """The loss-of-track penalty: ``max_err`` for each slot left after ``n_next`` (as if the error
+    stayed at the bound for the rest of the mission).
+    """
+    return max_err * (n_slots - n_next)
+
+
+@vectorize(["float64(float64, int64, int64)"], cache=True)
+def terminal_penalty(max_err, n_slots, n_next):
+    """:func:`terminal_penalty_one` over arrays."""
+    return terminal_penalty_one(max_err, n_slots, n_next)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
 def reward_one(c, err, rate, eps, terminated, n_next):
     """The slot's ``(cost_rate, cost_stability, reward)`` (:class:`iscc_gym.env.ISCCEnv`, Rewards): a
     rate or loss probability that is NaN counts as a violation; an episode that terminates pays
@@ -174,7 +188,7 @@ def reward_one(c, err, rate, eps, terminated, n_next):
     cost_stab = 1.0 if (eps > c.eps_star or eps != eps) else 0.0
     reward = reward_from_costs_one(max_err, c.w_rate, c.w_stab, err, cost_rate, cost_stab)
     if terminated:
-        reward -= max_err * (c.n_slots - n_next)
+        reward -= terminal_penalty_one(max_err, c.n_slots, n_next)
     return cost_rate, cost_stab, reward
 
 
@@ -187,12 +201,13 @@ def reward_batch(cp, err, rate, eps, terminated, n_next, cost_rate, cost_stab, r
 
 
 @njit(cache=True, error_model="numpy")
-def _env_rows(cp, mats, x, x_hat, p, shadow, n, ref, key, action, z, active, lo, hi,
+def _env_rows(cp, mats, x, x_hat, p, shadow, n, ref, key, action, budget, z, active, lo, hi,
               x_next, x_hat_next, p_next, shadow_next, out, obs):
     """env_step_batch for rows lo..hi-1, writing into the output arrays."""
     c = cp[0]
     work = work_space()
     draw = z.shape[0] == 0
+    whole = budget.shape[0] == 0
     zbuf = np.empty(N_DRAWS)
     for i in range(lo, hi):
         if not active[i]:
@@ -201,6 +216,9 @@ def _env_rows(cp, mats, x, x_hat, p, shadow, n, ref, key, action, z, active, lo,
             obs[i] = 0.0
             continue
         a0, a1, a2 = split_one(action[i, 0], action[i, 1], action[i, 2])
+        if not whole:  # the loop's share of the band (iscc_gym.multi): its split scaled by it
+            b = budget[i]
+            a0, a1, a2 = a0 * b, a1 * b, a2 * b
         mt = out[i]
         if draw:  # the episode's noise stream (noise.slot_normals), drawn where it is used
             fill_slot_normals(key[i], n[i], zbuf)
@@ -221,21 +239,23 @@ def _env_rows(cp, mats, x, x_hat, p, shadow, n, ref, key, action, z, active, lo,
 
 
 @njit(cache=True, error_model="numpy")
-def env_step_batch(c, mats, x, x_hat, p, shadow, n, ref, key, action, z, active,
+def env_step_batch(c, mats, x, x_hat, p, shadow, n, ref, key, action, budget, z, active,
                    x_next, x_hat_next, p_next, shadow_next, out, obs):
     """One env step of a batch: action -> split (:func:`split_one`), slot transition
     (:func:`iscc_gym.loop.step_one`), reward and costs (:func:`reward_one`), next observation (:func:`observe_one`),
     written into the outputs: next x, x_hat, p, shadow, ``out`` (B, N_ENV_COLUMNS) and ``obs``
-    (B, 23) float32. ``z`` holds the slot's normals (B, N_DRAWS), or has no rows: then each loop
-    draws its own from its episode key (noise.slot_normals(key[i], n[i])). Loops with ``active[i]``
-    False are left as they are (state copied, zero outputs).
+    (B, 23) float32. ``budget`` (B,) scales loop i's split to its share of the band (the multi-drone
+    env, :mod:`iscc_gym.multi`), or has no rows: the whole band (the single env). ``z`` holds the
+    slot's normals (B, N_DRAWS), or has no rows: then each loop draws its own from its episode key
+    (noise.slot_normals(key[i], n[i])). Loops with ``active[i]`` False are left as they are (state
+    copied, zero outputs).
     """
-    _env_rows(c, mats, x, x_hat, p, shadow, n, ref, key, action, z, active, 0, x.shape[0],
+    _env_rows(c, mats, x, x_hat, p, shadow, n, ref, key, action, budget, z, active, 0, x.shape[0],
               x_next, x_hat_next, p_next, shadow_next, out, obs)
 
 
 @njit(cache=True, error_model="numpy", parallel=True)
-def env_step_batch_parallel(c, mats, x, x_hat, p, shadow, n, ref, key, action, z, active,
+def env_step_batch_parallel(c, mats, x, x_hat, p, shadow, n, ref, key, action, budget, z, active,
                             x_next, x_hat_next, p_next, shadow_next, out, obs, chunk):
     """:func:`env_step_batch` with chunks of ``chunk`` rows spread over all cores: each row goes
     through the same compiled :func:`_env_rows`, so results equal the serial kernel's bit for bit
@@ -245,7 +265,7 @@ def env_step_batch_parallel(c, mats, x, x_hat, p, shadow, n, ref, key, action, z
     n_chunks = (nb + chunk - 1) // chunk
     for k in prange(n_chunks):
         lo = k * chunk
-        _env_rows(c, mats, x, x_hat, p, shadow, n, ref, key, action, z, active, lo, min(lo + chunk, nb),
+        _env_rows(c, mats, x, x_hat, p, shadow, n, ref, key, action, budget, z, active, lo, min(lo + chunk, nb),
                   x_next, x_hat_next, p_next, shadow_next, out, obs)
 
 

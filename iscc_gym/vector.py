@@ -22,12 +22,13 @@ from .env import (
     observe,
     warn_time_limit,
 )
+from .multi import DRONE_INFO_KEYS, N_DRONES, check_n_drones, drone_seeds, multi_step, reset_drones
 from .scenario import Scenario, make_scenario
 from .schema import COL as _COL
 from .schema import OBS_BOUND, OBS_NAMES
 from .trajectory import sample_reference
 
-__all__ = ["ISCCVectorEnv", "check_memory", "reset_bytes", "available_memory_bytes"]
+__all__ = ["ISCCVectorEnv", "ISCCMultiVectorEnv", "check_memory", "reset_bytes", "available_memory_bytes"]
 
 #: info keys of a step, from the columns of :func:`iscc_gym.env.env_step` (``alpha`` and ``cost`` added).
 INFO_KEYS = ("tracking_error_m", "cost_rate", "cost_stability", "cost", "snr_db", "snr_large_scale_db",
@@ -57,6 +58,14 @@ class ISCCVectorEnv(VectorEnv):
     max_episode_steps : int, optional
         Truncate after this many steps (``make_vec`` passes the registered 5000).
 
+    n_drones : int, optional
+        K drones per sub-env: each sub-env is the multi-drone env :class:`iscc_gym.multi.ISCCMultiEnv`
+        (``gymnasium.make_vec("iscc_gym/ISCC-Multi-v0", num_envs=N, n_drones=K,
+        vectorization_mode="vector_entry_point")``): actions ``(num_envs, 3K)``, observations
+        ``(num_envs, 23K)``, per-drone info arrays ``(num_envs, K)`` (``alpha`` ``(num_envs, K, 3)``),
+        N x K loops stepped as one batch; sub-env i reproduces the multi-drone env seeded alike bit
+        for bit. None (default): the single-drone env.
+
     ``reset(seed=s)`` seeds sub-env i with ``s + i``; ``reset(seed=[s_0, ...])`` with ``s_i``;
     ``reset(options={"reset_mask": mask})`` resets only the masked sub-envs.
     """
@@ -65,7 +74,7 @@ class ISCCVectorEnv(VectorEnv):
 
     def __init__(self, num_envs: int = 1, scenario: str | Scenario = "paper",
                  autoreset_mode: str | AutoresetMode = AutoresetMode.NEXT_STEP,
-                 max_episode_steps: int | None = None, **overrides: Any):
+                 max_episode_steps: int | None = None, n_drones: int | None = None, **overrides: Any):
         if not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
             raise ValueError(f"num_envs = {num_envs!r}; use an integer >= 1")
         try:
@@ -76,8 +85,10 @@ class ISCCVectorEnv(VectorEnv):
             raise ValueError("autoreset_mode = 'Disabled' is not supported; use 'NextStep' or 'SameStep'")
         if max_episode_steps is not None and max_episode_steps < 1:
             raise ValueError(f"max_episode_steps = {max_episode_steps}; use an integer >= 1 or None")
+        self.n_drones = None if n_drones is None else check_n_drones(n_drones)
+        k = self._k = 1 if n_drones is None else self.n_drones
         self.scenario = make_scenario(scenario, **overrides)
-        check_memory(self.scenario, int(num_envs))
+        check_memory(self.scenario, int(num_envs) * k)
         if max_episode_steps == REGISTERED_MAX_EPISODE_STEPS:
             warn_time_limit(self.scenario)
         self.num_envs = int(num_envs)
@@ -86,14 +97,14 @@ class ISCCVectorEnv(VectorEnv):
         self.autoreset_mode = mode
         s = self.scenario
         self.max_steps = s.n_slots if max_episode_steps is None else min(int(max_episode_steps), s.n_slots)
-        self.single_action_space = spaces.Box(-1.0, 1.0, (3,), np.float32)
-        self.single_observation_space = spaces.Box(-OBS_BOUND, OBS_BOUND, (len(OBS_NAMES),), np.float32)
+        self.single_action_space = spaces.Box(-1.0, 1.0, (3 * k,), np.float32)
+        self.single_observation_space = spaces.Box(-OBS_BOUND, OBS_BOUND, (k * len(OBS_NAMES),), np.float32)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self._rngs: list[np.random.Generator] | None = None
         self._state: loop.LoopState | None = None
-        self._last_rx = np.ones(self.num_envs)
-        self._last_peb = np.zeros(self.num_envs)
+        self._last_rx = np.ones(self.num_envs * k)  # per loop
+        self._last_peb = np.zeros(self.num_envs * k)
         self._done = np.zeros(self.num_envs, dtype=bool)
 
     # --- Gymnasium VectorEnv API ------------------------------------------------------------------
@@ -110,35 +121,42 @@ class ISCCVectorEnv(VectorEnv):
         self._reset_rows(np.flatnonzero(mask))
         self._done[mask] = False
         obs = observe(self.scenario, self._state, self._last_rx, self._last_peb)
-        return obs, {"slot": self._state.n.copy(), "_slot": mask.copy()}
+        return obs.reshape(self.num_envs, -1), {"slot": self._slots(), "_slot": mask.copy()}
 
     def step(self, actions):
         if self._state is None:
             raise RuntimeError("step() called before reset(): call env.reset(seed=...) first")
         a = np.asarray(actions, dtype=np.float64)
-        if a.shape != (self.num_envs, 3):
-            raise ValueError(f"actions must have shape ({self.num_envs}, 3), got {a.shape}")
+        if a.shape != (self.num_envs, 3 * self._k):
+            raise ValueError(f"actions must have shape ({self.num_envs}, {3 * self._k}), got {a.shape}")
         if not np.isfinite(a).all():
             bad = np.flatnonzero(~np.isfinite(a).all(axis=1)).tolist()
             raise ValueError(f"actions of sub-envs {bad} contain NaN or inf; pass finite values in [-1, 1]")
         s = self.scenario
         restart = self._done.copy()  # NextStep: these sub-envs reset now instead of stepping
         active = ~restart if restart.any() else None
-        self._state, out, obs = env_step(s, self._state, a, active=active)
+        if self.n_drones is None:
+            self._state, out, obs = env_step(s, self._state, a, active=active)
+            reward = out[:, _COL["reward"]].copy()  # 0 where a sub-env was reset instead of stepped
+            term_, trunc_ = out[:, _COL["terminated"]] == 1.0, out[:, _COL["truncated"]] == 1.0
+            loop_out = out
+        else:
+            self._state, out, obs, reward, term_, trunc_ = multi_step(s, self._state, a, self._k, active=active)
+            loop_out = out.reshape(self.num_envs * self._k, -1)
         valid = np.ones(self.num_envs, dtype=bool) if active is None else active
         if active is not None:
-            self._last_rx = np.where(active, out[:, _COL["packet_received"]], self._last_rx)
-            self._last_peb = np.where(active, out[:, _COL["peb_m"]], self._last_peb)
+            loops = np.repeat(active, self._k)
+            self._last_rx = np.where(loops, loop_out[:, _COL["packet_received"]], self._last_rx)
+            self._last_peb = np.where(loops, loop_out[:, _COL["peb_m"]], self._last_peb)
             self._reset_rows(np.flatnonzero(restart))
-            obs[restart] = observe(s, self._state.rows(restart), self._last_rx[restart],
-                                   self._last_peb[restart])
+            obs[restart] = self._observe(np.flatnonzero(restart))
         else:
-            self._last_rx = out[:, _COL["packet_received"]].copy()
-            self._last_peb = out[:, _COL["peb_m"]].copy()
-        terminated = (out[:, _COL["terminated"]] == 1.0) & valid
-        truncated = ((out[:, _COL["truncated"]] == 1.0) | (self._state.n >= self.max_steps)) & valid & ~terminated
-        reward = out[:, _COL["reward"]].copy()  # 0 where a sub-env was reset instead of stepped
-        info = _info(out, self._state.n, valid)
+            self._last_rx = loop_out[:, _COL["packet_received"]].copy()
+            self._last_peb = loop_out[:, _COL["peb_m"]].copy()
+        slots = self._slots()
+        terminated = term_ & valid
+        truncated = (trunc_ | (slots >= self.max_steps)) & valid & ~terminated
+        info = _info(out, slots, valid) if self.n_drones is None else _multi_info(out, slots, valid)
         done = terminated | truncated
         if self.autoreset_mode == AutoresetMode.SAME_STEP and done.any():
             idx = np.flatnonzero(done)
@@ -150,7 +168,7 @@ class ISCCVectorEnv(VectorEnv):
                                   if not k.startswith(("final", "_final"))}
             info["_final_info"] = done.copy()
             self._reset_rows(idx)
-            obs[idx] = observe(s, self._state.rows(idx), self._last_rx[idx], self._last_peb[idx])
+            obs[idx] = self._observe(idx)
             self._done = np.zeros(self.num_envs, dtype=bool)
         else:
             self._done = done
@@ -159,8 +177,8 @@ class ISCCVectorEnv(VectorEnv):
     # --- helpers ---------------------------------------------------------------------------------
     def positions(self, rows: int | None = None) -> tuple[np.ndarray, np.ndarray]:
         """The drones' true positions and their reference positions (m) at each loop's current slot,
-        for the first ``rows`` loops (all by default): two copies of shape (rows, 3). For plots and
-        evaluation traces; the policy sees only the observation.
+        for the first ``rows`` sub-envs (all by default): two copies of shape (rows, 3), or (rows, K, 3)
+        with ``n_drones``. For plots and evaluation traces; the policy sees only the observation.
 
         Raises
         ------
@@ -169,9 +187,26 @@ class ISCCVectorEnv(VectorEnv):
         """
         if self._state is None:
             raise RuntimeError("call reset() before positions()")
-        k = self.num_envs if rows is None else max(0, min(int(rows), self.num_envs))
+        m = (self.num_envs if rows is None else max(0, min(int(rows), self.num_envs))) * self._k
         st = self._state
-        return st.x[:k, :3].copy(), st.ref[np.arange(k), st.n[:k], :3].copy()
+        pos, ref = st.x[:m, :3].copy(), st.ref[np.arange(m), st.n[:m], :3].copy()
+        if self.n_drones is None:
+            return pos, ref
+        return pos.reshape(-1, self._k, 3), ref.reshape(-1, self._k, 3)
+
+    def _slots(self) -> np.ndarray:
+        """Each sub-env's slot index (its drones share it)."""
+        return self._state.n[::self._k].copy()
+
+    def _loops(self, idx: np.ndarray) -> np.ndarray:
+        """The loop rows of sub-envs ``idx`` (drone j of sub-env i at row i K + j)."""
+        return (np.asarray(idx)[:, None] * self._k + np.arange(self._k)).reshape(-1)
+
+    def _observe(self, idx: np.ndarray) -> np.ndarray:
+        """The observations of sub-envs ``idx``, (len(idx), 23 K)."""
+        rows = self._loops(idx)
+        obs = observe(self.scenario, self._state.rows(rows), self._last_rx[rows], self._last_peb[rows])
+        return obs.reshape(len(idx), -1)
 
     def _check_reset_mask(self, options) -> np.ndarray:
         n = self.num_envs
@@ -212,15 +247,28 @@ class ISCCVectorEnv(VectorEnv):
         if idx.size == 0:
             return
         s = self.scenario
-        refs = [sample_reference(s, self._rngs[i]) for i in idx]
-        parts = [loop.init_state(s, [r], [self._rngs[i]]) for r, i in zip(refs, idx, strict=True)]
+        if self.n_drones is None:
+            refs = [sample_reference(s, self._rngs[i]) for i in idx]
+            parts = [loop.init_state(s, [r], [self._rngs[i]]) for r, i in zip(refs, idx, strict=True)]
+        else:  # each sub-env exactly ISCCMultiEnv's reset from its generator
+            parts = [reset_drones(s, drone_seeds(self._rngs[i], self._k)) for i in idx]
         new = loop.LoopState(*(np.concatenate(fields) for fields in zip(*parts, strict=True)))
+        rows = self._loops(idx)
         if self._state is None or idx.size == self.num_envs:
             self._state = new
         else:
-            self._state = self._state.with_rows(idx, new)
-        self._last_rx[idx] = 1.0
-        self._last_peb[idx] = 0.0
+            self._state = self._state.with_rows(rows, new)
+        self._last_rx[rows] = 1.0
+        self._last_peb[rows] = 0.0
+
+
+class ISCCMultiVectorEnv(ISCCVectorEnv):
+    """The vector entry point of ``iscc_gym/ISCC-Multi-v0``: :class:`ISCCVectorEnv` with ``n_drones``
+    (default :data:`iscc_gym.multi.N_DRONES`) drones per sub-env.
+    """
+
+    def __init__(self, num_envs: int = 1, n_drones: int = N_DRONES, **kwargs: Any):
+        super().__init__(num_envs, n_drones=n_drones, **kwargs)
 
 
 def reset_bytes(s: Scenario) -> int:
@@ -278,5 +326,20 @@ def _info(out: np.ndarray, n: np.ndarray, valid: np.ndarray) -> dict:
         else:
             val = out[:, _COL[key]]
         info[key] = val
+        info["_" + key] = valid
+    return info
+
+
+def _multi_info(out: np.ndarray, slots: np.ndarray, valid: np.ndarray) -> dict:
+    """Vector info of multi-drone sub-envs from their outputs (N, K, columns): per-drone arrays (N, K)
+    (``alpha`` (N, K, 3)), ``cost`` and ``mean_tracking_error_m`` (N,), ``slot``; masks as :func:`_info`.
+    """
+    info: dict[str, Any] = {key: out[..., _COL[key]] for key in DRONE_INFO_KEYS}
+    info["packet_received"] = out[..., _COL["packet_received"]] == 1.0
+    info["alpha"] = out[..., _COL["alpha_sen"]:_COL["alpha_comm"] + 1]
+    info["cost"] = (out[..., _COL["cost_rate"]] + out[..., _COL["cost_stability"]]).sum(-1)
+    info["mean_tracking_error_m"] = out[..., _COL["tracking_error_m"]].mean(-1)
+    info["slot"] = slots
+    for key in list(info):
         info["_" + key] = valid
     return info

@@ -47,7 +47,7 @@ def test_env_step_kernel_matches_numpy_reference(name, overrides):
         z = loop.standard_normals(rngs, b)
         x, x_hat, p, shadow, out, obs = outputs = kernel.new_outputs(b, len(E.STEP_COLUMNS))
         kernel.env_step_batch(c, mats, state.x, state.x_hat, state.p, state.shadow, state.n, state.ref, state.key,
-                              acts[t], z, np.ones(b, dtype=bool), *outputs)
+                              acts[t], np.empty(0), z, np.ones(b, dtype=bool), *outputs)
         ref_state, ref_out, ref_obs = oracle_loop.env_step_reference(s, state, acts[t], z)
         np.testing.assert_allclose(out, ref_out, rtol=1e-9, atol=1e-12)
         np.testing.assert_allclose(obs, ref_obs, rtol=1e-6, atol=1e-6)
@@ -155,7 +155,8 @@ def test_kernel_draws_the_episode_stream_of_each_key():
     acts = np.random.default_rng(1).uniform(-1, 1, (b, 3))
     active = np.random.default_rng(2).random(b) < 0.8
     c, mats = kernel.kernel_constants(s)
-    args = (c, mats, state.x, state.x_hat, state.p, state.shadow, state.n, state.ref, state.key, acts)
+    args = (c, mats, state.x, state.x_hat, state.p, state.shadow, state.n, state.ref, state.key, acts,
+            np.empty(0))
     given = kernel.new_outputs(b, len(E.STEP_COLUMNS))
     kernel.env_step_batch(*args, noise.slot_normals(state.key, state.n), active, *given)
     drawn = kernel.new_outputs(b, len(E.STEP_COLUMNS))

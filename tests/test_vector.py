@@ -151,7 +151,8 @@ def test_parallel_kernel_equals_serial_kernel_bit_for_bit():
     state = loop.init_state(s, refs, rng)
     c, mats = kernel.kernel_constants(s)
     args = (c, mats, state.x, state.x_hat, state.p, state.shadow, state.n, state.ref, state.key,
-            rng.uniform(-1, 1, (b, 3)), rng.standard_normal((b, loop.N_DRAWS)), rng.random(b) < 0.9)
+            rng.uniform(-1, 1, (b, 3)), rng.uniform(0, 1, b), rng.standard_normal((b, loop.N_DRAWS)),
+            rng.random(b) < 0.9)
     serial = kernel.new_outputs(b, len(E.STEP_COLUMNS))
     kernel.env_step_batch(*args, *serial)
     for chunk in (16, 37, kernel.parallel_chunk(b)):

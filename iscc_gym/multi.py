@@ -1,0 +1,299 @@
+r"""Many drones, one base station: ``iscc_gym/ISCC-Multi-v0`` and its PettingZoo view.
+
+The paper studies one drone and names multi-drone networks as future work. Here one GBS serves K
+drones (default 4), each exactly the single-drone loop (its own reference trajectory, Kalman filter,
+LQG loop, links, fading and noise streams), sharing one OFDM budget: the 3K shares
+:math:`\alpha_{k,f}` (drone k, function f in sensing, control, data) sum to 1. The per-subcarrier SNR
+does not depend on the share (the paper's footnote) and the subcarriers are orthogonal (no
+inter-drone interference), so each drone's CRLB, drop probability and rate follow from its own three
+shares exactly as in the single env: the compiled single-drone step runs on a batch of K loops, each
+with its split scaled by its share of the band (:func:`iscc_gym.env.env_step`'s ``budget``).
+
+Everything here composes the single env's functions: the action map (:func:`multi_split`), the
+reward (:func:`multi_reward`, from :func:`iscc_gym.kernel.reward_from_costs`) and the reset (each
+drone a single env's reset with its own seed, :func:`reset_drones`). docs/model.md, section 5, states
+the modelling choices.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from gymnasium.utils import seeding
+from numpy.typing import ArrayLike
+
+from . import kernel, loop
+from .env import check_seed, env_step, observe, warn_time_limit
+from .scenario import Scenario, make_scenario
+from .schema import COL, OBS_BOUND, OBS_NAMES
+from .task import action_to_split
+from .trajectory import sample_reference
+
+__all__ = ["ISCCMultiEnv", "MULTI_ENV_ID", "N_DRONES", "MAX_DRONES", "check_n_drones", "drone_budgets",
+           "multi_split", "multi_reward", "drone_seeds", "reset_drones", "multi_step", "multi_info",
+           "parallel_env"]
+
+#: The registered id of the multi-drone env.
+MULTI_ENV_ID = "iscc_gym/ISCC-Multi-v0"
+#: Drones per base station by default.
+N_DRONES = 4
+#: The largest supported number of drones (memory and observation size grow with it).
+MAX_DRONES = 64
+#: Per-drone info keys of a multi-drone step (arrays with one entry per drone), from :data:`COL`.
+DRONE_INFO_KEYS = ("tracking_error_m", "cost_rate", "cost_stability", "snr_db", "snr_large_scale_db", "peb_m",
+                   "veb_mps", "eps_ctrl", "rate_comm_bps", "rate_ctrl_bps", "estimation_error_m")
+
+
+def check_n_drones(n_drones) -> int:
+    """``n_drones`` as an int in [1, :data:`MAX_DRONES`], or a ``ValueError`` naming it."""
+    if isinstance(n_drones, bool) or not isinstance(n_drones, (int, np.integer)) \
+            or not 1 <= n_drones <= MAX_DRONES:
+        raise ValueError(f"n_drones = {n_drones!r}; use an integer from 1 to {MAX_DRONES}")
+    return int(n_drones)
+
+
+def _weights(actions: np.ndarray, k: int) -> np.ndarray:
+    a = np.asarray(actions, dtype=float)
+    if a.ndim == 0 or a.shape[-1] != 3 * k:
+        raise ValueError(f"actions must have shape (..., {3 * k}) for {k} drones (3 shares each), got {a.shape}")
+    return ((np.clip(a, -1.0, 1.0) + 1.0) * 0.5).reshape(a.shape[:-1] + (k, 3))
+
+
+def drone_budgets(actions: ArrayLike, n_drones: int) -> np.ndarray:
+    r"""Each drone's share of the band for actions in [-1, 1]^{3K}, shape (..., K).
+
+    .. math::
+        w_{k,f} = (\mathrm{clip}(a_{3k+f}, -1, 1) + 1)/2,\qquad
+        b_k = \textstyle\sum_f w_{k,f} \big/ \sum_{j,f} w_{j,f}
+
+    (:math:`b_k = 1/K` where every :math:`w = 0`). With the drone's own split
+    :func:`iscc_gym.env.action_to_split` of its three actions, :math:`\alpha_{k,f} = b_k\,
+    w_{k,f}/\sum_f w_{k,f} = w_{k,f}/\sum_{j,f} w_{j,f}`: the single env's map onto the simplex, over
+    3K shares.
+    """
+    k = check_n_drones(n_drones)
+    w = _weights(actions, k)
+    per = w.sum(axis=-1)
+    total = per.sum(axis=-1, keepdims=True)
+    ok = total > 1e-12
+    return np.where(ok, per / np.where(ok, total, 1.0), 1.0 / k)
+
+
+def multi_split(actions: ArrayLike, n_drones: int) -> np.ndarray:
+    """The applied shares ``alpha[..., k, f]`` of actions (..., 3K): each drone's budget
+    (:func:`drone_budgets`) times its own split (:func:`iscc_gym.env.action_to_split`), as the
+    compiled step applies them; they sum to 1 over (k, f).
+    """
+    k = check_n_drones(n_drones)
+    a = np.asarray(actions, dtype=float)
+    b = drone_budgets(a, k)
+    return b[..., None] * action_to_split(a.reshape(a.shape[:-1] + (k, 3)))
+
+
+def multi_reward(s: Scenario, out: np.ndarray, n_next: ArrayLike) -> np.ndarray:
+    r"""The team reward of a step from the per-drone step outputs ``out`` (..., K, columns).
+
+    .. math::
+        r_n = -\frac1K \sum_k \min(e_{k,n}, e_\max) - \sum_k \bigl(w_\mathrm{rate}\, c^\mathrm{rate}_{k,n}
+        + w_\mathrm{stab}\, c^\mathrm{stab}_{k,n}\bigr)
+
+    (:func:`iscc_gym.kernel.reward_from_costs` per drone with the error and its bound divided by
+    K, summed), minus the single env's loss-of-track penalty :math:`e_\max` per remaining slot when
+    any drone loses track. With K = 1 it is the single env's reward.
+    """
+    k = out.shape[-2]
+    err, c_rate, c_stab = (out[..., COL[name]] for name in ("tracking_error_m", "cost_rate", "cost_stability"))
+    r = kernel.reward_from_costs(s.max_tracking_error_m / k, s.w_rate, s.w_stab, err / k, c_rate, c_stab).sum(-1)
+    term = (out[..., COL["terminated"]] == 1.0).any(axis=-1)
+    return r - np.where(term, kernel.terminal_penalty(s.max_tracking_error_m, s.n_slots, n_next), 0.0)
+
+
+def drone_seeds(rng: np.random.Generator, n_drones: int) -> list[int]:
+    """K seeds drawn from an env's generator, one per drone (each drone is a single env reset with
+    its seed: :func:`reset_drones`).
+    """
+    return [int(x) for x in rng.integers(0, 2**63 - 1, size=check_n_drones(n_drones), dtype=np.int64)]
+
+
+def reset_drones(s: Scenario, seeds) -> loop.LoopState:
+    """The initial state of K drones (a batch of K loops), drone k exactly the single env
+    (:class:`iscc_gym.env.ISCCEnv`) reset with ``seeds[k]``: its reference, initial state and noise key.
+    """
+    rngs = [seeding.np_random(int(sd))[0] for sd in seeds]
+    refs = [sample_reference(s, r) for r in rngs]
+    parts = [loop.init_state(s, [ref], [r]) for ref, r in zip(refs, rngs, strict=True)]
+    return loop.LoopState(*(np.concatenate(fields) for fields in zip(*parts, strict=True)))
+
+
+def multi_step(s: Scenario, state: loop.LoopState, actions: np.ndarray, n_drones: int,
+               active: ArrayLike = None):
+    """One step of N multi-drone envs (N x K loops, drone k of env i at row i K + k).
+
+    Returns ``(state, out, obs, reward, terminated, truncated)``: ``out`` (N, K, columns) the per-drone
+    step outputs (:data:`iscc_gym.schema.STEP_COLUMNS`), ``obs`` (N, 23 K) the drones' observations
+    concatenated, ``reward`` (N,) :func:`multi_reward`, ``terminated`` (N,) when any drone loses
+    track, ``truncated`` (N,) at the mission's end. ``active`` (N,) bool: envs to step (the others
+    keep their state, zero outputs).
+    """
+    k = n_drones
+    a = np.asarray(actions, dtype=np.float64)
+    nenv = a.shape[0]
+    budget = drone_budgets(a, k).reshape(-1)
+    rows = a.reshape(nenv * k, 3)
+    act = None if active is None else np.repeat(np.asarray(active, dtype=bool), k)
+    state, out, obs = env_step(s, state, rows, active=act, budget=budget)
+    out = out.reshape(nenv, k, -1)
+    n_next = state.n.reshape(nenv, k)[:, 0]
+    reward = multi_reward(s, out, n_next)
+    terminated = (out[..., COL["terminated"]] == 1.0).any(axis=-1)
+    truncated = ~terminated & (out[..., COL["truncated"]] == 1.0).any(axis=-1)
+    if active is not None:
+        reward = np.where(active, reward, 0.0)
+    return state, out, obs.reshape(nenv, k * len(OBS_NAMES)), reward, terminated, truncated
+
+
+def multi_info(out: np.ndarray) -> dict:
+    """The info of one multi-drone env's step from its outputs (K, columns): per-drone arrays of
+    :data:`DRONE_INFO_KEYS`, ``packet_received`` (K,) bool and ``alpha`` (K, 3) the applied shares;
+    scalars ``cost`` (every drone's rate and stability costs summed, Safety-Gymnasium's key) and
+    ``mean_tracking_error_m``.
+    """
+    info: dict[str, Any] = {key: out[:, COL[key]].copy() for key in DRONE_INFO_KEYS}
+    info["packet_received"] = out[:, COL["packet_received"]] == 1.0
+    info["alpha"] = out[:, COL["alpha_sen"]:COL["alpha_comm"] + 1].copy()
+    info["cost"] = float(info["cost_rate"].sum() + info["cost_stability"].sum())
+    info["mean_tracking_error_m"] = float(info["tracking_error_m"].mean())
+    return info
+
+
+class ISCCMultiEnv(gym.Env):
+    r"""Split one base station's time-frequency budget across K drones, every slot.
+
+    ## Description
+
+    K drones (``n_drones``, default 4), each the ISCC loop of :class:`iscc_gym.env.ISCCEnv` (its own
+    reference, Kalman filter, LQG loop, links, fading, shadowing and noise), share one OFDM budget:
+    every slot the agent gives each drone a sensing, a control and a data share, 3K shares summing to
+    1. Drone k's CRLB, drop probability and rate follow from its own shares exactly as in the single
+    env (per-subcarrier SNR independent of the share, orthogonal subcarriers: no interference).
+    Each step runs the compiled single-drone step on a batch of K loops.
+
+    ## Action Space
+
+    ``Box(-1, 1, (3K,), float32)``: entries 3k, 3k+1, 3k+2 are drone k's sensing, control and data
+    weights. Mapped onto the 3K-simplex: :math:`w = (a + 1)/2`, :math:`\alpha_{k,f} = w_{k,f} /
+    \sum w` (equal shares 1/(3K) if every w = 0; :func:`multi_split`). ``info["alpha"]`` (K, 3) holds
+    the applied shares. NaN/inf or a wrong shape raise ``ValueError`` and leave the env unchanged.
+
+    ## Observation Space
+
+    ``Box(-10, 10, (23K,), float32)``: drone k's single-env observation (the table of
+    :class:`iscc_gym.env.ISCCEnv`) at entries 23k to 23k+22. Its ``alpha_ctrl_min`` and
+    ``alpha_comm_min`` are shares of the whole band, as here.
+
+    ## Rewards
+
+    .. math::
+        r_n = -\frac1K \sum_k \min(e_{k,n}, e_\max) - \sum_k \bigl(w_\mathrm{rate}\, c^\mathrm{rate}_{k,n}
+        + w_\mathrm{stab}\, c^\mathrm{stab}_{k,n}\bigr)
+
+    the mean tracking error over drones (each clipped at ``max_tracking_error_m``) and the rate and
+    stability penalties summed over drones (the single env's costs; :func:`multi_reward`). Per-drone
+    costs are in ``info["cost_rate"]``, ``info["cost_stability"]`` (K,); ``info["cost"]`` is their
+    total, for safe-RL libraries. Loss of track adds the single env's penalty, ``max_tracking_error_m``
+    per remaining slot. With K = 1 reward and costs are the single env's.
+
+    ## Starting State
+
+    ``reset(seed=s)`` seeds the env's generator, draws one seed per drone from it
+    (``info["drone_seeds"]``) and resets drone k exactly as :class:`iscc_gym.env.ISCCEnv` reset with
+    its seed: drones fly independent references from independent noise streams.
+
+    ## Episode End
+
+    * Termination: **any** drone loses track (its tracking error above ``max_tracking_error_m`` or
+      its state outside the evaluable range, as in the single env): the team's mission failed.
+    * Truncation: after ``n_slots`` slots (5000), the mission's end for every drone.
+
+    ## Arguments
+
+    ``gymnasium.make("iscc_gym/ISCC-Multi-v0", n_drones=4, scenario="paper", **overrides)``:
+    ``scenario`` and ``overrides`` as in :class:`iscc_gym.env.ISCCEnv`, shared by every drone.
+    ``gymnasium.make_vec(..., vectorization_mode="vector_entry_point")`` gives the native batched
+    env (:class:`iscc_gym.vector.ISCCVectorEnv` with ``n_drones``).
+
+    ## Version History
+
+    * v0: initial version.
+
+    ## Example
+
+    >>> import gymnasium as gym, iscc_gym
+    >>> env = gym.make("iscc_gym/ISCC-Multi-v0", n_drones=4)
+    >>> obs, info = env.reset(seed=0)
+    >>> obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
+    """
+
+    metadata = {"render_modes": []}
+
+    def __init__(self, n_drones: int = N_DRONES, scenario: str | Scenario = "paper", render_mode: str | None = None,
+                 **overrides: Any):
+        self.n_drones = check_n_drones(n_drones)
+        self.scenario = make_scenario(scenario, **overrides)
+        warn_time_limit(self.scenario)
+        if render_mode is not None:
+            raise ValueError(f"render_mode={render_mode!r}; the multi-drone env has no renderer (use None)")
+        self.render_mode = None
+        k = self.n_drones
+        self.action_space = spaces.Box(-1.0, 1.0, (3 * k,), np.float32)
+        self.observation_space = spaces.Box(-OBS_BOUND, OBS_BOUND, (k * len(OBS_NAMES),), np.float32)
+        self._state: loop.LoopState | None = None
+        self._ended = False
+        self._last_rx = np.ones(k)
+        self._last_peb = np.zeros(k)
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        seed = check_seed(seed, "seed")
+        super().reset(seed=seed)
+        self._state, self._ended = None, False
+        seeds = drone_seeds(self.np_random, self.n_drones)
+        self._state = reset_drones(self.scenario, seeds)
+        self._last_rx, self._last_peb = np.ones(self.n_drones), np.zeros(self.n_drones)
+        obs = observe(self.scenario, self._state, self._last_rx, self._last_peb).reshape(-1)
+        return obs, {"slot": 0, "drone_seeds": seeds, "alpha": np.full((self.n_drones, 3), 1.0 / (3 * self.n_drones))}
+
+    def step(self, action):
+        if self._state is None:
+            raise RuntimeError("step() called before reset(): call env.reset(seed=...) first")
+        a = np.asarray(action, dtype=np.float64)
+        if a.shape != (3 * self.n_drones,):
+            raise ValueError(f"action must have shape ({3 * self.n_drones},) for {self.n_drones} drones, got {a.shape}")
+        if not np.isfinite(a).all():
+            raise ValueError(f"action entries {np.flatnonzero(~np.isfinite(a)).tolist()} are NaN or inf; pass "
+                             "finite values in [-1, 1]")
+        if self._ended:
+            raise RuntimeError("the episode has ended (a drone lost track); call reset() before step()")
+        if self._state.n[0] >= self.scenario.n_slots:
+            raise RuntimeError("the mission is over (truncated); call reset() before step()")
+        self._state, out, obs, reward, term, trunc = multi_step(self.scenario, self._state, a[None], self.n_drones)
+        out = out[0]
+        self._ended = bool(term[0])
+        self._last_rx = out[:, COL["packet_received"]].copy()
+        self._last_peb = out[:, COL["peb_m"]].copy()
+        info = multi_info(out)
+        info["action"] = a.astype(np.float32)
+        info["slot"] = int(self._state.n[0])
+        return obs[0], float(reward[0]), bool(term[0]), bool(trunc[0]), info
+
+
+def parallel_env(n_drones: int = N_DRONES, **kwargs):
+    """The PettingZoo ``ParallelEnv`` of the multi-drone env (:mod:`iscc_gym.multi_pz`; needs
+    ``pip install pettingzoo``, the ``multi`` extra).
+    """
+    from .multi_pz import ISCCParallelEnv
+
+    return ISCCParallelEnv(n_drones=n_drones, **kwargs)
+

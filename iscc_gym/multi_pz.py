@@ -1,0 +1,91 @@
+r"""PettingZoo view of the multi-drone env: one agent per drone proposing its demand.
+
+``iscc_gym.multi.parallel_env(n_drones=K)`` (needs ``pip install pettingzoo``, the ``multi`` extra).
+
+Agents ``drone_0`` ... ``drone_{K-1}``. Each agent's action is ``Box(-1, 1, (3,))``: its proposed
+sensing, control and data weights. **The GBS's normalisation rule**: it maps the K proposals onto the
+shared budget exactly as the centralised env maps its 3K-vector (:func:`iscc_gym.multi.multi_split`):
+:math:`w_{k,f} = (a_{k,f} + 1)/2`, :math:`\alpha_{k,f} = w_{k,f} / \sum_{j,f} w_{j,f}`, so a drone's
+band grows with its total demand against everyone else's (proportional sharing). Each agent observes
+its own drone (the single env's 23 entries). Rewards are per drone, :math:`-\min(e_k, e_\max)/K -
+w_\mathrm{rate} c^\mathrm{rate}_k - w_\mathrm{stab} c^\mathrm{stab}_k` (minus the loss-of-track
+penalty shared out 1/K per drone), so the agents' rewards sum to the centralised env's team reward.
+Every agent terminates when any drone loses track and truncates at the mission's end. Infos carry the
+drone's costs (``cost_rate``, ``cost_stability``, ``cost``), tracking error and applied shares.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+from gymnasium import spaces
+from pettingzoo import ParallelEnv
+
+from . import kernel
+from .multi import N_DRONES, ISCCMultiEnv
+from .schema import OBS_BOUND, OBS_NAMES
+
+__all__ = ["ISCCParallelEnv"]
+
+
+class ISCCParallelEnv(ParallelEnv):
+    """One agent per drone of :class:`iscc_gym.multi.ISCCMultiEnv` (module docstring: the rule)."""
+
+    metadata = {"render_modes": [], "name": "iscc_multi_v0", "is_parallelizable": True}
+
+    def __init__(self, n_drones: int = N_DRONES, scenario="paper", render_mode=None, **overrides):
+        self._env = ISCCMultiEnv(n_drones=n_drones, scenario=scenario, render_mode=render_mode, **overrides)
+        self.render_mode = None
+        self.possible_agents = [f"drone_{k}" for k in range(self._env.n_drones)]
+        self.agents: list[str] = []
+
+    @functools.cache  # noqa: B019  (PettingZoo's documented pattern: one space per agent)
+    def observation_space(self, agent):
+        return spaces.Box(-OBS_BOUND, OBS_BOUND, (len(OBS_NAMES),), np.float32)
+
+    @functools.cache  # noqa: B019
+    def action_space(self, agent):
+        return spaces.Box(-1.0, 1.0, (3,), np.float32)
+
+    @property
+    def scenario(self):
+        return self._env.scenario
+
+    def _split(self, obs):
+        return {a: obs[k * len(OBS_NAMES):(k + 1) * len(OBS_NAMES)] for k, a in enumerate(self.possible_agents)}
+
+    def reset(self, seed=None, options=None):
+        obs, info = self._env.reset(seed=seed, options=options)
+        self.agents = list(self.possible_agents)
+        return self._split(obs), {a: {"drone_seed": info["drone_seeds"][k]} for k, a in enumerate(self.agents)}
+
+    def step(self, actions):
+        if not self.agents:
+            raise RuntimeError("step() called with no live agents: call reset() first")
+        missing = [a for a in self.agents if a not in actions]
+        if missing:
+            raise ValueError(f"actions has no entry for {missing}; pass one (3,) action per agent")
+        bad = {a: np.shape(actions[a]) for a in self.agents if np.shape(actions[a]) != (3,)}
+        if bad:
+            raise ValueError(f"each agent's action must have shape (3,); got {bad}")
+        vec = np.concatenate([np.asarray(actions[a], dtype=np.float64) for a in self.possible_agents])
+        obs, _, term, trunc, info = self._env.step(vec)
+        s, k = self.scenario, len(self.possible_agents)
+        out_err, c_rate, c_stab = info["tracking_error_m"], info["cost_rate"], info["cost_stability"]
+        per = kernel.reward_from_costs(s.max_tracking_error_m / k, s.w_rate, s.w_stab, out_err / k, c_rate, c_stab)
+        if term:
+            per = per - kernel.terminal_penalty(s.max_tracking_error_m, s.n_slots, info["slot"]) / k
+        agents = self.agents
+        infos = {a: {"tracking_error_m": float(out_err[i]), "cost_rate": float(c_rate[i]),
+                     "cost_stability": float(c_stab[i]), "cost": float(c_rate[i] + c_stab[i]),
+                     "alpha": info["alpha"][i].copy(), "slot": info["slot"]} for i, a in enumerate(agents)}
+        result = (self._split(obs), {a: float(per[i]) for i, a in enumerate(agents)},
+                  {a: bool(term) for a in agents}, {a: bool(trunc) for a in agents}, infos)
+        if term or trunc:
+            self.agents = []
+        return result
+
+    def close(self):
+        self._env.close()
+

@@ -60,14 +60,23 @@ class _SlotTables:
         """Fading-averaged eq:ctrl_bler at shares ``alpha`` (n,) for the SNR grid ``snr`` (n, nodes)."""
         return ctrl_bler(s, alpha[:, None], snr) @ self.fade_w
 
-    def lookup(self, snr_db: float):
+    def lookup(self, snr_db):
+        """``(ctrl_min, comm_min)`` at large-scale SNRs ``snr_db`` (arrays, or floats for a float):
+        linear interpolation on the grid, an unreachable stability threshold (inf) where either
+        neighbour is.
+        """
         g = self.SNR_DB_GRID
-        x = min(max(snr_db, g[0]), g[-1])
-        i = min(int((x - g[0]) / (g[1] - g[0])), len(g) - 2)
+        x = np.clip(np.asarray(snr_db, dtype=float), g[0], g[-1])
+        i = np.minimum(((x - g[0]) / (g[1] - g[0])).astype(np.int64), len(g) - 2)
         t = (x - g[i]) / (g[1] - g[0])
         c0, c1 = self.ctrl_min[i], self.ctrl_min[i + 1]
-        ctrl = (1.0 - t) * c0 + t * c1 if math.isfinite(c0) and math.isfinite(c1) else max(c0, c1)
-        return float(ctrl), float((1.0 - t) * self.comm_min[i] + t * self.comm_min[i + 1])
+        finite = np.isfinite(c0) & np.isfinite(c1)
+        with np.errstate(invalid="ignore"):
+            ctrl = np.where(finite, (1.0 - t) * c0 + t * c1, np.maximum(c0, c1))
+        comm = (1.0 - t) * self.comm_min[i] + t * self.comm_min[i + 1]
+        if np.ndim(snr_db) == 0:
+            return float(ctrl), float(comm)
+        return ctrl, comm
 
 
 class _Constant:
@@ -175,22 +184,32 @@ class SCAPolicy(SplitPolicy):
         d = decode_observation(np.asarray(obs_row, dtype=float), self.scenario)
         return self._slot_problem(*(float(d[k]) for k in _READ))
 
+    def slot_terms(self, snr_db, range_m, sin_el, cos_az, sin_az):
+        r"""The per-slot problem's inputs for slots with these decoded observation entries (arrays or
+        floats): ``(coefficients, ctrl_min, comm_min)``: the
+        :class:`iscc_gym.sensing_share.SensingCoefficients` of :math:`f_\mathrm{sen}`, the stability
+        threshold and the data share (see the class docstring).
+        """
+        s = self.scenario
+        dist = np.maximum(range_m, 1.0)
+        sin_el = np.clip(sin_el, -1.0, 1.0)
+        norm = np.hypot(cos_az, sin_az)
+        norm = np.where(norm > 0.0, norm, 1.0)
+        trig = (cos_az / norm, sin_az / norm, np.sqrt(np.maximum(0.0, 1.0 - sin_el * sin_el)), sin_el)
+        gain = self._gain if self._gain is not None else beam_gain(s, trig)
+        shadow_db = 10.0 * np.log10(link_snr(s, dist, 0.0, gain)) - snr_db
+        ctrl_min, comm_min = self._tables.lookup(snr_db)
+        return sensing_coefficients(s, dist, trig, shadow_db), ctrl_min, comm_min
+
     def _slot_problem(self, snr_db, range_m, sin_el, cos_az, sin_az) -> SCAProblem:
         s = self.scenario
-        dist = max(range_m, 1.0)
-        sin_el = min(max(sin_el, -1.0), 1.0)
-        norm = math.hypot(cos_az, sin_az) or 1.0
-        trig = (cos_az / norm, sin_az / norm, math.sqrt(max(0.0, 1.0 - sin_el * sin_el)), sin_el)
-        gain = self._gain if self._gain is not None else float(beam_gain(s, trig))
-        shadow_db = 10.0 * math.log10(float(link_snr(s, dist, 0.0, gain))) - snr_db
-        c = sensing_coefficients(s, dist, trig, shadow_db)
+        c, ctrl_min, comm_min = self.slot_terms(snr_db, range_m, sin_el, cos_az, sin_az)
         info = (float(c.info_range), float(c.info_az), float(c.info_cross), float(c.info_el), float(c.prior))
 
         def f_sen(a):
             return crlb_trace_one(*info, float(a))
 
         snr = 10.0 ** (snr_db / 10.0) * self._tables.fade
-        ctrl_min, comm_min = self._tables.lookup(snr_db)
         tables = self._tables
         ignore = self.ignore_loss
 

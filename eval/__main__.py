@@ -119,6 +119,9 @@ def save_plots(res: dict, out_dir: str | Path, dt_s: float = 0.1) -> list[str]:
 
 def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
     ap = Parser(prog=prog, description=__doc__.split("\n")[0], epilog=PICKLE_WARNING)
+    ap.add_argument("--env", default="iscc_gym/ISCC-v0", metavar="ID",
+                    help="env id (default: iscc_gym/ISCC-v0); iscc_gym/ISCC-Multi-v0 runs python -m eval.multi with "
+                         "the other flags (--n-drones K, --k-scan, ...: python -m eval.multi --help)")
     ap.add_argument("--policies", default=DEFAULT_POLICIES, metavar="LIST",
                     help="comma-separated policies: NAME=PATH (a trained agent: a run directory of python -m train "
                          "or a model .zip; loads that directory's vecnormalize.pkl too, both pickles: only files "
@@ -174,7 +177,14 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> dict:
     A user's mistake raises ``ValueError``/``OSError`` with one line, before any episode is played (or
     argparse exits with code 2); :func:`console` turns them into exit codes.
     """
+    rest = _multi_argv(sys.argv[1:] if argv is None else list(argv))
+    if rest is not None:
+        from iscc_gym.eval.multi import main as multi_main
+
+        return multi_main(rest, prog=f"{prog} --env {MULTI_ENV_ID}")
     args = build_parser(prog).parse_args(argv)
+    if args.env != "iscc_gym/ISCC-v0":
+        raise ValueError(f"--env {args.env!r}: use iscc_gym/ISCC-v0 or {MULTI_ENV_ID}")
     from iscc_gym import make_scenario
 
     try:
@@ -244,6 +254,19 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> dict:
     if args.json:
         save_json(args.json, res)
     return res
+
+
+MULTI_ENV_ID = "iscc_gym/ISCC-Multi-v0"
+
+
+def _multi_argv(argv: list[str]) -> list[str] | None:
+    """The arguments without ``--env iscc_gym/ISCC-Multi-v0`` if they ask for the multi-drone env, else None."""
+    for i, a in enumerate(argv):
+        if a == "--env" and i + 1 < len(argv) and argv[i + 1] == MULTI_ENV_ID:
+            return argv[:i] + argv[i + 2:]
+        if a == f"--env={MULTI_ENV_ID}":
+            return argv[:i] + argv[i + 1:]
+    return None
 
 
 def console(argv: list[str] | None = None, prog: str | None = None) -> int:

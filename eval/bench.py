@@ -9,6 +9,8 @@ Every figure is the median over ``repeats`` runs, with its reference measured in
 * single env steps/s through ``gymnasium.make`` (default wrappers), actions drawn in advance so
   ``Box.sample()`` (about 16 us) is not timed; reference: Gymnasium's Pendulum-v1 measured alike;
 * vector env env-steps/s at 1, 64 and 1024 envs (``gymnasium.make_vec``, native batched env);
+* the multi-drone vector env's drone-slots/s at 1024 envs x 4 drones, against the single-drone
+  vector env at 1024 envs (cost per drone-slot);
 * PPO training env-steps/s end to end (SB3 defaults, 4 envs, ``torch.set_num_threads(1)``) on
   DummyVecEnv, SubprocVecEnv and the batched env; reference: the same PPO on Pendulum-v1 with
   DummyVecEnv;
@@ -53,13 +55,20 @@ def env_steps_per_second(env_id: str, n_steps: int, repeats: int, seed: int = 0,
     return {"median_steps_per_s": statistics.median(rates), "runs": rates, "n_steps": n_steps}
 
 
-def vector_steps_per_second(num_envs: int, n_steps: int, repeats: int, seed: int = 0, warmup: int = 1) -> dict:
+def vector_steps_per_second(num_envs: int, n_steps: int, repeats: int, seed: int = 0, warmup: int = 1,
+                            n_drones: int | None = None) -> dict:
     """Median env-steps/s of the native vector env (``n_steps`` batched steps per run, after ``warmup``
-    untimed steps: compiled kernels loaded, the ``auto`` kernel choice made).
+    untimed steps: compiled kernels loaded, the ``auto`` kernel choice made); with ``n_drones``, of the
+    multi-drone env (``iscc_gym/ISCC-Multi-v0``), also as drone-slots/s.
     """
-    venv = gym.make_vec(iscc_gym.ENV_ID, num_envs=num_envs, vectorization_mode="vector_entry_point")
+    if n_drones is None:
+        venv = gym.make_vec(iscc_gym.ENV_ID, num_envs=num_envs, vectorization_mode="vector_entry_point")
+    else:
+        venv = gym.make_vec(iscc_gym.MULTI_ENV_ID, num_envs=num_envs, vectorization_mode="vector_entry_point",
+                            n_drones=n_drones)
     venv.reset(seed=seed)
-    actions = np.random.default_rng(seed).uniform(-1, 1, (n_steps, num_envs, 3)).astype(np.float32)
+    width = 3 * (n_drones or 1)
+    actions = np.random.default_rng(seed).uniform(-1, 1, (n_steps, num_envs, width)).astype(np.float32)
     for i in range(warmup):
         venv.step(actions[i % n_steps])
     rates = []
@@ -69,8 +78,21 @@ def vector_steps_per_second(num_envs: int, n_steps: int, repeats: int, seed: int
             venv.step(a)
         rates.append(n_steps * num_envs / (time.perf_counter() - t0))
     venv.close()
-    return {"median_env_steps_per_s": statistics.median(rates), "runs": rates, "n_steps": n_steps,
-            "num_envs": num_envs}
+    med = statistics.median(rates)
+    return {"median_env_steps_per_s": med, "runs": rates, "n_steps": n_steps, "num_envs": num_envs,
+            "n_drones": n_drones, "median_drone_slots_per_s": med * (n_drones or 1)}
+
+
+def multi_drone_cost(num_envs: int = 1024, n_drones: int = 4, n_steps: int = 300, repeats: int = 3) -> dict:
+    """Drone-slots/s of the multi-drone vector env (``num_envs`` envs of ``n_drones`` drones) against
+    the single-drone vector env's env-steps/s at the same number of loops and at ``num_envs``, measured
+    alike in this process; ``cost_ratio``: the multi env's time per drone-slot over the single env's
+    at ``num_envs`` (goal <= 1.5).
+    """
+    multi = vector_steps_per_second(num_envs, n_steps, repeats, warmup=4, n_drones=n_drones)
+    single = vector_steps_per_second(num_envs, n_steps, repeats, warmup=4)
+    return {"multi": multi, "single": single,
+            "cost_ratio": single["median_env_steps_per_s"] / multi["median_drone_slots_per_s"]}
 
 
 #: The vector env's kernel, old default first: parallel from 64 envs, then serial (the default since issue 12).
@@ -252,6 +274,7 @@ def run(n_steps: int = 5000, repeats: int = 5, quick: bool = False, ppo: bool = 
                                                        repeats)
                        for n in ((1, 64) if quick else (1, 64, 1024))},
     }
+    res["multi_drone"] = multi_drone_cost(64 if quick else 1024, 4, 20 if quick else 300, 1 if quick else repeats)
     res["vector_under_load"] = vector_under_load(n_steps=50 if quick else 3000, repeats=1 if quick else repeats)
     res["render"] = render_ms(5 if quick else 50)
     res["eval_static_sca"] = eval_sca_seconds(2 if quick else 100, max_steps=20 if quick else None)
@@ -277,6 +300,13 @@ def format_report(res: dict) -> str:
     ]
     for n, v in res["vector_env"].items():
         lines.append(f"  {n + ' envs':<26} {v['median_env_steps_per_s']:12,.0f} env-steps/s")
+    if "multi_drone" in res:
+        md = res["multi_drone"]
+        m = md["multi"]
+        lines.append(f"Multi-drone vector env ({m['num_envs']} envs x {m['n_drones']} drones): "
+                     f"{m['median_drone_slots_per_s']:,.0f} drone-slots/s; single-drone env at {m['num_envs']} envs "
+                     f"{md['single']['median_env_steps_per_s']:,.0f}; cost per drone-slot {md['cost_ratio']:.2f} x "
+                     "the single env's (goal <= 1.5)")
     if "vector_under_load" in res:
         lines.append("Native vector env per kernel mode (iscc_gym.threads), quiet and beside a busy process, "
                      "env-steps/s:")
@@ -327,6 +357,13 @@ def markdown(res: dict) -> str:
     for n, v in res["vector_env"].items():
         rows.append(f"| vector env, {n} envs, env-steps/s | {v['median_env_steps_per_s']:,.0f} | | "
                     f"{targets.get(n, '')} |")
+    if "multi_drone" in res:
+        md = res["multi_drone"]
+        m = md["multi"]
+        rows.append(f"| multi-drone vector env, {m['num_envs']} envs x {m['n_drones']} drones, drone-slots/s | "
+                    f"{m['median_drone_slots_per_s']:,.0f} (cost per drone-slot {md['cost_ratio']:.2f} x) | "
+                    f"single-drone env, {m['num_envs']} envs: {md['single']['median_env_steps_per_s']:,.0f} | "
+                    "cost <= 1.5 x |")
     if "vector_under_load" in res:
         labels = {"parallel": "parallel from 64 envs (the old default)", "serial": "serial (the default)"}
         for load, modes in res["vector_under_load"].items():

@@ -79,7 +79,8 @@ def horizon_slots(scenario: str | Scenario = "paper", max_steps: int | None = No
 
 
 def run_episodes(policy, seeds: Sequence[int], scenario: str | Scenario = "paper", max_steps: int | None = None,
-                 record: int = 0, progress: Callable[[int], None] | None = None, **overrides) -> dict:
+                 record: int = 0, progress: Callable[[int], None] | None = None, n_drones: int | None = None,
+                 **overrides) -> dict:
     """Play one episode per seed, all at once on the batched env, with ``policy.predict``
     (deterministic). Returns per-episode metric arrays (:data:`EPISODE_METRICS`), the wall time,
     and, if ``record`` > 0, the slot-by-slot traces of the first ``record`` episodes.
@@ -93,9 +94,11 @@ def run_episodes(policy, seeds: Sequence[int], scenario: str | Scenario = "paper
         raise ValueError("seeds is empty; pass at least one seed")
     if max_steps is not None and int(max_steps) < 1:
         raise ValueError(f"max_steps = {max_steps}: play at least one slot (or None: the whole mission)")
+    rate_drone = overrides.pop("rate_min_per_drone_bps", None)
     s = make_scenario(scenario, **overrides)
     k = len(seeds)
-    venv = ISCCVectorEnv(num_envs=k, scenario=s)
+    venv = ISCCVectorEnv(num_envs=k, scenario=s, n_drones=n_drones, rate_min_per_drone_bps=rate_drone)
+    drones = (lambda x: np.mean(x, axis=-1)) if n_drones else (lambda x: x)
     horizon = s.n_slots if max_steps is None else min(int(max_steps), s.n_slots)
     reported = 0
     t0 = time.perf_counter()
@@ -115,26 +118,27 @@ def run_episodes(policy, seeds: Sequence[int], scenario: str | Scenario = "paper
             reported = t
         action, state = policy.predict(obs, state=state, episode_start=episode_start, deterministic=True)
         episode_start = np.zeros(k, dtype=bool)
-        obs, reward, term, trunc, info = venv.step(np.asarray(action, dtype=np.float32).reshape(k, 3))
+        obs, reward, term, trunc, info = venv.step(np.asarray(action, dtype=np.float32).reshape(k, -1))
         a = alive.astype(float)
-        cr, cs = info["cost_rate"], info["cost_stability"]
+        cr, cs, err = info["cost_rate"], info["cost_stability"], info["tracking_error_m"]
         sums["reward"] += a * reward
-        sums["tracking_error_m"] += a * info["tracking_error_m"]
-        sums["mse_m2"] += a * info["tracking_error_m"] * info["tracking_error_m"]
-        sums["rate_violation"] += a * (cr > 0)
-        sums["stability_violation"] += a * (cs > 0)
-        sums["violation"] += a * ((cr > 0) | (cs > 0))
-        sums["cost"] += a * (cr + cs)
-        sums["peb_m"] += a * info["peb_m"]
-        sums["rate_comm_mbps"] += a * info["rate_comm_bps"] * 1e-6
-        sums["eps_ctrl"] += a * info["eps_ctrl"]
-        sums["packet_loss"] += a * ~info["packet_received"]
+        sums["tracking_error_m"] += a * drones(err)
+        sums["mse_m2"] += a * drones(err * err)
+        sums["rate_violation"] += a * drones(cr > 0)
+        sums["stability_violation"] += a * drones(cs > 0)
+        sums["violation"] += a * drones((cr > 0) | (cs > 0))
+        sums["cost"] += a * (drones(cr + cs) * (n_drones or 1))
+        sums["peb_m"] += a * drones(info["peb_m"])
+        sums["rate_comm_mbps"] += a * drones(info["rate_comm_bps"]) * 1e-6
+        sums["eps_ctrl"] += a * drones(info["eps_ctrl"])
+        sums["packet_loss"] += a * drones(~info["packet_received"])
+        alpha = info["alpha"].sum(axis=-2) if n_drones else info["alpha"]
         for j, name in enumerate(("alpha_sen", "alpha_ctrl", "alpha_comm")):
-            sums[name] += a * info["alpha"][:, j]
+            sums[name] += a * alpha[:, j]
         length += a
         if record:
-            traces["alpha"].append(info["alpha"][:record].copy())
-            traces["tracking_error_m"].append(np.where(alive[:record], info["tracking_error_m"][:record], np.nan))
+            traces["alpha"].append(alpha[:record].copy())
+            traces["tracking_error_m"].append(np.where(alive[:record], drones(err)[:record], np.nan))
             pos, ref_pos = venv.positions(record)
             traces["pos"].append(pos)
             traces["ref_pos"].append(ref_pos)

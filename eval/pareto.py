@@ -31,7 +31,7 @@ from iscc_gym.eval.outage import build, find_knob
 from iscc_gym.eval.tune import TUNE_SEED_START, check_tuning_seeds
 
 from iscc_gym.docs import RESULTS_PATH, docs_path, write_section
-from iscc_gym.scenario import make_scenario
+from iscc_gym.scenario import PARETO_RATE_MIN_BPS, make_scenario
 
 __all__ = ["KNOBS", "RATE_MIN_BPS", "points", "non_dominated", "select", "at_target", "markdown", "main"]
 
@@ -41,8 +41,8 @@ KNOBS = {"sca": (1.0, 1.5, 2.0, 2.5, 3.0, 3.5), "margin": (1.0, 2.0, 3.0, 5.0, 1
 #: First held-out mission of this command (inside the evaluation range, apart from the others).
 SEED_START = 1_300_000
 #: The rate requirement of the Pareto comparison (bps): 12 Mbps, not the ``paper`` preset's 20 Mbps,
-#: at which no split meets a 5 % or 10 % outage target (docs/model.md, "The Pareto comparison's rate").
-RATE_MIN_BPS = 12e6
+#: at which no split meets a 5 % or 10 % outage target (docs/model.md 4.6).
+RATE_MIN_BPS = PARETO_RATE_MIN_BPS
 
 
 def scenario_at(rate_min_bps: float = RATE_MIN_BPS, scenario="paper"):
@@ -108,10 +108,11 @@ def dominated_by(p: dict, pts: list[dict]) -> list[dict]:
 
 
 def select(target: float, train_seeds, scenario=None, families=tuple(KNOBS), learned: dict | None = None,
-           max_steps: int | None = None, iterations: int = 6) -> dict:
+           max_steps: int | None = None, iterations: int = 6, cache: dict | None = None) -> dict:
     """Per family, the operating point for an outage ``target`` chosen on ``train_seeds``: ``family ->
     {"knob" or "path", "label", "train": the training outage and error}`` (None where the family cannot
-    meet the target on the training seeds).
+    meet the target on the training seeds). ``cache`` (a dict, optional) keeps the learned runs'
+    training results between targets.
     """
     s = scenario_at() if scenario is None else make_scenario(scenario)
     check_tuning_seeds(train_seeds)
@@ -122,9 +123,12 @@ def select(target: float, train_seeds, scenario=None, families=tuple(KNOBS), lea
         chosen[fam] = {"knob": b["knob"], "label": f"{b['knob']:.4g}", "train": b} if r["met"] else None
     for name, path in (learned or {}).items():
         fam, label = learned_family(name)
-        ep = _play_learned(path, train_seeds, s, max_steps)
-        tr = {"rate_outage": float(np.mean(ep["rate_violation"])),
-              "tracking_error_m": float(np.mean(ep["tracking_error_m"]))}
+        if (tr := (cache or {}).get(path)) is None:
+            ep = _play_learned(path, train_seeds, s, max_steps)
+            tr = {"rate_outage": float(np.mean(ep["rate_violation"])),
+                  "tracking_error_m": float(np.mean(ep["tracking_error_m"]))}
+            if cache is not None:
+                cache[path] = tr
         cur = chosen.get(fam)
         if tr["rate_outage"] <= target and (cur is None or tr["tracking_error_m"] < cur["train"]["tracking_error_m"]):
             chosen[fam] = {"path": str(path), "label": label, "train": tr}
@@ -298,8 +302,9 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.pareto") -> 
     train_seeds = list(range(TUNE_SEED_START, TUNE_SEED_START + args.train_episodes))
     check_tuning_seeds(train_seeds)
     pts = points(seeds, s, families=families, learned=learned, max_steps=args.max_steps)
-    results = [at_target(t, select(t, train_seeds, s, families, learned, args.max_steps, args.iterations), seeds, pts,
-                         s, args.max_steps) for t in targets]
+    cache: dict = {}
+    results = [at_target(t, select(t, train_seeds, s, families, learned, args.max_steps, args.iterations, cache),
+                         seeds, pts, s, args.max_steps) for t in targets]
     table = markdown(pts, results, docs_command(prog, argv), seeds, train_seeds, s.rate_min_bps)
     print(table)
     res = {"points": pts, "targets": {str(r["target"]): r for r in results}, "seeds": [seeds[0], seeds[-1]],

@@ -33,8 +33,8 @@ from .task import action_to_split
 from .trajectory import sample_reference
 
 __all__ = ["ISCCMultiEnv", "MULTI_ENV_ID", "N_DRONES", "MAX_DRONES", "check_n_drones", "drone_budgets",
-           "multi_split", "multi_reward", "drone_seeds", "reset_drones", "multi_step", "multi_info",
-           "parallel_env"]
+           "multi_split", "shares_to_action", "multi_reward", "drone_scenario", "drone_seeds", "reset_drones",
+           "multi_step", "multi_info", "parallel_env"]
 
 #: The registered id of the multi-drone env.
 MULTI_ENV_ID = "iscc_gym/ISCC-Multi-v0"
@@ -53,6 +53,25 @@ def check_n_drones(n_drones) -> int:
             or not 1 <= n_drones <= MAX_DRONES:
         raise ValueError(f"n_drones = {n_drones!r}; use an integer from 1 to {MAX_DRONES}")
     return int(n_drones)
+
+
+def drone_scenario(s: Scenario, n_drones: int, rate_min_per_drone_bps: float | None = None) -> Scenario:
+    """The scenario each of K drones flies: ``s`` with the per-drone rate requirement
+    ``rate_min_per_drone_bps``, by default ``s.rate_min_bps / K`` (the base station's data requirement
+    split evenly: at the ``paper`` preset's 20 Mbps for each drone, K >= 2 drones would need more than
+    the whole band; docs/model.md, section 5).
+    """
+    k = check_n_drones(n_drones)
+    rate = s.rate_min_bps / k if rate_min_per_drone_bps is None else rate_min_per_drone_bps
+    try:
+        rate = float(rate)
+    except (TypeError, ValueError):
+        raise ValueError(f"rate_min_per_drone_bps = {rate_min_per_drone_bps!r}; use a number of bps >= 0 "
+                         "or None (the scenario's rate_min_bps / n_drones)") from None
+    if not (np.isfinite(rate) and rate >= 0.0):
+        raise ValueError(f"rate_min_per_drone_bps = {rate_min_per_drone_bps!r}; use a number of bps >= 0 "
+                         "or None (the scenario's rate_min_bps / n_drones)")
+    return s.replace(rate_min_bps=rate)
 
 
 def _weights(actions: np.ndarray, k: int) -> np.ndarray:
@@ -91,6 +110,19 @@ def multi_split(actions: ArrayLike, n_drones: int) -> np.ndarray:
     a = np.asarray(actions, dtype=float)
     b = drone_budgets(a, k)
     return b[..., None] * action_to_split(a.reshape(a.shape[:-1] + (k, 3)))
+
+
+def shares_to_action(alpha: ArrayLike) -> np.ndarray:
+    """Inverse of :func:`multi_split`: the action (..., 3K) float32 whose shares are ``alpha`` (..., K, 3)
+    (largest share at +1), for shares >= 0 summing to 1 over (k, f).
+    """
+    a = np.asarray(alpha, dtype=float)
+    if a.ndim < 2 or a.shape[-1] != 3:
+        raise ValueError(f"alpha must have shape (..., K, 3), got {a.shape}")
+    flat = a.reshape(a.shape[:-2] + (-1,))
+    if np.any(~np.isfinite(flat)) or np.any(flat < 0) or not np.allclose(flat.sum(-1), 1.0, atol=1e-9):
+        raise ValueError("alpha is not a split of the band: shares must be >= 0 and sum to 1 over drones and functions")
+    return (2.0 * flat / flat.max(axis=-1, keepdims=True) - 1.0).astype(np.float32)
 
 
 def multi_reward(s: Scenario, out: np.ndarray, n_next: ArrayLike) -> np.ndarray:
@@ -192,7 +224,8 @@ class ISCCMultiEnv(gym.Env):
 
     ``Box(-10, 10, (23K,), float32)``: drone k's single-env observation (the table of
     :class:`iscc_gym.env.ISCCEnv`) at entries 23k to 23k+22. Its ``alpha_ctrl_min`` and
-    ``alpha_comm_min`` are shares of the whole band, as here.
+    ``alpha_comm_min`` are shares of the whole band, as here (``alpha_comm_min`` for the drone's
+    own rate requirement).
 
     ## Rewards
 
@@ -220,8 +253,11 @@ class ISCCMultiEnv(gym.Env):
 
     ## Arguments
 
-    ``gymnasium.make("iscc_gym/ISCC-Multi-v0", n_drones=4, scenario="paper", **overrides)``:
-    ``scenario`` and ``overrides`` as in :class:`iscc_gym.env.ISCCEnv`, shared by every drone.
+    ``gymnasium.make("iscc_gym/ISCC-Multi-v0", n_drones=4, scenario="paper",
+    rate_min_per_drone_bps=None, **overrides)``: ``scenario`` and ``overrides`` as in
+    :class:`iscc_gym.env.ISCCEnv`, shared by every drone; each drone's data link must carry
+    ``rate_min_per_drone_bps``, by default the scenario's ``rate_min_bps`` / K (the base station's
+    requirement split evenly; :func:`drone_scenario`). ``env.scenario`` is the per-drone scenario.
     ``gymnasium.make_vec(..., vectorization_mode="vector_entry_point")`` gives the native batched
     env (:class:`iscc_gym.vector.ISCCVectorEnv` with ``n_drones``).
 
@@ -240,9 +276,9 @@ class ISCCMultiEnv(gym.Env):
     metadata = {"render_modes": []}
 
     def __init__(self, n_drones: int = N_DRONES, scenario: str | Scenario = "paper", render_mode: str | None = None,
-                 **overrides: Any):
+                 rate_min_per_drone_bps: float | None = None, **overrides: Any):
         self.n_drones = check_n_drones(n_drones)
-        self.scenario = make_scenario(scenario, **overrides)
+        self.scenario = drone_scenario(make_scenario(scenario, **overrides), self.n_drones, rate_min_per_drone_bps)
         warn_time_limit(self.scenario)
         if render_mode is not None:
             raise ValueError(f"render_mode={render_mode!r}; the multi-drone env has no renderer (use None)")

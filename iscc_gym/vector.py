@@ -22,7 +22,7 @@ from .env import (
     observe,
     warn_time_limit,
 )
-from .multi import DRONE_INFO_KEYS, N_DRONES, check_n_drones, drone_seeds, multi_step, reset_drones
+from .multi import DRONE_INFO_KEYS, N_DRONES, check_n_drones, drone_scenario, drone_seeds, multi_step, reset_drones
 from .scenario import Scenario, make_scenario
 from .schema import COL as _COL
 from .schema import OBS_BOUND, OBS_NAMES
@@ -65,6 +65,9 @@ class ISCCVectorEnv(VectorEnv):
         ``(num_envs, 23K)``, per-drone info arrays ``(num_envs, K)`` (``alpha`` ``(num_envs, K, 3)``),
         N x K loops stepped as one batch; sub-env i reproduces the multi-drone env seeded alike bit
         for bit. None (default): the single-drone env.
+    rate_min_per_drone_bps : float, optional
+        With ``n_drones``: each drone's rate requirement (default the scenario's ``rate_min_bps`` / K;
+        :func:`iscc_gym.multi.drone_scenario`).
 
     ``reset(seed=s)`` seeds sub-env i with ``s + i``; ``reset(seed=[s_0, ...])`` with ``s_i``;
     ``reset(options={"reset_mask": mask})`` resets only the masked sub-envs.
@@ -74,7 +77,8 @@ class ISCCVectorEnv(VectorEnv):
 
     def __init__(self, num_envs: int = 1, scenario: str | Scenario = "paper",
                  autoreset_mode: str | AutoresetMode = AutoresetMode.NEXT_STEP,
-                 max_episode_steps: int | None = None, n_drones: int | None = None, **overrides: Any):
+                 max_episode_steps: int | None = None, n_drones: int | None = None,
+                 rate_min_per_drone_bps: float | None = None, **overrides: Any):
         if not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
             raise ValueError(f"num_envs = {num_envs!r}; use an integer >= 1")
         try:
@@ -88,6 +92,10 @@ class ISCCVectorEnv(VectorEnv):
         self.n_drones = None if n_drones is None else check_n_drones(n_drones)
         k = self._k = 1 if n_drones is None else self.n_drones
         self.scenario = make_scenario(scenario, **overrides)
+        if n_drones is not None:
+            self.scenario = drone_scenario(self.scenario, k, rate_min_per_drone_bps)
+        elif rate_min_per_drone_bps is not None:
+            raise ValueError("rate_min_per_drone_bps needs n_drones (the multi-drone env); set rate_min_bps instead")
         check_memory(self.scenario, int(num_envs) * k)
         if max_episode_steps == REGISTERED_MAX_EPISODE_STEPS:
             warn_time_limit(self.scenario)

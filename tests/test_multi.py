@@ -173,3 +173,19 @@ def test_pettingzoo_parallel_api_and_seed_tests_pass_and_rewards_add_up():
         assert sum(rew.values()) == pytest.approx(r, rel=1e-12, abs=1e-12)
     with pytest.raises(ValueError, match="shape"):
         pz.step({a: np.zeros(2) for a in pz.agents})
+
+
+def test_each_drone_carries_its_share_of_the_rate_requirement():
+    s = iscc_gym.SCENARIOS["paper"]
+    assert ISCCMultiEnv(n_drones=4).scenario.rate_min_bps == s.rate_min_bps / 4
+    assert ISCCMultiEnv(n_drones=4, rate_min_per_drone_bps=3e6).scenario.rate_min_bps == 3e6
+    v = gym.make_vec(iscc_gym.MULTI_ENV_ID, num_envs=2, vectorization_mode="vector_entry_point", n_drones=5)
+    assert v.unwrapped.scenario.rate_min_bps == s.rate_min_bps / 5
+    for bad in (-1.0, float("nan"), "fast"):
+        with pytest.raises(ValueError, match="rate_min_per_drone_bps"):
+            ISCCMultiEnv(n_drones=2, rate_min_per_drone_bps=bad)
+    env = ISCCMultiEnv(n_drones=2)
+    env.reset(seed=0)
+    _, _, _, _, info = env.step(np.ones(6, np.float32))
+    oracle = np.maximum(0.0, env.scenario.rate_min_bps - info["rate_comm_bps"]) / env.scenario.rate_min_bps
+    np.testing.assert_allclose(info["cost_rate"], oracle, rtol=1e-12, atol=1e-15)

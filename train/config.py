@@ -17,6 +17,9 @@ import yaml
 HYPERPARAMS = Path(__file__).with_name("hyperparams.yml")
 ALGOS = ("ppo", "sac", "td3")
 VEC_ENVS = ("dummy", "subproc", "batched")
+#: The multi-drone env's id, and the ids the native batched env serves.
+MULTI_ENV_ID = "iscc_gym/ISCC-Multi-v0"
+ISCC_ENV_IDS = ("iscc_gym/ISCC-v0", MULTI_ENV_ID)
 #: ``--algo ppo-lag``: PPO with the Lagrangian of train/lagrangian.py, at these limits unless
 #: ``--cost-limit`` gives others.
 PPO_LAG_LIMITS = "rate=0.05,stability=0.0"
@@ -254,6 +257,7 @@ def resolve_args(args: Args) -> tuple[Args, dict]:
     rl-zoo3's ``env_kwargs`` join ``env_overrides`` (a flag wins); the returned hyperparameters are the
     algorithm's keyword arguments only.
     """
+    args = expand_algo(args)
     hp = load_hyperparams(args.hyperparams, args.env_id, args.algo, args.overrides)
     filled: dict[str, Any] = {}
     for key, name in RUN_KEYS.items():
@@ -398,6 +402,7 @@ def expand_algo(args: Args) -> Args:
 
 
 def _check(args: Args) -> None:
+    args = expand_algo(args)
     if args.algo not in ALGOS:
         raise ValueError(f"algo = {args.algo!r}; use one of {ALGOS}")
     if args.vec_env not in VEC_ENVS:
@@ -410,7 +415,7 @@ def _check(args: Args) -> None:
             raise ValueError(f"lagrange_lr = {args.lagrange_lr!r}; use a positive number, e.g. 0.05")
         if args.env_id != "iscc_gym/ISCC-v0":
             raise ValueError(f"cost_limit: {args.env_id} has no ISCC costs in info; use iscc_gym/ISCC-v0")
-    if args.vec_env == "batched" and args.env_id != "iscc_gym/ISCC-v0":
+    if args.vec_env == "batched" and args.env_id not in ISCC_ENV_IDS:
         raise ValueError("vec_env = 'batched' is the ISCC env's own batched env; use dummy or subproc for "
                          f"{args.env_id}")
     for name in ("total_timesteps", "n_envs", "eval_episodes", "eval_max_steps", "torch_threads", "numba_threads"):

@@ -1,7 +1,7 @@
 """``python -m train.pareto``: train the learned points of the Pareto fronts (issue 15 item 3).
 
 Six PPO runs on ``iscc_gym/ISCC-v0`` at the Pareto comparison's rate requirement
-(:data:`iscc_gym.eval.pareto.RATE_MIN_BPS`), each ``python -m train`` with the configuration of
+(:data:`iscc_gym.scenario.PARETO_RATE_MIN_BPS`), each ``python -m train`` with the configuration of
 ``train/hyperparams.yml`` (seed 0) plus the flags of :data:`RUNS`:
 
 * ``ppo/w<x>``: the fixed-weight reward with the rate-shortfall weight ``w_rate = x``;
@@ -27,6 +27,8 @@ from pathlib import Path
 
 from iscc_gym.train.config import Args
 
+from iscc_gym.scenario import PARETO_RATE_MIN_BPS
+
 __all__ = ["RUNS", "PARETO_DIR", "STABILITY_LIMIT", "run_args", "train_all", "cli"]
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -47,12 +49,10 @@ RUNS = {
 
 def run_args(name: str, seed: int = 0, total_timesteps: int | None = None, out_root: str = "runs/pareto") -> Args:
     """The training :class:`Args` of the Pareto run ``name`` (a key of :data:`RUNS`)."""
-    from iscc_gym.eval.pareto import RATE_MIN_BPS
-
     if name not in RUNS:
         raise ValueError(f"run {name!r} is not a Pareto run; use one of {', '.join(RUNS)}")
     algo, env, limit = RUNS[name]
-    return Args(algo=algo, cost_limit=limit, env_overrides={"rate_min_bps": RATE_MIN_BPS, **env}, seed=seed,
+    return Args(algo=algo, cost_limit=limit, env_overrides={"rate_min_bps": PARETO_RATE_MIN_BPS, **env}, seed=seed,
                 total_timesteps=total_timesteps, out=f"{out_root}/{name}", checkpoint_freq=0, tensorboard=False,
                 overwrite=True)
 

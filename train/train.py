@@ -42,6 +42,8 @@ from .config import (
     FIELD_HELP,
     HYPERPARAMS,
     INIT_SEED_START,
+    ISCC_ENV_IDS,
+    MULTI_ENV_ID,
     OWN_SECTION,
     RUN_DEFAULTS,
     RUN_KEYS,
@@ -90,13 +92,25 @@ def make_train_env(args: Args):
         from iscc_gym.agents.sb3_vec_env import ISCCBatchedVecEnv
 
         keys = ("cost_rate", "cost_stability") if args.cost_limit else ()
-        venv = ISCCBatchedVecEnv(args.n_envs, scenario=args.scenario, info_keys=keys, **args.env_overrides)
+        venv = ISCCBatchedVecEnv(args.n_envs, scenario=args.scenario, info_keys=keys, **batched_kwargs(args))
         venv.seed(args.seed)
         return VecMonitor(venv)
-    kwargs = {"scenario": args.scenario, **args.env_overrides} if args.env_id == "iscc_gym/ISCC-v0" else {}
+    kwargs = {"scenario": args.scenario, **args.env_overrides} if args.env_id in ISCC_ENV_IDS else {}
     cls = SubprocVecEnv if args.vec_env == "subproc" else DummyVecEnv
     # make_vec_env wraps each env in a Monitor already
     return make_vec_env(args.env_id, n_envs=args.n_envs, seed=args.seed, vec_env_cls=cls, env_kwargs=kwargs)
+
+
+def batched_kwargs(args: Args) -> dict:
+    """The batched env's keyword arguments: the env overrides, and for the multi-drone env its
+    ``n_drones`` (default :data:`iscc_gym.multi.N_DRONES`).
+    """
+    kw = dict(args.env_overrides)
+    if args.env_id == MULTI_ENV_ID:
+        from iscc_gym.multi import N_DRONES
+
+        kw.setdefault("n_drones", N_DRONES)
+    return kw
 
 
 def make_eval_env(args: Args):
@@ -104,10 +118,10 @@ def make_eval_env(args: Args):
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import DummyVecEnv, VecMonitor
 
-    if args.env_id == "iscc_gym/ISCC-v0":
+    if args.env_id in ISCC_ENV_IDS:
         from iscc_gym.agents.sb3_vec_env import ISCCBatchedVecEnv
 
-        venv = ISCCBatchedVecEnv(args.eval_episodes, scenario=args.scenario, **args.env_overrides)
+        venv = ISCCBatchedVecEnv(args.eval_episodes, scenario=args.scenario, **batched_kwargs(args))
         if args.eval_max_steps < venv.venv.max_steps:
             venv.venv.max_steps = args.eval_max_steps
         venv.seed(EVAL_SEED_START)
@@ -147,6 +161,9 @@ def _behaviour_clone(model, venv, args: Args) -> dict:
 
     if not isinstance(venv, VecNormalize) or args.vec_env != "batched":
         raise ValueError("init_policy needs normalize: true and vec_env = 'batched'")
+    if args.env_id == MULTI_ENV_ID:
+        raise ValueError(f"init_policy = {args.init_policy!r}: the warm start clones a single-drone policy; use "
+                         f"--init-policy none for {MULTI_ENV_ID}")
     policy = make_policy(args.init_policy, args.scenario)
     play = ISCCBatchedVecEnv(args.init_envs, scenario=args.scenario, **args.env_overrides)
     play.seed(INIT_SEED_START + 1000 * args.seed)

@@ -1,0 +1,215 @@
+r"""Scripted baselines of the multi-drone env (``iscc_gym/ISCC-Multi-v0``, :mod:`iscc_gym.multi`).
+
+Each maps a batch of observations (n, 23K) to the 3K shares of every env and plays them with
+:func:`iscc_gym.multi.shares_to_action` (SB3's ``predict``, like the single-drone policies):
+
+* ``equal-sca`` (:class:`EqualShareSCA`): every drone gets 1/K of the band and, inside it, the paper's
+  per-slot Algorithm 1 solution for that drone (:class:`iscc_gym.agents.sca_slot.SCAPolicy`,
+  ``mode="per_slot"``). Algorithm 1's per-slot objective, :math:`\operatorname{Tr}\mathrm{CRLB}_\mathbf p
+  (\alpha_\mathrm{sen})`, does not depend on the control and data shares and decreases in the sensing
+  share, and the rate-cost constraint is far from binding per slot (under 2 bits), so its solution is
+  the smallest control share meeting the stability design and the smallest data share carrying the
+  drone's rate, sensing the rest; within a share b that is ``ctrl = ctrl_min``, ``comm = comm_min``,
+  ``sen = b - ctrl - comm``. Where they do not fit, :class:`SCAPolicy`'s fallback inside the share:
+  control first, sensing keeps the static design's share, data the rest.
+* ``joint-sca`` (:class:`JointSCA`): Algorithm 1's problem over all K drones (Sec. 5 of
+  docs/model.md): minimise :math:`\sum_k \operatorname{Tr}\mathrm{CRLB}_{\mathbf p,k}(\alpha_{k,\mathrm{sen}})`
+  subject to every drone's stability design and rate and the shares summing to 1. With the
+  constraints separable and the objective convex and decreasing in each sensing share, the KKT point
+  is control and data at their bounds and the sensing shares water-filled: equal marginal CRLB
+  decrease :math:`-f'_k(\alpha_{k,\mathrm{sen}}) = \mu` (bisection on :math:`\mu`), no
+  linearisation needed (the SCA's iterations would converge to it).
+* ``margin`` (:class:`MultiMarginPolicy`): the tuned single-drone ``margin`` rule per drone (control
+  ``m_ctrl`` times its predicted need, data ``m_comm`` times it), the demands renormalised onto the
+  band (control first, then data, above a total sensing floor), sensing the rest split equally.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from iscc_gym.env import decode_observation
+from iscc_gym.multi import shares_to_action
+from iscc_gym.scenario import Scenario
+from iscc_gym.schema import N_OBS
+from iscc_gym.sensing_share import crlb_trace
+
+from .margin import load_tuned, predicted_needs
+from .sca import MIN_SHARE
+from .sca_slot import SCAPolicy
+
+__all__ = ["MultiSharePolicy", "EqualShareSCA", "JointSCA", "MultiMarginPolicy", "fit_demands", "make_multi_policy",
+           "MULTI_POLICY_SPECS"]
+
+#: The spec names of :func:`make_multi_policy`.
+MULTI_POLICY_SPECS = ("equal-sca", "joint-sca", "margin", "equal")
+
+
+class MultiSharePolicy:
+    """Base of the multi-drone scripted policies: :meth:`shares_batch` gives the shares (n, K, 3) of
+    observations (n, 23K); :meth:`predict` plays them (SB3's protocol).
+    """
+
+    def __init__(self, n_drones: int):
+        self.n_drones = int(n_drones)
+
+    def shares_batch(self, obs: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+    def predict(self, obs, state=None, episode_start=None, deterministic: bool = True):
+        o = np.asarray(obs, dtype=float)
+        single = o.ndim == 1
+        k = self.n_drones
+        if o.shape[-1] != k * N_OBS or o.ndim not in (1, 2):
+            raise ValueError(f"obs must have shape ({k * N_OBS},) or (n, {k * N_OBS}) for {k} drones, got {o.shape}")
+        shares = self.shares_batch(o.reshape(-1, k, N_OBS))
+        action = shares_to_action(shares)
+        return (action[0] if single else action), state
+
+
+def fit_demands(ctrl, comm, floor: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Control and data shares (n, K) fitted onto the band above a total sensing ``floor``: control
+    first (scaled down together if the drones' control demands exceed ``1 - floor``), then data in
+    what is left (scaled down together).
+    """
+    room = 1.0 - floor
+    c_tot = ctrl.sum(-1, keepdims=True)
+    ctrl = ctrl * np.minimum(1.0, room / np.maximum(c_tot, 1e-300))
+    left = room - ctrl.sum(-1, keepdims=True)
+    m_tot = comm.sum(-1, keepdims=True)
+    comm = comm * np.minimum(1.0, np.maximum(left, 0.0) / np.maximum(m_tot, 1e-300))
+    return ctrl, comm
+
+
+class _SlotBounds(MultiSharePolicy):
+    """Per-slot SCA terms of every drone (:meth:`SCAPolicy.slot_terms`)."""
+
+    def __init__(self, scenario: Scenario, n_drones: int):
+        super().__init__(n_drones)
+        self.scenario = scenario
+        self.sca = SCAPolicy(scenario, mode="per_slot")
+
+    def terms(self, obs: np.ndarray):
+        d = decode_observation(obs, self.scenario)
+        coef, ctrl, comm = self.sca.slot_terms(d["snr_db"], d["range_m"], d["sin_elevation"], d["cos_azimuth"],
+                                               d["sin_azimuth"])
+        ctrl = np.where(np.isfinite(ctrl), ctrl, 1.0)
+        return coef, np.maximum(ctrl, MIN_SHARE), np.maximum(comm, MIN_SHARE)
+
+
+class EqualShareSCA(_SlotBounds):
+    """1/K of the band per drone, per-slot Algorithm 1 inside it (module docstring)."""
+
+    name = "equal-sca"
+
+    def shares_batch(self, obs):
+        _, ctrl, comm = self.terms(obs)
+        b = 1.0 / self.n_drones
+        fits = ctrl + comm <= b * (1.0 - MIN_SHARE)
+        # SCAPolicy's fallback inside the share: control first, sensing keeps the static design's share
+        c_fb = np.minimum(ctrl, b * (1.0 - 2.0 * MIN_SHARE))
+        s_fb = np.minimum(np.maximum(self.sca.split[0] * b, MIN_SHARE * b), b * (1.0 - MIN_SHARE) - c_fb)
+        ctrl = np.where(fits, ctrl, c_fb)
+        sen = np.where(fits, b - ctrl - comm, s_fb)
+        return np.stack([sen, ctrl, b - sen - ctrl], axis=-1)
+
+
+class JointSCA(_SlotBounds):
+    """Algorithm 1's per-slot problem over all K drones: bounds, then water-filled sensing (module
+    docstring). Where the drones' bounds do not fit in the band, SCAPolicy's fallback over all drones:
+    control first, the static design's sensing share (split equally), data the rest.
+    ``iterations``: bisection steps of the multiplier and of each drone's share.
+    """
+
+    name = "joint-sca"
+
+    def __init__(self, scenario: Scenario, n_drones: int, iterations: int = 40):
+        super().__init__(scenario, n_drones)
+        self.iterations = int(iterations)
+
+    def shares_batch(self, obs):
+        coef, ctrl, comm = self.terms(obs)
+        k = self.n_drones
+        fits = ctrl.sum(-1) + comm.sum(-1) <= 1.0 - k * MIN_SHARE
+        rest = np.where(fits, 1.0 - ctrl.sum(-1) - comm.sum(-1), 0.0)  # (n,)
+        sen = self.water_fill(coef, rest)
+        c_fb, m_fb = fit_demands(ctrl, comm, float(self.sca.split[0]))
+        s_fb = (1.0 - c_fb.sum(-1, keepdims=True) - m_fb.sum(-1, keepdims=True)) / k
+        f = fits[:, None]
+        return np.stack([np.where(f, sen, s_fb), np.where(f, ctrl, c_fb), np.where(f, comm, m_fb)], axis=-1)
+
+    def water_fill(self, coef, total):
+        r"""Sensing shares (n, K) summing to ``total`` (n,) with equal :math:`-f'_k`: for a multiplier
+        :math:`\mu`, each drone's share solves :math:`-f'_k(a) = \mu` (bisection in log a, f' increasing),
+        and :math:`\mu` is bisected (in log) until the shares add up to the total.
+        """
+        n, k = coef.info_range.shape
+        lo_a, hi_a = np.log(1e-9), 0.0
+
+        def shares(mu):  # (n,) -> (n, K)
+            lo = np.full((n, k), lo_a)
+            hi = np.full((n, k), hi_a)
+            for _ in range(self.iterations):
+                mid = 0.5 * (lo + hi)
+                _, df = crlb_trace(coef, np.exp(mid))
+                big = -df > mu[:, None]  # the marginal gain still above mu: a larger share
+                lo, hi = np.where(big, mid, lo), np.where(big, hi, mid)
+            return np.exp(0.5 * (lo + hi))
+
+        lo_mu, hi_mu = np.full(n, -60.0), np.full(n, 60.0)  # log mu
+        for _ in range(self.iterations):
+            mid = 0.5 * (lo_mu + hi_mu)
+            over = shares(np.exp(mid)).sum(-1) > total  # too much: raise mu
+            lo_mu, hi_mu = np.where(over, mid, lo_mu), np.where(over, hi_mu, mid)
+        a = shares(np.exp(hi_mu))
+        s = a.sum(-1, keepdims=True)
+        return np.where(s > 0, a * (total[:, None] / np.where(s > 0, s, 1.0)), total[:, None] / k)
+
+
+class MultiMarginPolicy(MultiSharePolicy):
+    """The ``margin`` rule per drone, renormalised onto the band (module docstring)."""
+
+    name = "margin"
+
+    def __init__(self, n_drones: int, m_ctrl: float, m_comm: float, sensing_floor: float):
+        super().__init__(n_drones)
+        self.m_ctrl, self.m_comm, self.sensing_floor = float(m_ctrl), float(m_comm), float(sensing_floor)
+
+    @classmethod
+    def tuned(cls, n_drones: int) -> MultiMarginPolicy:
+        """With the single-drone multiples of ``python -m eval.tune margin``."""
+        p = load_tuned("margin")["params"]
+        return cls(n_drones, p["m_ctrl"], p["m_comm"], p["sensing_floor"])
+
+    def shares_batch(self, obs):
+        n, k, _ = obs.shape
+        need_c, need_m = predicted_needs(obs.reshape(n * k, N_OBS))
+        ctrl = self.m_ctrl * np.maximum(need_c, 0.0).reshape(n, k)
+        comm = self.m_comm * np.maximum(need_m, 0.0).reshape(n, k)
+        ctrl, comm = fit_demands(ctrl, comm, self.sensing_floor)
+        sen = (1.0 - ctrl.sum(-1, keepdims=True) - comm.sum(-1, keepdims=True)) / k
+        return np.concatenate([np.broadcast_to(sen, (n, k))[..., None], ctrl[..., None], comm[..., None]], axis=-1)
+
+
+class _EqualShares(MultiSharePolicy):
+    name = "equal"
+
+    def shares_batch(self, obs):
+        return np.full((obs.shape[0], self.n_drones, 3), 1.0 / (3 * self.n_drones))
+
+
+def make_multi_policy(spec: str, scenario: Scenario, n_drones: int):
+    """A multi-drone baseline from its spec (:data:`MULTI_POLICY_SPECS`), for the per-drone ``scenario``
+    (the env's ``scenario``, :func:`iscc_gym.multi.drone_scenario`).
+    """
+    key = str(spec).strip().lower()
+    if key == "equal-sca":
+        return EqualShareSCA(scenario, n_drones)
+    if key == "joint-sca":
+        return JointSCA(scenario, n_drones)
+    if key == "margin":
+        return MultiMarginPolicy.tuned(n_drones)
+    if key == "equal":
+        return _EqualShares(n_drones)
+    raise ValueError(f"multi-drone policy {spec!r} is unknown; use one of {', '.join(MULTI_POLICY_SPECS)} or a "
+                     "trained run's directory")

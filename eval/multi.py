@@ -1,0 +1,160 @@
+"""``python -m eval.multi``: the multi-drone env's baselines and trained agent on held-out missions.
+
+Every policy plays the same held-out missions of ``iscc_gym/ISCC-Multi-v0`` with K drones (common
+random numbers; seeds from :data:`SEED_START`): the scripted baselines of
+:mod:`iscc_gym.agents.multi` (``equal-sca``: 1/K of the band per drone with per-slot Algorithm 1
+inside; ``joint-sca``: Algorithm 1's problem over all drones; ``margin``: the tuned rule per drone,
+renormalised) and the trained agent of ``agents/trained/multi/k<K>`` (``python -m train.multi``) or
+``--agent PATH``. The table gives mean and 95 % CI per policy and paired differences against
+``joint-sca`` and of the agent against every other policy. ``--k-scan 2,4,8`` repeats the comparison
+per K and reports how the agent's advantage changes with it. ``python -m eval --env
+iscc_gym/ISCC-Multi-v0 ...`` runs this command.
+
+Example::
+
+    python -m eval.multi --n-drones 4 --episodes 20 --write-docs
+    python -m eval.multi --k-scan 2,4,8 --episodes 20 --write-docs
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from iscc_gym.eval.evaluate import Entry, evaluate, markdown_table
+from iscc_gym.eval.options import Parser, check_writable_file, nonneg_int, positive_int, run_console
+
+from iscc_gym.docs import RESULTS_PATH, docs_path, write_section
+from iscc_gym.multi import N_DRONES, check_n_drones, drone_scenario
+from iscc_gym.scenario import make_scenario
+
+__all__ = ["SEED_START", "DEFAULT_POLICIES", "agent_dir", "compare", "main"]
+
+#: First held-out mission of this command (inside the evaluation range, apart from the others).
+SEED_START = 1_400_000
+#: The scripted baselines played by default.
+DEFAULT_POLICIES = "equal-sca,joint-sca,margin"
+#: The reference of the paired differences.
+REFERENCE = "joint-sca"
+
+
+def agent_dir(n_drones: int) -> Path:
+    """Where ``python -m train.multi`` ships the agent for ``n_drones`` drones."""
+    return Path(__file__).resolve().parent.parent / "agents" / "trained" / "multi" / f"k{int(n_drones)}"
+
+
+def _load_agent(path, n_drones: int):
+    from iscc_gym.agents.sb3_policy import SB3Policy
+
+    from iscc_gym.schema import N_OBS
+
+    pol = SB3Policy.load(path, check_env=None)
+    if pol.obs_shape != (n_drones * N_OBS,):
+        raise ValueError(f"--agent {path}: the model takes observations of shape {pol.obs_shape}; the env with "
+                         f"{n_drones} drones gives ({n_drones * N_OBS},): train it with --env-set n_drones={n_drones}")
+    return pol
+
+
+def compare(n_drones: int, seeds, policies: str = DEFAULT_POLICIES, agent: str | None = None, scenario="paper",
+            max_steps: int | None = None) -> dict:
+    """The comparison of :func:`iscc_gym.eval.evaluate.evaluate` for ``n_drones`` drones (``agent``: a
+    run directory, played as ``ppo``; the reference ``joint-sca`` where it is played).
+    """
+    from iscc_gym.agents.multi import make_multi_policy
+
+    k = check_n_drones(n_drones)
+    s = drone_scenario(make_scenario(scenario), k)
+    entries = {}
+    if agent is not None:
+        entries["ppo"] = Entry(_load_agent(agent, k), {"n_drones": k})
+    for spec in [p.strip() for p in policies.split(",") if p.strip()]:
+        entries[spec] = Entry(make_multi_policy(spec, s, k), {"n_drones": k})
+    reference = REFERENCE if REFERENCE in entries else None
+    return evaluate(entries, seeds, scenario, max_steps=max_steps, reference=reference,
+                    focus="ppo" if agent is not None else None)
+
+
+def _advantage_line(k: int, res: dict) -> str:
+    fp = res.get("focus_paired") or {}
+    cells = []
+    for pair, d in fp.items():
+        other = pair.split("_vs_", 1)[1]
+        lo, hi = d["tracking_error_m_diff_ci95"]
+        rlo, rhi = d["reward_diff_ci95"]
+        cells.append(f"vs {other}: error {d['tracking_error_m_diff_mean']:+.4f} m [{lo:+.4f}, {hi:+.4f}], reward "
+                     f"{d['reward_diff_mean']:+.1f} [{rlo:+.1f}, {rhi:+.1f}]")
+    return f"| {k} | " + "; ".join(cells) + " |"
+
+
+def build_parser(prog: str = "python -m eval.multi") -> Parser:
+    ap = Parser(prog=prog, description=__doc__.split("\n\n")[0])
+    ap.add_argument("--n-drones", type=positive_int, default=N_DRONES, help=f"drones per env (default: {N_DRONES})")
+    ap.add_argument("--k-scan", default=None, metavar="K1,K2,...",
+                    help="repeat the comparison for these numbers of drones (each with its shipped agent)")
+    ap.add_argument("--episodes", type=positive_int, default=20, help="held-out missions (default: 20)")
+    ap.add_argument("--seed", type=nonneg_int, default=0, help="run seed: missions from 1,400,000 + 1000 x seed")
+    ap.add_argument("--policies", default=DEFAULT_POLICIES, help=f"scripted baselines (default: {DEFAULT_POLICIES})")
+    ap.add_argument("--agent", default=None, metavar="PATH",
+                    help="a trained run directory (default: agents/trained/multi/k<K> if it exists; none: no agent)")
+    ap.add_argument("--scenario", default="paper", help="scenario preset (default: paper)")
+    ap.add_argument("--max-steps", type=positive_int, default=None, help="slots per mission (default: all)")
+    ap.add_argument("--write-docs", action="store_true", help="write the tables into docs/results.md")
+    return ap
+
+
+def main(argv: list[str] | None = None, prog: str = "python -m eval.multi") -> dict:
+    from iscc_gym.agents.multi import MULTI_POLICY_SPECS
+    from iscc_gym.eval.fading import held_out_seeds
+    from iscc_gym.eval.options import docs_command
+
+    args = build_parser(prog).parse_args(argv)
+    try:
+        ks = [int(x) for x in args.k_scan.split(",") if x.strip()] if args.k_scan else [args.n_drones]
+    except ValueError:
+        raise ValueError(f"--k-scan {args.k_scan!r}: use integers, e.g. --k-scan 2,4,8") from None
+    for k in ks:
+        check_n_drones(k)
+    bad = [p for p in args.policies.split(",") if p.strip() and p.strip() not in MULTI_POLICY_SPECS]
+    if bad:
+        raise ValueError(f"--policies {args.policies!r}: unknown {bad}; use some of {', '.join(MULTI_POLICY_SPECS)}")
+    agents = {}
+    for k in ks:
+        if args.agent == "none":
+            agents[k] = None
+        elif args.agent is not None:
+            if not (Path(args.agent) / "model.zip").is_file() and not Path(args.agent).is_file():
+                raise ValueError(f"--agent {args.agent}: no model.zip there; give a run directory of python -m train "
+                                 "(or --agent none)")
+            agents[k] = args.agent
+        else:
+            agents[k] = str(agent_dir(k)) if (agent_dir(k) / "model.zip").is_file() else None
+    if args.write_docs:
+        check_writable_file(docs_path(RESULTS_PATH), "--write-docs")
+    seeds = held_out_seeds(SEED_START, args.episodes, args.seed)
+    command = docs_command(prog, argv)
+    out, sections = {}, []
+    for k in ks:
+        res = compare(k, seeds, args.policies, agents[k], args.scenario, args.max_steps)
+        out[k] = res
+        text = markdown_table(res, command).replace(" --write-docs`", "`", 1)
+        print(f"\n{k} drones{' (agent: ' + agents[k] + ')' if agents[k] else ''}:\n{text}")
+        sections.append(f"### {k} drones\n\n" + text)
+    if len(ks) > 1 and any(agents.values()):
+        scan = ["| K | trained agent minus each baseline (paired, 95 % CI) |", "|---|---|"]
+        scan += [_advantage_line(k, out[k]) for k in ks if agents[k]]
+        print("\n" + "\n".join(scan))
+        sections.append("### The agent's advantage against K\n\n" + "\n".join(scan))
+    if args.write_docs:
+        name = "multi" if len(ks) == 1 else "multi_scan"
+        write_section(docs_path(RESULTS_PATH), name, "## Many drones, one base station\n\n" + "\n\n".join(sections))
+    return {"results": {str(k): v for k, v in out.items()}, "seeds": [seeds[0], seeds[-1]],
+            "agents": {str(k): v for k, v in agents.items()}}
+
+
+def console(argv: list[str] | None = None, prog: str = "python -m eval.multi") -> int:
+    return run_console(main, argv, prog)
+
+
+if __name__ == "__main__":
+    sys.exit(console())
+

@@ -1,0 +1,110 @@
+"""The multi-drone baselines, training and evaluation commands (issue 16 items 4-6)."""
+
+import numpy as np
+import pytest
+from iscc_gym.agents.margin import MarginPolicy
+from iscc_gym.agents.multi import EqualShareSCA, JointSCA, MultiMarginPolicy, make_multi_policy
+from iscc_gym.agents.sca_slot import SCAPolicy
+
+from iscc_gym.multi import ISCCMultiEnv, multi_split, shares_to_action
+from iscc_gym.sensing_share import crlb_trace
+
+
+def _observations(k, n_steps=40, seed=0):
+    env = ISCCMultiEnv(n_drones=k)
+    obs, _ = env.reset(seed=seed)
+    rng = np.random.default_rng(seed)
+    out = [obs]
+    for _ in range(n_steps):
+        obs, *_ = env.step(rng.uniform(-1, 1, 3 * k).astype(np.float32))
+        out.append(obs)
+    return env.scenario, np.array(out)
+
+
+def test_shares_to_action_inverts_the_action_map():
+    rng = np.random.default_rng(0)
+    alpha = rng.dirichlet(np.ones(12), size=20).reshape(20, 4, 3)
+    np.testing.assert_allclose(multi_split(shares_to_action(alpha), 4), alpha, rtol=1e-6, atol=1e-7)
+    with pytest.raises(ValueError, match="sum to 1"):
+        shares_to_action(np.full((2, 3), 0.2))
+
+
+def test_joint_sca_of_one_drone_is_algorithm_1_per_slot():
+    """Bounds plus water-filling against the SCA iterations of SCAPolicy (an independent solver)."""
+    s, obs = _observations(1)
+    joint = JointSCA(s, 1).shares_batch(obs.reshape(-1, 1, 23))[:, 0]
+    sca, _ = SCAPolicy(s, mode="per_slot").split_batch(obs)
+    np.testing.assert_allclose(joint, sca, atol=1e-6)
+
+
+def test_joint_sca_meets_the_bounds_and_equalises_the_marginal_crlb():
+    s, obs = _observations(3)
+    pol = JointSCA(s, 3)
+    o = obs.reshape(-1, 3, 23)
+    alpha = pol.shares_batch(o)
+    np.testing.assert_allclose(alpha.sum((1, 2)), 1.0, atol=1e-9)
+    coef, ctrl, comm = pol.terms(o)
+    fits = ctrl.sum(-1) + comm.sum(-1) <= 1 - 3e-3
+    assert fits.any()
+    a = alpha[fits]
+    np.testing.assert_allclose(a[..., 1], ctrl[fits], rtol=1e-12)
+    np.testing.assert_allclose(a[..., 2], comm[fits], rtol=1e-12)
+    # KKT: moving sensing between two drones never lowers the summed trace (finite differences)
+    from iscc_gym.sensing_share import SensingCoefficients
+
+    sub = SensingCoefficients(*(np.asarray(getattr(coef, f))[fits] if np.ndim(getattr(coef, f)) else getattr(coef, f)
+                                for f in ("info_range", "info_az", "info_cross", "info_el", "info_vr", "prior")))
+    base = crlb_trace(sub, a[..., 0])[0].sum(-1)
+    for i, j in ((0, 1), (1, 2), (0, 2)):
+        for d in (1e-4, -1e-4):
+            moved = a[..., 0].copy()
+            moved[:, i] += d
+            moved[:, j] -= d
+            ok = (moved > 0).all(-1)
+            assert np.all(crlb_trace(sub, moved)[0].sum(-1)[ok] >= base[ok] * (1 - 1e-9))
+
+
+def test_equal_share_sca_gives_every_drone_a_kth_of_the_band():
+    s, obs = _observations(4, 20)
+    alpha = EqualShareSCA(s, 4).shares_batch(obs.reshape(-1, 4, 23))
+    np.testing.assert_allclose(alpha.sum(-1), 0.25, atol=1e-12)
+    assert (alpha >= -1e-15).all()
+
+
+def test_the_margin_rule_of_one_drone_is_the_single_drone_rule():
+    s, obs = _observations(1)
+    multi = MultiMarginPolicy.tuned(1).shares_batch(obs.reshape(-1, 1, 23))[:, 0]
+    single, _ = MarginPolicy.tuned().split_batch(obs)
+    np.testing.assert_allclose(multi, single, rtol=1e-12, atol=1e-15)
+    four = MultiMarginPolicy.tuned(4).shares_batch(_observations(4, 5)[1].reshape(-1, 4, 23))
+    np.testing.assert_allclose(four.sum((1, 2)), 1.0, atol=1e-12)
+
+
+def test_bad_specs_and_shapes_are_refused():
+    with pytest.raises(ValueError, match="unknown"):
+        make_multi_policy("nope", ISCCMultiEnv(n_drones=2).scenario, 2)
+    with pytest.raises(ValueError, match="shape"):
+        MultiMarginPolicy.tuned(2).predict(np.zeros(23))
+
+
+def test_the_commands_train_and_compare_on_tiny_budgets(tmp_path, monkeypatch, capsys):
+    from iscc_gym.eval import multi as EM
+    from iscc_gym.eval.__main__ import main as eval_main
+    from iscc_gym.train import multi as TM
+
+    monkeypatch.chdir(tmp_path)
+    TM.train_all([2], total_timesteps=256, dest=tmp_path / "ship", out_root=str(tmp_path / "runs"), n_envs=4,
+                 overrides={"n_steps": 32, "batch_size": 64}, eval_freq=0)
+    agent = tmp_path / "ship" / "k2"
+    assert (agent / "model.zip").is_file()
+    res = EM.main(["--n-drones", "2", "--episodes", "2", "--max-steps", "40", "--agent", str(agent)])
+    r = res["results"]["2"]
+    assert set(r["policies"]) == {"ppo", "equal-sca", "joint-sca", "margin"}
+    assert "ppo_vs_margin" in r["focus_paired"] and "margin_vs_joint-sca" in r["paired"]
+    out = eval_main(["--env", "iscc_gym/ISCC-Multi-v0", "--n-drones", "2", "--episodes", "2", "--max-steps", "20",
+                     "--agent", "none", "--policies", "margin"])
+    assert list(out["results"]["2"]["policies"]) == ["margin"]
+    with pytest.raises(ValueError, match="n_drones"):
+        EM.main(["--n-drones", "2", "--agent", str(agent), "--episodes", "1", "--max-steps", "5", "--k-scan", "3"])
+    with pytest.raises(ValueError, match="unknown"):
+        EM.main(["--policies", "nope"])

@@ -1,0 +1,81 @@
+"""``python -m train.multi``: train the multi-drone agents (issue 16) shipped in ``agents/trained/multi/``.
+
+One PPO run per number of drones K (default 2, 4 and 8) on ``iscc_gym/ISCC-Multi-v0``: ``python -m
+train --env-id iscc_gym/ISCC-Multi-v0 --env-set n_drones=K`` with the configuration of
+``train/hyperparams.yml`` (seed 0, the fast batched env), into ``runs/multi/k<K>``; the small artifacts
+(weights, VecNormalize statistics, config, summary, learning curve) are copied into
+``agents/trained/multi/k<K>``, where ``python -m eval.multi`` finds them. The K = 4 agent is the one
+shipped beside the single-drone agent.
+
+Example::
+
+    python -m train.multi                     # K = 2, 4, 8 (a few minutes each on 2 cores)
+    python -m train.multi --n-drones 4
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+from iscc_gym.train.config import MULTI_ENV_ID, Args
+
+__all__ = ["MULTI_DIR", "K_VALUES", "run_args", "train_all", "cli"]
+
+ROOT = Path(__file__).resolve().parent.parent
+#: Where the multi-drone agents are shipped (``k<K>`` per number of drones).
+MULTI_DIR = ROOT / "agents" / "trained" / "multi"
+#: The numbers of drones trained by default.
+K_VALUES = (2, 4, 8)
+
+
+def run_args(n_drones: int, seed: int = 0, total_timesteps: int | None = None, out_root: str = "runs/multi") -> Args:
+    """The training :class:`Args` of the multi-drone agent for ``n_drones`` drones."""
+    from iscc_gym.multi import check_n_drones
+
+    k = check_n_drones(n_drones)
+    return Args(env_id=MULTI_ENV_ID, env_overrides={"n_drones": k}, seed=seed, total_timesteps=total_timesteps,
+                out=f"{out_root}/k{k}", checkpoint_freq=0, tensorboard=False, overwrite=True, init_policy="none")
+
+
+def train_all(ks=K_VALUES, total_timesteps: int | None = None, dest: Path = MULTI_DIR, out_root: str = "runs/multi",
+              quiet: bool = True, **changes) -> dict:
+    """Train one agent per K in ``ks`` and copy each into ``dest/k<K>``; ``changes`` replace fields of
+    their :class:`Args` (e.g. a tiny budget in the tests).
+    """
+    from iscc_gym.train.ship import ship
+
+    ks = [int(k) for k in ks]
+    for k in ks:
+        run_args(k)  # every K checked before any run starts
+    out = {}
+    for k in ks:
+        args = replace(run_args(k, total_timesteps=total_timesteps, out_root=out_root), quiet=quiet, **changes)
+        out[k] = ship(args, dest / f"k{k}", write_docs=False)
+        if not quiet:
+            print(f"K = {k}: {out[k]['timesteps']:,} steps, {out[k]['wall_time_s']:.0f} s -> {dest / f'k{k}'}",
+                  flush=True)
+    return out
+
+
+def cli(argv: list[str] | None = None) -> dict:
+    ap = argparse.ArgumentParser(prog="python -m train.multi", description=__doc__.split("\n")[0],
+                                 epilog="Model files and vecnormalize.pkl are pickles: load only files you trust.")
+    ap.add_argument("--n-drones", default=",".join(map(str, K_VALUES)),
+                    help=f"comma-separated numbers of drones (default: {','.join(map(str, K_VALUES))})")
+    ap.add_argument("--total-timesteps", type=int, default=None, help="env steps per run (default: the YAML's)")
+    ap.add_argument("--quiet", action="store_true", help="no line per run")
+    ns = ap.parse_args(argv)
+    try:
+        ks = [int(x) for x in ns.n_drones.split(",") if x.strip()]
+    except ValueError:
+        ap.error(f"--n-drones {ns.n_drones!r}: use integers, e.g. --n-drones 2,4,8")
+    return train_all(ks, ns.total_timesteps, quiet=ns.quiet)
+
+
+if __name__ == "__main__":
+    from iscc_gym.cli import run
+
+    sys.exit(run(cli, None, "python -m train.multi"))

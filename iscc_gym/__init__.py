@@ -10,11 +10,12 @@ import os as _os
 
 import gymnasium as _gym
 
+from . import multi
 from .env import REGISTERED_MAX_EPISODE_STEPS, ISCCEnv, action_to_split, split_to_action
 from .scenario import SCENARIOS, Scenario, make_scenario
 
 __all__ = ["Scenario", "SCENARIOS", "make_scenario", "ISCCEnv", "action_to_split", "split_to_action",
-           "ENV_ID", "MULTI_ENV_ID"]
+           "ENV_ID", "MULTI_ENV_ID", "multi"]
 
 #: The registered environment id.
 ENV_ID = "iscc_gym/ISCC-v0"

@@ -94,9 +94,11 @@ def test_the_commands_train_and_compare_on_tiny_budgets(tmp_path, monkeypatch, c
 
     monkeypatch.chdir(tmp_path)
     TM.train_all([2], total_timesteps=256, dest=tmp_path / "ship", out_root=str(tmp_path / "runs"), n_envs=4,
-                 overrides={"n_steps": 32, "batch_size": 64}, eval_freq=0)
+                 overrides={"n_steps": 32, "batch_size": 64}, eval_freq=0, init_envs=2, init_steps=20)
     agent = tmp_path / "ship" / "k2"
     assert (agent / "model.zip").is_file()
+    summary = __import__("yaml").safe_load((agent / "summary.yml").read_text())
+    assert summary["warm_start"]["policy"] == "margin"  # the multi-drone margin rule cloned first
     res = EM.main(["--n-drones", "2", "--episodes", "2", "--max-steps", "40", "--agent", str(agent)])
     r = res["results"]["2"]
     assert set(r["policies"]) == {"ppo", "equal-sca", "joint-sca", "margin"}

@@ -37,7 +37,7 @@ def run_args(n_drones: int, seed: int = 0, total_timesteps: int | None = None, o
 
     k = check_n_drones(n_drones)
     return Args(env_id=MULTI_ENV_ID, env_overrides={"n_drones": k}, seed=seed, total_timesteps=total_timesteps,
-                out=f"{out_root}/k{k}", checkpoint_freq=0, tensorboard=False, overwrite=True, init_policy="none")
+                out=f"{out_root}/k{k}", checkpoint_freq=0, tensorboard=False, overwrite=True)
 
 
 def train_all(ks=K_VALUES, total_timesteps: int | None = None, dest: Path = MULTI_DIR, out_root: str = "runs/multi",

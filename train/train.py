@@ -161,11 +161,13 @@ def _behaviour_clone(model, venv, args: Args) -> dict:
 
     if not isinstance(venv, VecNormalize) or args.vec_env != "batched":
         raise ValueError("init_policy needs normalize: true and vec_env = 'batched'")
-    if args.env_id == MULTI_ENV_ID:
-        raise ValueError(f"init_policy = {args.init_policy!r}: the warm start clones a single-drone policy; use "
-                         f"--init-policy none for {MULTI_ENV_ID}")
-    policy = make_policy(args.init_policy, args.scenario)
-    play = ISCCBatchedVecEnv(args.init_envs, scenario=args.scenario, **args.env_overrides)
+    play = ISCCBatchedVecEnv(args.init_envs, scenario=args.scenario, **batched_kwargs(args))
+    if args.env_id == MULTI_ENV_ID:  # a multi-drone baseline (agents.multi) for the env's per-drone scenario
+        from iscc_gym.agents.multi import make_multi_policy
+
+        policy = make_multi_policy(args.init_policy, play.venv.scenario, play.venv.n_drones)
+    else:
+        policy = make_policy(args.init_policy, args.scenario)
     play.seed(INIT_SEED_START + 1000 * args.seed)
     play = VecNormalize(play, gamma=venv.gamma, clip_obs=venv.clip_obs, clip_reward=venv.clip_reward)
     res = behaviour_clone(model, venv, policy, args.init_steps, collect_env=play, log_std=args.init_log_std,

@@ -211,22 +211,42 @@ def markdown(pts: list[dict], results: list[dict], command: str, seeds, train_se
     return "\n".join(lines)
 
 
-def draw(pts: list[dict], path) -> str:
+def draw(pts: list[dict], path, targets=()) -> str:
+    """Tracking error (mean, and RMS) against rate outage per family, with 95 % CIs; points far above
+    the rest (e.g. static SCA past its feasible design margin) are marked at the top edge with their
+    value; dashed lines at the outage ``targets``.
+    """
     from iscc_gym.eval.figures import new_figure, save_figure
 
-    fig = new_figure((11, 4.2))
+    fig = new_figure((11, 4.4))
     for ax, key, label in zip(fig.subplots(1, 2), ("tracking_error_m", "rms_error_m"),
                               ("mean tracking error (m)", "RMS tracking error (m)"), strict=True):
+        ys = np.array([p[key] for p in pts])
+        top = min(ys.max(), np.median(ys) * 1.12) * 1.01
         for fam in dict.fromkeys(p["family"] for p in pts):
-            q = [p for p in pts if p["family"] == fam]
-            x = [p["rate_outage"] for p in q]
-            y = [p[key] for p in q]
+            q = sorted((p for p in pts if p["family"] == fam), key=lambda p: p["rate_outage"])
+            x = np.array([p["rate_outage"] for p in q])
+            y = np.array([p[key] for p in q])
             xerr = np.array([[p["rate_outage"] - p["rate_outage_ci95"][0], p["rate_outage_ci95"][1] - p["rate_outage"]]
                              for p in q]).T
-            ax.errorbar(x, y, xerr=xerr, marker="o", ms=4, capsize=2, lw=1, label=fam)
+            yerr = None
+            if key == "tracking_error_m":
+                yerr = np.array([[p[key] - p["tracking_error_ci95"][0], p["tracking_error_ci95"][1] - p[key]]
+                                 for p in q]).T
+            inside = y <= top
+            line = ax.errorbar(x[inside], y[inside], xerr=xerr[:, inside],
+                               yerr=None if yerr is None else yerr[:, inside], marker="o", ms=4, capsize=2, lw=1,
+                               label=fam)
+            for xi, yi in zip(x[~inside], y[~inside], strict=True):
+                ax.annotate(f"{fam} {yi:.2f} m", (xi, top), xytext=(xi, top * 0.995), fontsize=6, ha="left",
+                            va="top", color=line[0].get_color(), arrowprops={"arrowstyle": "-|>", "lw": 0.6})
+        for t in targets:
+            ax.axvline(t, color="0.5", ls="--", lw=0.7)
+        ax.set_ylim(top=top)
         ax.set(xlabel="rate outage (fraction of slots below R_min)", ylabel=label)
         ax.legend(fontsize=7)
-    fig.suptitle("Tracking error against rate outage (held-out missions, common random numbers)", fontsize=9)
+    fig.suptitle("Tracking error against rate outage (held-out missions, common random numbers; dashed: targets)",
+                 fontsize=9)
     return str(save_figure(fig, path))
 
 
@@ -310,9 +330,9 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.pareto") -> 
     res = {"points": pts, "targets": {str(r["target"]): r for r in results}, "seeds": [seeds[0], seeds[-1]],
            "rate_min_bps": s.rate_min_bps}
     if args.figure:
-        res["figure"] = draw(pts, args.figure)
+        res["figure"] = draw(pts, args.figure, targets)
     if args.write_docs:
-        res["figure"] = draw(pts, docs_path("docs/figures/pareto.png"))
+        res["figure"] = draw(pts, docs_path("docs/figures/pareto.png"), targets)
         write_section(docs_path(RESULTS_PATH), "pareto", "## Pareto fronts: tracking error against rate outage\n\n"
                       + table + "\n\n![pareto](figures/pareto.png)")
     return res

@@ -64,6 +64,9 @@ def test_wheel_holds_only_the_iscc_gym_namespace(installed):
     assert {t for t in top if not t.endswith(".dist-info")} == {"iscc_gym"}
     for needed in ("iscc_gym/agents/trained/ppo_iscc/model.zip", "iscc_gym/agents/trained/ppo_iscc/vecnormalize.pkl",
                    "iscc_gym/agents/tuned/margin.yml", "iscc_gym/train/hyperparams.yml",
+                   "iscc_gym/agents/trained/pareto/ppo-lag/0.05/model.zip",
+                   "iscc_gym/agents/trained/pareto/ppo-lag/0.05/lagrange.yml",
+                   "iscc_gym/agents/trained/multi/k4/model.zip", "iscc_gym/agents/trained/multi/k4/vecnormalize.pkl",
                    "iscc_gym/eval/__main__.py", "iscc_gym/train/__main__.py"):
         assert needed in names
     site = installed["site"]

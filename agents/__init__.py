@@ -6,7 +6,8 @@ SB3 models alike:
 
 * :class:`FixedSplitPolicy`, :class:`EqualSplitPolicy`: a constant split;
 * :class:`SCAPolicy`: the paper's Algorithm 1, static (``mode="static"``) or re-solved every slot
-  (``mode="per_slot"``), optionally designed ignoring packet loss;
+  (``mode="per_slot"``, its design loss tuned by ``python -m eval.tune sca-per-slot``), optionally
+  designed ignoring packet loss;
 * :func:`grid_search`, :func:`evolutionary_search`: search baselines over static splits, scored by
   :mod:`iscc_gym.analysis`; their results carry a policy that plays the split found;
 * :class:`MarginPolicy`: per slot, fixed multiples of the predicted control and data needs (tuned by

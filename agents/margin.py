@@ -20,16 +20,12 @@ from pathlib import Path
 
 import numpy as np
 
-from iscc_gym.files import write_atomic
 from iscc_gym.schema import OBS, OBS_SCALING
 
 from .base import SplitPolicy
+from .tuned_records import TUNED_DIR, load_tuned, save_tuned
 
 __all__ = ["MarginPolicy", "margin_split", "predicted_needs", "load_tuned", "save_tuned", "TUNED_DIR"]
-
-#: Where the tuning commands store their results (package data).
-TUNED_DIR = Path(__file__).resolve().parent / "tuned"
-
 
 
 def predicted_needs(obs) -> tuple[np.ndarray, np.ndarray]:
@@ -97,31 +93,3 @@ class MarginPolicy(SplitPolicy):
 
     def __repr__(self) -> str:
         return f"MarginPolicy(m_ctrl={self.m_ctrl:g}, m_comm={self.m_comm:g}, sensing_floor={self.sensing_floor:g})"
-
-
-def load_tuned(name: str, path: str | Path | None = None) -> dict:
-    """The tuning record of baseline ``name`` (``agents/tuned/<name>.yml`` unless ``path``).
-
-    Raises
-    ------
-    FileNotFoundError
-        No record: run ``python -m eval.tune <name>``.
-    """
-    import yaml
-
-    p = Path(path) if path is not None else TUNED_DIR / f"{name}.yml"
-    if not p.exists():
-        raise FileNotFoundError(f"no tuned parameters for {name!r} at {p}; run `python -m eval.tune {name}`")
-    with open(p) as f:
-        record = yaml.safe_load(f)
-    if not isinstance(record, dict) or "params" not in record:
-        raise ValueError(f"{p} is not a tuning record (no 'params' mapping); rerun `python -m eval.tune {name}`")
-    return record
-
-
-def save_tuned(name: str, record: dict, path: str | Path | None = None) -> Path:
-    """Write a tuning record atomically (temporary file in the same directory, then rename)."""
-    import yaml
-
-    return write_atomic(Path(path) if path is not None else TUNED_DIR / f"{name}.yml",
-                        yaml.safe_dump(record, sort_keys=False))

@@ -20,8 +20,9 @@ from iscc_gym.units import db_to_lin
 
 from .base import SplitPolicy, validate_split
 from .sca import _LOSS_MODELS, _MODES, _SOLVERS, SCAProblem, SCAResult, _check_choice, sca_allocation, solve_sca
+from .tuned_records import load_tuned
 
-__all__ = ["SCAPolicy", "PER_SLOT_LOSS_DESIGN_FRACTION"]
+__all__ = ["SCAPolicy", "per_slot_loss_design_fraction"]
 
 #: The decoded observation entries the per-slot problem reads (:func:`iscc_gym.env.decode_observation`).
 _READ = ("snr_db", "range_m", "sin_elevation", "cos_azimuth", "sin_azimuth")
@@ -87,8 +88,15 @@ class _Constant:
         return self.value
 
 
-#: Default design loss fraction of per-slot SCA (see :class:`SCAPolicy`).
-PER_SLOT_LOSS_DESIGN_FRACTION = 0.02
+#: Name of per-slot SCA's tuning record (``agents/tuned/sca-per-slot.yml``, ``python -m eval.tune sca-per-slot``).
+PER_SLOT_RECORD = "sca-per-slot"
+
+
+def per_slot_loss_design_fraction(path=None) -> float:
+    """Per-slot SCA's design loss fraction as tuned by ``python -m eval.tune sca-per-slot`` on training
+    seeds (the record ``agents/tuned/sca-per-slot.yml`` unless ``path``).
+    """
+    return float(load_tuned(PER_SLOT_RECORD, path)["params"]["loss_design_fraction"])
 
 
 class SCAPolicy(SplitPolicy):
@@ -131,10 +139,10 @@ class SCAPolicy(SplitPolicy):
     loss_design_fraction : float in (0, 1], optional
         Design loss rate as a fraction of eps*: the bound on every sampled position's loss rate
         (static, ``loss_model="local"``) or on the slot's fading-averaged loss rate (per slot).
-        Default 0.1 (static) and :data:`PER_SLOT_LOSS_DESIGN_FRACTION` = 0.02 (per slot: a slot's
-        fading pushes single slots over eps*, which the env charges as a stability violation; on
-        10 held-out missions 0.1 paid ~1,700 reward per mission more than static SCA, 0.02 was on
-        par with it, 0.005 lost sensing and tracking).
+        Default 0.1 (static) and, per slot, the value tuned by ``python -m eval.tune sca-per-slot``
+        on training seeds (:func:`per_slot_loss_design_fraction`): a slot's fading pushes single
+        slots over eps*, which the env charges as a stability violation, so the per-slot design
+        needs a lower loss rate than the static one.
     rho, tol, max_iter :
         Algorithm 1's proximal weight, tolerance and iteration cap.
     solver : {"slsqp", "kkt"}, optional
@@ -161,7 +169,7 @@ class SCAPolicy(SplitPolicy):
         self.ignore_loss = bool(ignore_loss)
         self.loss_model = loss_model
         if loss_design_fraction is None:
-            loss_design_fraction = PER_SLOT_LOSS_DESIGN_FRACTION if mode == "per_slot" else 0.1
+            loss_design_fraction = per_slot_loss_design_fraction() if mode == "per_slot" else 0.1
         self.loss_design_fraction = float(loss_design_fraction)
         self.rho, self.tol, self.max_iter = float(rho), float(tol), int(max_iter)
         self.solver = solver or ("slsqp" if mode == "static" else "kkt")

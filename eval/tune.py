@@ -1,4 +1,4 @@
-"""``python -m eval.tune margin``: tune a scripted baseline on training seeds, store the result.
+"""``python -m eval.tune {margin,sca-per-slot}``: tune a scripted baseline on training seeds, store the result.
 
 Tuning seeds (default :data:`TUNE_SEEDS`, 500,000 onwards) are disjoint from every evaluation seed
 of the project (the comparison's 10,000-10,999, training's held-out 1,000,000 onwards, RL training's
@@ -10,10 +10,16 @@ numbers; all grid points x seeds in one batch of the vector env), then Nelder-Me
 seeds, the grid's table, the command) goes to ``agents/tuned/margin.yml`` (written atomically),
 which ``make_policy("margin")`` reads.
 
+``sca-per-slot``: per-slot SCA's design loss fraction (the slot's fading-averaged loss rate it designs
+for, as a fraction of eps*): a grid (:data:`SCA_FRACTION_GRID`) on the tuning seeds, then a bounded
+scalar search (``scipy.optimize.minimize_scalar``) between the best grid point's neighbours. The
+record goes to ``agents/tuned/sca-per-slot.yml``, which ``SCAPolicy(mode="per_slot")`` reads.
+
 Examples::
 
     python -m eval.tune margin                       # 40 missions from seed 500000
     python -m eval.tune margin --episodes 10 --out /tmp/margin.yml
+    python -m eval.tune sca-per-slot
 """
 
 from __future__ import annotations
@@ -23,7 +29,9 @@ import time
 
 import numpy as np
 from iscc_gym.agents.base import SplitPolicy
-from iscc_gym.agents.margin import margin_split, predicted_needs, save_tuned
+from iscc_gym.agents.margin import margin_split, predicted_needs
+from iscc_gym.agents.sca_slot import PER_SLOT_RECORD, SCAPolicy
+from iscc_gym.agents.tuned_records import save_tuned
 from iscc_gym.eval.evaluate import run_episodes
 from iscc_gym.eval.options import (
     Parser,
@@ -35,6 +43,8 @@ from iscc_gym.eval.options import (
     show_progress,
 )
 from scipy import optimize
+
+from iscc_gym.scenario import make_scenario
 
 #: First tuning seed (training seeds for the scripted baselines).
 TUNE_SEED_START = 500_000
@@ -48,6 +58,10 @@ MARGIN_GRID = {"m_ctrl": (2.5, 3.0, 3.5, 4.0, 5.0, 6.0, 8.0),
                "sensing_floor": (0.01, 0.02, 0.03, 0.05, 0.08, 0.12)}
 #: The tuned parameters, in the order of a grid point.
 PARAMS = ("m_ctrl", "m_comm", "sensing_floor")
+#: Default grid of ``python -m eval.tune sca-per-slot`` (design loss rate as a fraction of eps*).
+SCA_FRACTION_GRID = (0.005, 0.01, 0.015, 0.02, 0.03, 0.05, 0.07, 0.1, 0.2)
+#: Most bounded-search evaluations of :func:`tune_sca_per_slot`.
+MAX_SCALAR_REFINE = 8
 
 
 class _RowMargins(SplitPolicy):
@@ -142,7 +156,7 @@ def tune_margin(seeds=TUNE_SEEDS, grid=None, scenario: str = "paper", refine: bo
         "objective": "mean episode reward on the tuning seeds (common random numbers)",
         "objective_value": round(r_best, 3),
         "scenario": scenario,
-        "seeds": f"{seeds[0]}-{seeds[-1]}" if seeds == list(range(seeds[0], seeds[-1] + 1)) else seeds,
+        "seeds": _seed_text(seeds),
         "n_seeds": len(seeds),
         "columns": [*PARAMS, "reward"],
         "grid": [[float(v) for v in p] + [round(float(r), 3)] for p, r in zip(points, rewards, strict=True)],
@@ -151,19 +165,83 @@ def tune_margin(seeds=TUNE_SEEDS, grid=None, scenario: str = "paper", refine: bo
     }
 
 
+def sca_per_slot_reward(fraction: float, seeds, scenario="paper") -> float:
+    """Mean episode reward over ``seeds`` of per-slot SCA designed at ``fraction`` x eps*."""
+    policy = SCAPolicy(make_scenario(scenario), mode="per_slot", loss_design_fraction=float(fraction))
+    return float(run_episodes(policy, list(seeds), scenario)["episodes"]["reward"].mean())
+
+
+def tune_sca_per_slot(seeds=TUNE_SEEDS, grid=SCA_FRACTION_GRID, scenario: str = "paper", refine: bool = True,
+                      log=print, progress=None) -> dict:
+    """Per-slot SCA's design loss fraction: the grid, then a bounded scalar search between the best
+    grid point's neighbours, every point on the same tuning seeds; returns the tuning record.
+    ``progress(1)``, if given, is called after each evaluation.
+    """
+    seeds = check_tuning_seeds(seeds)
+    grid = sorted(float(g) for g in grid)
+    if not grid or grid[0] <= 0.0 or grid[-1] > 1.0:
+        raise ValueError(f"grid {grid}: design loss fractions must lie in (0, 1]")
+    t0 = time.perf_counter()
+
+    def reward(x):
+        r = sca_per_slot_reward(x, seeds, scenario)
+        if progress is not None:
+            progress(1)
+        return r
+
+    rewards = [reward(g) for g in grid]
+    best = int(np.argmax(rewards))
+    x_best, r_best, evals = grid[best], rewards[best], []
+    log(f"grid: {len(grid)} points x {len(seeds)} missions in {time.perf_counter() - t0:.1f} s; best "
+        f"loss_design_fraction = {x_best:.4g}: {r_best:.1f}")
+    if refine and len(grid) > 1:
+        lo, hi = grid[max(best - 1, 0)], grid[min(best + 1, len(grid) - 1)]
+
+        def neg(x):
+            r = reward(x)
+            evals.append([float(x), r])
+            return -r
+
+        optimize.minimize_scalar(neg, bounds=(lo, hi), method="bounded",
+                                 options={"xatol": 1e-3, "maxiter": MAX_SCALAR_REFINE})
+        for x, r in evals:
+            if r > r_best:
+                x_best, r_best = x, r
+        log(f"bounded search in [{lo:g}, {hi:g}]: {len(evals)} evaluations; best loss_design_fraction = "
+            f"{x_best:.4g}: {r_best:.1f}")
+    return {
+        "policy": PER_SLOT_RECORD,
+        "params": {"loss_design_fraction": round(float(x_best), 5)},
+        "objective": "mean episode reward on the tuning seeds (common random numbers)",
+        "objective_value": round(r_best, 3),
+        "scenario": scenario,
+        "seeds": _seed_text(seeds),
+        "n_seeds": len(seeds),
+        "columns": ["loss_design_fraction", "reward"],
+        "grid": [[g, round(r, 3)] for g, r in zip(grid, rewards, strict=True)],
+        "refinement": [[round(x, 5), round(r, 3)] for x, r in evals],
+        "wall_time_s": round(time.perf_counter() - t0, 1),
+    }
+
+
+def _seed_text(seeds):
+    return f"{seeds[0]}-{seeds[-1]}" if seeds == list(range(seeds[0], seeds[-1] + 1)) else seeds
+
+
 def _fmt(x) -> str:
     return ", ".join(f"{k} = {v:.4g}" for k, v in zip(PARAMS, x, strict=True))
 
 
 def build_parser(prog: str = "python -m eval.tune") -> Parser:
     ap = Parser(prog=prog, description=__doc__.split("\n")[0])
-    ap.add_argument("policy", choices=["margin"], help="the baseline to tune")
+    ap.add_argument("policy", choices=["margin", PER_SLOT_RECORD], help="the baseline to tune")
     ap.add_argument("--episodes", type=positive_int, default=len(TUNE_SEEDS), metavar="N",
                     help=f"tuning missions (default: {len(TUNE_SEEDS)})")
     ap.add_argument("--seed-start", type=nonneg_int, default=TUNE_SEED_START, metavar="SEED",
                     help=f"first tuning seed, outside the evaluation seeds (default: {TUNE_SEED_START})")
     ap.add_argument("--scenario", default="paper", help="scenario preset (default: paper)")
-    ap.add_argument("--no-refine", action="store_true", help="grid only (no Nelder-Mead)")
+    ap.add_argument("--no-refine", action="store_true",
+                    help="grid only (no Nelder-Mead for margin, no bounded search for sca-per-slot)")
     ap.add_argument("--out", metavar="PATH",
                     help="where to write the record (default: the package's agents/tuned/<policy>.yml, which "
                          "make_policy reads; checked before the run)")
@@ -178,11 +256,16 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.tune") -> di
     if args.out:
         check_writable_file(args.out, "--out")
     show = show_progress(args.quiet)
-    total = n_batches(int(np.prod([len(v) for v in MARGIN_GRID.values()])), len(seeds))
-    total += 0 if args.no_refine else MAX_REFINE
+    if args.policy == "margin":
+        total = n_batches(int(np.prod([len(v) for v in MARGIN_GRID.values()])), len(seeds))
+        total += 0 if args.no_refine else MAX_REFINE
+        tune = tune_margin
+    else:
+        total = len(SCA_FRACTION_GRID) + (0 if args.no_refine else MAX_SCALAR_REFINE)
+        tune = tune_sca_per_slot
     with progress_bar(total, "python -m eval.tune", unit="batch", enabled=show) as bar:
-        record = tune_margin(seeds, scenario=args.scenario, refine=not args.no_refine,
-                             log=bar.write if show else print, progress=bar.update if show else None)
+        record = tune(seeds, scenario=args.scenario, refine=not args.no_refine,
+                      log=bar.write if show else print, progress=bar.update if show else None)
     record["command"] = " ".join(["python -m eval.tune", *[a for a in (argv if argv is not None else sys.argv[1:])
                                                           if a != "--quiet"]])
     path = save_tuned(args.policy, record, args.out)

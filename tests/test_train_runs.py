@@ -163,11 +163,27 @@ def test_a_non_empty_out_is_refused_without_resume_or_overwrite(run_256, tmp_pat
     ({"normalize": False}, r"normalize True -> False"),
     ({"env_overrides": {"mission_duration_s": 10.0}}, r"env_overrides \{\} -> \{'mission_duration_s': 10.0\}"),
     ({"algo": "td3", "overrides": {"learning_starts": 16, "batch_size": 16}}, r"algo 'ppo' -> 'td3'"),
+    # a resumed model keeps its checkpoint's hyperparameters: a --set that changes one is refused, not ignored
+    ({"overrides": {**TINY, "learning_rate": 1e-3}}, r"learning_rate 0\.000228\d* -> 0\.001\)"),
+    ({"overrides": {**TINY, "n_epochs": 2}}, r"n_epochs 1 -> 2\)"),
 ])
 def test_resume_with_other_settings_is_a_clear_error(run_256, tmp_path, change, message):
     out = _copy(run_256, tmp_path)
     with pytest.raises(ValueError, match=r"resume: .* was trained with other settings \(" + message):
         main(_args(out, total_timesteps=512, resume=True, **change))
+
+
+def test_resume_of_a_checkpoint_without_hyperparameters_in_its_manifest(run_256, tmp_path):
+    """Checkpoints of an older python -m train carry no hyperparameters: nothing to compare, resume goes on."""
+    import yaml
+
+    out = _copy(run_256, tmp_path)
+    for manifest in (out / "checkpoints").glob("*/manifest.yml"):
+        data = yaml.safe_load(manifest.read_text())
+        assert "hyperparams" in data["run"]
+        del data["run"]["hyperparams"]
+        manifest.write_text(yaml.safe_dump(data))
+    assert main(_args(out, total_timesteps=384, resume=True))["timesteps"] == 384
 
 
 # --- clear errors -----------------------------------------------------------------------------------------

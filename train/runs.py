@@ -25,11 +25,17 @@ RUN_FILES = ("model.zip", "vecnormalize.pkl", MANIFEST, "config.yml", "summary.y
 IDENTITY = ("env_id", "algo", "scenario", "env_overrides", "normalize", "eval_episodes", "eval_max_steps")
 
 
-def run_identity(args: Args) -> dict:
-    """The settings of :data:`IDENTITY` of resolved ``args``, as written into every unit's manifest."""
+def run_identity(args: Args, hyperparams: dict | None = None) -> dict:
+    """The settings of :data:`IDENTITY` of resolved ``args``, as written into every unit's manifest;
+    with ``hyperparams`` (the algorithm's resolved keyword arguments), those too: a resumed model keeps
+    the hyperparameters saved in its checkpoint, so a resume that changes them is refused rather than
+    silently ignored.
+    """
     ident = {k: getattr(args, k) for k in IDENTITY}
     if args.algo in ("sac", "td3"):
         ident["n_envs"] = args.n_envs
+    if hyperparams is not None:
+        ident["hyperparams"] = hyperparams
     return yaml.safe_load(yaml.safe_dump(ident))
 
 
@@ -88,7 +94,7 @@ def _is_run_dir(out: Path) -> bool:
     return False
 
 
-def _prepare_out(args: Args) -> tuple[Path | None, dict | None]:
+def _prepare_out(args: Args, hyperparams: dict | None = None) -> tuple[Path | None, dict | None]:
     """Check ``args.out`` for the run: new or empty, or ``overwrite`` (its run files deleted), or
     ``resume`` from its newest complete checkpoint with the same :data:`IDENTITY`. Returns the
     checkpoint's directory and manifest (None, None without ``resume``).
@@ -108,11 +114,17 @@ def _prepare_out(args: Args) -> tuple[Path | None, dict | None]:
             raise FileNotFoundError(f"resume: no complete checkpoint in {out / 'checkpoints'}"
                                     + (f" ({len(skipped)} incomplete)" if skipped else "") + older
                                     + "; train without --resume first (with --checkpoint-freq > 0)")
-        was, now = manifest.get("run") or {}, run_identity(args)
-        diff = [f"{k} {was.get(k)!r} -> {now[k]!r}" for k in now if was.get(k) != now[k]]
+        was, now = manifest.get("run") or {}, run_identity(args, hyperparams)
+        if "hyperparams" not in was:  # a checkpoint of an older python -m train: nothing to compare with
+            now.pop("hyperparams", None)
+        diff = [f"{k} {was.get(k)!r} -> {now[k]!r}" for k in now if k != "hyperparams" and was.get(k) != now[k]]
+        old_hp, new_hp = was.get("hyperparams") or {}, now.get("hyperparams") or {}
+        diff += [f"{k} {old_hp.get(k)!r} -> {new_hp.get(k)!r}" for k in sorted(set(old_hp) | set(new_hp))
+                 if old_hp.get(k) != new_hp.get(k)]
         if diff:
-            raise ValueError(f"resume: {out} was trained with other settings ({'; '.join(diff)}); resume with the "
-                             "same ones, or train into another --out")
+            raise ValueError(f"resume: {out} was trained with other settings ({'; '.join(diff)}); a resumed run "
+                             "keeps its checkpoint's settings and hyperparameters: resume with the same ones "
+                             "(drop the --set/--env-set that change them), or train into another --out")
         return ckpt, manifest
     if out.exists() and any(out.iterdir()):
         if not args.overwrite:

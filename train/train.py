@@ -322,8 +322,8 @@ def main(args: Args, callback_after_eval=None) -> dict:
     if args.cost_limit:  # the multipliers alone price the costs, unless the run sets the weights
         args = dataclasses.replace(args, env_overrides={"w_rate": 0.0, "w_stab": 0.0, **args.env_overrides})
     kw = check_hyperparams(args.algo, _resolve_policy_kwargs(hp))
-    ckpt, manifest = _prepare_out(args)
-    identity = run_identity(args)
+    ckpt, manifest = _prepare_out(args, hp)
+    identity = run_identity(args, hp)
     torch.set_num_threads(args.torch_threads)
     set_numba_threads(args.numba_threads)
     out = Path(args.out)

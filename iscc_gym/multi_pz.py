@@ -66,9 +66,16 @@ class ISCCParallelEnv(ParallelEnv):
         missing = [a for a in self.agents if a not in actions]
         if missing:
             raise ValueError(f"actions has no entry for {missing}; pass one (3,) action per agent")
+        unknown = [a for a in actions if a not in self.agents]
+        if unknown:
+            raise ValueError(f"actions names {unknown}, which are not live agents {self.agents}; pass one (3,) "
+                             "action per live agent")
         bad = {a: np.shape(actions[a]) for a in self.agents if np.shape(actions[a]) != (3,)}
         if bad:
             raise ValueError(f"each agent's action must have shape (3,); got {bad}")
+        nonfinite = [a for a in self.agents if not np.all(np.isfinite(np.asarray(actions[a], dtype=np.float64)))]
+        if nonfinite:
+            raise ValueError(f"actions of {nonfinite} contain NaN or inf; pass finite values in [-1, 1]")
         vec = np.concatenate([np.asarray(actions[a], dtype=np.float64) for a in self.possible_agents])
         obs, _, term, trunc, info = self._env.step(vec)
         s, k = self.scenario, len(self.possible_agents)

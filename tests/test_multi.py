@@ -171,8 +171,15 @@ def test_pettingzoo_parallel_api_and_seed_tests_pass_and_rewards_add_up():
         obs, rew, term, trunc, infos = pz.step(acts)
         _, r, *_ = team.step(np.concatenate([acts[a] for a in pz.possible_agents]))
         assert sum(rew.values()) == pytest.approx(r, rel=1e-12, abs=1e-12)
-    with pytest.raises(ValueError, match="shape"):
-        pz.step({a: np.zeros(2) for a in pz.agents})
+    slot = pz._env._state.n[0]
+    for acts, match in (({a: np.zeros(2) for a in pz.agents}, "shape"),
+                        ({pz.agents[0]: np.zeros(3)}, r"no entry for \['drone_1', 'drone_2'\]"),
+                        ({**{a: np.zeros(3) for a in pz.agents}, "drone_7": np.zeros(3)}, r"\['drone_7'\].*not live"),
+                        ({**{a: np.zeros(3) for a in pz.agents}, "drone_1": np.array([0.0, np.inf, 0.0])},
+                         r"actions of \['drone_1'\] contain NaN or inf")):
+        with pytest.raises(ValueError, match=match):
+            pz.step(acts)
+    assert pz._env._state.n[0] == slot  # a refused step leaves the env where it was
 
 
 def test_each_drone_carries_its_share_of_the_rate_requirement():

@@ -87,6 +87,29 @@ def test_a_constrained_run_raises_the_multiplier_of_a_violated_limit_and_saves_i
     assert cfg["args"]["env_overrides"] == {"w_rate": 0.0, "w_stab": 0.0}
 
 
+def test_multi_drone_costs_count_the_share_of_drones_in_violation():
+    """Per-drone costs (the multi-drone env's info): a slot's indicator is the share of drones violating."""
+    costs = [[(np.array([0.3, 0.0, 0.0, 0.2]), np.zeros(4)), (np.zeros(4), np.array([0.0, 1.0, 0.0, 0.0]))]]
+    w = LagrangianVecEnv(_Fake(costs), {"rate": 0.1, "stability": 0.1}, {"rate": 2.0, "stability": 4.0})
+    w.step_async(None)
+    _, r, _, _ = w.step_wait()
+    np.testing.assert_allclose(r, [1.0 - 2.0 * 0.5, 1.0 - 4.0 * 0.25])
+    np.testing.assert_allclose(w.count, [0.5, 0.25])
+
+
+def test_a_constrained_multi_drone_run_reads_the_per_drone_costs(tmp_path):
+    out = tmp_path / "run"
+    main(Args(env_id="iscc_gym/ISCC-Multi-v0", env_overrides={"n_drones": 2}, total_timesteps=2048, n_envs=8,
+              overrides={"n_steps": 64, "batch_size": 64}, eval_freq=0, checkpoint_freq=0, tensorboard=False,
+              quiet=True, init_policy="none", cost_limit="rate=0.05", lagrange_lr=0.5, out=str(out)))
+    rec = yaml.safe_load((out / "lagrange.yml").read_text())
+    outage = [h["outage"]["rate"] for h in rec["history"]]
+    assert all(0.0 <= o <= 1.0 for o in outage) and rec["lambdas"]["rate"] > 0.0
+    # a rollout is 8 x 64 = 512 slots of 2 drones: a slot with one drone short counts 1/2, so some outage
+    # fraction is an odd number of 1/1024 (whole-slot indicators would give multiples of 1/512 only)
+    assert any(round(o * 1024) % 2 == 1 for o in outage)
+
+
 def test_bad_limits_fail_before_training(tmp_path):
     with pytest.raises(ValueError, match="--cost-limit"):
         main(Args(total_timesteps=64, cost_limit="rate=2", out=str(tmp_path / "x"), quiet=True))

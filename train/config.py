@@ -413,8 +413,8 @@ def _check(args: Args) -> None:
         parse_cost_limits(args.cost_limit)
         if not (args.lagrange_lr > 0.0 and math.isfinite(args.lagrange_lr)):
             raise ValueError(f"lagrange_lr = {args.lagrange_lr!r}; use a positive number, e.g. 0.05")
-        if args.env_id != "iscc_gym/ISCC-v0":
-            raise ValueError(f"cost_limit: {args.env_id} has no ISCC costs in info; use iscc_gym/ISCC-v0")
+        if args.env_id not in ISCC_ENV_IDS:
+            raise ValueError(f"cost_limit: {args.env_id} has no ISCC costs in info; use one of {list(ISCC_ENV_IDS)}")
     if args.vec_env == "batched" and args.env_id not in ISCC_ENV_IDS:
         raise ValueError("vec_env = 'batched' is the ISCC env's own batched env; use dummy or subproc for "
                          f"{args.env_id}")

@@ -20,6 +20,11 @@ weights ``w_rate`` and ``w_stab`` are set to 0 for a constrained run, so the rew
 tracking error and the multipliers alone price the costs. The multipliers and outage fractions are
 logged to TensorBoard (``lagrange/``), saved in the run's ``lagrange.yml`` and its ``summary.yml``,
 and reloaded by ``--resume``.
+
+On the multi-drone env (``iscc_gym/ISCC-Multi-v0``) ``info`` carries one cost per drone; a slot's
+indicator is the share of its drones in violation, so the limit is the fraction of drone-slots allowed
+to violate (the team reward's penalties are summed over drones, so one drone's violation costs the
+same whichever drone it is).
 """
 
 from __future__ import annotations
@@ -102,7 +107,7 @@ class LagrangianVecEnv(VecEnvWrapper):
                 if key not in info:
                     raise KeyError(f"info has no {key!r}: a constrained run needs the env's costs in info "
                                    f"(ISCCBatchedVecEnv(info_keys=({key!r}, ...)))")
-                ind[i, j] = float(info[key] > 0.0)
+                ind[i, j] = np.mean(np.asarray(info[key]) > 0.0)  # multi-drone env: the share of drones
         self.count += ind.sum(axis=0)
         self.slots += len(infos)
         return obs, rewards - ind @ self.lambdas, dones, infos

@@ -20,9 +20,11 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["SB3Policy", "MANIFEST", "write_manifest", "read_manifest", "ALGOS"]
+__all__ = ["SB3Policy", "MANIFEST", "LAGRANGE_FILE", "write_manifest", "read_manifest", "ALGOS"]
 
 MANIFEST = "manifest.yml"
+#: The Lagrange multipliers of a constrained run (``python -m train --algo ppo-lag``), beside its model.
+LAGRANGE_FILE = "lagrange.yml"
 ALGOS = ("ppo", "sac", "td3")
 
 

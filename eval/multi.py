@@ -21,6 +21,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+from iscc_gym.agents.sb3_policy import LAGRANGE_FILE
 from iscc_gym.eval.evaluate import Entry, evaluate, markdown_table
 from iscc_gym.eval.options import Parser, check_writable_file, nonneg_int, positive_int, run_console
 
@@ -55,10 +56,15 @@ def _load_agent(path, n_drones: int):
     return pol
 
 
+def agent_label(path) -> str:
+    """How an agent is reported: ``ppo-lag`` for a constrained run (its ``lagrange.yml``), else ``ppo``."""
+    return "ppo-lag" if (Path(path) / LAGRANGE_FILE).is_file() else "ppo"
+
+
 def compare(n_drones: int, seeds, policies: str = DEFAULT_POLICIES, agent: str | None = None, scenario="paper",
             max_steps: int | None = None) -> dict:
     """The comparison of :func:`iscc_gym.eval.evaluate.evaluate` for ``n_drones`` drones (``agent``: a
-    run directory, played as ``ppo``; the reference ``joint-sca`` where it is played).
+    run directory, played as :func:`agent_label`; the reference ``joint-sca`` where it is played).
     """
     from iscc_gym.agents.multi import make_multi_policy
 
@@ -66,12 +72,12 @@ def compare(n_drones: int, seeds, policies: str = DEFAULT_POLICIES, agent: str |
     s = drone_scenario(make_scenario(scenario), k)
     entries = {}
     if agent is not None:
-        entries["ppo"] = Entry(_load_agent(agent, k), {"n_drones": k})
+        entries[agent_label(agent)] = Entry(_load_agent(agent, k), {"n_drones": k})
     for spec in [p.strip() for p in policies.split(",") if p.strip()]:
         entries[spec] = Entry(make_multi_policy(spec, s, k), {"n_drones": k})
     reference = REFERENCE if REFERENCE in entries else None
     return evaluate(entries, seeds, scenario, max_steps=max_steps, reference=reference,
-                    focus="ppo" if agent is not None else None)
+                    focus=agent_label(agent) if agent is not None else None)
 
 
 def _advantage_line(k: int, res: dict) -> str:
@@ -145,8 +151,12 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.multi") -> d
         print("\n" + "\n".join(scan))
         sections.append("### The agent's advantage against K\n\n" + "\n".join(scan))
     if args.write_docs:
-        name = "multi" if len(ks) == 1 else "multi_scan"
-        write_section(docs_path(RESULTS_PATH), name, "## Many drones, one base station\n\n" + "\n\n".join(sections))
+        if len(ks) > 1:
+            name, title = "multi_scan", "## Many drones, one base station"
+        else:
+            label = f"agent `{Path(agents[ks[0]]).as_posix()}`" if agents[ks[0]] else "the baselines"
+            name, title = "multi", f"## Many drones: {label} at K = {ks[0]}"
+        write_section(docs_path(RESULTS_PATH), name, title + "\n\n" + "\n\n".join(sections))
     return {"results": {str(k): v for k, v in out.items()}, "seeds": [seeds[0], seeds[-1]],
             "agents": {str(k): v for k, v in agents.items()}}
 

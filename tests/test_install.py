@@ -63,7 +63,8 @@ def test_wheel_holds_only_the_iscc_gym_namespace(installed):
     top = {n.split("/")[0] for n in names}
     assert {t for t in top if not t.endswith(".dist-info")} == {"iscc_gym"}
     for needed in ("iscc_gym/agents/trained/ppo_iscc/model.zip", "iscc_gym/agents/trained/ppo_iscc/vecnormalize.pkl",
-                   "iscc_gym/agents/tuned/margin.yml", "iscc_gym/train/hyperparams.yml",
+                   "iscc_gym/agents/tuned/margin.yml", "iscc_gym/agents/tuned/sca-per-slot.yml",
+                   "iscc_gym/train/hyperparams.yml", "iscc_gym/agents/trained/multi/k4_lag/lagrange.yml",
                    "iscc_gym/agents/trained/pareto/ppo-lag/0.05/model.zip",
                    "iscc_gym/agents/trained/pareto/ppo-lag/0.05/lagrange.yml",
                    "iscc_gym/agents/trained/multi/k4/model.zip", "iscc_gym/agents/trained/multi/k4/vecnormalize.pkl",

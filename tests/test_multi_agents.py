@@ -110,3 +110,26 @@ def test_the_commands_train_and_compare_on_tiny_budgets(tmp_path, monkeypatch, c
         EM.main(["--n-drones", "2", "--agent", str(agent), "--episodes", "1", "--max-steps", "5", "--k-scan", "3"])
     with pytest.raises(ValueError, match="unknown"):
         EM.main(["--policies", "nope"])
+
+
+def test_the_constrained_multi_drone_agent_is_trained_shipped_and_reported_as_ppo_lag(tmp_path, monkeypatch):
+    import yaml
+    from iscc_gym.eval import multi as EM
+    from iscc_gym.train import multi as TM
+
+    monkeypatch.chdir(tmp_path)
+    assert TM.run_args(4, constrained=True).cost_limit == TM.MULTI_LAG_LIMITS == "rate=0.8,stability=0.01"
+    assert TM.run_args(4).cost_limit is None
+    TM.train_all([2], total_timesteps=256, dest=tmp_path / "ship", out_root=str(tmp_path / "runs"), n_envs=4,
+                 overrides={"n_steps": 32, "batch_size": 64}, eval_freq=0, init_envs=2, init_steps=20,
+                 constrained=True)
+    agent = tmp_path / "ship" / "k2_lag"
+    lag = yaml.safe_load((agent / "lagrange.yml").read_text())
+    assert lag["limits"] == {"rate": 0.8, "stability": 0.01}
+    config = yaml.safe_load((agent / "config.yml").read_text())["args"]
+    assert config["env_overrides"] == {"w_rate": 0.0, "w_stab": 0.0, "n_drones": 2}  # the multipliers price the costs
+    assert EM.agent_label(agent) == "ppo-lag" and EM.agent_label(tmp_path) == "ppo"
+    res = EM.main(["--n-drones", "2", "--episodes", "2", "--max-steps", "30", "--agent", str(agent),
+                   "--policies", "margin"])
+    assert set(res["results"]["2"]["policies"]) == {"ppo-lag", "margin"}
+    assert "ppo-lag_vs_margin" in res["results"]["2"]["focus_paired"]

@@ -33,6 +33,7 @@ from pathlib import Path
 
 import numpy as np
 import yaml
+from iscc_gym.agents.sb3_policy import LAGRANGE_FILE
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import VecEnvWrapper
 
@@ -42,8 +43,6 @@ __all__ = ["COSTS", "parse_cost_limits", "LagrangianVecEnv", "LagrangeCallback",
 
 #: Constraint name -> the ``info`` key whose positive value marks a violating slot.
 COSTS = {"rate": "cost_rate", "stability": "cost_stability"}
-#: The run file holding the multipliers (YAML).
-LAGRANGE_FILE = "lagrange.yml"
 
 
 def parse_cost_limits(text: str) -> dict[str, float]:

@@ -7,10 +7,18 @@ train --env-id iscc_gym/ISCC-Multi-v0 --env-set n_drones=K`` with the configurat
 ``agents/trained/multi/k<K>``, where ``python -m eval.multi`` finds them. The K = 4 agent is the one
 shipped beside the single-drone agent.
 
+``--constrained`` trains the Lagrangian PPO agent instead (``--algo ppo-lag`` with
+:data:`MULTI_LAG_LIMITS`: reward minus the mean tracking error, at most 80 % of drone-slots short of
+their rate and 1 % with a stability violation) into ``runs/multi/k<K>_lag`` and ships it in
+``agents/trained/multi/k<K>_lag``. The rate limit is the rate outage of ``equal-sca`` on 16 training
+missions at K = 4 (0.798, seeds 500000-500015), so the constrained agent is compared at that
+baseline's outage; the stability limit is the one of the single-drone Pareto runs.
+
 Example::
 
     python -m train.multi                     # K = 2, 4, 8 (a few minutes each on 2 cores)
     python -m train.multi --n-drones 4
+    python -m train.multi --n-drones 4 --constrained
 """
 
 from __future__ import annotations
@@ -22,28 +30,39 @@ from pathlib import Path
 
 from iscc_gym.train.config import MULTI_ENV_ID, Args
 
-__all__ = ["MULTI_DIR", "K_VALUES", "run_args", "train_all", "cli"]
+__all__ = ["MULTI_DIR", "K_VALUES", "MULTI_LAG_LIMITS", "run_args", "train_all", "cli"]
 
 ROOT = Path(__file__).resolve().parent.parent
 #: Where the multi-drone agents are shipped (``k<K>`` per number of drones).
 MULTI_DIR = ROOT / "agents" / "trained" / "multi"
 #: The numbers of drones trained by default.
 K_VALUES = (2, 4, 8)
+#: Outage limits of the constrained agents (``--constrained``; see the module).
+MULTI_LAG_LIMITS = "rate=0.8,stability=0.01"
 
 
-def run_args(n_drones: int, seed: int = 0, total_timesteps: int | None = None, out_root: str = "runs/multi") -> Args:
-    """The training :class:`Args` of the multi-drone agent for ``n_drones`` drones."""
+def agent_name(n_drones: int, constrained: bool = False) -> str:
+    """The directory name of a multi-drone agent: ``k<K>`` or, constrained, ``k<K>_lag``."""
+    return f"k{int(n_drones)}" + ("_lag" if constrained else "")
+
+
+def run_args(n_drones: int, seed: int = 0, total_timesteps: int | None = None, out_root: str = "runs/multi",
+             constrained: bool = False) -> Args:
+    """The training :class:`Args` of the multi-drone agent for ``n_drones`` drones (``constrained``: the
+    Lagrangian PPO agent at :data:`MULTI_LAG_LIMITS`).
+    """
     from iscc_gym.multi import check_n_drones
 
     k = check_n_drones(n_drones)
     return Args(env_id=MULTI_ENV_ID, env_overrides={"n_drones": k}, seed=seed, total_timesteps=total_timesteps,
-                out=f"{out_root}/k{k}", checkpoint_freq=0, tensorboard=False, overwrite=True)
+                out=f"{out_root}/{agent_name(k, constrained)}", checkpoint_freq=0, tensorboard=False, overwrite=True,
+                cost_limit=MULTI_LAG_LIMITS if constrained else None)
 
 
 def train_all(ks=K_VALUES, total_timesteps: int | None = None, dest: Path = MULTI_DIR, out_root: str = "runs/multi",
-              quiet: bool = True, **changes) -> dict:
-    """Train one agent per K in ``ks`` and copy each into ``dest/k<K>``; ``changes`` replace fields of
-    their :class:`Args` (e.g. a tiny budget in the tests).
+              quiet: bool = True, constrained: bool = False, **changes) -> dict:
+    """Train one agent per K in ``ks`` and copy each into ``dest/k<K>`` (``dest/k<K>_lag`` if
+    ``constrained``); ``changes`` replace fields of their :class:`Args` (e.g. a tiny budget in the tests).
     """
     from iscc_gym.train.ship import ship
 
@@ -52,11 +71,12 @@ def train_all(ks=K_VALUES, total_timesteps: int | None = None, dest: Path = MULT
         run_args(k)  # every K checked before any run starts
     out = {}
     for k in ks:
-        args = replace(run_args(k, total_timesteps=total_timesteps, out_root=out_root), quiet=quiet, **changes)
-        out[k] = ship(args, dest / f"k{k}", write_docs=False)
+        args = replace(run_args(k, total_timesteps=total_timesteps, out_root=out_root, constrained=constrained),
+                       quiet=quiet, **changes)
+        target = dest / agent_name(k, constrained)
+        out[k] = ship(args, target, write_docs=False)
         if not quiet:
-            print(f"K = {k}: {out[k]['timesteps']:,} steps, {out[k]['wall_time_s']:.0f} s -> {dest / f'k{k}'}",
-                  flush=True)
+            print(f"K = {k}: {out[k]['timesteps']:,} steps, {out[k]['wall_time_s']:.0f} s -> {target}", flush=True)
     return out
 
 
@@ -66,13 +86,15 @@ def cli(argv: list[str] | None = None) -> dict:
     ap.add_argument("--n-drones", default=",".join(map(str, K_VALUES)),
                     help=f"comma-separated numbers of drones (default: {','.join(map(str, K_VALUES))})")
     ap.add_argument("--total-timesteps", type=int, default=None, help="env steps per run (default: the YAML's)")
+    ap.add_argument("--constrained", action="store_true",
+                    help=f"train the Lagrangian PPO agents (--algo ppo-lag, {MULTI_LAG_LIMITS}) into k<K>_lag")
     ap.add_argument("--quiet", action="store_true", help="no line per run")
     ns = ap.parse_args(argv)
     try:
         ks = [int(x) for x in ns.n_drones.split(",") if x.strip()]
     except ValueError:
         ap.error(f"--n-drones {ns.n_drones!r}: use integers, e.g. --n-drones 2,4,8")
-    return train_all(ks, ns.total_timesteps, quiet=ns.quiet)
+    return train_all(ks, ns.total_timesteps, quiet=ns.quiet, constrained=ns.constrained)
 
 
 if __name__ == "__main__":

@@ -13,14 +13,14 @@ from pathlib import Path
 
 import numpy as np
 import yaml
-from iscc_gym.agents.sb3_policy import MANIFEST, read_manifest, write_manifest
+from iscc_gym.agents.sb3_policy import LAGRANGE_FILE, MANIFEST, read_manifest, write_manifest
 
 from iscc_gym.files import atomic_target, write_atomic
 
 from .config import Args
 
 RUN_FILES = ("model.zip", "vecnormalize.pkl", MANIFEST, "config.yml", "summary.yml", "learning_curve.csv",
-             "learning_curve.png", "checkpoints", "best", "eval", "tb", "lagrange.yml")
+             "learning_curve.png", "checkpoints", "best", "eval", "tb", LAGRANGE_FILE)
 #: What a resumed run must share with the run it continues (SAC/TD3: ``n_envs`` too, the replay buffer's shape).
 IDENTITY = ("env_id", "algo", "scenario", "env_overrides", "normalize", "eval_episodes", "eval_max_steps")
 

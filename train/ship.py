@@ -15,6 +15,7 @@ import sys
 from pathlib import Path
 
 import yaml
+from iscc_gym.agents.sb3_policy import LAGRANGE_FILE
 from iscc_gym.train.train import Args, main, resolve_args
 
 from iscc_gym.files import atomic_target
@@ -26,7 +27,7 @@ SHIP_ARGS = Args(seed=0, out="runs/ship_ppo", checkpoint_freq=0, tensorboard=Fal
 ARTIFACTS = ("model.zip", "vecnormalize.pkl", "manifest.yml", "config.yml", "summary.yml", "learning_curve.csv",
              "learning_curve.png")
 #: Copied too where the run wrote them (a constrained run's multipliers).
-OPTIONAL = ("lagrange.yml",)
+OPTIONAL = (LAGRANGE_FILE,)
 
 
 def _copy(src: Path, dst: Path) -> None:

@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-from dataclasses import replace
 from pathlib import Path
 
 from iscc_gym.train.config import MULTI_ENV_ID, Args
@@ -64,20 +63,12 @@ def train_all(ks=K_VALUES, total_timesteps: int | None = None, dest: Path = MULT
     """Train one agent per K in ``ks`` and copy each into ``dest/k<K>`` (``dest/k<K>_lag`` if
     ``constrained``); ``changes`` replace fields of their :class:`Args` (e.g. a tiny budget in the tests).
     """
-    from iscc_gym.train.ship import ship
+    from iscc_gym.train.ship import ship_all
 
     ks = [int(k) for k in ks]
-    for k in ks:
-        run_args(k)  # every K checked before any run starts
-    out = {}
-    for k in ks:
-        args = replace(run_args(k, total_timesteps=total_timesteps, out_root=out_root, constrained=constrained),
-                       quiet=quiet, **changes)
-        target = dest / agent_name(k, constrained)
-        out[k] = ship(args, target, write_docs=False)
-        if not quiet:
-            print(f"K = {k}: {out[k]['timesteps']:,} steps, {out[k]['wall_time_s']:.0f} s -> {target}", flush=True)
-    return out
+    runs = {k: (run_args(k, total_timesteps=total_timesteps, out_root=out_root, constrained=constrained),
+                dest / agent_name(k, constrained)) for k in ks}  # every K checked before any run starts
+    return ship_all(runs, quiet, **changes)
 
 
 def cli(argv: list[str] | None = None) -> dict:

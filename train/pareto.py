@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-from dataclasses import replace
 from pathlib import Path
 
 from iscc_gym.train.config import Args
@@ -62,18 +61,12 @@ def train_all(names=None, total_timesteps: int | None = None, dest: Path = PARET
     """Train the runs ``names`` (default all of :data:`RUNS`) and copy each into ``dest/<name>``;
     ``changes`` replace fields of their :class:`Args` (e.g. a tiny budget in the tests).
     """
-    from iscc_gym.train.ship import ship
+    from iscc_gym.train.ship import ship_all
 
     names = list(RUNS) if names is None else list(names)
-    for n in names:
-        run_args(n)  # every name checked before any run starts
-    out = {}
-    for n in names:
-        args = replace(run_args(n, total_timesteps=total_timesteps, out_root=out_root), quiet=quiet, **changes)
-        out[n] = ship(args, dest / n, write_docs=False)
-        if not quiet:
-            print(f"{n}: {out[n]['timesteps']:,} steps, {out[n]['wall_time_s']:.0f} s -> {dest / n}", flush=True)
-    return out
+    runs = {n: (run_args(n, total_timesteps=total_timesteps, out_root=out_root), dest / n)
+            for n in names}  # every name checked before any run starts
+    return ship_all(runs, quiet, **changes)
 
 
 def cli(argv: list[str] | None = None) -> dict:

@@ -75,6 +75,21 @@ def ship(args: Args = SHIP_ARGS, dest: Path = SHIP_DIR, write_docs: bool = True)
         return yaml.safe_load(f)
 
 
+
+def ship_all(runs: dict, quiet: bool = True, **changes) -> dict:
+    """Train and ship several runs: ``runs`` maps a label to ``(args, dest)``; ``changes`` replace fields
+    of every run's :class:`Args` (e.g. a tiny budget in the tests). Returns each label's summary.
+    """
+    from dataclasses import replace
+
+    out = {}
+    for label, (args, dest) in runs.items():
+        out[label] = ship(replace(args, quiet=quiet, **changes), dest, write_docs=False)
+        if not quiet:
+            print(f"{label}: {out[label]['timesteps']:,} steps, {out[label]['wall_time_s']:.0f} s -> {dest}",
+                  flush=True)
+    return out
+
 def cli(argv: list[str] | None = None) -> dict:
     ap = argparse.ArgumentParser(prog="python -m train.ship", description=__doc__.split("\n")[0],
                                  epilog="Trains into runs/ship_ppo (deleting a previous ship run there) and replaces "

@@ -71,13 +71,14 @@ def compare(n_drones: int, seeds, policies: str = DEFAULT_POLICIES, agent: str |
     k = check_n_drones(n_drones)
     s = drone_scenario(make_scenario(scenario), k)
     entries = {}
-    if agent is not None:
-        entries[agent_label(agent)] = Entry(_load_agent(agent, k), {"n_drones": k})
+    focus = agent_label(agent) if agent is not None else None
+    if focus is not None:
+        entries[focus] = Entry(_load_agent(agent, k), {"n_drones": k})
     for spec in [p.strip() for p in policies.split(",") if p.strip()]:
         entries[spec] = Entry(make_multi_policy(spec, s, k), {"n_drones": k})
     reference = REFERENCE if REFERENCE in entries else None
     return evaluate(entries, seeds, scenario, max_steps=max_steps, reference=reference,
-                    focus=agent_label(agent) if agent is not None else None)
+                    focus=focus)
 
 
 def _advantage_line(k: int, res: dict) -> str:

@@ -94,6 +94,13 @@ def _is_run_dir(out: Path) -> bool:
     return False
 
 
+def _flat_identity(ident: dict) -> dict:
+    """A run identity with its hyperparameters as top-level entries (compared, and named, one by one)."""
+    ident = dict(ident)
+    hyperparams = ident.pop("hyperparams", None) or {}
+    return {**ident, **hyperparams}
+
+
 def _prepare_out(args: Args, hyperparams: dict | None = None) -> tuple[Path | None, dict | None]:
     """Check ``args.out`` for the run: new or empty, or ``overwrite`` (its run files deleted), or
     ``resume`` from its newest complete checkpoint with the same :data:`IDENTITY`. Returns the
@@ -114,13 +121,12 @@ def _prepare_out(args: Args, hyperparams: dict | None = None) -> tuple[Path | No
             raise FileNotFoundError(f"resume: no complete checkpoint in {out / 'checkpoints'}"
                                     + (f" ({len(skipped)} incomplete)" if skipped else "") + older
                                     + "; train without --resume first (with --checkpoint-freq > 0)")
-        was, now = manifest.get("run") or {}, run_identity(args, hyperparams)
-        if "hyperparams" not in was:  # a checkpoint of an older python -m train: nothing to compare with
-            now.pop("hyperparams", None)
-        diff = [f"{k} {was.get(k)!r} -> {now[k]!r}" for k in now if k != "hyperparams" and was.get(k) != now[k]]
-        old_hp, new_hp = was.get("hyperparams") or {}, now.get("hyperparams") or {}
-        diff += [f"{k} {old_hp.get(k)!r} -> {new_hp.get(k)!r}" for k in sorted(set(old_hp) | set(new_hp))
-                 if old_hp.get(k) != new_hp.get(k)]
+        was = manifest.get("run") or {}
+        # a checkpoint of an older python -m train records no hyperparameters: nothing to compare them with
+        now = run_identity(args, hyperparams if "hyperparams" in was else None)
+        was, now = _flat_identity(was), _flat_identity(now)
+        diff = [f"{k} {was.get(k)!r} -> {now.get(k)!r}" for k in dict.fromkeys([*now, *was])
+                if was.get(k) != now.get(k)]
         if diff:
             raise ValueError(f"resume: {out} was trained with other settings ({'; '.join(diff)}); a resumed run "
                              "keeps its checkpoint's settings and hyperparameters: resume with the same ones "

@@ -15,10 +15,12 @@ from __future__ import annotations
 
 import hashlib
 import pickle
+import warnings
 import zipfile
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 __all__ = ["SB3Policy", "MANIFEST", "LAGRANGE_FILE", "write_manifest", "read_manifest", "ALGOS"]
 
@@ -40,8 +42,6 @@ def write_manifest(directory: str | Path, files: list[str], **meta) -> Path:
     """Write ``directory/manifest.yml`` (atomically) listing ``files`` (names in ``directory``) with
     their sizes and SHA-256, and ``meta``; call it after every listed file is written.
     """
-    import yaml
-
     from iscc_gym.files import write_atomic
 
     d = Path(directory)
@@ -59,8 +59,6 @@ def read_manifest(directory: str | Path) -> dict:
     ValueError
         A listed file missing, of another size or content (an interrupted or partial write).
     """
-    import yaml
-
     d = Path(directory)
     path = d / MANIFEST
     if not path.exists():
@@ -94,6 +92,51 @@ def _load_model(algo: str, path: Path):
         raise
     except KeyError as e:
         raise ValueError(f"{path}: not an SB3 model file (no {e} in the archive)") from None
+
+
+class _ZooLoader(yaml.SafeLoader):
+    """A safe YAML loader that also reads rl-zoo3's ``config.yml`` (``OrderedDict([[key, value], ...])``)."""
+
+
+_ZooLoader.add_constructor("tag:yaml.org,2002:python/object/apply:collections.OrderedDict",
+                           lambda loader, node: dict(loader.construct_sequence(node, deep=True)[0]))
+
+
+def find_vecnormalize(model_path: str | Path) -> tuple[Path | None, object]:
+    """Where the VecNormalize statistics of a model ``.zip`` outside a ``python -m train`` unit are, and what its
+    run's config says of normalisation (``None`` if no config is found).
+
+    Looked for, in order: ``vecnormalize.pkl`` beside the model (SB3's and our own convention), then in a
+    sub-folder of the model's folder holding rl-zoo3's run files (``<run>/<env id with / as ->/vecnormalize.pkl``
+    beside ``config.yml``; rl-zoo3 names the model ``<env>.zip`` or ``best_model.zip`` in ``<run>/``).
+
+    Raises
+    ------
+    ValueError
+        Two or more candidate statistics files for one model (which one is meant is unknowable).
+    """
+    model_path = Path(model_path)
+    beside = model_path.parent / "vecnormalize.pkl"
+    zoo = [d for d in sorted(model_path.parent.iterdir()) if d.is_dir()
+           and ((d / "vecnormalize.pkl").exists() or (d / "config.yml").exists())]
+    if len(zoo) > 1:
+        named = [d for d in zoo if d.name == model_path.stem]
+        if len(named) != 1:
+            raise ValueError(f"{model_path}: several rl-zoo3 run folders beside it ({', '.join(d.name for d in zoo)}) "
+                             "hold statistics; pass the model of a folder that holds one run")
+        zoo = named
+    normalize = None
+    if zoo and (zoo[0] / "config.yml").exists():
+        cfg = zoo[0] / "config.yml"
+        try:
+            normalize = (yaml.load(cfg.read_text(), Loader=_ZooLoader) or {}).get("normalize")
+        except (yaml.YAMLError, AttributeError, TypeError, ValueError) as e:
+            raise ValueError(f"{cfg}: not an rl-zoo3 config.yml ({e})") from None
+    if beside.exists():
+        return beside, normalize
+    if zoo and (zoo[0] / "vecnormalize.pkl").exists():
+        return zoo[0] / "vecnormalize.pkl", normalize
+    return None, normalize
 
 
 def _load_vecnormalize(path: Path):
@@ -148,8 +191,6 @@ class SB3Policy:
             A truncated or corrupt file, a unit whose files do not match its manifest, an unknown
             algorithm in the run's config, a model of another observation size.
         """
-        import yaml
-
         p = Path(path)
         if p.is_dir():
             unit = p / "best" if best else p
@@ -179,8 +220,19 @@ class SB3Policy:
         vn_path = unit / "vecnormalize.pkl"
         if manifest is not None:
             has_vn = "vecnormalize.pkl" in manifest["files"]
-        else:  # an older run, or a model copied elsewhere: a stale file of a run without normalisation is left
-            has_vn = vn_path.exists() and run.get("normalize") is not False
+        else:  # an older run, an rl-zoo3 run or a bare SB3 model: a stale file of a run without normalisation is left
+            vn_path, zoo_normalize = find_vecnormalize(model_path)
+            if not run and zoo_normalize is not None:
+                run = {"normalize": zoo_normalize}
+            has_vn = vn_path is not None and run.get("normalize") is not False
+            if run.get("normalize") and not has_vn:
+                raise ValueError(f"{model_path}: its run was trained with VecNormalize (normalize: "
+                                 f"{run['normalize']!r} in its config) but no vecnormalize.pkl was found beside the "
+                                 f"model or in {unit}/<env>/ (rl-zoo3's place): copy the run's statistics there")
+            if vn_path is None and run.get("normalize") is None:
+                warnings.warn(f"{model_path}: no vecnormalize.pkl beside it or in {unit}/<env>/ (rl-zoo3's place) and "
+                              "no config saying how it was trained: loaded without observation normalisation; if it "
+                              "was trained with VecNormalize its actions are wrong", UserWarning, stacklevel=2)
         if run.get("normalize") and not has_vn:
             raise ValueError(f"{unit}: the run was trained with VecNormalize but {unit} holds no statistics for "
                              f"{model_path.name} (older python -m train runs kept none in best/): load the run's "

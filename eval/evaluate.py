@@ -354,4 +354,33 @@ def markdown_table(res: dict, command: str) -> str:
         for pair, d in pairs.items():
             cells = [ci_cell(d[f"{m}_diff_mean"], d[f"{m}_diff_ci95"], fmt) for m, _, fmt, _ in PAIR_COLUMNS]
             lines.append(f"| {_pair_name(pair)} | " + " | ".join(cells) + " |")
+    reading = reading_sentences(res)
+    if reading:
+        lines += ["", wrap(reading)]
     return "\n".join(lines)
+
+
+def _verdict(d: dict, metric: str = "episode_reward") -> str:
+    """``ahead by X`` / ``behind by X`` with whether the paired 95 % interval excludes zero."""
+    m, h = d[f"{metric}_diff_mean"], d[f"{metric}_diff_ci95"]
+    word = "ahead of" if m > 0 else "behind"
+    sure = "the paired interval excludes zero" if abs(m) > h else "the paired interval includes zero"
+    return f"{word} by {abs(m):.1f} ±{h:.1f} ({sure})"
+
+
+def reading_sentences(res: dict) -> str:
+    """The comparison's figures in words, generated with the tables so prose and table cannot disagree: each
+    policy's paired reward difference against the reference and, for the focus policy, against every other.
+    """
+    out = []
+    ref = res.get("reference")
+    if res.get("paired"):
+        parts = [f"{_pair_name(pair).split(' vs ')[0]} {_verdict(d)}" for pair, d in res["paired"].items()]
+        out.append(f"In reward per mission against {ref}: " + "; ".join(parts) + ".")
+    if res.get("focus_paired"):
+        focus = res["focus"]
+        parts = [f"{_verdict(d)} {_pair_name(pair).split(' vs ', 1)[1]}" for pair, d in res["focus_paired"].items()
+                 if _pair_name(pair).split(" vs ", 1)[1] != ref]
+        if parts:
+            out.append(f"{focus} is " + "; ".join(parts) + ".")
+    return " ".join(out)

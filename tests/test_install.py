@@ -2,8 +2,10 @@
 scripts that work from any directory, and no shadowing by a user's own ``agents.py``/``train.py``/``eval.py``.
 
 Builds the wheel from a copy of the sources (so the checkout gets no ``build/``), installs it with
-``--no-deps`` into a temporary venv that sees this interpreter's packages, and runs it from a folder
-holding generic modules that would shadow top-level ``agents``/``train``/``eval`` packages.
+``--no-deps`` into a temporary venv that sees the packages of the interpreter running the tests (a ``.pth`` file
+listing its site-packages folders, after the new venv's own: ``system_site_packages=True`` would expose the *base*
+interpreter's packages, not those of the venv the tests run in), and runs it from a folder holding generic modules
+that would shadow top-level ``agents``/``train``/``eval`` packages.
 """
 
 from __future__ import annotations
@@ -40,17 +42,21 @@ def installed(tmp_path_factory):
         else:
             shutil.copy2(p, src / name)
     wheels = tmp / "wheels"
-    r = _run([sys.executable, "-m", "pip", "wheel", str(src), "--no-deps", "--no-build-isolation", "-q",
+    r = _run([sys.executable, "-m", "pip", "wheel", str(src), "--no-deps", "-q",
               "-w", str(wheels)], cwd=tmp)
     assert r.returncode == 0, r.stderr
     (wheel,) = wheels.glob("iscc_gym-*.whl")
     env_dir = tmp / "venv"
-    venv.EnvBuilder(system_site_packages=True, with_pip=False).create(env_dir)
+    venv.EnvBuilder(with_pip=False).create(env_dir)
     py = env_dir / "bin" / "python"
+    purelib = _run([str(py), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"], cwd=tmp)
+    # this interpreter's site-packages as plain path lines: their own .pth files (an editable install of the
+    # checkout among them) are not processed, so the wheel's iscc_gym is the one imported
+    outer = [p for p in sys.path if Path(p).name in ("site-packages", "dist-packages") and Path(p).is_dir()]
+    Path(purelib.stdout.strip(), "outer-site-packages.pth").write_text("\n".join(outer) + "\n")
     r = _run([sys.executable, "-m", "pip", "--python", str(py), "install", "--no-deps", "--no-index", "-q",
               str(wheel)], cwd=tmp)
     assert r.returncode == 0, r.stderr
-    purelib = _run([str(py), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"], cwd=tmp)
     work = tmp / "work"
     work.mkdir()
     for name in ("agents", "train", "eval"):  # a user's own generic modules in the working directory

@@ -29,3 +29,54 @@ def test_readme_multi_drone_example_runs_in_five_lines(capsys):
     assert namespace["info"]["alpha"].shape == (4, 3) and namespace["info"]["cost_rate"].shape == (4,)
     assert namespace["agents"].possible_agents == [f"drone_{k}" for k in range(4)]
     assert "[" in capsys.readouterr().out
+
+
+def _outside_generated_blocks(text: str) -> str:
+    return re.sub(r"<!-- ([\w-]+):start -->.*?<!-- \1:end -->", "", text, flags=re.S)
+
+
+def _comparison_row(text: str, pair: str) -> tuple[float, float]:
+    block = text[text.index("<!-- comparison:start -->"):text.index("<!-- comparison:end -->")]
+    row = re.search(rf"^\| {re.escape(pair)} \| ([+-][0-9.]+) ±([0-9.]+) \|", block, re.M)
+    assert row, f"no row {pair!r} in the generated comparison"
+    return float(row.group(1)), float(row.group(2))
+
+
+def test_readme_prose_agrees_with_its_generated_comparison():
+    """The hand-written reading of the comparison states who wins; the generated table must say the same."""
+    text = README.read_text()
+    prose = _outside_generated_blocks(text)
+    if "**The learned agent does not beat the two per-slot scripted" in prose:
+        for other in ("myopic", "margin"):
+            mean, half = _comparison_row(text, f"ppo vs {other}")
+            assert mean + half < 0, f"README says ppo does not beat {other}, the table says {mean} ±{half}"
+    else:
+        raise AssertionError("README's reading of the comparison changed: update this test with it")
+    for other in ("margin", "myopic", "ppo"):  # 'every policy that adapts the split ... beats the static allocation'
+        mean, half = _comparison_row(text, f"{other} vs sca")
+        assert mean - half > 0, f"README says {other} beats static SCA, the table says {mean} ±{half}"
+
+
+def test_readme_quotes_no_time_that_no_command_produced():
+    """Every wall time in the README sits in a block a command generates (setup-times, bench, reproduce, ...)."""
+    prose = _outside_generated_blocks(README.read_text())
+    quoted = re.findall(r"(?:about|~|takes|in)\s*[0-9.,]+\s*(?:s|sec|seconds|min|minutes|h|hours)\b", prose)
+    assert not quoted, f"hand-written times in README.md: {quoted}"
+    assert "half a minute" not in prose
+
+
+def test_ci_runs_the_readme_commands_in_a_fresh_venv():
+    """.ci/run runs tools/readme_commands.py, which reads exactly the README's two set-up commands."""
+    import importlib.util
+
+    root = README.parent
+    assert "tools/readme_commands.py" in (root / ".ci" / "run").read_text()
+    spec = importlib.util.spec_from_file_location("readme_commands", root / "tools" / "readme_commands.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    commands = mod.readme_commands(README.read_text())
+    assert list(commands) == ["main", "tests"]
+    assert commands["main"].endswith("python -m eval") and commands["tests"].endswith("python -m pytest tests")
+    install = commands["tests"].rsplit("&&", 1)[0]
+    assert commands["main"].startswith(install) and install.startswith("pip install torch==2.13.0 &&")
+    assert "setup-times:start" in README.read_text()

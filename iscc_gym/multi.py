@@ -26,15 +26,15 @@ from gymnasium.utils import seeding
 from numpy.typing import ArrayLike
 
 from . import kernel, loop
-from .env import check_seed, env_step, observe, warn_time_limit
+from .env import check_keywords, check_seed, env_step, observe, real_array, reset_info_arrays, warn_time_limit
 from .scenario import Scenario, make_scenario
 from .schema import COL, OBS_BOUND, OBS_NAMES
 from .task import action_to_split
 from .trajectory import sample_reference
 
 __all__ = ["ISCCMultiEnv", "MULTI_ENV_ID", "N_DRONES", "MAX_DRONES", "check_n_drones", "drone_budgets",
-           "multi_split", "shares_to_action", "multi_reward", "drone_scenario", "drone_seeds", "reset_drones",
-           "multi_step", "multi_info", "parallel_env"]
+           "multi_split", "shares_to_action", "drone_rewards", "multi_reward", "drone_scenario", "drone_seeds",
+           "reset_drones", "multi_step", "multi_info", "multi_reset_info", "parallel_env"]
 
 #: The registered id of the multi-drone env.
 MULTI_ENV_ID = "iscc_gym/ISCC-Multi-v0"
@@ -125,22 +125,42 @@ def shares_to_action(alpha: ArrayLike) -> np.ndarray:
     return (2.0 * flat / flat.max(axis=-1, keepdims=True) - 1.0).astype(np.float32)
 
 
+def drone_rewards(s: Scenario, err: ArrayLike, cost_rate: ArrayLike, cost_stability: ArrayLike,
+                  terminated: ArrayLike, n_next: ArrayLike) -> np.ndarray:
+    r"""Each drone's reward of a step, shape (..., K): the single env's reward of that drone.
+
+    .. math::
+        r_{k,n} = -\min(e_{k,n}, e_\max) - w_\mathrm{rate}\, c^\mathrm{rate}_{k,n}
+        - w_\mathrm{stab}\, c^\mathrm{stab}_{k,n} - [\text{lost}_n]\, e_\max (N - n')
+
+    (:func:`iscc_gym.kernel.reward_from_costs` and :func:`iscc_gym.kernel.terminal_penalty`), where
+    ``err``, ``cost_rate`` and ``cost_stability`` are (..., K), ``terminated`` (...,) is True where
+    **any** drone lost track (the mission ends for every drone, so every drone pays the penalty for the
+    slots left) and ``n_next`` (...,) is the slot index after the step, :math:`n'`.
+    """
+    r = kernel.reward_from_costs(s.max_tracking_error_m, s.w_rate, s.w_stab, np.asarray(err, dtype=float),
+                                 np.asarray(cost_rate, dtype=float), np.asarray(cost_stability, dtype=float))
+    pen = kernel.terminal_penalty(s.max_tracking_error_m, s.n_slots, np.asarray(n_next, dtype=np.int64))
+    return r - np.where(np.asarray(terminated, dtype=bool), pen, 0.0)[..., None]
+
+
 def multi_reward(s: Scenario, out: np.ndarray, n_next: ArrayLike) -> np.ndarray:
     r"""The team reward of a step from the per-drone step outputs ``out`` (..., K, columns).
 
-    .. math::
-        r_n = -\frac1K \sum_k \min(e_{k,n}, e_\max) - \sum_k \bigl(w_\mathrm{rate}\, c^\mathrm{rate}_{k,n}
-        + w_\mathrm{stab}\, c^\mathrm{stab}_{k,n}\bigr)
+    The mean over drones of each drone's single-env reward (:func:`drone_rewards`):
 
-    (:func:`iscc_gym.kernel.reward_from_costs` per drone with the error and its bound divided by
-    K, summed), minus the single env's loss-of-track penalty :math:`e_\max` per remaining slot when
-    any drone loses track. With K = 1 it is the single env's reward.
+    .. math::
+        r_n = \frac1K \sum_k \Bigl(-\min(e_{k,n}, e_\max) - w_\mathrm{rate}\, c^\mathrm{rate}_{k,n}
+        - w_\mathrm{stab}\, c^\mathrm{stab}_{k,n}\Bigr)
+
+    minus the single env's loss-of-track penalty :math:`e_\max` per remaining slot when any drone
+    loses track. Tracking error and penalties are both per-drone means, so the reward's trade-off
+    between a drone's tracking and its costs is the single env's at every K (docs/model.md, section
+    5). With K = 1 it is the single env's reward bit for bit.
     """
-    k = out.shape[-2]
     err, c_rate, c_stab = (out[..., COL[name]] for name in ("tracking_error_m", "cost_rate", "cost_stability"))
-    r = kernel.reward_from_costs(s.max_tracking_error_m / k, s.w_rate, s.w_stab, err / k, c_rate, c_stab).sum(-1)
     term = (out[..., COL["terminated"]] == 1.0).any(axis=-1)
-    return r - np.where(term, kernel.terminal_penalty(s.max_tracking_error_m, s.n_slots, n_next), 0.0)
+    return drone_rewards(s, err, c_rate, c_stab, term, n_next).mean(axis=-1)
 
 
 def drone_seeds(rng: np.random.Generator, n_drones: int) -> list[int]:
@@ -201,6 +221,24 @@ def multi_info(out: np.ndarray) -> dict:
     return info
 
 
+def multi_reset_info(state: loop.LoopState, n_drones: int) -> dict:
+    """The keys of :func:`multi_info` and ``slot`` at reset, for N envs of K drones (``state`` of N K loops):
+    per-drone arrays (N, K) (``alpha`` (N, K, 3), equal shares 1/(3K)), ``cost`` 0 and
+    ``mean_tracking_error_m`` (N,), ``slot`` (N,); the per-drone values of
+    :func:`iscc_gym.env.reset_info_arrays` (the initial tracking error, zero costs, NaN slot outcomes).
+    """
+    k = n_drones
+    per = reset_info_arrays(state)
+    nenv = state.x.shape[0] // k
+    info: dict[str, Any] = {key: per[key].reshape(nenv, k) for key in DRONE_INFO_KEYS}
+    info["packet_received"] = per["packet_received"].reshape(nenv, k)
+    info["alpha"] = np.full((nenv, k, 3), 1.0 / (3 * k))
+    info["cost"] = np.zeros(nenv)
+    info["mean_tracking_error_m"] = info["tracking_error_m"].mean(axis=-1)
+    info["slot"] = per["slot"][::k].copy()
+    return info
+
+
 class ISCCMultiEnv(gym.Env):
     r"""Split one base station's time-frequency budget across K drones, every slot.
 
@@ -230,14 +268,17 @@ class ISCCMultiEnv(gym.Env):
     ## Rewards
 
     .. math::
-        r_n = -\frac1K \sum_k \min(e_{k,n}, e_\max) - \sum_k \bigl(w_\mathrm{rate}\, c^\mathrm{rate}_{k,n}
-        + w_\mathrm{stab}\, c^\mathrm{stab}_{k,n}\bigr)
+        r_n = \frac1K \sum_k \Bigl(-\min(e_{k,n}, e_\max) - w_\mathrm{rate}\, c^\mathrm{rate}_{k,n}
+        - w_\mathrm{stab}\, c^\mathrm{stab}_{k,n}\Bigr)
 
-    the mean tracking error over drones (each clipped at ``max_tracking_error_m``) and the rate and
-    stability penalties summed over drones (the single env's costs; :func:`multi_reward`). Per-drone
-    costs are in ``info["cost_rate"]``, ``info["cost_stability"]`` (K,); ``info["cost"]`` is their
-    total, for safe-RL libraries. Loss of track adds the single env's penalty, ``max_tracking_error_m``
-    per remaining slot. With K = 1 reward and costs are the single env's.
+    the mean over drones of each drone's single-env reward: its tracking error (clipped at
+    ``max_tracking_error_m``) and its rate and stability penalties (the single env's costs;
+    :func:`multi_reward`, :func:`drone_rewards`). Error and penalties are both per-drone means, so a
+    drone's tracking weighs against its costs as in the single env at every K (summing the penalties
+    over an averaged error would make the penalties K times heavier, and losing the radar pay).
+    Per-drone costs are in ``info["cost_rate"]``, ``info["cost_stability"]`` (K,); ``info["cost"]`` is
+    their total, for safe-RL libraries. Loss of track adds the single env's penalty,
+    ``max_tracking_error_m`` per remaining slot. With K = 1 reward and costs are the single env's.
 
     ## Starting State
 
@@ -277,6 +318,8 @@ class ISCCMultiEnv(gym.Env):
 
     def __init__(self, n_drones: int = N_DRONES, scenario: str | Scenario = "paper", render_mode: str | None = None,
                  rate_min_per_drone_bps: float | None = None, **overrides: Any):
+        check_keywords(type(self).__name__, overrides,
+                       ("n_drones", "scenario", "render_mode", "rate_min_per_drone_bps"))
         self.n_drones = check_n_drones(n_drones)
         self.scenario = drone_scenario(make_scenario(scenario, **overrides), self.n_drones, rate_min_per_drone_bps)
         warn_time_limit(self.scenario)
@@ -299,12 +342,16 @@ class ISCCMultiEnv(gym.Env):
         self._state = reset_drones(self.scenario, seeds)
         self._last_rx, self._last_peb = np.ones(self.n_drones), np.zeros(self.n_drones)
         obs = observe(self.scenario, self._state, self._last_rx, self._last_peb).reshape(-1)
-        return obs, {"slot": 0, "drone_seeds": seeds, "alpha": np.full((self.n_drones, 3), 1.0 / (3 * self.n_drones))}
+        info = {key: (val[0].item() if val.ndim == 1 else val[0]) for key, val in
+                multi_reset_info(self._state, self.n_drones).items()}  # a step's keys (NaN: no slot yet)
+        info["action"] = np.full(3 * self.n_drones, np.nan, np.float32)
+        info["drone_seeds"] = seeds
+        return obs, info
 
     def step(self, action):
         if self._state is None:
             raise RuntimeError("step() called before reset(): call env.reset(seed=...) first")
-        a = np.asarray(action, dtype=np.float64)
+        a = real_array(action, "action")
         if a.shape != (3 * self.n_drones,):
             raise ValueError(f"action must have shape ({3 * self.n_drones},) for {self.n_drones} drones, got {a.shape}")
         if not np.isfinite(a).all():

@@ -7,9 +7,10 @@ sensing, control and data weights. **The GBS's normalisation rule**: it maps the
 shared budget exactly as the centralised env maps its 3K-vector (:func:`iscc_gym.multi.multi_split`):
 :math:`w_{k,f} = (a_{k,f} + 1)/2`, :math:`\alpha_{k,f} = w_{k,f} / \sum_{j,f} w_{j,f}`, so a drone's
 band grows with its total demand against everyone else's (proportional sharing). Each agent observes
-its own drone (the single env's 23 entries). Rewards are per drone, :math:`-\min(e_k, e_\max)/K -
-w_\mathrm{rate} c^\mathrm{rate}_k - w_\mathrm{stab} c^\mathrm{stab}_k` (minus the loss-of-track
-penalty shared out 1/K per drone), so the agents' rewards sum to the centralised env's team reward.
+its own drone (the single env's 23 entries). Rewards are per drone, its single-env reward over K,
+:math:`(-\min(e_k, e_\max) - w_\mathrm{rate} c^\mathrm{rate}_k - w_\mathrm{stab} c^\mathrm{stab}_k)/K`
+(minus the loss-of-track penalty shared out 1/K per drone; :func:`iscc_gym.multi.drone_rewards`), so
+the agents' rewards sum to the centralised env's team reward, the mean over drones.
 Every agent terminates when any drone loses track and truncates at the mission's end. Infos carry the
 drone's costs (``cost_rate``, ``cost_stability``, ``cost``), tracking error and applied shares.
 """
@@ -22,8 +23,7 @@ import numpy as np
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
-from . import kernel
-from .multi import N_DRONES, ISCCMultiEnv
+from .multi import N_DRONES, ISCCMultiEnv, drone_rewards
 from .schema import OBS_BOUND, OBS_NAMES
 
 __all__ = ["ISCCParallelEnv"]
@@ -80,9 +80,7 @@ class ISCCParallelEnv(ParallelEnv):
         obs, _, term, trunc, info = self._env.step(vec)
         s, k = self.scenario, len(self.possible_agents)
         out_err, c_rate, c_stab = info["tracking_error_m"], info["cost_rate"], info["cost_stability"]
-        per = kernel.reward_from_costs(s.max_tracking_error_m / k, s.w_rate, s.w_stab, out_err / k, c_rate, c_stab)
-        if term:
-            per = per - kernel.terminal_penalty(s.max_tracking_error_m, s.n_slots, info["slot"]) / k
+        per = drone_rewards(s, out_err, c_rate, c_stab, term, info["slot"]) / k
         agents = self.agents
         infos = {a: {"tracking_error_m": float(out_err[i]), "cost_rate": float(c_rate[i]),
                      "cost_stability": float(c_stab[i]), "cost": float(c_rate[i] + c_stab[i]),

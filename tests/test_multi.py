@@ -66,19 +66,25 @@ def test_a_drone_depends_only_on_its_own_shares():
                if x[4]["alpha"][0, 2] > 0)
 
 
-def test_the_reward_is_the_mean_error_and_the_summed_penalties():
+def test_the_reward_is_the_mean_of_the_drones_single_env_rewards():
+    """Issue 23: tracking error and penalties are both per-drone means (the old reward summed the penalties
+    over drones but averaged the error, so its maximiser bought rate with the radar)."""
     s = iscc_gym.SCENARIOS["paper"]
     env = ISCCMultiEnv(n_drones=4)
     env.reset(seed=7)
     rng = np.random.default_rng(3)
+    differ = 0
     for _ in range(100):
         _, r, term, _, info = env.step(rng.uniform(-1, 1, 12).astype(np.float32))
         err = np.minimum(info["tracking_error_m"], M)
-        oracle = -err.mean() - (s.w_rate * info["cost_rate"] + s.w_stab * info["cost_stability"]).sum()
-        assert r == pytest.approx(oracle, rel=1e-12, abs=1e-12) and not term
+        per_drone = -err - s.w_rate * info["cost_rate"] - s.w_stab * info["cost_stability"]  # the single env's
+        assert r == pytest.approx(per_drone.mean(), rel=1e-12, abs=1e-12) and not term
+        old = -err.mean() - (s.w_rate * info["cost_rate"] + s.w_stab * info["cost_stability"]).sum()
+        differ += r != pytest.approx(old, rel=1e-9)
         assert info["cost"] == pytest.approx(info["cost_rate"].sum() + info["cost_stability"].sum())
         assert info["cost_rate"].shape == (4,) and info["alpha"].shape == (4, 3)
         assert np.all((info["cost_rate"] >= 0) & (info["cost_rate"] <= 1))
+    assert differ > 50  # the slots with a penalty tell the mean from the old sum
 
 
 def test_the_episode_terminates_when_any_drone_loses_track():

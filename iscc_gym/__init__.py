@@ -10,6 +10,7 @@ import os as _os
 
 import gymnasium as _gym
 
+from . import compile_note as _compile_note  # noqa: F401 (a note on stderr when the kernels are first built)
 from . import multi
 from .env import REGISTERED_MAX_EPISODE_STEPS, ISCCEnv, action_to_split, split_to_action
 from .scenario import SCENARIOS, Scenario, make_scenario

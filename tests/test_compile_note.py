@@ -1,0 +1,68 @@
+"""The one-line note when the compiled kernels are built: printed on a numba cache miss, silent on a hit."""
+
+import os
+import subprocess
+import sys
+import textwrap
+
+MODULE = textwrap.dedent("""
+    from numba import njit
+
+    @njit(cache=True)
+    def twice(x):
+        return 2 * x
+""")
+
+RUN = textwrap.dedent("""
+    import io, sys
+    from numba.core import event
+    from iscc_gym.compile_note import CompileNote, NOTE
+    note = CompileNote(stream=sys.stdout, package="probe_pkg")
+    event.register("numba:compile", note)
+    from probe_pkg.mod import twice
+    twice(3.0)
+    twice(4.0)  # the same signature: no second compilation, no second note
+""")
+
+
+def _run(tmp_path, **env):
+    return subprocess.run([sys.executable, "-c", RUN], capture_output=True, text=True, timeout=300, cwd=tmp_path,
+                          env={**os.environ, "PYTHONPATH": str(tmp_path), "NUMBA_CACHE_DIR": str(tmp_path / "cache"),
+                               **env})
+
+
+def test_note_once_on_a_cache_miss_and_none_on_a_hit(tmp_path):
+    from iscc_gym.compile_note import NOTE
+
+    (tmp_path / "probe_pkg").mkdir()
+    (tmp_path / "probe_pkg" / "__init__.py").write_text("")
+    (tmp_path / "probe_pkg" / "mod.py").write_text(MODULE)
+    first = _run(tmp_path)
+    assert first.returncode == 0, first.stderr
+    assert first.stdout.count(NOTE) == 1
+    second = _run(tmp_path)  # loaded from the cache written by the first run
+    assert second.returncode == 0, second.stderr
+    assert NOTE not in second.stdout
+    quiet_dir = tmp_path / "other"
+    quiet_dir.mkdir()
+    (tmp_path / "probe_pkg" / "mod.py").write_text(MODULE.replace("2 * x", "3 * x"))  # a cache miss again
+    quiet = _run(tmp_path, ISCC_GYM_QUIET="1")
+    assert quiet.returncode == 0 and NOTE not in quiet.stdout
+
+
+def test_other_packages_compilations_print_nothing(tmp_path):
+    import io
+
+    from numba import njit
+    from numba.core import event
+
+    from iscc_gym.compile_note import CompileNote
+
+    stream = io.StringIO()
+    note = CompileNote(stream=stream)
+    event.register("numba:compile", note)
+    try:
+        njit(lambda x: x + 1)(1.0)  # a function of this test module, not of iscc_gym
+    finally:
+        event.unregister("numba:compile", note)
+    assert stream.getvalue() == "" and not note.noted

@@ -140,11 +140,21 @@ def find_vecnormalize(model_path: str | Path) -> tuple[Path | None, object]:
 
 
 def _load_vecnormalize(path: Path):
+    """SB3's VecNormalize statistics pickled at ``path``; a ``ValueError`` naming the file for one that is
+    truncated, corrupt or holds something else.
+    """
+    from stable_baselines3.common.vec_env import VecNormalize
+
     try:
         with open(path, "rb") as f:
-            return pickle.load(f)
-    except (EOFError, pickle.UnpicklingError, AttributeError, ModuleNotFoundError) as e:
+            obj = pickle.load(f)
+    except (EOFError, pickle.UnpicklingError, AttributeError, ModuleNotFoundError, ImportError, IndexError,
+            TypeError, ValueError) as e:
         raise ValueError(f"{path}: not a complete VecNormalize file (truncated or corrupt: {e})") from None
+    if not isinstance(obj, VecNormalize):
+        raise ValueError(f"{path}: holds a {type(obj).__module__}.{type(obj).__name__}, not SB3's VecNormalize "
+                         "statistics; a vecnormalize.pkl is written by VecNormalize.save (python -m train writes it)")
+    return obj
 
 
 class SB3Policy:

@@ -29,6 +29,10 @@ EVAL_SEED_START = 1_000_000
 #: Seeds of the behaviour-cloning warm start's missions: INIT_SEED_START + 1000 * seed + i (training
 #: seeds, disjoint from every evaluation seed).
 INIT_SEED_START = 200_000
+#: The project's held-out evaluation seeds, [start, stop): ``eval --seed-start``'s missions and the
+#: EvalCallback's (:data:`EVAL_SEED_START`). The same ranges as ``eval.tune.EVAL_SEED_RANGES`` (train and
+#: eval never import each other; tests/test_resume_checks.py checks they agree). Training seeds must avoid them.
+EVAL_SEED_RANGES = ((10_000, 11_000), (1_000_000, 2_000_000))
 
 
 @dataclass
@@ -62,7 +66,7 @@ class Args:
     overwrite: bool = False  # start afresh in a non-empty ``out`` (its previous run's files are deleted)
     tensorboard: bool = True
     progress_bar: bool | None = None  # None: on a terminal (stdout a TTY) unless ``quiet``
-    quiet: bool = False  # no progress bar, no closing line
+    quiet: bool = False  # no progress lines (stderr), no progress bar, no closing line
     torch_threads: int = 1  # threads of torch (1 is fastest here: python -m eval.bench)
     numba_threads: int | None = None  # threads of the env's compiled kernel (None: numba's default, all cores)
     verbose: int = 0
@@ -98,7 +102,7 @@ FIELD_HELP = {
     "overwrite": "start afresh in a non-empty OUT: its previous run's files are deleted first",
     "tensorboard": "write TensorBoard logs to OUT/tb (tensorboard --logdir OUT/tb)",
     "progress_bar": "show a progress bar (default: on a terminal unless --quiet)",
-    "quiet": "no progress bar and no closing line",
+    "quiet": "no progress lines on stderr, no progress bar and no closing line",
     "torch_threads": "torch threads (1 is fastest here: python -m eval.bench)",
     "numba_threads": "threads of the env's compiled kernel (default: all cores)",
     "verbose": "SB3 verbosity: 0 quiet, 1 training logs, 2 debug",
@@ -281,15 +285,63 @@ def resolve_args(args: Args) -> tuple[Args, dict]:
     return dataclasses.replace(args, **filled), hp
 
 
+def _closed(lo, hi):
+    return f"in [{lo}, {hi}]", lambda v: lo <= v <= hi
+
+
+def _above(lo, strict=True):
+    return (f"> {lo}", lambda v: v > lo) if strict else (f">= {lo}", lambda v: v >= lo)
+
+
+#: The valid range of each numeric hyperparameter, as (text, test); ``n_steps`` etc. are integers (the
+#: constructor's defaults say which). PPO's ``batch_size`` must be above 1 (advantages are normalised
+#: per mini-batch); ``gradient_steps`` may be -1 (as many as the rollout's steps).
+HYPERPARAM_RANGES = {
+    "learning_rate": _above(0, False), "n_steps": _above(1, False), "batch_size": _above(1, False),
+    "n_epochs": _above(1, False), "gamma": _closed(0, 1), "gae_lambda": _closed(0, 1), "clip_range": _above(0),
+    "clip_range_vf": _above(0), "ent_coef": _above(0, False), "vf_coef": _above(0, False),
+    "max_grad_norm": _above(0), "target_kl": _above(0), "sde_sample_freq": _above(-1, False),
+    "stats_window_size": _above(1, False), "buffer_size": _above(1, False), "learning_starts": _above(0, False),
+    "tau": ("in (0, 1]", lambda v: 0 < v <= 1), "train_freq": _above(1, False),
+    "gradient_steps": (">= 1, or -1", lambda v: v >= 1 or v == -1), "target_update_interval": _above(1, False),
+    "policy_delay": _above(1, False), "target_policy_noise": _above(0, False), "target_noise_clip": _above(0, False),
+    "noise_std": _above(0),
+}
+
+
+def _check_ranges(algo: str, hp: dict) -> None:
+    """Every numeric hyperparameter finite and in :data:`HYPERPARAM_RANGES` (a ``ValueError`` naming the key)."""
+    for key, value in hp.items():
+        if key not in HYPERPARAM_RANGES or value is None or callable(value):
+            continue  # None: the algorithm's "off" (clip_range_vf, target_kl); callables: schedules
+        if isinstance(value, str) and (key in ("learning_rate", "clip_range") or (key, algo) == ("ent_coef", "sac")):
+            continue  # lin_<value> (linear_schedule checks it), SAC's "auto"
+        if key == "train_freq" and isinstance(value, list | tuple):
+            value = value[0]
+        text, ok = HYPERPARAM_RANGES[key]
+        if algo == "ppo" and key == "batch_size":
+            text, ok = _above(2, False)
+        if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
+            raise ValueError(f"{key} = {value!r}; use a number {text}")
+        good = math.isfinite(float(value)) and ok(float(value))
+        if not good:
+            raise ValueError(f"{key} = {value!r} is out of range; use a value {text}")
+    log_std = (hp.get("policy_kwargs") or {}).get("log_std_init") if isinstance(hp.get("policy_kwargs"),
+                                                                                dict) else None
+    if log_std is not None and not (isinstance(log_std, int | float) and math.isfinite(log_std)):
+        raise ValueError(f"policy_kwargs.log_std_init = {log_std!r}; use a finite number")
+
+
 def check_hyperparams(algo: str, hp: dict) -> dict:
-    """Names and types of the algorithm's keyword arguments, checked against its constructor; returns
-    them with whole numbers where it takes integers (``n_steps: 6.4e1`` -> 64).
+    """Names, types and ranges of the algorithm's keyword arguments, checked against its constructor and
+    :data:`HYPERPARAM_RANGES`; returns them with whole numbers where it takes integers (``n_steps: 6.4e1`` -> 64).
 
     Raises
     ------
     ValueError
         An unknown name (with the closest known ones), or a text or other non-number where the
-        algorithm takes a number (e.g. ``--set n_steps=abc``), or a fraction where it takes an integer.
+        algorithm takes a number (e.g. ``--set n_steps=abc``), or a fraction where it takes an integer,
+        or a value out of its range (``gamma = 2``, ``n_steps = 0``, NaN), naming the key and the range.
     """
     import difflib
     import inspect
@@ -320,6 +372,7 @@ def check_hyperparams(algo: str, hp: dict) -> dict:
             if not float(value).is_integer():
                 raise ValueError(f"{key} = {value!r}; use an integer")
             hp[key] = int(value)
+    _check_ranges(algo, hp)
     return hp
 
 
@@ -418,6 +471,47 @@ def _check(args: Args) -> None:
     if args.vec_env == "batched" and args.env_id not in ISCC_ENV_IDS:
         raise ValueError("vec_env = 'batched' is the ISCC env's own batched env; use dummy or subproc for "
                          f"{args.env_id}")
-    for name in ("total_timesteps", "n_envs", "eval_episodes", "eval_max_steps", "torch_threads", "numba_threads"):
+    for name in ("total_timesteps", "n_envs", "eval_episodes", "eval_max_steps", "torch_threads", "numba_threads",
+                 "init_envs", "init_steps"):
         if getattr(args, name) is not None and getattr(args, name) < 1:
             raise ValueError(f"{name} = {getattr(args, name)}; use an integer >= 1")
+    for name in ("eval_freq", "checkpoint_freq"):
+        if getattr(args, name) < 0:
+            raise ValueError(f"{name} = {getattr(args, name)}; use an integer >= 0 (0: none)")
+    if not 0 <= args.seed < 2**32:
+        raise ValueError(f"seed = {args.seed}; use an integer in [0, 2**32)")
+    if args.init_log_std is not None and not math.isfinite(args.init_log_std):
+        raise ValueError(f"init_log_std = {args.init_log_std}; use a finite number (a log standard deviation)")
+
+
+def _seed_ranges(args: Args) -> list[tuple[str, int, int]]:
+    """The seeds a resolved run trains on, as (what, first, last): the training envs' (``seed`` + i, SB3's
+    convention) and the warm start's (:data:`INIT_SEED_START` + 1000 ``seed`` + i).
+    """
+    ranges = [("the training envs' seeds", args.seed, args.seed + args.n_envs - 1)]
+    if args.init_policy and str(args.init_policy).lower() != "none":
+        first = INIT_SEED_START + 1000 * args.seed
+        ranges.append(("the warm start's seeds", first, first + args.init_envs - 1))
+    return ranges
+
+
+def check_resolved(args: Args, hyperparams: dict) -> None:
+    """Checks of a run's resolved settings (:func:`resolve_args`), before any work: the run settings the
+    YAML may fill (``init_*``, as :func:`_check` does for the flags), PPO's rollout size, and training
+    seeds outside :data:`EVAL_SEED_RANGES` (the held-out missions stay unseen in training).
+
+    Raises
+    ------
+    ValueError
+        Naming the setting and its valid range (for seeds: both ranges).
+    """
+    _check(args)
+    if args.algo == "ppo" and args.n_envs * int(hyperparams.get("n_steps", 2048)) < 2:
+        raise ValueError(f"n_steps = {hyperparams.get('n_steps')} with n_envs = {args.n_envs}: PPO needs a rollout "
+                         "of at least 2 steps (n_steps x n_envs >= 2)")
+    for what, lo, hi in _seed_ranges(args):
+        for start, stop in EVAL_SEED_RANGES:
+            if lo < stop and hi >= start:
+                raise ValueError(f"seed = {args.seed}: {what} {lo}-{hi} overlap the held-out evaluation seeds "
+                                 f"{start}-{stop - 1}; train on another seed (the held-out missions must stay "
+                                 "unseen in training)")

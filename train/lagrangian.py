@@ -19,7 +19,8 @@ multiplier learning rate (``--lagrange-lr``). Unless the run sets them, the env'
 weights ``w_rate`` and ``w_stab`` are set to 0 for a constrained run, so the reward is minus the
 tracking error and the multipliers alone price the costs. The multipliers and outage fractions are
 logged to TensorBoard (``lagrange/``), saved in the run's ``lagrange.yml`` and its ``summary.yml``,
-and reloaded by ``--resume``.
+and with their history in every checkpoint (``--resume`` continues them from there; a multiplier that
+is negative, NaN or not a number is refused, naming the file and the field).
 
 On the multi-drone env (``iscc_gym/ISCC-Multi-v0``) ``info`` carries one cost per drone; a slot's
 indicator is the share of its drones in violation, so the limit is the fraction of drone-slots allowed
@@ -39,7 +40,8 @@ from stable_baselines3.common.vec_env import VecEnvWrapper
 
 from iscc_gym.files import write_atomic
 
-__all__ = ["COSTS", "parse_cost_limits", "LagrangianVecEnv", "LagrangeCallback", "LAGRANGE_FILE"]
+__all__ = ["COSTS", "parse_cost_limits", "LagrangianVecEnv", "LagrangeCallback", "LAGRANGE_FILE", "check_lagrange",
+           "load_lambdas"]
 
 #: Constraint name -> the ``info`` key whose positive value marks a violating slot.
 COSTS = {"rate": "cost_rate", "stability": "cost_stability"}
@@ -121,12 +123,13 @@ class LagrangeCallback(BaseCallback):
     ``lagrange/lambda_<name>`` and ``lagrange/outage_<name>`` and writes ``out/lagrange.yml``.
     """
 
-    def __init__(self, wrapper: LagrangianVecEnv, lr: float, out: str | Path | None = None):
+    def __init__(self, wrapper: LagrangianVecEnv, lr: float, out: str | Path | None = None,
+                 history: list[dict] | None = None):
         super().__init__()
         if not (lr > 0.0 and np.isfinite(lr)):
             raise ValueError(f"lagrange_lr = {lr!r}; use a positive number, e.g. 0.05")
         self.wrapper, self.lr, self.out = wrapper, float(lr), out
-        self.history: list[dict] = []
+        self.history: list[dict] = list(history or [])  # of the run it resumes, continued
 
     def _on_step(self) -> bool:
         return True
@@ -146,16 +149,73 @@ class LagrangeCallback(BaseCallback):
         w.reset_counts()
         self.save()
 
+    def state(self) -> dict:
+        """The multipliers, limits, step and whole history (``lagrange.yml``, and a checkpoint's)."""
+        return {**self.wrapper.as_dict(), "lr": self.lr, "history": list(self.history)}
+
     def save(self) -> None:
         if self.out is not None:
-            doc = {**self.wrapper.as_dict(), "lr": self.lr, "history": self.history[-200:]}
-            write_atomic(Path(self.out) / LAGRANGE_FILE, yaml.safe_dump(doc, sort_keys=False))
+            write_atomic(Path(self.out) / LAGRANGE_FILE, yaml.safe_dump(self.state(), sort_keys=False))
 
 
-def load_lambdas(out: str | Path) -> dict[str, float] | None:
-    """The multipliers saved in a run directory (``--resume``), or None."""
+def _number(value, where: str, minimum: float | None = None) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float) or not np.isfinite(value) or (
+            minimum is not None and value < minimum):
+        bound = f" >= {minimum:g}" if minimum is not None else ""
+        raise ValueError(f"{where} = {value!r}; a multiplier file holds finite numbers{bound}")
+    return float(value)
+
+
+def check_lagrange(doc, where: str, names: list[str] | None = None) -> dict:
+    """A multipliers record (``lagrange.yml``, or a checkpoint's ``lagrange`` entry) checked: ``lambdas``
+    a mapping of constraint name -> finite number >= 0 (``names``, if given, exactly those), ``history``
+    a list of ``{timesteps, outage, lambdas}``. Returns it with ``lambdas`` as floats.
+
+    Raises
+    ------
+    ValueError
+        Naming ``where`` (the file) and the field: a negative, NaN or non-numeric multiplier, a missing
+        or unknown constraint, a malformed history.
+    """
+    if not isinstance(doc, dict):
+        raise ValueError(f"{where}: not a multipliers record (a mapping with lambdas and history)")
+    lam = doc.get("lambdas")
+    if not isinstance(lam, dict) or not lam:
+        raise ValueError(f"{where}: lambdas = {lam!r}; expected a mapping of constraint name -> multiplier")
+    if names is not None and sorted(lam) != sorted(names):
+        raise ValueError(f"{where}: lambdas are of the constraints {sorted(lam)}, the run's are {sorted(names)}")
+    out = dict(doc)
+    out["lambdas"] = {k: _number(v, f"{where}: lambdas.{k}", 0.0) for k, v in lam.items()}
+    history = doc.get("history") or []
+    if not isinstance(history, list):
+        raise ValueError(f"{where}: history = {history!r}; expected a list")
+    for i, h in enumerate(history):
+        if not (isinstance(h, dict) and isinstance(h.get("timesteps"), int) and isinstance(h.get("lambdas"), dict)
+                and isinstance(h.get("outage"), dict)):
+            raise ValueError(f"{where}: history[{i}] = {h!r}; expected {{timesteps, outage, lambdas}}")
+        for k, v in h["lambdas"].items():
+            _number(v, f"{where}: history[{i}].lambdas.{k}", 0.0)
+        for k, v in h["outage"].items():
+            _number(v, f"{where}: history[{i}].outage.{k}", 0.0)
+    out["history"] = list(history)
+    return out
+
+
+def load_lagrange(out: str | Path, names: list[str] | None = None) -> dict | None:
+    """The checked multipliers record (:func:`check_lagrange`) of a run directory's ``lagrange.yml``, or None
+    if there is none; a ``ValueError`` naming the file for one that is not valid YAML or not valid.
+    """
     p = Path(out) / LAGRANGE_FILE
     if not p.is_file():
         return None
-    doc = yaml.safe_load(p.read_text()) or {}
-    return {k: float(v) for k, v in (doc.get("lambdas") or {}).items()}
+    try:
+        doc = yaml.safe_load(p.read_text())
+    except (yaml.YAMLError, UnicodeDecodeError) as e:
+        raise ValueError(f"{p}: not valid YAML ({str(e).splitlines()[0]})") from None
+    return check_lagrange(doc, str(p), names)
+
+
+def load_lambdas(out: str | Path) -> dict[str, float] | None:
+    """The multipliers saved in a run directory's ``lagrange.yml``, or None (checked: :func:`load_lagrange`)."""
+    doc = load_lagrange(out)
+    return None if doc is None else doc["lambdas"]

@@ -6,14 +6,17 @@ from __future__ import annotations
 
 import csv
 import io
+import math
 import os
 import re
 import shutil
+import uuid
+import zipfile
 from pathlib import Path
 
 import numpy as np
 import yaml
-from iscc_gym.agents.sb3_policy import LAGRANGE_FILE, MANIFEST, read_manifest, write_manifest
+from iscc_gym.agents.sb3_policy import LAGRANGE_FILE, MANIFEST, _load_vecnormalize, read_manifest, write_manifest
 
 from iscc_gym.files import atomic_target, write_atomic
 
@@ -21,27 +24,37 @@ from .config import Args
 
 RUN_FILES = ("model.zip", "vecnormalize.pkl", MANIFEST, "config.yml", "summary.yml", "learning_curve.csv",
              "learning_curve.png", "checkpoints", "best", "eval", "tb", LAGRANGE_FILE)
-#: What a resumed run must share with the run it continues (SAC/TD3: ``n_envs`` too, the replay buffer's shape).
+#: What a resumed run must share with the run it continues (SAC/TD3: ``n_envs`` too, the replay buffer's
+#: shape), besides the constraints (``cost_limit``, ``lagrange_lr``) and the hyperparameters.
 IDENTITY = ("env_id", "algo", "scenario", "env_overrides", "normalize", "eval_episodes", "eval_max_steps")
+#: A checkpoint's record of everything else a resume needs (a file of its unit, listed in its manifest):
+#: the learning curve and wall time, the evaluations and their schedule, the best score, the multipliers.
+RESUME_FILE = "resume.yml"
 
 
 def run_identity(args: Args, hyperparams: dict | None = None) -> dict:
-    """The settings of :data:`IDENTITY` of resolved ``args``, as written into every unit's manifest;
-    with ``hyperparams`` (the algorithm's resolved keyword arguments), those too: a resumed model keeps
-    the hyperparameters saved in its checkpoint, so a resume that changes them is refused rather than
-    silently ignored.
+    """The settings of :data:`IDENTITY` of resolved ``args``, as written into every unit's manifest, and
+    the constraints (``cost_limit`` as a mapping of limits, ``lagrange_lr``; None for an unconstrained
+    run); with ``hyperparams`` (the algorithm's resolved keyword arguments), those too: a resumed model
+    keeps the hyperparameters saved in its checkpoint, so a resume that changes them is refused rather
+    than silently ignored.
     """
+    from .lagrangian import parse_cost_limits
+
     ident = {k: getattr(args, k) for k in IDENTITY}
     if args.algo in ("sac", "td3"):
         ident["n_envs"] = args.n_envs
+    ident["cost_limit"] = parse_cost_limits(args.cost_limit) if args.cost_limit else None
+    ident["lagrange_lr"] = float(args.lagrange_lr) if args.cost_limit else None
     if hyperparams is not None:
         ident["hyperparams"] = hyperparams
     return yaml.safe_load(yaml.safe_dump(ident))
 
 
 def save_unit(directory: str | os.PathLike, model, vecnormalize=None, *, model_name: str = "model.zip",
-              replay_buffer: bool = False, **meta) -> Path:
-    """Save ``model`` with its VecNormalize statistics (and replay buffer) as one unit in ``directory``.
+              replay_buffer: bool = False, texts: dict[str, str] | None = None, **meta) -> Path:
+    """Save ``model`` with its VecNormalize statistics (and replay buffer, and ``texts``: file name ->
+    content, e.g. a checkpoint's :data:`RESUME_FILE`) as one unit in ``directory``.
 
     Every file goes to a temporary name and is renamed (:func:`iscc_gym.files.atomic_target`); the
     manifest (:func:`iscc_gym.agents.sb3_policy.write_manifest`, sizes and SHA-256, plus ``meta``)
@@ -50,6 +63,9 @@ def save_unit(directory: str | os.PathLike, model, vecnormalize=None, *, model_n
     d = Path(directory)
     d.mkdir(parents=True, exist_ok=True)
     files = []
+    for name, text in (texts or {}).items():
+        write_atomic(d / name, text)
+        files.append(name)
     if vecnormalize is not None:
         with atomic_target(d / "vecnormalize.pkl") as tmp:
             vecnormalize.save(str(tmp))
@@ -65,9 +81,98 @@ def save_unit(directory: str | os.PathLike, model, vecnormalize=None, *, model_n
     return d
 
 
+def replace_unit(directory: str | os.PathLike, model, vecnormalize=None, **kw) -> Path:
+    """:func:`save_unit` as one step: the unit is written whole into a temporary directory beside
+    ``directory`` (manifest last), then swapped in by two renames (the old unit aside, the new one into
+    place) and the old one deleted. A kill or a full disk while writing leaves the previous unit as it
+    was; a kill between the two renames leaves both whole, and :func:`recover_unit` puts one back.
+    """
+    d = Path(directory)
+    tag = f"{os.getpid()}.{uuid.uuid4().hex[:8]}"
+    tmp = d.with_name(f".{d.name}.{tag}.tmp")
+    try:
+        save_unit(tmp, model, vecnormalize, **kw)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    old = None
+    if d.exists():
+        old = d.with_name(f".{d.name}.{tag}.old")
+        os.rename(d, old)
+    os.rename(tmp, d)
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)
+    return d
+
+
+def recover_unit(directory: str | os.PathLike) -> str | None:
+    """Clean up after a :func:`replace_unit` that was killed: if ``directory`` is missing or incomplete,
+    the newest complete unit left beside it (``.<name>.*.tmp`` / ``.old``) takes its place; the other
+    leftovers are deleted. Returns a note of what was restored, or None.
+    """
+    d = Path(directory)
+    leftovers = sorted([*d.parent.glob(f".{d.name}.*.tmp"), *d.parent.glob(f".{d.name}.*.old")])
+    leftovers = [p for p in leftovers if p.is_dir() and not p.is_symlink()]
+    note = None
+    try:
+        read_unit(d)
+    except (FileNotFoundError, ValueError):
+        complete = []
+        for p in leftovers:
+            try:
+                m = read_unit(p)
+            except (FileNotFoundError, ValueError):
+                continue
+            t = m.get("timesteps")
+            complete.append((t if isinstance(t, int) else -1, p.name.endswith(".tmp"), p))
+        if complete:
+            _, _, keep = max(complete)
+            if d.is_dir() and not d.is_symlink():
+                shutil.rmtree(d)
+            os.rename(keep, d)
+            note = f"{d}: restored from {keep.name} (a save interrupted while swapping it in)"
+    for p in leftovers:
+        if p.exists():
+            shutil.rmtree(p, ignore_errors=True)
+    return note
+
+
+def read_unit(directory: str | os.PathLike, need: tuple[str, ...] = ()) -> dict:
+    """:func:`iscc_gym.agents.sb3_policy.read_manifest` of a unit, after checking the manifest's own
+    layout: valid YAML, ``files`` a non-empty mapping of name -> ``{bytes, sha256}``, listing ``need``.
+
+    Raises
+    ------
+    FileNotFoundError
+        No manifest.
+    ValueError
+        Naming the manifest: damaged, empty, or not listing a file the unit needs; or a listed file
+        missing or not matching it.
+    """
+    d = Path(directory)
+    path = d / MANIFEST
+    if path.is_file():
+        try:
+            doc = yaml.safe_load(path.read_text())
+        except (yaml.YAMLError, UnicodeDecodeError) as e:
+            raise ValueError(f"{path}: not valid YAML ({str(e).splitlines()[0]}): a damaged manifest") from None
+        files = doc.get("files") if isinstance(doc, dict) else None
+        if not isinstance(files, dict) or not files or not all(
+                isinstance(v, dict) and isinstance(v.get("bytes"), int) and isinstance(v.get("sha256"), str)
+                for v in files.values()):
+            raise ValueError(f"{path}: files = {files!r}; not a manifest written by python -m train (empty or "
+                             "damaged: it must list each file of the unit with its bytes and sha256)")
+        missing = [n for n in need if n not in files]
+        if missing:
+            raise ValueError(f"{path}: lists no {', '.join(missing)} (a damaged manifest)")
+    return read_manifest(d)
+
+
 def latest_checkpoint(ckpt_dir: str | os.PathLike) -> tuple[Path | None, dict | None, list[str]]:
     """``(directory, manifest, skipped)`` of the newest complete checkpoint ``ckpt_dir/step_<N>``
-    (None, None if there is none); ``skipped`` says why each newer one was passed over.
+    (None, None if there is none); ``skipped`` says why each newer one was passed over. A checkpoint is
+    complete when its manifest (:func:`read_unit`) lists its model, the statistics and replay buffer its
+    run needs, and its step N as ``timesteps``, and every listed file matches it.
     """
     found = []
     for p in Path(ckpt_dir).glob("step_*"):
@@ -75,9 +180,18 @@ def latest_checkpoint(ckpt_dir: str | os.PathLike) -> tuple[Path | None, dict | 
         if m and p.is_dir():
             found.append((int(m.group(1)), p))
     skipped = []
-    for _, p in sorted(found, reverse=True):
+    for step, p in sorted(found, reverse=True):
         try:
-            return p, read_manifest(p), skipped
+            manifest = read_unit(p, need=("model.zip",))
+            run = manifest.get("run") if isinstance(manifest.get("run"), dict) else {}
+            need = [n for n, on in (("vecnormalize.pkl", run.get("normalize")),
+                                    ("replay_buffer.pkl", run.get("algo") in ("sac", "td3"))) if on]
+            missing = [n for n in need if n not in manifest["files"]]
+            if missing:
+                raise ValueError(f"{p / MANIFEST}: lists no {', '.join(missing)} (its run needs it)")
+            if manifest.get("timesteps") != step:
+                raise ValueError(f"{p / MANIFEST}: timesteps = {manifest.get('timesteps')!r}, not its step {step}")
+            return p, manifest, skipped
         except (FileNotFoundError, ValueError) as e:
             skipped.append(str(e))
     return None, None, skipped
@@ -122,8 +236,13 @@ def _prepare_out(args: Args, hyperparams: dict | None = None) -> tuple[Path | No
                                     + (f" ({len(skipped)} incomplete)" if skipped else "") + older
                                     + "; train without --resume first (with --checkpoint-freq > 0)")
         was = manifest.get("run") or {}
-        # a checkpoint of an older python -m train records no hyperparameters: nothing to compare them with
+        if not isinstance(was, dict):
+            raise ValueError(f"{ckpt / MANIFEST}: run = {was!r}; not a manifest written by python -m train")
+        # a checkpoint of an older python -m train records no hyperparameters (or constraints): nothing to
+        # compare them with (its multipliers then come from lagrange.yml, which must be there)
         now = run_identity(args, hyperparams if "hyperparams" in was else None)
+        if "cost_limit" not in was:
+            now = {k: v for k, v in now.items() if k not in ("cost_limit", "lagrange_lr")}
         was, now = _flat_identity(was), _flat_identity(now)
         diff = [f"{k} {was.get(k)!r} -> {now.get(k)!r}" for k in dict.fromkeys([*now, *was])
                 if was.get(k) != now.get(k)]
@@ -148,6 +267,18 @@ def _prepare_out(args: Args, hyperparams: dict | None = None) -> tuple[Path | No
     return None, None
 
 
+def load_vecnormalize(path: str | os.PathLike, venv):
+    """A checkpoint's VecNormalize statistics around ``venv`` (SB3's ``VecNormalize.load``), with a
+    ``ValueError`` naming the file for one that is not a VecNormalize, or of another observation space.
+    """
+    vn = _load_vecnormalize(Path(path))
+    try:
+        vn.set_venv(venv)
+    except (ValueError, AssertionError, AttributeError) as e:
+        raise ValueError(f"{path}: statistics that do not fit the training env ({e})") from None
+    return vn
+
+
 def save_evaluations(path: str | os.PathLike, timesteps, results, ep_lengths) -> None:
     """``evaluations.npz`` as SB3's EvalCallback writes it (``timesteps``, ``results``, ``ep_lengths``), atomically."""
     with atomic_target(path) as tmp, open(tmp, "wb") as f:
@@ -155,35 +286,126 @@ def save_evaluations(path: str | os.PathLike, timesteps, results, ep_lengths) ->
                  ep_lengths=np.asarray(ep_lengths, dtype=np.int64))
 
 
-def _read_history(out: Path, upto: int) -> tuple[dict, list[dict], float]:
-    """What a resumed run continues: the evaluations and learning-curve rows of ``out`` up to step
-    ``upto`` (later ones belong to the continuation that was cut off, replayed now), and the reward
-    of the best model kept in ``out/best`` (-inf if there is none, or it is incomplete).
+def _read_history(out: Path, upto: int) -> tuple[dict, list[dict]]:
+    """What a resumed run continues when its checkpoint has no :data:`RESUME_FILE` (an older python -m
+    train): the evaluations and learning-curve rows of ``out`` up to step ``upto`` (later ones belong to
+    the continuation that was cut off, replayed now). A damaged file is a ``ValueError`` naming it.
     """
     history = {"timesteps": [], "results": [], "ep_lengths": []}
     npz = out / "eval" / "evaluations.npz"
     if npz.exists():
-        with np.load(npz) as d:
-            keep = d["timesteps"] <= upto
-            history = {k: d[k][keep].tolist() for k in history}
+        try:
+            with np.load(npz) as d:
+                keep = d["timesteps"] <= upto
+                history = {k: d[k][keep].tolist() for k in history}
+        except (OSError, ValueError, KeyError, IndexError, EOFError, zipfile.BadZipFile) as e:
+            raise ValueError(f"{npz}: not an evaluations.npz of python -m train ({e}); move it away to resume "
+                             "without the earlier evaluations") from None
     rows = []
     curve = out / "learning_curve.csv"
     if curve.exists():
-        with open(curve, newline="") as f:
-            for r in csv.DictReader(f):
-                if r["wall_s"] and int(r["timesteps"]) <= upto:
-                    rows.append({"timesteps": int(r["timesteps"]), "wall_s": float(r["wall_s"]),
-                                 "train_ep_reward_mean": float(r["train_ep_reward_mean"]),
-                                 "train_ep_length_mean": float(r["train_ep_length_mean"])})
-    best = -np.inf
+        try:
+            with open(curve, newline="") as f:
+                for r in csv.DictReader(f):
+                    if r["wall_s"] and int(r["timesteps"]) <= upto:
+                        rows.append({"timesteps": int(r["timesteps"]), "wall_s": float(r["wall_s"]),
+                                     "train_ep_reward_mean": float(r["train_ep_reward_mean"]),
+                                     "train_ep_length_mean": float(r["train_ep_length_mean"])})
+        except (OSError, ValueError, KeyError, TypeError, csv.Error, UnicodeDecodeError) as e:
+            raise ValueError(f"{curve}: not a learning_curve.csv of python -m train ({type(e).__name__}: {e}); move "
+                             "it away to resume without the earlier rows") from None
+    return history, rows
+
+
+def best_score(out: Path) -> tuple[float, int | None, str | None]:
+    """``(mean reward, timesteps, note)`` of the best model kept in ``out/best`` (after
+    :func:`recover_unit`), or ``(-inf, None, why)`` if there is none or it is incomplete.
+    """
     try:
-        best = float(read_manifest(out / "best")["mean_reward"])
-    except (FileNotFoundError, ValueError, KeyError, TypeError):
-        pass
-    return history, rows, best
+        manifest = read_unit(out / "best", need=("best_model.zip",))
+        mean, t = manifest.get("mean_reward"), manifest.get("timesteps")
+        if isinstance(mean, bool) or not isinstance(mean, int | float) or math.isnan(mean):
+            raise ValueError(f"{out / 'best' / MANIFEST}: mean_reward = {mean!r}; not a number")
+        return float(mean), (t if isinstance(t, int) else None), None
+    except FileNotFoundError as e:
+        return -np.inf, None, str(e) if (out / "best").exists() else None
+    except ValueError as e:
+        return -np.inf, None, str(e)
 
 
-def _write_curve(out: Path, rows: list[dict], evals: list[tuple[int, float]]) -> None:
+def _fail(path: Path, field: str, value, want: str):
+    raise ValueError(f"{path}: {field} = {value!r}; {want} (a damaged checkpoint: resume from an older one by "
+                     "moving this one away)")
+
+
+def _is_num(v) -> bool:
+    return isinstance(v, int | float) and not isinstance(v, bool)
+
+
+def resume_state(*, timesteps: int, wall_s: float, curve: list[dict], evaluations: dict, schedule: dict,
+                 best: dict | None, lagrange: dict | None) -> str:
+    """The text of a checkpoint's :data:`RESUME_FILE`."""
+    doc = {"timesteps": int(timesteps), "wall_s": float(wall_s), "schedule": schedule, "best": best,
+           "lagrange": lagrange, "evaluations": evaluations, "curve": curve}
+    return yaml.safe_dump(doc, sort_keys=False, default_flow_style=None, width=120)
+
+
+def read_resume(ckpt: Path, manifest: dict) -> dict | None:
+    """A checkpoint's :data:`RESUME_FILE`, checked field by field (None for a checkpoint of an older
+    python -m train that has none). The multipliers (``lagrange``) are checked by the caller
+    (:func:`train.lagrangian.check_lagrange`).
+
+    Raises
+    ------
+    ValueError
+        Naming the file and the field that is damaged.
+    """
+    if RESUME_FILE not in manifest["files"]:
+        return None
+    path = ckpt / RESUME_FILE
+    try:
+        doc = yaml.safe_load(path.read_text())
+    except (yaml.YAMLError, UnicodeDecodeError) as e:
+        raise ValueError(f"{path}: not valid YAML ({str(e).splitlines()[0]})") from None
+    if not isinstance(doc, dict):
+        _fail(path, "the document", doc, "expected a mapping")
+    if doc.get("timesteps") != manifest["timesteps"]:
+        _fail(path, "timesteps", doc.get("timesteps"), f"expected the checkpoint's {manifest['timesteps']}")
+    wall = doc.get("wall_s")
+    if not (_is_num(wall) and math.isfinite(wall) and wall >= 0):
+        _fail(path, "wall_s", wall, "expected seconds >= 0")
+    curve = doc.get("curve")
+    keys = ("timesteps", "wall_s", "train_ep_reward_mean", "train_ep_length_mean")
+    if not isinstance(curve, list):
+        _fail(path, "curve", curve, "expected a list of rows")
+    for i, r in enumerate(curve):
+        if not (isinstance(r, dict) and set(r) == set(keys) and isinstance(r["timesteps"], int)
+                and all(_is_num(r[k]) for k in keys)):
+            _fail(path, f"curve[{i}]", r, f"expected a row of {', '.join(keys)}")
+    ev = doc.get("evaluations")
+    if not (isinstance(ev, dict) and all(isinstance(ev.get(k), list) for k in ("timesteps", "results", "ep_lengths"))
+            and len(ev["timesteps"]) == len(ev["results"]) == len(ev["ep_lengths"])
+            and all(isinstance(t, int) for t in ev["timesteps"])
+            and all(isinstance(r, list) and all(_is_num(x) for x in r) for r in ev["results"])):
+        _fail(path, "evaluations", ev, "expected timesteps, results and ep_lengths of equal length")
+    sched = doc.get("schedule")
+    if not (isinstance(sched, dict) and all(sched.get(k) is None or isinstance(sched.get(k), int)
+                                            for k in ("every", "last", "next"))):
+        _fail(path, "schedule", sched, "expected every, last and next (steps, or null)")
+    best = doc.get("best")
+    if best is not None and not (isinstance(best, dict) and _is_num(best.get("mean_reward"))
+                                 and not math.isnan(best["mean_reward"]) and isinstance(best.get("timesteps"), int)):
+        _fail(path, "best", best, "expected null or mean_reward and timesteps")
+    lag = doc.get("lagrange")
+    if lag is not None and not isinstance(lag, dict):
+        _fail(path, "lagrange", lag, "expected null or the multipliers' record")
+    return doc
+
+
+def _write_curve(out: Path, rows: list[dict], evals: list[tuple[int, float]], png: bool = True) -> None:
+    """``learning_curve.csv`` (atomically; at every evaluation and checkpoint, and at the end) and, with
+    ``png``, ``learning_curve.png``.
+    """
     buf = io.StringIO(newline="")
     w = csv.writer(buf)
     w.writerow(["timesteps", "wall_s", "train_ep_reward_mean", "train_ep_length_mean", "eval_reward_mean"])
@@ -195,6 +417,8 @@ def _write_curve(out: Path, rows: list[dict], evals: list[tuple[int, float]]) ->
         if t not in {r["timesteps"] for r in rows}:
             w.writerow([t, "", "", "", v])
     write_atomic(out / "learning_curve.csv", buf.getvalue())
+    if not png:
+        return
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 

@@ -12,8 +12,15 @@ for SAC/TD3, the replay buffer, for ``--resume``), ``eval/evaluations.npz``, ``c
 resolved configuration), ``learning_curve.csv`` and ``.png``, ``summary.yml`` and TensorBoard logs in
 ``tb/`` (``tensorboard --logdir OUT/tb``). Each model directory is a unit: every file is written under
 a temporary name and renamed, and its ``manifest.yml`` (sizes and SHA-256 of the files) last, so an
-interrupted write is never taken for a complete one. Model files and ``vecnormalize.pkl`` are
-pickles: load only files you trust.
+interrupted write is never taken for a complete one; ``best/`` is written whole beside the old one and
+swapped in. A checkpoint also holds ``resume.yml``: the learning curve and wall time, the evaluations
+and their schedule, the best score and a constrained run's multipliers, all a resume continues
+(``learning_curve.csv`` is rewritten at every evaluation and checkpoint). Model files and
+``vecnormalize.pkl`` are pickles: load only files you trust.
+
+Progress goes to stderr, also without a terminal: a line per stage (setup, warm start, each
+evaluation and checkpoint) and every :data:`PROGRESS_EVERY_S` seconds (steps, steps/s, elapsed, ETA);
+``--quiet`` silences it.
 
 The hyperparameters come from ``train/hyperparams.yml``, in rl-zoo3's layout (env id -> the PPO
 hyperparameters; ``python -m rl_zoo3.train --algo ppo --env iscc_gym/ISCC-v0 --gym-packages iscc_gym
@@ -26,13 +33,18 @@ from __future__ import annotations
 import argparse
 import copy
 import dataclasses
+import math
+import pickle
+import sys
 import time
+import zipfile
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import yaml
 from iscc_gym.agents.sb3_logging import stdout_logger
+from iscc_gym.agents.sb3_policy import LAGRANGE_FILE
 
 from iscc_gym.files import write_atomic
 
@@ -53,6 +65,7 @@ from .config import (
     _check,
     _resolve_policy_kwargs,
     check_hyperparams,
+    check_resolved,
     expand_algo,
     format_policy_kwargs,
     linear_schedule,
@@ -62,15 +75,25 @@ from .config import (
 )
 from .runs import (
     IDENTITY,
+    RESUME_FILE,
     RUN_FILES,
     _prepare_out,
     _read_history,
     _write_curve,
+    best_score,
     latest_checkpoint,
+    load_vecnormalize,
+    read_resume,
+    recover_unit,
+    replace_unit,
+    resume_state,
     run_identity,
     save_evaluations,
     save_unit,
 )
+
+#: Seconds between two progress lines of the training loop on stderr (without a progress bar).
+PROGRESS_EVERY_S = 10.0
 
 #: Re-exported: the configuration (train/config.py) and run directories (train/runs.py) were part of
 #: this module; their public names stay importable from here.
@@ -176,25 +199,43 @@ def _behaviour_clone(model, venv, args: Args) -> dict:
     return {"policy": args.init_policy, "envs": args.init_envs, "steps_per_env": args.init_steps, **res}
 
 
-#: What a run writes into ``out`` (what ``overwrite`` deletes first).
-
-
-def _eval_callback(eval_env, args: Args, out: Path, identity: dict, history: dict, best_reward: float,
+def _eval_callback(eval_env, args: Args, out: Path, identity: dict, resumed: dict, after=None,
                    callback_after_eval=None):
     """SB3's EvalCallback playing the same held-out missions at every evaluation (the eval env is
     re-seeded with :data:`EVAL_SEED_START`: a VecEnv forgets its seeds after a reset, and ``best`` is
-    chosen on one fixed set of episodes), continuing ``history`` (``evaluations.npz`` of the run it
-    resumes), keeping the best model unless beaten, saved as a unit with its own VecNormalize
-    statistics in ``out/best``; every file written atomically.
+    chosen on one fixed set of episodes), keeping the best model unless beaten, saved as a unit with its
+    own VecNormalize statistics in ``out/best`` (written whole, then swapped in: :func:`replace_unit`).
+
+    Evaluations are due every ``eval_freq`` steps (rounded down to whole VecEnv steps) on a schedule of
+    env steps, not of this session's calls: ``resumed`` (:func:`_resume`) continues the evaluations, the
+    best score and the schedule of the run it resumes, and an evaluation that was due but never
+    completed (a kill during it) is done at the start of training. ``after(callback)`` runs after each.
     """
     from stable_baselines3.common.callbacks import EvalCallback
     from stable_baselines3.common.evaluation import evaluate_policy
     from stable_baselines3.common.vec_env import VecNormalize
 
+    every = max(1, args.eval_freq // max(1, args.n_envs)) * max(1, args.n_envs)
+
     class HeldOutEvalCallback(EvalCallback):
+        stop = False
+        best_timesteps: int | None = None
+
+        def schedule(self) -> dict:
+            last = self.evaluations_timesteps[-1] if self.evaluations_timesteps else None
+            return {"every": every, "last": last, "next": self.next_due}
+
+        def _on_training_start(self) -> None:
+            super()._on_training_start()
+            if self.num_timesteps >= self.next_due:  # due before the run was cut off, and never completed
+                self.stop = not self._evaluate()
+
         def _on_step(self) -> bool:
-            if not (self.eval_freq > 0 and self.n_calls % self.eval_freq == 0):
-                return True
+            if self.stop:
+                return False
+            return self._evaluate() if self.num_timesteps >= self.next_due else True
+
+        def _evaluate(self) -> bool:
             self.eval_env.seed(EVAL_SEED_START)
             vecnormalize = self.model.get_vec_normalize_env()
             if vecnormalize is not None and isinstance(self.eval_env, VecNormalize):
@@ -205,38 +246,47 @@ def _eval_callback(eval_env, args: Args, out: Path, identity: dict, history: dic
             rewards, lengths = evaluate_policy(self.model, self.eval_env, n_eval_episodes=self.n_eval_episodes,
                                                deterministic=self.deterministic, return_episode_rewards=True,
                                                warn=self.warn)
-            self.evaluations_timesteps.append(int(self.num_timesteps))
+            t = int(self.num_timesteps)
+            self.evaluations_timesteps.append(t)
             self.evaluations_results.append([float(r) for r in rewards])
             self.evaluations_length.append([int(n) for n in lengths])
+            self.next_due = (t // every + 1) * every
             save_evaluations(out / "eval" / "evaluations.npz", self.evaluations_timesteps, self.evaluations_results,
                              self.evaluations_length)
             mean = float(np.mean(rewards))
             self.last_mean_reward = mean
             if self.verbose >= 1:
-                print(f"Eval num_timesteps={self.num_timesteps}, episode_reward={mean:.2f} +/- {np.std(rewards):.2f}")
+                print(f"Eval num_timesteps={t}, episode_reward={mean:.2f} +/- {np.std(rewards):.2f}")
             self.logger.record("eval/mean_reward", mean)
             self.logger.record("eval/mean_ep_length", float(np.mean(lengths)))
-            self.logger.record("time/total_timesteps", self.num_timesteps, exclude="tensorboard")
-            self.logger.dump(self.num_timesteps)
+            self.logger.record("time/total_timesteps", t, exclude="tensorboard")
+            self.logger.dump(t)
             if mean > self.best_mean_reward:
-                self.best_mean_reward = mean
-                save_unit(out / "best", self.model, vecnormalize, model_name="best_model.zip",
-                          timesteps=int(self.num_timesteps), mean_reward=mean, run=identity)
+                replace_unit(out / "best", self.model, vecnormalize, model_name="best_model.zip", timesteps=t,
+                             mean_reward=mean, run=identity)
+                self.best_mean_reward, self.best_timesteps = mean, t
+            if after is not None:
+                after(self)
             return self._on_event() if self.callback is not None else True
 
-    cb = HeldOutEvalCallback(eval_env, n_eval_episodes=args.eval_episodes,
-                             eval_freq=max(1, args.eval_freq // max(1, args.n_envs)), deterministic=True,
+    cb = HeldOutEvalCallback(eval_env, n_eval_episodes=args.eval_episodes, eval_freq=every, deterministic=True,
                              verbose=args.verbose, callback_after_eval=callback_after_eval)
+    history, schedule = resumed["evaluations"], resumed["schedule"] or {}
     cb.evaluations_timesteps = list(history["timesteps"])
     cb.evaluations_results = list(history["results"])
     cb.evaluations_length = list(history["ep_lengths"])
-    cb.best_mean_reward = best_reward
+    cb.best_mean_reward, cb.best_timesteps = resumed["best"], resumed["best_timesteps"]
+    last = cb.evaluations_timesteps[-1] if cb.evaluations_timesteps else 0
+    # the saved schedule, unless the run resumes with another eval_freq (then from the last evaluation)
+    cb.next_due = schedule["next"] if schedule.get("every") == every and schedule.get("next") is not None else (
+        (last // every + 1) * every)
     return cb
 
 
-def _curve_callback(rows: list[dict] | None = None):
+def _curve_callback(rows: list[dict] | None = None, wall_s: float = 0.0):
     """A callback recording (timesteps, wall time, mean training episode reward) at every rollout end,
-    after ``rows`` (of the run it resumes; wall time goes on from theirs).
+    after ``rows`` (of the run it resumes; wall time goes on from its ``wall_s``); ``elapsed()`` is the
+    run's wall time so far.
     """
     from stable_baselines3.common.callbacks import BaseCallback
 
@@ -244,24 +294,28 @@ def _curve_callback(rows: list[dict] | None = None):
         def __init__(self):
             super().__init__()
             self.rows: list[dict] = list(rows or [])
-            self.t0 = time.perf_counter() - (self.rows[-1]["wall_s"] if self.rows else 0.0)
+            self.t0 = time.perf_counter() - wall_s
+
+        def elapsed(self) -> float:
+            return time.perf_counter() - self.t0
 
         def _on_step(self) -> bool:
             return True
 
         def _on_rollout_end(self) -> None:
             buf = self.model.ep_info_buffer
-            self.rows.append({"timesteps": self.num_timesteps, "wall_s": time.perf_counter() - self.t0,
+            self.rows.append({"timesteps": self.num_timesteps, "wall_s": self.elapsed(),
                               "train_ep_reward_mean": float(np.mean([e["r"] for e in buf])) if buf else float("nan"),
                               "train_ep_length_mean": float(np.mean([e["l"] for e in buf])) if buf else float("nan")})
 
     return _Curve()
 
 
-def _checkpoint_callback(every_calls: int, save, at_rollout_end: bool = False):
-    """Calls ``save(model)`` every ``every_calls`` steps of the VecEnv; ``at_rollout_end``: at the end of
-    the rollout of that step (SAC/TD3: after the step's transitions are in the replay buffer, which
-    happens after the step's callbacks).
+def _checkpoint_callback(every_calls: int, save):
+    """Calls ``save(model)`` after every ``every_calls`` steps of the VecEnv, at the start of the next
+    rollout: between two rollouts, when the model has been trained on the rollouts before, the
+    multipliers updated and the learning curve's row recorded (SAC/TD3: the step's transitions are in
+    the replay buffer). The run's last checkpoint is saved by :func:`main` after training.
     """
     from stable_baselines3.common.callbacks import BaseCallback
 
@@ -270,13 +324,10 @@ def _checkpoint_callback(every_calls: int, save, at_rollout_end: bool = False):
 
         def _on_step(self) -> bool:
             if self.n_calls % every_calls == 0:
-                if at_rollout_end:
-                    self.due = True
-                else:
-                    save(self.model)
+                self.due = True
             return True
 
-        def _on_rollout_end(self) -> None:
+        def _on_rollout_start(self) -> None:
             if self.due:
                 self.due = False
                 save(self.model)
@@ -289,19 +340,119 @@ def _progress(args: Args) -> bool:
     (and only if tqdm and rich are installed).
     """
     import importlib.util
-    import sys
 
     on = args.progress_bar if args.progress_bar is not None else (not args.quiet and sys.stdout.isatty())
     return bool(on) and all(importlib.util.find_spec(m) is not None for m in ("tqdm", "rich"))
 
+
+def _printer(args: Args):
+    """``say(text)``: a progress line ``train: text`` on stderr (flushed, so it shows without a terminal
+    too), nothing with ``quiet``.
+    """
+    def say(text: str) -> None:
+        if not args.quiet:
+            print(f"train: {text}", file=sys.stderr, flush=True)
+
+    return say
+
+
+def _clock(seconds: float) -> str:
+    s = int(round(seconds))
+    return f"{s // 3600}:{s % 3600 // 60:02d}:{s % 60:02d}"
+
+
+def _steps_callback(say, total: int):
+    """A line every :data:`PROGRESS_EVERY_S` seconds: steps done of ``total``, steps/s of this session,
+    elapsed time and the estimated time left.
+    """
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    class Steps(BaseCallback):
+        def _on_training_start(self) -> None:
+            self.t0 = self.last = time.perf_counter()
+            self.start = int(self.num_timesteps)
+
+        def _on_step(self) -> bool:
+            now = time.perf_counter()
+            if now - self.last >= PROGRESS_EVERY_S:
+                self.last = now
+                done = int(self.num_timesteps)
+                rate = (done - self.start) / max(now - self.t0, 1e-9)
+                eta = _clock((total - done) / rate) if rate > 0 else "?"
+                say(f"step {done:,}/{total:,}, {rate:,.0f} steps/s, elapsed {_clock(now - self.t0)}, ETA {eta}")
+            return True
+
+    return Steps()
+
+
+def _load_model(algo_cls, path: Path, **kw):
+    """``algo_cls.load`` of a checkpoint's model, a ``ValueError`` naming the file if it cannot be loaded."""
+    try:
+        return algo_cls.load(str(path), **kw)
+    except (zipfile.BadZipFile, EOFError, pickle.UnpicklingError, KeyError, ValueError, RuntimeError) as e:
+        raise ValueError(f"{path}: not a model python -m train can resume ({type(e).__name__}: {e})") from None
+
+
+def _resume(args: Args, out: Path, ckpt: Path | None, manifest: dict | None, say) -> dict:
+    """What a run continues: for a new run nothing; for a resumed one its checkpoint's
+    :data:`~train.runs.RESUME_FILE` (an older checkpoint without one: ``out``'s evaluations, learning curve
+    and ``lagrange.yml``), the best score of ``out/best`` (after :func:`recover_unit`), and, for a
+    constrained run, the multipliers (checked: :func:`train.lagrangian.check_lagrange`).
+
+    Raises
+    ------
+    ValueError, FileNotFoundError
+        A damaged file, naming it and the field; a constrained run whose multipliers are nowhere.
+    """
+    fresh = {"evaluations": {"timesteps": [], "results": [], "ep_lengths": []}, "curve": [], "wall_s": 0.0,
+             "schedule": None, "best": -np.inf, "best_timesteps": None, "lagrange": None}
+    if ckpt is None:
+        return fresh
+    from .lagrangian import check_lagrange, load_lagrange, parse_cost_limits
+
+    start = int(manifest["timesteps"])
+    state = read_resume(ckpt, manifest)
+    names = list(parse_cost_limits(args.cost_limit)) if args.cost_limit else None
+    res = dict(fresh)
+    if state is not None:
+        res.update(evaluations=state["evaluations"], curve=state["curve"], wall_s=float(state["wall_s"]),
+                   schedule=state["schedule"])
+        if names is not None:
+            if state["lagrange"] is None:
+                raise ValueError(f"{ckpt / RESUME_FILE}: lagrange = None; the run is constrained ({args.cost_limit}) "
+                                 "but its checkpoint holds no multipliers (a damaged checkpoint: move it away)")
+            res["lagrange"] = check_lagrange(state["lagrange"], f"{ckpt / RESUME_FILE}: lagrange", names)
+    else:
+        say(f"{ckpt} predates {RESUME_FILE}: its evaluations, learning curve and multipliers are read from {out}")
+        history, rows = _read_history(out, start)
+        res.update(evaluations=history, curve=rows, wall_s=rows[-1]["wall_s"] if rows else 0.0)
+        if names is not None:
+            res["lagrange"] = load_lagrange(out, names)
+            if res["lagrange"] is None:
+                raise FileNotFoundError(f"resume: {out / LAGRANGE_FILE} is missing and {ckpt} (of an older python -m "
+                                        "train) holds no multipliers: they would restart at 0; train into another "
+                                        "--out")
+            res["lagrange"]["history"] = [h for h in res["lagrange"]["history"] if h["timesteps"] <= start]
+    note = recover_unit(out / "best")
+    if note:
+        say(note)
+    res["best"], res["best_timesteps"], why = best_score(out)
+    recorded = (state or {}).get("best")
+    if why is not None or (recorded is not None and not math.isfinite(res["best"])):
+        say(f"{out / 'best'} is missing or incomplete ({why or 'no such directory'}); "
+            + (f"the checkpoint recorded a best of {recorded['mean_reward']:.2f} at step {recorded['timesteps']:,}; "
+               if recorded else "") + "the best model is chosen afresh from the next evaluation")
+    return res
 
 
 def main(args: Args, callback_after_eval=None) -> dict:
     """Train, save everything into ``args.out``; returns a summary (paths, steps, wall time).
 
     ``args.out`` must be new or empty, unless ``args.resume`` (continue from its newest complete
-    checkpoint: same algo, env, scenario, normalisation and evaluation episodes; evaluations, learning
-    curve and best model kept) or ``args.overwrite`` (its run files deleted first).
+    checkpoint: same algo, env, scenario, normalisation, evaluation episodes, constraints and
+    hyperparameters; evaluations and their schedule, learning curve, wall time, best model and score,
+    and multipliers continued) or ``args.overwrite`` (its run files deleted first). Every setting is
+    checked before any work (:func:`~train.config.check_hyperparams`, :func:`~train.config.check_resolved`).
 
     ``callback_after_eval`` (an SB3 ``BaseCallback``, optional) runs after every held-out evaluation
     as the EvalCallback's child (``parent.last_mean_reward``); returning False stops training. The
@@ -314,6 +465,7 @@ def main(args: Args, callback_after_eval=None) -> dict:
 
     import iscc_gym  # noqa: F401  (registers the env)
 
+    say = _printer(args)
     args = expand_algo(args)
     _check(args)
     if callback_after_eval is not None and args.eval_freq <= 0:
@@ -322,98 +474,137 @@ def main(args: Args, callback_after_eval=None) -> dict:
     if args.cost_limit:  # the multipliers alone price the costs, unless the run sets the weights
         args = dataclasses.replace(args, env_overrides={"w_rate": 0.0, "w_stab": 0.0, **args.env_overrides})
     kw = check_hyperparams(args.algo, _resolve_policy_kwargs(hp))
+    check_resolved(args, kw)
     ckpt, manifest = _prepare_out(args, hp)
     identity = run_identity(args, hp)
+    out = Path(args.out)
+    resumed = _resume(args, out, ckpt, manifest, say)
+    say((f"resuming {out} from {ckpt} (step {int(manifest['timesteps']):,})" if ckpt is not None else
+         f"setting up {args.algo} on {args.env_id} into {out}")
+        + f": {args.total_timesteps:,} steps on {args.n_envs} envs ({args.vec_env})")
     torch.set_num_threads(args.torch_threads)
     set_numba_threads(args.numba_threads)
-    out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     algo_cls = {"ppo": PPO, "sac": SAC, "td3": TD3}[args.algo]
     off_policy = args.algo in ("sac", "td3")
     venv = make_train_env(args)
     lagrange = None
     if args.cost_limit:
-        from .lagrangian import LagrangianVecEnv, load_lambdas, parse_cost_limits
+        from .lagrangian import LagrangianVecEnv, parse_cost_limits
 
         venv = lagrange = LagrangianVecEnv(venv, parse_cost_limits(args.cost_limit),
-                                           load_lambdas(out) if ckpt is not None else None)
+                                           resumed["lagrange"]["lambdas"] if resumed["lagrange"] else None)
     warm_start = None
     ckpt_dir = out / "checkpoints"
     start = int(manifest["timesteps"]) if manifest else 0
-    history, rows, best_reward = _read_history(out, start) if ckpt else (
-        {"timesteps": [], "results": [], "ep_lengths": []}, [], -np.inf)
+    history = resumed["evaluations"]
     if args.normalize:
         if ckpt is not None:
-            venv = VecNormalize.load(str(ckpt / "vecnormalize.pkl"), venv)
+            venv = load_vecnormalize(ckpt / "vecnormalize.pkl", venv)
             venv.training = True
         else:
             venv = VecNormalize(venv, gamma=kw.get("gamma", 0.99))
     tb = str(out / "tb") if args.tensorboard else None
     if ckpt is not None:
-        model = algo_cls.load(str(ckpt / "model.zip"), env=venv, device="cpu", tensorboard_log=tb)
+        model = _load_model(algo_cls, ckpt / "model.zip", env=venv, device="cpu", tensorboard_log=tb)
         if "replay_buffer.pkl" in manifest["files"]:
-            model.load_replay_buffer(ckpt / "replay_buffer.pkl")
+            try:
+                model.load_replay_buffer(ckpt / "replay_buffer.pkl")
+            except (EOFError, pickle.UnpicklingError, AttributeError, TypeError, ValueError) as e:
+                raise ValueError(f"{ckpt / 'replay_buffer.pkl'}: not a replay buffer python -m train can resume "
+                                 f"({type(e).__name__}: {e})") from None
     else:
         kw = _action_noise(kw, venv.num_envs, venv.action_space.shape[0])
         policy = kw.pop("policy", "MlpPolicy")
         model = algo_cls(policy, venv, seed=args.seed, device="cpu", verbose=args.verbose, tensorboard_log=tb, **kw)
         if args.init_policy and args.init_policy.lower() != "none":
+            say(f"warm start: cloning {args.init_policy} played on {args.init_envs} envs x {args.init_steps:,} steps")
             warm_start = _behaviour_clone(model, venv, args)
+            say(f"warm start done in {warm_start['wall_time_s']:.1f} s (actor MSE {warm_start['actor_mse']:.3g})")
     if tb is None:
         model.set_logger(stdout_logger(args.verbose))
     resolved = {"args": dataclasses.asdict(args), "hyperparams": hp}
     write_atomic(out / "config.yml", yaml.safe_dump(resolved, sort_keys=False))
     vecnormalize = venv if args.normalize else None
     saved = {"step": start if ckpt else None}
+    curve = _curve_callback(resumed["curve"], resumed["wall_s"])
+    lagrange_cb = eval_cb = None
+
+    def evaluations() -> dict:
+        if eval_cb is None:
+            return history
+        return {"timesteps": list(eval_cb.evaluations_timesteps), "results": list(eval_cb.evaluations_results),
+                "ep_lengths": list(eval_cb.evaluations_length)}
+
+    def means() -> list[tuple[int, float]]:
+        ev = evaluations()
+        return list(zip(ev["timesteps"], [float(np.mean(r)) for r in ev["results"]], strict=True))
+
+    def best() -> dict | None:
+        score, t = (eval_cb.best_mean_reward, eval_cb.best_timesteps) if eval_cb is not None else (
+            resumed["best"], resumed["best_timesteps"])
+        return {"mean_reward": float(score), "timesteps": t} if math.isfinite(score) and t is not None else None
 
     def checkpoint(m) -> None:
         step = int(m.num_timesteps)
-        save_unit(ckpt_dir / f"step_{step}", m, vecnormalize, replay_buffer=off_policy, timesteps=step, run=identity)
+        schedule = eval_cb.schedule() if eval_cb is not None else resumed["schedule"]
+        state = resume_state(timesteps=step, wall_s=curve.elapsed(), curve=curve.rows, evaluations=evaluations(),
+                             schedule=schedule or {"every": None, "last": None, "next": None}, best=best(),
+                             lagrange=lagrange_cb.state() if lagrange_cb is not None else None)
+        d = save_unit(ckpt_dir / f"step_{step}", m, vecnormalize, replay_buffer=off_policy,
+                      texts={RESUME_FILE: state}, timesteps=step, run=identity)
         saved["step"] = step
+        _write_curve(out, curve.rows, means(), png=False)
+        say(f"checkpoint at step {step:,} -> {d}")
 
-    callbacks = [curve := _curve_callback(rows)]
-    lagrange_cb = None
+    def evaluated(cb) -> None:
+        _write_curve(out, curve.rows, means(), png=False)
+        at = f" at step {cb.best_timesteps:,}" if cb.best_timesteps is not None else ""
+        say(f"evaluation at step {cb.evaluations_timesteps[-1]:,}: mean reward {cb.last_mean_reward:.2f} "
+            f"(best {cb.best_mean_reward:.2f}{at})")
+
+    callbacks = [curve]
     if lagrange is not None:
         from .lagrangian import LagrangeCallback
 
-        callbacks.append(lagrange_cb := LagrangeCallback(lagrange, args.lagrange_lr, out))
-    per_env = max(1, args.n_envs)
-    if args.checkpoint_freq > 0:
-        callbacks.append(_checkpoint_callback(max(1, args.checkpoint_freq // per_env), checkpoint, off_policy))
-    eval_cb = None
+        callbacks.append(lagrange_cb := LagrangeCallback(
+            lagrange, args.lagrange_lr, out, history=resumed["lagrange"]["history"] if resumed["lagrange"] else None))
     if args.eval_freq > 0:
         eval_env = make_eval_env(args)
         if args.normalize:
             eval_env = VecNormalize(eval_env, training=False, norm_reward=False)
-        eval_cb = _eval_callback(eval_env, args, out, identity, history, best_reward, callback_after_eval)
+        eval_cb = _eval_callback(eval_env, args, out, identity, resumed, evaluated, callback_after_eval)
         callbacks.append(eval_cb)
+    per_env = max(1, args.n_envs)
+    if args.checkpoint_freq > 0:  # after the evaluation of the same step: the checkpoint holds it
+        callbacks.append(_checkpoint_callback(max(1, args.checkpoint_freq // per_env), checkpoint))
+    bar = _progress(args)
+    if not args.quiet and not bar:
+        callbacks.append(_steps_callback(say, args.total_timesteps))
     remaining = args.total_timesteps - start
     t0 = time.perf_counter()
     if remaining > 0:
+        say(f"training from step {start:,} to {args.total_timesteps:,}")
         model.learn(remaining, callback=CallbackList(callbacks), reset_num_timesteps=ckpt is None,
-                    progress_bar=_progress(args), tb_log_name=args.algo)
+                    progress_bar=bar, tb_log_name=args.algo)
     wall = time.perf_counter() - t0
     if args.checkpoint_freq > 0 and saved["step"] != model.num_timesteps:
         checkpoint(model)  # --resume with a larger --total-timesteps goes on from the end
     save_unit(out, model, vecnormalize, timesteps=int(model.num_timesteps), run=identity)
-    evals = []
-    if eval_cb is not None and eval_cb.evaluations_timesteps:
-        evals = list(zip(eval_cb.evaluations_timesteps, [float(np.mean(r)) for r in eval_cb.evaluations_results],
-                         strict=True))
-    elif history["timesteps"]:
-        evals = list(zip(history["timesteps"], [float(np.mean(r)) for r in history["results"]], strict=True))
+    evals = means()
     _write_curve(out, curve.rows, evals)
     venv.close()
     bc_wall = warm_start["wall_time_s"] if warm_start else 0.0
     summary = {"out": str(out), "timesteps": int(model.num_timesteps), "wall_time_s": wall + bc_wall,
                "env_steps_per_s": (remaining / wall) if remaining > 0 and wall > 0 else None,
-               "evaluations": evals, "resumed_from": str(ckpt) if ckpt else None,
+               "evaluations": evals, "best": best(), "resumed_from": str(ckpt) if ckpt else None,
                "warm_start": warm_start}
     if lagrange is not None:
         lagrange_cb.save()
         summary["lagrange"] = {**lagrange.as_dict(), "lr": args.lagrange_lr,
                                "last_outage": lagrange_cb.history[-1]["outage"] if lagrange_cb.history else None}
     write_atomic(out / "summary.yml", yaml.safe_dump(summary, sort_keys=False))
+    say(f"done: {summary['timesteps']:,} steps in {summary['wall_time_s']:.1f} s -> {out}")
     return summary
 
 

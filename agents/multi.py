@@ -22,6 +22,10 @@ Each maps a batch of observations (n, 23K) to the 3K shares of every env and pla
 * ``margin`` (:class:`MultiMarginPolicy`): the tuned single-drone ``margin`` rule per drone (control
   ``m_ctrl`` times its predicted need, data ``m_comm`` times it), the demands renormalised onto the
   band (control first, then data, above a total sensing floor), sensing the rest split equally.
+* ``margin-starved`` (:class:`ScaledSensing` of ``margin``, :data:`STARVED_SCALE`): ``margin`` with every
+  drone's sensing share cut to a tenth, the rest given to the drone's data link: a policy that buys
+  rate with its radar, the direction the old summed-penalty reward paid for (issue 23). Under the
+  per-drone mean reward it scores worse than ``margin`` (docs/learning.md, tests/test_multi_agents.py).
 """
 
 from __future__ import annotations
@@ -29,7 +33,7 @@ from __future__ import annotations
 import numpy as np
 
 from iscc_gym.env import decode_observation
-from iscc_gym.multi import shares_to_action
+from iscc_gym.multi import multi_split, shares_to_action
 from iscc_gym.scenario import Scenario
 from iscc_gym.schema import N_OBS
 from iscc_gym.sensing_share import crlb_trace
@@ -38,11 +42,13 @@ from .margin import load_tuned, predicted_needs
 from .sca import MIN_SHARE
 from .sca_slot import SCAPolicy
 
-__all__ = ["MultiSharePolicy", "EqualShareSCA", "JointSCA", "MultiMarginPolicy", "fit_demands", "make_multi_policy",
-           "MULTI_POLICY_SPECS"]
+__all__ = ["MultiSharePolicy", "EqualShareSCA", "JointSCA", "MultiMarginPolicy", "ScaledSensing", "fit_demands",
+           "make_multi_policy", "MULTI_POLICY_SPECS", "STARVED_SCALE"]
 
 #: The spec names of :func:`make_multi_policy`.
-MULTI_POLICY_SPECS = ("equal-sca", "joint-sca", "margin", "equal")
+MULTI_POLICY_SPECS = ("equal-sca", "joint-sca", "margin", "margin-starved", "equal")
+#: The sensing scale of ``margin-starved`` (:class:`ScaledSensing`).
+STARVED_SCALE = 0.1
 
 
 class MultiSharePolicy:
@@ -191,6 +197,35 @@ class MultiMarginPolicy(MultiSharePolicy):
         return np.concatenate([np.broadcast_to(sen, (n, k))[..., None], ctrl[..., None], comm[..., None]], axis=-1)
 
 
+class ScaledSensing(MultiSharePolicy):
+    """Another multi-drone policy's shares with every drone's sensing share times ``scale``.
+
+    The difference goes to (``scale`` < 1) or comes from (``scale`` > 1, at most the whole data share)
+    the same drone's data share, so its control share and its band are the base policy's. ``base``: any
+    policy with SB3's ``predict`` on the env with ``n_drones`` drones (a scripted baseline or a trained
+    agent); its actions are read as shares with :func:`iscc_gym.multi.multi_split`.
+    """
+
+    def __init__(self, base, n_drones: int, scale: float):
+        super().__init__(n_drones)
+        scale = float(scale)
+        if not (np.isfinite(scale) and scale >= 0.0):
+            raise ValueError(f"scale = {scale!r}; use a finite sensing multiple >= 0")
+        self.base, self.scale = base, scale
+        self.name = f"{getattr(base, 'name', 'policy')}-sensing-x{scale:g}"
+
+    def shares_batch(self, obs):
+        n, k, _ = obs.shape
+        action, _ = self.base.predict(obs.reshape(n, k * N_OBS), deterministic=True)
+        alpha = multi_split(action, k).copy()
+        sen = alpha[..., 0]
+        new = np.minimum(sen * self.scale, sen + alpha[..., 2])
+        alpha[..., 2] += sen - new
+        alpha[..., 0] = new
+        alpha = np.maximum(alpha, 0.0)
+        return alpha / alpha.sum((-2, -1), keepdims=True)
+
+
 class _EqualShares(MultiSharePolicy):
     name = "equal"
 
@@ -209,6 +244,8 @@ def make_multi_policy(spec: str, scenario: Scenario, n_drones: int):
         return JointSCA(scenario, n_drones)
     if key == "margin":
         return MultiMarginPolicy.tuned(n_drones)
+    if key == "margin-starved":
+        return ScaledSensing(MultiMarginPolicy.tuned(n_drones), n_drones, STARVED_SCALE)
     if key == "equal":
         return _EqualShares(n_drones)
     raise ValueError(f"multi-drone policy {spec!r} is unknown; use one of {', '.join(MULTI_POLICY_SPECS)} or a "

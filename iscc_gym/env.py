@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import difflib
 import math
 import operator
 from typing import Any
@@ -33,7 +34,7 @@ from .trajectory import sample_reference
 
 __all__ = ["ISCCEnv", "action_to_split", "split_to_action", "observe", "reward_and_costs", "env_step",
            "decode_observation", "OBS_NAMES", "OBS_BOUND",
-           "STEP_COLUMNS", "check_seed"]
+           "STEP_COLUMNS", "check_seed", "check_keywords", "real_array", "reset_info_arrays", "SLOT_OUTCOME_KEYS"]
 
 
 def observe(s: Scenario, state: loop.LoopState, last_received: ArrayLike, last_peb_m: ArrayLike):
@@ -188,6 +189,69 @@ def check_seed(seed: ArrayLike, name: str = "seed"):
     return int(seed)
 
 
+def check_keywords(owner: str, overrides: dict, accepted: tuple[str, ...] = ("scenario", "render_mode")) -> None:
+    """Raise Python's own ``TypeError`` wording for a keyword that is not an argument of ``owner`` nor a
+    :class:`iscc_gym.Scenario` field: ``<owner>.__init__() got an unexpected keyword argument 'name'``,
+    then a hint (the closest valid name, and where the valid names are listed).
+
+    Libraries rely on that wording: TorchRL's ``GymEnv`` passes ``frameskip=1`` and retries without it
+    only when the error says ``unexpected keyword argument 'frameskip'``.
+    """
+    fields = Scenario.__dataclass_fields__
+    unknown = [name for name in overrides if name not in fields]
+    if not unknown:
+        return
+    name = unknown[0]
+    close = difflib.get_close_matches(name, [*accepted, *fields], n=1)
+    hint = f" (did you mean {close[0]!r}?)" if close else ""
+    raise TypeError(f"{owner}.__init__() got an unexpected keyword argument {name!r}{hint}; it takes "
+                    f"{', '.join(accepted)} and the Scenario fields as overrides: "
+                    f"{sorted(fields)}" + (f"; unknown: {unknown}" if len(unknown) > 1 else ""))
+
+
+def real_array(x: ArrayLike, name: str = "action") -> np.ndarray:
+    """``x`` as a float64 array, refusing complex numbers (numpy would drop the imaginary part with only
+    a warning).
+
+    Raises
+    ------
+    TypeError
+        ``x`` holds complex numbers.
+    """
+    a = np.asarray(x)
+    if a.dtype.kind == "c":
+        raise TypeError(f"{name} has complex dtype {a.dtype}; pass real numbers in [-1, 1] (np.real(...) if the "
+                        "imaginary parts are meant to be dropped)")
+    return a.astype(np.float64, copy=False)
+
+
+#: Info keys of a step whose values are outcomes of a slot (its fading, measurement and links): NaN in the
+#: info of ``reset``, before any slot has run (:func:`reset_info_arrays`).
+SLOT_OUTCOME_KEYS = ("snr_db", "snr_large_scale_db", "peb_m", "veb_mps", "eps_ctrl", "rate_comm_bps", "rate_ctrl_bps",
+                     "estimation_error_m")
+
+
+def reset_info_arrays(state: loop.LoopState) -> dict:
+    """The values of a step's info keys at reset, per loop of a batch (arrays of shape (B,), ``alpha``
+    (B, 3)), so ``reset`` and ``step`` infos carry the same keys (libraries such as TorchRL build their
+    specs from the reset info).
+
+    ``tracking_error_m``: the initial state's true error ||p_0 - p_ref,0||; ``cost_rate``,
+    ``cost_stability``, ``cost``: 0 (no slot, no violation); ``packet_received``: True and ``alpha``:
+    equal thirds (as the observation's entry 20 at reset); ``slot``: 0; the slot outcomes of
+    :data:`SLOT_OUTCOME_KEYS` (SNRs, PEB, VEB, loss probability, rates, estimation error): NaN.
+    """
+    nb = state.x.shape[0]
+    zeros = np.zeros(nb)
+    info = {"tracking_error_m": np.linalg.norm(state.x[:, :3] - state.ref[np.arange(nb), state.n, :3], axis=1),
+            "cost_rate": zeros, "cost_stability": zeros.copy(), "cost": zeros.copy()}
+    info.update({key: np.full(nb, np.nan) for key in SLOT_OUTCOME_KEYS})
+    info["packet_received"] = np.ones(nb, dtype=bool)
+    info["alpha"] = np.full((nb, 3), 1.0 / 3.0)
+    info["slot"] = state.n.copy()
+    return info
+
+
 #: The registered ``max_episode_steps`` of ``iscc_gym/ISCC-v0`` (the paper's mission: 500 s / 0.1 s).
 REGISTERED_MAX_EPISODE_STEPS = 5000
 
@@ -227,8 +291,8 @@ class ISCCEnv(gym.Env):
     all :math:`w_i = 0`). No minimum share: any split is reachable (:func:`split_to_action` gives its
     action), including zero shares (zero sensing: the radar measurement carries no information; zero
     control: every command is lost; zero data: no rate). ``info["alpha"]`` is the applied split.
-    Finite out-of-range actions are clipped; NaN/inf or a wrong shape raise ``ValueError`` and leave
-    the env unchanged.
+    Finite out-of-range actions are clipped; NaN/inf or a wrong shape raise ``ValueError``, complex
+    numbers ``TypeError``, and leave the env unchanged.
 
     | Num | Action | Min | Max |
     |-----|--------|-----|-----|
@@ -281,6 +345,12 @@ class ISCCEnv(gym.Env):
     process and shadowing normals are :func:`iscc_gym.noise.slot_normals` (key, slot), so an
     episode is fixed by the generator's state at reset.
 
+    The reset ``info`` carries every key of a step's ``info``: ``tracking_error_m`` the initial
+    error, costs 0, ``packet_received`` True, ``alpha`` equal thirds, ``slot`` 0, ``action`` NaN, and
+    the slot outcomes (``snr_db``, ``snr_large_scale_db``, ``peb_m``, ``veb_mps``, ``eps_ctrl``,
+    ``rate_comm_bps``, ``rate_ctrl_bps``, ``estimation_error_m``) NaN: no slot has run yet
+    (:func:`reset_info_arrays`).
+
     ## Episode End
 
     * Termination: loss of track, the tracking error exceeds ``max_tracking_error_m`` (100 m), or
@@ -302,10 +372,14 @@ class ISCCEnv(gym.Env):
     ``scenario`` is a preset name (``"paper"``, ``"literal"``) or a :class:`iscc_gym.Scenario`;
     ``overrides`` are Scenario fields, e.g. ``observation_source="gnss"`` (GNSS feedback, 3 m and
     0.2 m/s), ``control_mode="open_loop"`` (reference acceleration, no feedback),
-    ``reference_feedforward=True``. Unknown keywords raise ``TypeError``.
+    ``reference_feedforward=True``. An unknown keyword raises Python's own ``TypeError`` wording,
+    ``ISCCEnv.__init__() got an unexpected keyword argument 'frameskip'``, followed by the valid names
+    (libraries such as TorchRL's ``GymEnv`` retry without an optional keyword on that wording).
     ``render_mode="rgb_array"`` renders the plan view and altitude of the reference and flown paths,
     and over the last 200 slots the split, the rate and stability violations, the tracking error and
-    the PEB (:mod:`iscc_gym.render`).
+    the PEB (:mod:`iscc_gym.render`). ``render_mode="human"`` prints a status line to stdout (time,
+    tracking error, PEB, split, costs) at reset, once per simulated second and when the episode ends,
+    and on each call of ``render()``: it needs no display (e.g. ``python -m rl_zoo3.enjoy``).
 
     ## Version History
 
@@ -322,10 +396,11 @@ class ISCCEnv(gym.Env):
     >>> obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
     """
 
-    metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
+    metadata = {"render_modes": ["rgb_array", "human"], "render_fps": 10}
 
     def __init__(self, scenario: str | Scenario = "paper", render_mode: str | None = None,
                  **overrides: Any):
+        check_keywords(type(self).__name__, overrides)
         self.scenario = make_scenario(scenario, **overrides)
         warn_time_limit(self.scenario)
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
@@ -339,7 +414,10 @@ class ISCCEnv(gym.Env):
         self._ended = False  # the episode terminated: step() needs a reset first
         self._last_received = True
         self._last_peb = 0.0
-        self._renderer = Renderer(self.scenario.dt_s, self.scenario.gbs_height_m) if render_mode else None
+        self._renderer = (Renderer(self.scenario.dt_s, self.scenario.gbs_height_m) if render_mode == "rgb_array"
+                          else None)
+        self._human_every = max(1, round(1.0 / self.scenario.dt_s))  # human mode: a line per simulated second
+        self._last_info: dict = {}
 
     # --- Gymnasium API -------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict | None = None):
@@ -353,12 +431,16 @@ class ISCCEnv(gym.Env):
         self._last_received, self._last_peb = True, 0.0
         if self._renderer is not None:
             self._renderer.reset(self._state.ref[0], self._state.x[0])
-        return self._observation(), self._reset_info()
+        info = self._reset_info()
+        if self.render_mode == "human":
+            self._last_info = info
+            self.render()
+        return self._observation(), info
 
     def step(self, action):
         if self._state is None:
             raise RuntimeError("step() called before reset(): call env.reset(seed=...) first")
-        a = np.asarray(action, dtype=np.float64)
+        a = real_array(action, "action")
         if a.shape != (3,):
             raise ValueError(f"action must have shape (3,), got {a.shape}")
         a0, a1, a2 = a.tolist()
@@ -395,18 +477,45 @@ class ISCCEnv(gym.Env):
             "action": a.astype(np.float32),
             "slot": n,
         }
+        if self.render_mode == "human":
+            self._last_info = info
+            if n % self._human_every == 0 or terminated == 1.0 or truncated == 1.0:
+                self.render()
         return obs[0], reward, terminated == 1.0, truncated == 1.0, info
 
     def render(self):
-        if self.render_mode != "rgb_array":
+        """``rgb_array``: the frame (:mod:`iscc_gym.render`). ``human``: print the current status line to
+        stdout (the env also prints it itself at reset, once per simulated second and at the episode's
+        end, so it works headless, e.g. under ``python -m rl_zoo3.enjoy``); returns None.
+        """
+        if self.render_mode is None:
             return None
         if self._state is None:
             raise RuntimeError("render() called before reset()")
+        if self.render_mode == "human":
+            print(self._status_line(), flush=True)
+            return None
         return self._renderer.frame()
 
     # --- helpers ---------------------------------------------------------------------------------
     def _reset_info(self) -> dict:
-        return {"slot": 0, "alpha": np.full(3, 1.0 / 3.0)}
+        """The step's info keys at reset (:func:`reset_info_arrays`; ``action`` NaN: none applied yet)."""
+        arrays = reset_info_arrays(self._state)
+        info = {key: (val[0].copy() if key == "alpha" else val[0].item()) for key, val in arrays.items()}
+        info["action"] = np.full(3, np.nan, np.float32)
+        info["slot"] = 0
+        return info
+
+    def _status_line(self) -> str:
+        """One line of the episode's state for ``render_mode="human"``."""
+        i = self._last_info
+        n = int(self._state.n[0])
+        al = i.get("alpha", np.full(3, np.nan))
+        err = i.get("tracking_error_m", np.nan)
+        return (f"ISCC t={n * self.scenario.dt_s:7.1f} s  slot {n:5d}  tracking error {err:8.3f} m"
+                f"  PEB {i.get('peb_m', np.nan):8.3f} m  split sen/ctrl/data {al[0]:.2f}/{al[1]:.2f}/{al[2]:.2f}"
+                f"  rate cost {i.get('cost_rate', np.nan):.2f}  unstable {i.get('cost_stability', np.nan):.0f}"
+                + ("  LOST TRACK" if self._ended else ""))
 
     def _observation(self) -> np.ndarray:
         return observe(self.scenario, self._state, self._last_received, self._last_peb)[0]

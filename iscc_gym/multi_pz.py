@@ -12,7 +12,10 @@ its own drone (the single env's 23 entries). Rewards are per drone, its single-e
 (minus the loss-of-track penalty shared out 1/K per drone; :func:`iscc_gym.multi.drone_rewards`), so
 the agents' rewards sum to the centralised env's team reward, the mean over drones.
 Every agent terminates when any drone loses track and truncates at the mission's end. Infos carry the
-drone's costs (``cost_rate``, ``cost_stability``, ``cost``), tracking error and applied shares.
+drone's costs (``cost_rate``, ``cost_stability``, ``cost``), tracking error, applied shares, the slot
+and the drone's seed (``drone_seed``), with the same keys at reset as at every step (TorchRL's
+``PettingZooWrapper`` builds its specs from the reset infos): at reset the initial tracking error,
+zero costs and equal shares 1/(3K). Actions must be real: complex numbers raise ``TypeError``.
 """
 
 from __future__ import annotations
@@ -23,6 +26,7 @@ import numpy as np
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
+from .env import real_array
 from .multi import N_DRONES, ISCCMultiEnv, drone_rewards
 from .schema import OBS_BOUND, OBS_NAMES
 
@@ -35,6 +39,7 @@ class ISCCParallelEnv(ParallelEnv):
     metadata = {"render_modes": [], "name": "iscc_multi_v0", "is_parallelizable": True}
 
     def __init__(self, n_drones: int = N_DRONES, scenario="paper", render_mode=None, **overrides):
+        self._seeds: list[int] = []
         self._env = ISCCMultiEnv(n_drones=n_drones, scenario=scenario, render_mode=render_mode, **overrides)
         self.render_mode = None
         self.possible_agents = [f"drone_{k}" for k in range(self._env.n_drones)]
@@ -58,7 +63,18 @@ class ISCCParallelEnv(ParallelEnv):
     def reset(self, seed=None, options=None):
         obs, info = self._env.reset(seed=seed, options=options)
         self.agents = list(self.possible_agents)
-        return self._split(obs), {a: {"drone_seed": info["drone_seeds"][k]} for k, a in enumerate(self.agents)}
+        self._seeds = list(info["drone_seeds"])
+        k = len(self.possible_agents)
+        infos = self._infos(self.agents, info["tracking_error_m"], info["cost_rate"], info["cost_stability"],
+                            np.full((k, 3), 1.0 / (3 * k)), 0)
+        return self._split(obs), infos
+
+    def _infos(self, agents, err, c_rate, c_stab, alpha, slot) -> dict:
+        """Each agent's info, the same keys at reset and at every step."""
+        return {a: {"tracking_error_m": float(err[i]), "cost_rate": float(c_rate[i]),
+                    "cost_stability": float(c_stab[i]), "cost": float(c_rate[i] + c_stab[i]),
+                    "alpha": np.array(alpha[i], dtype=np.float64), "slot": int(slot), "drone_seed": self._seeds[i]}
+                for i, a in enumerate(agents)}
 
     def step(self, actions):
         if not self.agents:
@@ -73,18 +89,17 @@ class ISCCParallelEnv(ParallelEnv):
         bad = {a: np.shape(actions[a]) for a in self.agents if np.shape(actions[a]) != (3,)}
         if bad:
             raise ValueError(f"each agent's action must have shape (3,); got {bad}")
-        nonfinite = [a for a in self.agents if not np.all(np.isfinite(np.asarray(actions[a], dtype=np.float64)))]
+        real = {a: real_array(actions[a], f"actions[{a!r}]") for a in self.agents}
+        nonfinite = [a for a in self.agents if not np.all(np.isfinite(real[a]))]
         if nonfinite:
             raise ValueError(f"actions of {nonfinite} contain NaN or inf; pass finite values in [-1, 1]")
-        vec = np.concatenate([np.asarray(actions[a], dtype=np.float64) for a in self.possible_agents])
+        vec = np.concatenate([real[a] for a in self.possible_agents])
         obs, _, term, trunc, info = self._env.step(vec)
         s, k = self.scenario, len(self.possible_agents)
         out_err, c_rate, c_stab = info["tracking_error_m"], info["cost_rate"], info["cost_stability"]
         per = drone_rewards(s, out_err, c_rate, c_stab, term, info["slot"]) / k
         agents = self.agents
-        infos = {a: {"tracking_error_m": float(out_err[i]), "cost_rate": float(c_rate[i]),
-                     "cost_stability": float(c_stab[i]), "cost": float(c_rate[i] + c_stab[i]),
-                     "alpha": info["alpha"][i].copy(), "slot": info["slot"]} for i, a in enumerate(agents)}
+        infos = self._infos(agents, out_err, c_rate, c_stab, info["alpha"], info["slot"])
         result = (self._split(obs), {a: float(per[i]) for i, a in enumerate(agents)},
                   {a: bool(term) for a in agents}, {a: bool(trunc) for a in agents}, infos)
         if term or trunc:

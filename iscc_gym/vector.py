@@ -17,12 +17,24 @@ from gymnasium.vector.utils import batch_space
 from . import loop
 from .env import (
     REGISTERED_MAX_EPISODE_STEPS,
+    check_keywords,
     check_seed,
     env_step,
     observe,
+    real_array,
+    reset_info_arrays,
     warn_time_limit,
 )
-from .multi import DRONE_INFO_KEYS, N_DRONES, check_n_drones, drone_scenario, drone_seeds, multi_step, reset_drones
+from .multi import (
+    DRONE_INFO_KEYS,
+    N_DRONES,
+    check_n_drones,
+    drone_scenario,
+    drone_seeds,
+    multi_reset_info,
+    multi_step,
+    reset_drones,
+)
 from .scenario import Scenario, make_scenario
 from .schema import COL as _COL
 from .schema import OBS_BOUND, OBS_NAMES
@@ -51,12 +63,20 @@ class ISCCVectorEnv(VectorEnv):
     ---------
     num_envs : int
     scenario : str or Scenario, and ``**overrides``: as :class:`iscc_gym.env.ISCCEnv`
-    autoreset_mode : ``"NextStep"`` (default, Gymnasium's) or ``"SameStep"``
+    autoreset_mode : ``AutoresetMode.NEXT_STEP`` (default, Gymnasium's) or ``AutoresetMode.SAME_STEP``
+        (or their values ``"NextStep"``, ``"SameStep"``, or names ``"NEXT_STEP"``, ``"SAME_STEP"``).
         NextStep: the step after an episode ends resets that sub-env (reward 0, not done).
         SameStep: it is reset in the step that ends it; the last observation and info go to
-        ``info["final_obs"]`` / ``info["final_info"]`` (masks ``_final_obs``, ``_final_info``).
-    max_episode_steps : int, optional
-        Truncate after this many steps (``make_vec`` passes the registered 5000).
+        ``info["final_obs"]`` / ``info["final_info"]`` (masks ``_final_obs``, ``_final_info``);
+        TorchRL's ``GymWrapper`` needs it. Through ``gymnasium.make_vec`` it is a keyword,
+        ``gym.make_vec(id, num_envs=N, autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)``: Gymnasium
+        (1.1 to 1.4) refuses ``vector_kwargs`` for a vector entry point before calling it ("Custom
+        vector environment can be passed arguments only through kwargs"); ``vector_kwargs=
+        {"autoreset_mode": ...}`` is the form of ``vectorization_mode="sync"`` / ``"async"``
+        (Gymnasium's own vector envs around the single env).
+    max_episode_steps : int >= 1, optional
+        Truncate after this many steps (``make_vec`` passes the registered 5000); a non-integer
+        (2.5, ``'10'``, NaN, True) is a ``TypeError`` naming it.
 
     n_drones : int, optional
         K drones per sub-env: each sub-env is the multi-drone env :class:`iscc_gym.multi.ISCCMultiEnv`
@@ -70,7 +90,10 @@ class ISCCVectorEnv(VectorEnv):
         :func:`iscc_gym.multi.drone_scenario`).
 
     ``reset(seed=s)`` seeds sub-env i with ``s + i``; ``reset(seed=[s_0, ...])`` with ``s_i``;
-    ``reset(options={"reset_mask": mask})`` resets only the masked sub-envs.
+    ``reset(options={"reset_mask": mask})`` resets only the masked sub-envs. The reset ``info`` carries
+    the keys of a step's info (the single env's reset values: initial tracking error, zero costs, NaN
+    slot outcomes; :func:`iscc_gym.env.reset_info_arrays`), masked to the sub-envs reset. Complex
+    actions raise ``TypeError``, NaN/inf or a wrong shape ``ValueError``.
     """
 
     metadata = {"render_modes": [], "autoreset_mode": AutoresetMode.NEXT_STEP}
@@ -79,16 +102,12 @@ class ISCCVectorEnv(VectorEnv):
                  autoreset_mode: str | AutoresetMode = AutoresetMode.NEXT_STEP,
                  max_episode_steps: int | None = None, n_drones: int | None = None,
                  rate_min_per_drone_bps: float | None = None, **overrides: Any):
-        if not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
-            raise ValueError(f"num_envs = {num_envs!r}; use an integer >= 1")
-        try:
-            mode = AutoresetMode(autoreset_mode)
-        except ValueError:
-            raise ValueError(f"autoreset_mode = {autoreset_mode!r}; use 'NextStep' or 'SameStep'") from None
-        if mode == AutoresetMode.DISABLED:
-            raise ValueError("autoreset_mode = 'Disabled' is not supported; use 'NextStep' or 'SameStep'")
-        if max_episode_steps is not None and max_episode_steps < 1:
-            raise ValueError(f"max_episode_steps = {max_episode_steps}; use an integer >= 1 or None")
+        check_keywords(type(self).__name__, overrides, ("num_envs", "scenario", "autoreset_mode", "max_episode_steps",
+                                                        "n_drones", "rate_min_per_drone_bps"))
+        num_envs = _check_count(num_envs, "num_envs")
+        mode = _autoreset_mode(autoreset_mode)
+        if max_episode_steps is not None:
+            max_episode_steps = _check_count(max_episode_steps, "max_episode_steps", none_ok=True)
         self.n_drones = None if n_drones is None else check_n_drones(n_drones)
         k = self._k = 1 if n_drones is None else self.n_drones
         self.scenario = make_scenario(scenario, **overrides)
@@ -129,12 +148,12 @@ class ISCCVectorEnv(VectorEnv):
         self._reset_rows(np.flatnonzero(mask))
         self._done[mask] = False
         obs = observe(self.scenario, self._state, self._last_rx, self._last_peb)
-        return obs.reshape(self.num_envs, -1), {"slot": self._slots(), "_slot": mask.copy()}
+        return obs.reshape(self.num_envs, -1), self._reset_info(mask)
 
     def step(self, actions):
         if self._state is None:
             raise RuntimeError("step() called before reset(): call env.reset(seed=...) first")
-        a = np.asarray(actions, dtype=np.float64)
+        a = real_array(actions, "actions")
         if a.shape != (self.num_envs, 3 * self._k):
             raise ValueError(f"actions must have shape ({self.num_envs}, {3 * self._k}), got {a.shape}")
         if not np.isfinite(a).all():
@@ -201,6 +220,16 @@ class ISCCVectorEnv(VectorEnv):
         if self.n_drones is None:
             return pos, ref
         return pos.reshape(-1, self._k, 3), ref.reshape(-1, self._k, 3)
+
+    def _reset_info(self, mask: np.ndarray) -> dict:
+        """A step's info keys at reset (:func:`iscc_gym.env.reset_info_arrays`), masked to the sub-envs reset."""
+        if self.n_drones is None:
+            info = {key: val for key, val in reset_info_arrays(self._state).items() if key in INFO_KEYS}
+        else:
+            info = multi_reset_info(self._state, self._k)
+        for key in list(info):
+            info["_" + key] = mask.copy()
+        return info
 
     def _slots(self) -> np.ndarray:
         """Each sub-env's slot index (its drones share it)."""
@@ -277,6 +306,31 @@ class ISCCMultiVectorEnv(ISCCVectorEnv):
 
     def __init__(self, num_envs: int = 1, n_drones: int = N_DRONES, **kwargs: Any):
         super().__init__(num_envs, n_drones=n_drones, **kwargs)
+
+
+def _check_count(value, name: str, none_ok: bool = False) -> int:
+    """``value`` as an int >= 1, or an error naming ``name``: a bool, a float (2.5, NaN), a string is a
+    ``TypeError``, an integer below 1 a ``ValueError``.
+    """
+    alt = " or None" if none_ok else ""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+        raise TypeError(f"{name} = {value!r} ({type(value).__name__}); use an integer >= 1{alt}")
+    if value < 1:
+        raise ValueError(f"{name} = {value!r}; use an integer >= 1{alt}")
+    return int(value)
+
+
+def _autoreset_mode(value) -> AutoresetMode:
+    """``value`` (an :class:`AutoresetMode`, its value ``"SameStep"`` or its name ``"SAME_STEP"``) as the
+    mode, or a ``ValueError`` naming ``autoreset_mode``.
+    """
+    mode = value if isinstance(value, AutoresetMode) else None
+    if mode is None and isinstance(value, str):
+        mode = {m.value: m for m in AutoresetMode}.get(value) or AutoresetMode.__members__.get(value.upper())
+    if mode is None or mode == AutoresetMode.DISABLED:
+        raise ValueError(f"autoreset_mode = {value!r} is not supported; use gymnasium.vector.AutoresetMode.NEXT_STEP "
+                         "(default) or AutoresetMode.SAME_STEP (or 'NextStep', 'SameStep')")
+    return mode
 
 
 def reset_bytes(s: Scenario) -> int:

@@ -14,7 +14,9 @@ The 6-tuple is a property of the outermost layer only: a Gymnasium wrapper place
 the 5-tuple from what it wraps. :class:`SafetyCostWrapper` therefore returns the 6-tuple when its
 caller is not a wrapper of it, and Gymnasium's 5-tuple (the cost still in ``info["cost"]``) when an
 enclosing wrapper calls it, so it can sit at any depth of a wrapper stack; apply it outermost to get
-the 6-tuple out of the stack.
+the 6-tuple out of the stack. The same holds for the vector envs that step it as a sub-env
+(Gymnasium's ``SyncVectorEnv`` and ``AsyncVectorEnv``, SB3's ``DummyVecEnv``): they get the 5-tuple,
+and :class:`SafetyCostWrapper` around the vector env gives the costs as an array.
 """
 
 from __future__ import annotations
@@ -28,10 +30,21 @@ __all__ = ["SafetyCostWrapper", "SafetyCostVectorWrapper"]
 
 
 def _called_by_enclosing_wrapper(wrapper, depth: int = 2) -> bool:
-    """Whether the frame ``depth`` levels up is a method of a Gymnasium wrapper that wraps ``wrapper``."""
-    caller = sys._getframe(depth).f_locals.get("self")
-    return (isinstance(caller, (gym.Wrapper, gym.vector.VectorWrapper)) and caller is not wrapper
-            and getattr(caller, "env", None) is wrapper)
+    """Whether the frame ``depth`` levels up expects Gymnasium's 5-tuple from ``wrapper``: a method of a
+    wrapper that wraps it, of a vector env that holds it as a sub-env (``envs``: Gymnasium's
+    ``SyncVectorEnv``, SB3's ``DummyVecEnv``), or any code of Gymnasium itself (its wrappers, the worker of
+    ``AsyncVectorEnv``, its env checker).
+    """
+    frame = sys._getframe(depth)
+    if frame.f_globals.get("__name__", "").startswith("gymnasium."):
+        return True
+    caller = frame.f_locals.get("self")
+    if caller is None or caller is wrapper:
+        return False
+    if getattr(caller, "env", None) is wrapper:
+        return isinstance(caller, (gym.Wrapper, gym.vector.VectorWrapper))
+    envs = getattr(caller, "envs", None)
+    return isinstance(envs, (list, tuple)) and any(e is wrapper for e in envs)
 
 
 class SafetyCostWrapper(gym.Wrapper):
@@ -41,8 +54,10 @@ class SafetyCostWrapper(gym.Wrapper):
     indicator of the slot (both also in ``info`` separately). ``reset`` is unchanged. Wrapping a
     vector env (``gymnasium.make_vec(..., vectorization_mode="vector_entry_point")`` or
     :class:`iscc_gym.vector.ISCCVectorEnv`) gives a :class:`SafetyCostVectorWrapper` (``cost`` of
-    shape (num_envs,)). Inside another Gymnasium wrapper it passes the 5-tuple through (module
-    docstring), so it works in any order with Gymnasium's wrappers.
+    shape (num_envs,)). Inside another Gymnasium wrapper or as a sub-env of a vector env it passes
+    the 5-tuple through (module docstring), so it works in any order with Gymnasium's wrappers and
+    inside ``gymnasium.make_vec(..., vectorization_mode="sync"/"async", wrappers=[SafetyCostWrapper])``.
+    It can be deep-copied and pickled.
 
     Examples
     --------
@@ -53,7 +68,9 @@ class SafetyCostWrapper(gym.Wrapper):
     >>> obs, reward, cost, terminated, truncated, info = env.step(env.action_space.sample())
     """
 
-    def __new__(cls, env, *args, **kwargs):
+    def __new__(cls, env=None, *args, **kwargs):
+        # ``env`` is optional: copy and pickle rebuild the object with ``cls.__new__(cls)`` and then restore
+        # its ``__dict__`` (deepcopy, pickle, the sub-env of AsyncVectorEnv)
         if isinstance(env, gym.vector.VectorEnv):
             return SafetyCostVectorWrapper(env)
         return super().__new__(cls)

@@ -360,7 +360,7 @@ def markdown_table(res: dict, command: str) -> str:
     return "\n".join(lines)
 
 
-def _verdict(d: dict, metric: str = "episode_reward") -> str:
+def _verdict(d: dict, metric: str = "reward") -> str:
     """``ahead by X`` / ``behind by X`` with whether the paired 95 % interval excludes zero."""
     m, h = d[f"{metric}_diff_mean"], d[f"{metric}_diff_ci95"]
     word = "ahead of" if m > 0 else "behind"

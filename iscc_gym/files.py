@@ -1,30 +1,134 @@
-"""Writing files so that an interrupted write never leaves a truncated one: the only place it is done."""
+"""Writing files so that an interrupted write never leaves a truncated one: the only place it is done.
+
+Every output of the project (``--json``, figures, run files, tuned records) goes through
+:func:`atomic_target` (or :func:`write_atomic`), which writes what the destination is:
+
+- a regular file, or no file yet: a temporary name beside it, renamed onto it at the end;
+- a symbolic link: the same, beside the link's target (resolved), so the link stays a link;
+- an open descriptor of this process (``/dev/stdout``, ``/dev/stderr``, ``/dev/fd/N``,
+  ``/proc/self/fd/N``): the bytes are written into that descriptor, at its position, after Python's
+  own buffers are flushed, so ``--json /dev/stdout > out.txt`` keeps the printed lines and the JSON;
+- any other file that is not a regular one (a device such as ``/dev/null``, a FIFO): opened and
+  written into, never replaced (a FIFO waits for its reader, as a shell redirection does).
+
+In the last two cases the writer still writes to a temporary file first, so a failing writer sends
+nothing. A directory is refused (``IsADirectoryError``).
+"""
 
 from __future__ import annotations
 
 import os
+import re
+import shutil
+import stat
+import sys
+import tempfile
 import uuid
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-__all__ = ["write_atomic", "atomic_target"]
+__all__ = ["write_atomic", "atomic_target", "destination"]
+
+#: A path naming an open descriptor of a process: ``/proc/self/fd/N``, ``/proc/<pid>/fd/N``,
+#: ``/proc/thread-self/fd/N`` or ``/proc/<pid>/task/<tid>/fd/N``.
+_FD_PATH = re.compile(r"/proc/(?:self|thread-self|(\d+)(?:/task/\d+)?)/fd/(\d+)")
+_MAX_LINKS = 40  # as the kernel's limit on symbolic links followed in one lookup
+
+
+def _descriptor(path: str | os.PathLike) -> int | None:
+    """The descriptor number if ``path`` names an open descriptor of this process (directly or through
+    symbolic links: ``/dev/stdout`` -> ``/proc/self/fd/1``), else None.
+    """
+    p = os.path.abspath(path)
+    for _ in range(_MAX_LINKS):
+        parent, name = os.path.split(p)
+        p = os.path.join(os.path.realpath(parent), name)
+        m = _FD_PATH.fullmatch(p)
+        if m is not None and m.group(1) in (None, str(os.getpid())):
+            return int(m.group(2))
+        if not os.path.islink(p):
+            return None
+        p = os.path.join(os.path.dirname(p), os.readlink(p))
+    return None
+
+
+def destination(path: str | os.PathLike) -> tuple[str, Path | int]:
+    """How :func:`atomic_target` writes ``path``.
+
+    Returns
+    -------
+    kind : str
+        ``"file"`` (a temporary file renamed onto ``target``), ``"descriptor"`` (written into the
+        open descriptor ``target``) or ``"stream"`` (``target`` exists and is not a regular file: a
+        device or a FIFO, opened and written into).
+    target : Path or int
+        The file to create or replace (a symbolic link's target, resolved), the descriptor number, or
+        the path to open.
+
+    Raises
+    ------
+    IsADirectoryError
+        ``path`` is a directory (or a link to one).
+    """
+    fd = _descriptor(path)
+    if fd is not None:
+        return "descriptor", fd
+    try:
+        mode = os.stat(path).st_mode  # follows links
+    except FileNotFoundError:
+        mode = None
+    if mode is not None and stat.S_ISDIR(mode):
+        raise IsADirectoryError(f"{path}: is a directory; give a file name")
+    if mode is not None and not stat.S_ISREG(mode):
+        return "stream", Path(path)
+    # a regular file, a link to one, a dangling link (its target is created) or nothing yet
+    return "file", Path(os.path.realpath(path)) if os.path.islink(path) else Path(path)
+
+
+def _send(kind: str, target: Path | int, tmp: Path) -> None:
+    """Copy the finished temporary file ``tmp`` into a descriptor or a non-regular file."""
+    with open(tmp, "rb") as src:
+        if kind == "descriptor":
+            for stream in (sys.stdout, sys.stderr):  # what Python printed before comes first
+                try:
+                    stream.flush()
+                except (AttributeError, ValueError, OSError):
+                    pass
+            with os.fdopen(os.dup(int(target)), "wb") as dst:
+                shutil.copyfileobj(src, dst)
+        else:
+            with open(target, "wb") as dst:
+                shutil.copyfileobj(src, dst)
 
 
 @contextmanager
 def atomic_target(path: str | os.PathLike) -> Iterator[Path]:
-    """A temporary name beside ``path`` to write to (by any writer: ``np.savez``, an SB3 ``save``,
-    a pickle); on leaving the block without an error it is renamed onto ``path``, else removed.
+    """A temporary name to write to (by any writer: ``np.savez``, an SB3 ``save``, a pickle); on leaving
+    the block without an error it becomes ``path``, else it is removed.
 
     ``with atomic_target("run/model.zip") as tmp: model.save(tmp)``: a kill or a full disk during the
-    write leaves the old ``path`` (or none), never a truncated one. Parent directories are created.
+    write leaves the old ``path`` (or none), never a truncated one. Parent directories are created. A
+    symbolic link stays a link (its target is replaced), and a destination that is not a regular file
+    (``/dev/stdout``, a device, a FIFO) is written into, never replaced (see the module docstring).
+
+    Raises
+    ------
+    IsADirectoryError
+        ``path`` is a directory.
     """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp")
+    kind, target = destination(path)
+    if kind != "file":
+        with tempfile.TemporaryDirectory(prefix="iscc_gym-") as d:
+            tmp = Path(d) / f"{Path(path).name}.tmp"
+            yield tmp
+            _send(kind, target, tmp)
+        return
+    target.parent.mkdir(parents=True, exist_ok=True)
+    tmp = target.with_name(f".{target.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp")
     try:
         yield tmp
-        os.replace(tmp, path)
+        os.replace(tmp, target)
     finally:
         tmp.unlink(missing_ok=True)
 
@@ -33,7 +137,9 @@ def write_atomic(path: str | os.PathLike, text: str) -> Path:
     """Write ``text`` to a unique temporary name beside ``path``, then rename it onto ``path``.
 
     A kill mid-write leaves the old file (or none) and at most a hidden ``.NAME.*.tmp`` beside it,
-    never a truncated ``path``. Parent directories are created. Returns the path.
+    never a truncated ``path``. Parent directories are created. A symbolic link keeps pointing at its
+    (replaced) target; ``/dev/stdout``, a device or a FIFO is written into (:func:`atomic_target`).
+    Returns the path.
     """
     with atomic_target(path) as tmp:
         tmp.write_text(text)

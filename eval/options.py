@@ -14,6 +14,8 @@ import sys
 import tempfile
 from pathlib import Path
 
+from iscc_gym.files import destination
+
 __all__ = ["Parser", "PICKLE_WARNING", "positive_int", "nonneg_int", "parse_seeds", "check_writable_file",
            "check_writable_dir", "show_progress", "progress_bar", "Stages", "run_console", "docs_command"]
 
@@ -85,12 +87,22 @@ def _probe_dir(directory: Path, flag: str, path: Path) -> None:
 
 def check_writable_file(path: str | os.PathLike, flag: str) -> Path:
     """Check, before any work, that a file can be written at ``path`` (its missing parent directories
-    would be created); ``OSError`` naming ``flag`` otherwise. Creates nothing.
+    would be created); ``OSError`` naming ``flag`` otherwise. Creates nothing. A destination that is
+    written into rather than replaced (``/dev/stdout``, a device, a FIFO:
+    :func:`iscc_gym.files.destination`) needs write permission on itself; a symbolic link, on the
+    directory of its target.
     """
     p = Path(path)
     if p.is_dir():
         raise OSError(f"{flag} {p}: is a directory; give a file name")
-    base = _nearest_existing(p.parent)
+    kind, target = destination(p)
+    if kind == "descriptor":
+        return p
+    if kind == "stream":
+        if not os.access(target, os.W_OK):
+            raise OSError(f"{flag} {p}: not writable (permission denied)")
+        return p
+    base = _nearest_existing(target.parent)
     if not base.is_dir():
         raise OSError(f"{flag} {p}: {base} is a file, not a directory")
     _probe_dir(base, flag, p)

@@ -2,7 +2,10 @@
 
 Usage::
 
-    python -m eval.bench [--steps N] [--repeats R] [--json PATH] [--quick] [--skip-ppo]
+    python -m eval.bench [--full] [--steps N] [--repeats R] [--json PATH] [--quick] [--skip-ppo] [--quiet]
+
+The default is a short run (:data:`PROFILES`, the expected duration printed at the start); ``--full`` measures
+every figure, the README's table (``--full --write-docs``). A line per stage goes to stderr (``--quiet``: none).
 
 Every figure is the median over ``repeats`` runs, with its reference measured in the same process:
 
@@ -29,7 +32,7 @@ import time
 
 import gymnasium as gym
 import numpy as np
-from iscc_gym.eval.options import Parser, check_writable_file, positive_int, run_console
+from iscc_gym.eval.options import Parser, Stages, check_writable_file, positive_int, run_console
 
 import iscc_gym
 from iscc_gym.docs import README_PATH, RESULTS_PATH, docs_path, publish, save_json
@@ -259,32 +262,61 @@ def solver_seconds(quick: bool = False) -> dict:
     return out
 
 
-def run(n_steps: int = 5000, repeats: int = 5, quick: bool = False, ppo: bool = True) -> dict:
-    """All benchmark figures as a JSON-able dict (``quick``: tiny sizes, for the tests)."""
+#: What each profile measures, and how long it took on this project's 2-core machine when quiet (stated at the start
+#: of a run; a loaded machine takes several times longer). The short profile is the default.
+PROFILES = {
+    "short": ("the env, vector env, multi-drone, render, evaluation and solver figures", "about 1-2 min"),
+    "full": ("every figure: also the kernel modes beside a busy process and the PPO training rates", "10-15 min"),
+}
+
+
+def run(n_steps: int = 5000, repeats: int = 5, quick: bool = False, ppo: bool = True, full: bool = True,
+        quiet: bool = True) -> dict:
+    """All benchmark figures as a JSON-able dict (``quick``: tiny sizes, for the tests; ``full=False``: without
+    the kernel modes under load and, unless ``ppo``, the PPO rates). A line per stage on stderr unless ``quiet``.
+    """
     vec_steps = 5 if quick else 200
-    res = {
-        "machine": {"python": platform.python_version(), "numpy": np.__version__,
-                    "gymnasium": gym.__version__, "processor": platform.processor() or "unknown",
-                    "cpu_count": os.cpu_count()},
-        "single_env": {
-            "iscc": env_steps_per_second(iscc_gym.ENV_ID, n_steps, repeats),
-            "reference_pendulum_v1": env_steps_per_second("Pendulum-v1", n_steps, repeats),
-        },
-        "vector_env": {str(n): vector_steps_per_second(n, vec_steps if n < 1024 else vec_steps // 4 + 1,
-                                                       repeats)
-                       for n in ((1, 64) if quick else (1, 64, 1024))},
-    }
-    res["multi_drone"] = multi_drone_cost(64 if quick else 1024, 4, 20 if quick else 300, 1 if quick else repeats)
-    res["vector_under_load"] = vector_under_load(n_steps=50 if quick else 3000, repeats=1 if quick else repeats)
-    res["render"] = render_ms(5 if quick else 50)
-    res["eval_static_sca"] = eval_sca_seconds(2 if quick else 100, max_steps=20 if quick else None)
-    res["solvers"] = solver_seconds(quick)
-    if ppo:
-        total = 256 if quick else 16384
-        res["ppo_training"] = {kind: ppo_steps_per_second(kind, total, 1 if quick else repeats)
-                               for kind in ("dummy", "subproc", "batched", "pendulum_dummy")}
-        res["ppo_shipped"] = ppo_shipped_steps_per_second(2048 if quick else 409_600, 1 if quick else 3,
-                                                          THREAD_SETTINGS[:1] if quick else THREAD_SETTINGS)
+    under_load = full or quick
+    ppo = ppo and (full or quick)
+    stages = ["single env", "vector env", "multi-drone", *(["kernel modes under load"] if under_load else []),
+              "render", "static SCA evaluation", "solvers", *(["PPO training"] if ppo else [])]
+    t0 = time.perf_counter()
+    with Stages(len(stages), "python -m eval.bench", enabled=not quiet) as st:
+        st.next(stages[0])
+        res = {
+            "machine": {"python": platform.python_version(), "numpy": np.__version__,
+                        "gymnasium": gym.__version__, "processor": platform.processor() or "unknown",
+                        "cpu_count": os.cpu_count()},
+            "single_env": {
+                "iscc": env_steps_per_second(iscc_gym.ENV_ID, n_steps, repeats),
+                "reference_pendulum_v1": env_steps_per_second("Pendulum-v1", n_steps, repeats),
+            },
+        }
+        st.next("vector env")
+        res["vector_env"] = {str(n): vector_steps_per_second(n, vec_steps if n < 1024 else vec_steps // 4 + 1,
+                                                             repeats)
+                             for n in ((1, 64) if quick else (1, 64, 1024))}
+        st.next("multi-drone")
+        res["multi_drone"] = multi_drone_cost(64 if quick else 1024, 4, 20 if quick else 300,
+                                              1 if quick else repeats)
+        if under_load:
+            st.next("kernel modes under load")
+            res["vector_under_load"] = vector_under_load(n_steps=50 if quick else 3000, repeats=1 if quick else repeats)
+        st.next("render")
+        res["render"] = render_ms(5 if quick else 50)
+        st.next("static SCA evaluation")
+        res["eval_static_sca"] = eval_sca_seconds(2 if quick else 100, max_steps=20 if quick else None)
+        st.next("solvers")
+        res["solvers"] = solver_seconds(quick)
+        if ppo:
+            st.next("PPO training")
+            total = 256 if quick else 16384
+            res["ppo_training"] = {kind: ppo_steps_per_second(kind, total, 1 if quick else repeats)
+                                   for kind in ("dummy", "subproc", "batched", "pendulum_dummy")}
+            res["ppo_shipped"] = ppo_shipped_steps_per_second(2048 if quick else 409_600, 1 if quick else 3,
+                                                              THREAD_SETTINGS[:1] if quick else THREAD_SETTINGS)
+    res["wall_time_s"] = time.perf_counter() - t0
+    res["profile"] = "quick" if quick else ("full" if full else "short")
     return res
 
 
@@ -350,7 +382,8 @@ def markdown(res: dict) -> str:
     ours, ref = se["iscc"]["median_steps_per_s"], se["reference_pendulum_v1"]["median_steps_per_s"]
     m = res["machine"]
     rows = [f"Generated by `python -m eval.bench --write-docs` on this machine ({m['cpu_count']} cores, "
-            f"Python {m['python']}); medians of repeated runs, each reference measured in the same run.", "",
+            f"Python {m['python']}); medians of repeated runs, each reference measured in the same run; the run "
+            f"took {res['wall_time_s'] / 60:.1f} min.", "",
             "| figure | ISCC | reference | target |", "|---|---|---|---|",
             f"| single env, steps/s (`gymnasium.make`) | {ours:,.0f} | Pendulum-v1: {ref:,.0f} | >= 25,000 |"]
     targets = {"1024": ">= 500,000"}
@@ -401,27 +434,40 @@ def markdown(res: dict) -> str:
 
 
 def build_parser(prog: str = "python -m eval.bench") -> argparse.ArgumentParser:
-    ap = Parser(prog=prog, description=__doc__.split("\n")[0])
-    ap.add_argument("--steps", type=positive_int, default=5000, metavar="N", help="steps per run (default: 5000)")
-    ap.add_argument("--repeats", type=positive_int, default=5, metavar="N",
-                    help="runs per figure, the median reported (default: 5)")
+    ap = Parser(prog=prog, description=__doc__.split("\n")[0] + f" Default: a short run ({PROFILES['short'][0]}; "
+                f"{PROFILES['short'][1]} on a quiet 2-core machine); --full: {PROFILES['full'][0]} "
+                f"({PROFILES['full'][1]}).")
+    ap.add_argument("--full", action="store_true", help="every figure (the README's table; needed by --write-docs)")
+    ap.add_argument("--steps", type=positive_int, default=None, metavar="N",
+                    help="steps per run (default: 2000, 5000 with --full)")
+    ap.add_argument("--repeats", type=positive_int, default=None, metavar="N",
+                    help="runs per figure, the median reported (default: 3, 5 with --full)")
     ap.add_argument("--json", metavar="PATH", help="write the figures as JSON to PATH (checked before the run)")
-    ap.add_argument("--quick", action="store_true", help="tiny sizes (a smoke run, for the tests)")
+    ap.add_argument("--quick", action="store_true", help="tiny sizes of every figure (a smoke run, for the tests)")
     ap.add_argument("--skip-ppo", action="store_true", help="skip the PPO training figures")
+    ap.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
     ap.add_argument("--write-docs", action="store_true",
                     help="write the figures into the project's docs/results.md and README.md (bench block; needs "
-                         "a source checkout)")
+                         "--full and a source checkout)")
     return ap
 
 
 def main(argv: list[str] | None = None, prog: str = "python -m eval.bench") -> dict:
     args = build_parser(prog).parse_args(argv)
+    if args.write_docs and not args.full:
+        raise ValueError("--write-docs writes the README's full table: add --full")
     if args.json:
         check_writable_file(args.json, "--json")
     if args.write_docs:
         for rel in (RESULTS_PATH, README_PATH):
             check_writable_file(docs_path(rel), "--write-docs")
-    res = run(args.steps, args.repeats, quick=args.quick, ppo=not args.skip_ppo)
+    profile = "full" if args.full else "short"
+    if not args.quiet and not args.quick:
+        print(f"{prog}: {profile} run, {PROFILES[profile][0]}; {PROFILES[profile][1]} on a quiet 2-core machine, "
+              "several times longer beside busy processes", file=sys.stderr, flush=True)
+    steps = args.steps or (5000 if args.full else 2000)
+    repeats = args.repeats or (5 if args.full else 3)
+    res = run(steps, repeats, quick=args.quick, ppo=not args.skip_ppo, full=args.full, quiet=args.quiet)
     print(format_report(res))
     if args.write_docs:
         publish("bench", "Speed", markdown(res))

@@ -12,12 +12,14 @@ import functools
 import os
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 from iscc_gym.files import destination
 
 __all__ = ["Parser", "PICKLE_WARNING", "positive_int", "nonneg_int", "parse_seeds", "check_writable_file",
-           "check_writable_dir", "show_progress", "progress_bar", "Stages", "run_console", "docs_command"]
+           "check_writable_dir", "show_progress", "progress_bar", "LineProgress", "Stages", "run_console",
+           "docs_command"]
 
 #: Said in ``--help`` wherever a path to a trained model is accepted.
 PICKLE_WARNING = ("A model .zip and its vecnormalize.pkl are pickles: loading them executes code they contain, so "
@@ -124,19 +126,79 @@ def check_writable_dir(path: str | os.PathLike, flag: str) -> Path:
 
 
 def show_progress(quiet: bool = False) -> bool:
-    """Progress bars are shown on a terminal (stderr a TTY) unless ``quiet``."""
-    if quiet:
-        return False
+    """Progress is shown unless ``quiet``: a bar on a terminal, a line every :data:`LINE_INTERVAL_S` seconds (and
+    per stage) to stderr otherwise (a log file, CI, ``nohup``), see :func:`progress_bar`.
+    """
+    return not quiet
+
+
+def _isatty(stream) -> bool:
     try:
-        return sys.stderr.isatty()
+        return stream.isatty()
     except (AttributeError, ValueError):
         return False
 
 
+#: Seconds between two progress lines when stderr is not a terminal.
+LINE_INTERVAL_S = 10.0
+
+
+class LineProgress:
+    """Progress as plain lines on a stream that is not a terminal (tqdm's bar there is a mess of carriage
+    returns): one line when a stage starts (:meth:`set_postfix_str`), then at most one every ``interval`` seconds
+    (done/total, rate, elapsed, estimated time left), and one at the end. The part of tqdm's API the commands use.
+    """
+
+    def __init__(self, total: float, desc: str, unit: str = "it", stream=None, interval: float = LINE_INTERVAL_S):
+        self.total, self.desc, self.unit, self.n = total, desc, unit, 0
+        self.stream, self.interval = stream if stream is not None else sys.stderr, interval
+        self.t0 = self.last = time.monotonic()
+        self.postfix, self.closed = "", False
+
+    def _line(self, text: str) -> None:
+        print(f"[{self.desc}] {text}", file=self.stream, flush=True)
+
+    def _status(self) -> str:
+        elapsed = time.monotonic() - self.t0
+        done = f"{self.n:,.0f}/{self.total:,.0f} {self.unit}" if self.total else f"{self.n:,.0f} {self.unit}"
+        eta = ""
+        if self.total and 0 < self.n < self.total:
+            eta = f", about {elapsed * (self.total - self.n) / self.n:.0f} s left"
+        stage = f" ({self.postfix})" if self.postfix else ""
+        return f"{done}{stage}, {elapsed:.0f} s elapsed{eta}"
+
+    def update(self, n: float = 1) -> None:
+        self.n += n
+        now = time.monotonic()
+        if now - self.last >= self.interval:
+            self.last = now
+            self._line(self._status())
+
+    def set_postfix_str(self, s: str) -> None:
+        self.postfix = s
+        self.last = time.monotonic()
+        self._line(self._status())
+
+    def close(self) -> None:
+        if not self.closed:
+            self.closed = True
+            self._line(f"done: {self._status()}")
+
+    def __enter__(self) -> LineProgress:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
 def progress_bar(total: float, desc: str, unit: str = "it", enabled: bool = True, **kw):
-    """A tqdm bar on stderr (a disabled one, which does nothing, if not ``enabled``)."""
+    """A tqdm bar on stderr when it is a terminal, else :class:`LineProgress` lines to stderr (a disabled tqdm,
+    which does nothing, if not ``enabled``).
+    """
     from tqdm.auto import tqdm
 
+    if enabled and not _isatty(sys.stderr):
+        return LineProgress(total, desc, unit)
     return tqdm(total=total, desc=desc, unit=unit, disable=not enabled, file=sys.stderr, dynamic_ncols=True,
                 leave=False, **kw)
 

@@ -17,8 +17,18 @@ def test_bench_quick_reports_every_figure(tmp_path, capsys):
     assert res["eval_static_sca"]["slots"] == 40 and res["eval_static_sca"]["seconds"] > 0
     assert set(res["solvers"]) == {"sca", "grid", "evolutionary"}
     assert all(v["seconds"] > 0 and v["paper_s"] > v["seconds"] for v in res["solvers"].values())
-    out = capsys.readouterr().out
-    assert "Pendulum-v1 (reference)" in out and "64 envs" in out
+    captured = capsys.readouterr()
+    assert "Pendulum-v1 (reference)" in captured.out and "64 envs" in captured.out
+    # issue 23: a line per stage on stderr, also without a terminal
+    assert "[python -m eval.bench] 0/7 stage (single env)" in captured.err
+    assert "[python -m eval.bench] done: 7/7 stage" in captured.err
+
+
+def test_bench_write_docs_needs_the_full_run():
+    import pytest
+
+    with pytest.raises(ValueError, match="--full"):
+        bench.main(["--write-docs"])
 
 
 def test_ppo_figure_of_the_train_configuration():

@@ -161,10 +161,15 @@ def test_console_exit_codes(capsys, tmp_path):
         assert err.startswith("cmd: error: ") and err.count("\n") == 1, err
 
 
-def test_progress_only_on_a_terminal(monkeypatch):
+def test_progress_is_a_bar_on_a_terminal_and_lines_elsewhere(monkeypatch):
+    """Issue 23: without a terminal a long command still reports progress, as plain lines; --quiet silences it."""
+    from iscc_gym.eval.options import LineProgress, progress_bar
+
     assert show_progress(quiet=True) is False
     monkeypatch.setattr(sys, "stderr", io.StringIO())
-    assert show_progress() is False
+    assert show_progress() is True
+    assert isinstance(progress_bar(10, "x"), LineProgress)
+    assert not isinstance(progress_bar(10, "x", enabled=False), LineProgress)
 
     class Tty(io.StringIO):
         def isatty(self):
@@ -172,6 +177,34 @@ def test_progress_only_on_a_terminal(monkeypatch):
 
     monkeypatch.setattr(sys, "stderr", Tty())
     assert show_progress() is True and show_progress(quiet=True) is False
+    assert not isinstance(progress_bar(10, "x"), LineProgress)
+
+
+def test_line_progress_prints_stages_every_interval_and_the_end():
+    from iscc_gym.eval.options import LineProgress
+
+    out = io.StringIO()
+    with LineProgress(100, "cmd", unit="slot", stream=out, interval=3600) as p:
+        p.set_postfix_str("stage one")
+        for _ in range(50):
+            p.update(1)  # within the interval: no line
+        assert out.getvalue().count("\n") == 1
+        p.interval = 0
+        p.update(10)
+    lines = out.getvalue().splitlines()
+    assert lines[0].startswith("[cmd] 0/100 slot (stage one)")
+    assert lines[1].startswith("[cmd] 60/100 slot (stage one)") and "s left" in lines[1]
+    assert lines[2].startswith("[cmd] done: 60/100 slot") and len(lines) == 3
+
+
+def test_python_m_eval_prints_progress_lines_without_a_terminal():
+    out = subprocess.run([sys.executable, "-m", "eval", "--policies", "equal", "--episodes", "1", "--max-steps", "5"],
+                         cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    assert "[evaluating] done: 5/5 slot" in out.stderr
+    quiet = subprocess.run([sys.executable, "-m", "eval", "--policies", "equal", "--episodes", "1", "--max-steps",
+                            "5", "--quiet"], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert quiet.returncode == 0 and "[evaluating]" not in quiet.stderr
 
 
 def test_python_m_eval_exits_2_with_one_line_on_a_mistake():

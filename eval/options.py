@@ -254,6 +254,8 @@ def claims_parser(prog: str, description: str, *, missions: int, quick_missions:
     p.add_argument("--figures", metavar="DIR", default=figures_default,
                    help=f"directory of the PNG figures (default {figures_default})")
     p.add_argument("--no-figures", action="store_true", help="draw no figures")
+    p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
+    p.set_defaults(prog=prog)
     return p
 
 
@@ -270,9 +272,12 @@ def run_claims_command(args, run, draw, check_seeds, report=None) -> dict:
     if not args.no_figures:
         check_writable_dir(args.figures, "--figures")
     check_seeds(args)
-    res = run(quick=args.quick, seed=args.seed)
-    if not args.no_figures:
-        res["figures"] = draw(res, args.figures)
+    with Stages(1 if args.no_figures else 2, args.prog, enabled=not getattr(args, "quiet", False)) as st:
+        st.next("quick missions" if args.quick else "missions")
+        res = run(quick=args.quick, seed=args.seed)
+        if not args.no_figures:
+            st.next("figures")
+            res["figures"] = draw(res, args.figures)
     for c in res["claims"]:
         print(f"[{'holds' if c['holds'] else 'does not hold'}] {c['id']} ({c['figure']}): {c['ours']}")
     if report is not None:

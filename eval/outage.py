@@ -21,10 +21,11 @@ from __future__ import annotations
 
 import math
 import sys
+from collections.abc import Callable
 
 import numpy as np
 from iscc_gym.eval.evaluate import run_episodes
-from iscc_gym.eval.options import Parser, nonneg_int, positive_int, run_console
+from iscc_gym.eval.options import Parser, Stages, nonneg_int, positive_int, run_console
 from iscc_gym.eval.tune import TUNE_SEED_START, check_tuning_seeds
 
 from iscc_gym.scenario import Scenario, make_scenario
@@ -66,16 +67,18 @@ def outage(family: str, knob: float, seeds, scenario: Scenario, max_steps: int |
 
 
 def find_knob(family: str, target: float, seeds, scenario: Scenario, max_steps: int | None = None,
-              iterations: int = 8) -> dict:
+              iterations: int = 8, on_step: Callable[[str], None] | None = None) -> dict:
     """The knob value of ``family`` whose rate outage on ``seeds`` is at most ``target``, closest to it
     (bisection between the family's bounds, geometric for a positive knob); ``met`` is False if even the
-    bound cannot reach it.
+    bound cannot reach it. ``on_step(label)`` is called before each evaluation (progress).
     """
     if not 0.0 <= target <= 1.0:
         raise ValueError(f"target = {target!r}: a rate-outage target is a fraction in [0, 1]")
     _, lo, hi, falls = FAMILIES[family]
     # the knob end with the smallest outage
     safe, risky = (hi, lo) if falls else (lo, hi)
+    step = on_step or (lambda label: None)
+    step(f"knob {safe:.4g} (the safe bound)")
     tried = [outage(family, safe, seeds, scenario, max_steps)]
     if tried[-1]["rate_outage"] > target:
         return {"family": family, "target": target, "met": False, "best": tried[-1], "tried": tried}
@@ -83,6 +86,7 @@ def find_knob(family: str, target: float, seeds, scenario: Scenario, max_steps: 
     for _ in range(iterations):
         # geometric where the knob is a positive multiple, so a wide range is searched evenly
         mid = math.sqrt(safe * risky) if min(safe, risky) > 0 else 0.5 * (safe + risky)
+        step(f"knob {mid:.4g}, last outage {tried[-1]['rate_outage']:.3f}")
         r = outage(family, mid, seeds, scenario, max_steps)
         tried.append(r)
         if r["rate_outage"] <= target:
@@ -102,6 +106,7 @@ def build_parser(prog: str = "python -m eval.outage") -> Parser:
     ap.add_argument("--max-steps", type=positive_int, default=None, help="slots per mission (default: all)")
     ap.add_argument("--iterations", type=positive_int, default=8, help="bisection steps (default: 8)")
     ap.add_argument("--scenario", default="paper", help="scenario preset (default: paper)")
+    ap.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
     ap.add_argument("--rate-min-mbps", type=float, default=None,
                     help="the rate requirement R_min in Mbps (default: the scenario's; python -m eval.pareto uses 12)")
     return ap
@@ -114,8 +119,9 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.outage") -> 
     seeds = list(range(args.seed_start, args.seed_start + args.episodes))
     check_tuning_seeds(seeds)
     over = {} if args.rate_min_mbps is None else {"rate_min_bps": args.rate_min_mbps * 1e6}
-    res = find_knob(args.family, args.target, seeds, make_scenario(args.scenario, **over), args.max_steps,
-                    args.iterations)
+    with Stages(args.iterations + 1, prog, enabled=not args.quiet) as st:
+        res = find_knob(args.family, args.target, seeds, make_scenario(args.scenario, **over), args.max_steps,
+                        args.iterations, on_step=st.next)
     b = res["best"]
     name = FAMILIES[args.family][0]
     print(f"{args.family}: {name} = {b['knob']:.4g} -> rate outage {b['rate_outage']:.3f} "

@@ -45,3 +45,15 @@ def test_an_unreachable_target_is_reported_not_met_and_bad_targets_refused():
 def test_evaluation_seeds_are_refused(capsys):
     assert O.console(["margin", "--seed-start", "10000", "--episodes", "2"]) == 2
     assert "seed" in capsys.readouterr().err
+
+
+def test_outage_command_reports_each_bisection_step_on_stderr(capsys):
+    """Issue 23 item 5: a line per evaluated knob value, also without a terminal; --quiet silences them."""
+    from iscc_gym.eval import outage as cmd
+
+    argv = ["margin", "--episodes", "1", "--max-steps", "5", "--iterations", "2", "--target", "1"]
+    cmd.main(argv)
+    err = capsys.readouterr().err
+    assert err.count("[python -m eval.outage] ") == 4 and "0/3 stage (knob" in err and "done: 3/3 stage" in err
+    cmd.main([*argv, "--quiet"])
+    assert capsys.readouterr().err == ""

@@ -362,10 +362,10 @@ def markdown_table(res: dict, command: str) -> str:
 
 def _verdict(d: dict, metric: str = "reward") -> str:
     """``ahead by X`` / ``behind by X`` with whether the paired 95 % interval excludes zero."""
-    m, h = d[f"{metric}_diff_mean"], d[f"{metric}_diff_ci95"]
+    m, (lo, hi) = d[f"{metric}_diff_mean"], d[f"{metric}_diff_ci95"]
     word = "ahead of" if m > 0 else "behind"
-    sure = "the paired interval excludes zero" if abs(m) > h else "the paired interval includes zero"
-    return f"{word} by {abs(m):.1f} ±{h:.1f} ({sure})"
+    sure = "the paired interval excludes zero" if lo > 0 or hi < 0 else "the paired interval includes zero"
+    return f"{word} by {abs(m):.1f} ±{(hi - lo) / 2:.1f} ({sure})"
 
 
 def reading_sentences(res: dict) -> str:

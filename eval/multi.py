@@ -1,14 +1,15 @@
 """``python -m eval.multi``: the multi-drone env's baselines and trained agent on held-out missions.
 
-Every policy plays the same held-out missions of ``iscc_gym/ISCC-Multi-v0`` with K drones (common
-random numbers; seeds from :data:`SEED_START`): the scripted baselines of
-:mod:`iscc_gym.agents.multi` (``equal-sca``: 1/K of the band per drone with per-slot Algorithm 1
-inside; ``joint-sca``: Algorithm 1's problem over all drones; ``margin``: the tuned rule per drone,
-renormalised) and the trained agent of ``agents/trained/multi/k<K>`` (``python -m train.multi``) or
-``--agent PATH``. The table gives mean and 95 % CI per policy and paired differences against
-``joint-sca`` and of the agent against every other policy. ``--k-scan 2,4,8`` repeats the comparison
-per K and reports how the agent's advantage changes with it. ``python -m eval --env
-iscc_gym/ISCC-Multi-v0 ...`` runs this command.
+Every policy plays the same held-out missions of ``iscc_gym/ISCC-Multi-v0`` with K drones (common random
+numbers; seeds from :data:`SEED_START`): the scripted baselines of :mod:`iscc_gym.agents.multi`
+(``equal-sca``: 1/K of the band per drone with per-slot Algorithm 1 inside; ``joint-sca``: Algorithm 1's
+problem over all drones; ``margin``: the tuned rule per drone, renormalised; ``margin-starved``:
+``margin`` with a tenth of its sensing, the rest to data) and the trained agent of
+``agents/trained/multi/k<K>`` (``python -m train.multi``) or ``--agent PATH``. The table gives mean and
+95 % CI per policy and paired differences against ``joint-sca`` and of the agent against every other
+policy. ``--k-scan 2,4,8`` repeats the comparison per K, with a summary of every policy's reward,
+tracking error and PEB against K, and reports how the agent's advantage changes with it. ``python -m
+eval --env iscc_gym/ISCC-Multi-v0 ...`` runs this command.
 
 Example::
 
@@ -22,19 +23,23 @@ import sys
 from pathlib import Path
 
 from iscc_gym.agents.sb3_policy import LAGRANGE_FILE
-from iscc_gym.eval.evaluate import Entry, evaluate, markdown_table
+from iscc_gym.eval.evaluate import Entry, ci_cell, evaluate, markdown_table
 from iscc_gym.eval.options import Parser, check_writable_file, nonneg_int, positive_int, run_console
 
 from iscc_gym.docs import RESULTS_PATH, docs_path, write_section
 from iscc_gym.multi import N_DRONES, check_n_drones, drone_scenario
 from iscc_gym.scenario import make_scenario
 
-__all__ = ["SEED_START", "DEFAULT_POLICIES", "agent_dir", "compare", "main"]
+__all__ = ["SEED_START", "DEFAULT_POLICIES", "agent_dir", "compare", "scan_table", "main"]
 
 #: First held-out mission of this command (inside the evaluation range, apart from the others).
 SEED_START = 1_400_000
-#: The scripted baselines played by default.
-DEFAULT_POLICIES = "equal-sca,joint-sca,margin"
+#: The scripted baselines played by default (``margin-starved``: ``margin`` with a tenth of its sensing,
+#: the rest to data, the policy that buys rate with the radar; issue 23).
+DEFAULT_POLICIES = "equal-sca,joint-sca,margin,margin-starved"
+#: The columns of the K-scan's summary (:func:`scan_table`): metric, title, format.
+SCAN_COLUMNS = (("reward", "episode reward ↑", "{:.1f}"), ("tracking_error_m", "tracking error (m) ↓", "{:.4f}"),
+                ("peb_m", "PEB (m) ↓", "{:.4f}"), ("alpha_sen", "sensing share", "{:.3f}"))
 #: The reference of the paired differences.
 REFERENCE = "joint-sca"
 
@@ -93,6 +98,19 @@ def _advantage_line(k: int, res: dict) -> str:
     return f"| {k} | " + "; ".join(cells) + " |"
 
 
+def scan_table(out: dict) -> str:
+    """The K-scan's summary: every policy's episode reward, tracking error, PEB and mean sensing share per K
+    (``out``: the comparison of each K, :func:`compare`), mean ±half-width of the 95 % CI.
+    """
+    lines = ["| K | policy | " + " | ".join(title for _, title, _ in SCAN_COLUMNS) + " |",
+             "|--:|---|" + "--:|" * len(SCAN_COLUMNS)]
+    for k, res in out.items():
+        for name, p in res["policies"].items():
+            cells = [ci_cell(p[f"{m}_mean"], p[f"{m}_ci95"], fmt) for m, _, fmt in SCAN_COLUMNS]
+            lines.append(f"| {k} | {name} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 def build_parser(prog: str = "python -m eval.multi") -> Parser:
     ap = Parser(prog=prog, description=__doc__.split("\n\n")[0])
     ap.add_argument("--n-drones", type=positive_int, default=N_DRONES, help=f"drones per env (default: {N_DRONES})")
@@ -146,6 +164,10 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.multi") -> d
         text = markdown_table(res, command).replace(" --write-docs`", "`", 1)
         print(f"\n{k} drones{' (agent: ' + agents[k] + ')' if agents[k] else ''}:\n{text}")
         sections.append(f"### {k} drones\n\n" + text)
+    if len(ks) > 1:
+        summary = scan_table(out)
+        print("\n" + summary)
+        sections.insert(0, "### Reward, tracking error and PEB against K\n\n" + summary)
     if len(ks) > 1 and any(agents.values()):
         scan = ["| K | trained agent minus each baseline (paired, 95 % CI) |", "|---|---|"]
         scan += [_advantage_line(k, out[k]) for k in ks if agents[k]]

@@ -103,7 +103,7 @@ def test_the_commands_train_and_compare_on_tiny_budgets(tmp_path, monkeypatch, c
     assert summary["warm_start"]["policy"] == "margin"  # the multi-drone margin rule cloned first
     res = EM.main(["--n-drones", "2", "--episodes", "2", "--max-steps", "40", "--agent", str(agent)])
     r = res["results"]["2"]
-    assert set(r["policies"]) == {"ppo", "equal-sca", "joint-sca", "margin"}
+    assert set(r["policies"]) == {"ppo", "equal-sca", "joint-sca", "margin", "margin-starved"}
     assert "ppo_vs_margin" in r["focus_paired"] and "margin_vs_joint-sca" in r["paired"]
     out = eval_main(["--env", "iscc_gym/ISCC-Multi-v0", "--n-drones", "2", "--episodes", "2", "--max-steps", "20",
                      "--agent", "none", "--policies", "margin"])
@@ -112,6 +112,14 @@ def test_the_commands_train_and_compare_on_tiny_budgets(tmp_path, monkeypatch, c
         EM.main(["--n-drones", "2", "--agent", str(agent), "--episodes", "1", "--max-steps", "5", "--k-scan", "3"])
     with pytest.raises(ValueError, match="unknown"):
         EM.main(["--policies", "nope"])
+    capsys.readouterr()
+    scan = EM.main(["--k-scan", "1,2", "--episodes", "1", "--max-steps", "5", "--agent", "none",
+                    "--policies", "margin"])
+    text = capsys.readouterr().out
+    assert "| K | policy | episode reward ↑ | tracking error (m) ↓ | PEB (m) ↓ | sensing share |" in text
+    for k in ("1", "2"):  # one row per K and policy, with the comparison's own figures
+        p = scan["results"][k]["policies"]["margin"]
+        assert f"| {k} | margin | {p['reward_mean']:.1f} " in text and f" {p['peb_m_mean']:.4f} " in text
 
 
 def test_the_constrained_multi_drone_agent_is_trained_shipped_and_reported_as_ppo_lag(tmp_path, monkeypatch):

@@ -146,9 +146,12 @@ def test_a_non_empty_out_is_refused_without_resume_or_overwrite(run_256, tmp_pat
         main(_args(out))
     with pytest.raises(ValueError, match="use one"):
         main(_args(out, resume=True, overwrite=True))
-    # --overwrite starts afresh: no checkpoint of the old run, no stale statistics after --no-normalize
+    # --overwrite starts afresh: no checkpoint of the old run, no stale statistics after --no-normalize, no
+    # best/ left aside by a kill during its replacement
+    (out / ".best.1.a.tmp").mkdir()
     main(_args(out, normalize=False, overwrite=True, checkpoint_freq=0, eval_freq=0))
     assert not (out / "vecnormalize.pkl").exists() and not (out / "checkpoints").exists()
+    assert not (out / ".best.1.a.tmp").exists()
     assert not (out / "best").exists() and SB3Policy.load(out).vecnormalize is None
     # a directory that is not a run is never emptied (e.g. --out . in the repository)
     other = tmp_path / "project"

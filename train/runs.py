@@ -258,7 +258,9 @@ def _prepare_out(args: Args, hyperparams: dict | None = None) -> tuple[Path | No
         if not _is_run_dir(out):
             raise FileExistsError(f"--overwrite: {out} holds no run of python -m train (no config.yml or "
                                   f"{MANIFEST} of one); nothing deleted: choose another --out")
-        for name in RUN_FILES:
+        # and what a killed replace_unit of best/ left beside it
+        leftovers = [q.name for q in out.glob(".best.*") if q.name.endswith((".tmp", ".old"))]
+        for name in (*RUN_FILES, *leftovers):
             p = out / name
             if p.is_dir() and not p.is_symlink():
                 shutil.rmtree(p)

@@ -360,27 +360,25 @@ def markdown_table(res: dict, command: str) -> str:
     return "\n".join(lines)
 
 
-def _verdict(d: dict, metric: str = "reward") -> str:
-    """``ahead by X`` / ``behind by X`` with whether the paired 95 % interval excludes zero."""
-    m, (lo, hi) = d[f"{metric}_diff_mean"], d[f"{metric}_diff_ci95"]
-    word = "ahead of" if m > 0 else "behind"
-    sure = "the paired interval excludes zero" if lo > 0 or hi < 0 else "the paired interval includes zero"
-    return f"{word} by {abs(m):.1f} ±{(hi - lo) / 2:.1f} ({sure})"
+def _verdict(pair: str, d: dict, metric: str = "episode_reward") -> str:
+    """``A is ahead of B by X ±h`` (or behind) for the pair ``A_vs_B``, with whether the paired 95 % interval
+    excludes zero.
+    """
+    a, b = _pair_name(pair).split(" vs ", 1)
+    m, h = d[f"{metric}_diff_mean"], d[f"{metric}_diff_ci95"]
+    sure = "excludes" if abs(m) > h else "includes"
+    return f"{a} is {'ahead of' if m > 0 else 'behind'} {b} by {abs(m):.1f} ±{h:.1f} (the interval {sure} zero)"
 
 
 def reading_sentences(res: dict) -> str:
     """The comparison's figures in words, generated with the tables so prose and table cannot disagree: each
     policy's paired reward difference against the reference and, for the focus policy, against every other.
     """
-    out = []
-    ref = res.get("reference")
-    if res.get("paired"):
-        parts = [f"{_pair_name(pair).split(' vs ')[0]} {_verdict(d)}" for pair, d in res["paired"].items()]
-        out.append(f"In reward per mission against {ref}: " + "; ".join(parts) + ".")
-    if res.get("focus_paired"):
-        focus = res["focus"]
-        parts = [f"{_verdict(d)} {_pair_name(pair).split(' vs ', 1)[1]}" for pair, d in res["focus_paired"].items()
-                 if _pair_name(pair).split(" vs ", 1)[1] != ref]
-        if parts:
-            out.append(f"{focus} is " + "; ".join(parts) + ".")
+    pairs = dict(res.get("paired") or {})
+    pairs.update({p: d for p, d in (res.get("focus_paired") or {}).items()
+                  if _pair_name(p).split(" vs ", 1)[1] != res.get("reference")})
+    if not pairs:
+        return ""
+    out = ["In episode reward per mission (paired 95 % intervals):"]
+    out.append("; ".join(_verdict(p, d) for p, d in pairs.items()) + ".")
     return " ".join(out)

@@ -360,14 +360,15 @@ def markdown_table(res: dict, command: str) -> str:
     return "\n".join(lines)
 
 
-def _verdict(pair: str, d: dict, metric: str = "episode_reward") -> str:
-    """``A is ahead of B by X ±h`` (or behind) for the pair ``A_vs_B``, with whether the paired 95 % interval
-    excludes zero.
+def _verdict(pair: str, d: dict, metric: str = "reward") -> str:
+    """``A is ahead of B by X ±h`` (or behind) for the pair ``A_vs_B`` (``h`` the half-width of the paired 95 %
+    interval ``(low, high)``), with whether the interval excludes zero.
     """
     a, b = _pair_name(pair).split(" vs ", 1)
-    m, h = d[f"{metric}_diff_mean"], d[f"{metric}_diff_ci95"]
-    sure = "excludes" if abs(m) > h else "includes"
-    return f"{a} is {'ahead of' if m > 0 else 'behind'} {b} by {abs(m):.1f} ±{h:.1f} (the interval {sure} zero)"
+    m, (lo, hi) = d[f"{metric}_diff_mean"], d[f"{metric}_diff_ci95"]
+    sure = "excludes" if lo > 0 or hi < 0 else "includes"
+    return (f"{a} is {'ahead of' if m > 0 else 'behind'} {b} by {abs(m):.1f} ±{(hi - lo) / 2:.1f} "
+            f"(the interval {sure} zero)")
 
 
 def reading_sentences(res: dict) -> str:

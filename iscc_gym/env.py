@@ -418,6 +418,8 @@ class ISCCEnv(gym.Env):
                           else None)
         self._human_every = max(1, round(1.0 / self.scenario.dt_s))  # human mode: a line per simulated second
         self._last_info: dict = {}
+        self._printed: tuple = ()  # human mode: the (episode, slot) last printed
+        self._episodes = 0  # resets so far
 
     # --- Gymnasium API -------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict | None = None):
@@ -429,6 +431,7 @@ class ISCCEnv(gym.Env):
         # a batch of one: bit-identical to the same drone in any batch (the vector env)
         self._state = loop.init_state(s, [ref], [self.np_random])
         self._last_received, self._last_peb = True, 0.0
+        self._episodes += 1
         if self._renderer is not None:
             self._renderer.reset(self._state.ref[0], self._state.x[0])
         info = self._reset_info()
@@ -484,16 +487,20 @@ class ISCCEnv(gym.Env):
         return obs[0], reward, terminated == 1.0, truncated == 1.0, info
 
     def render(self):
-        """``rgb_array``: the frame (:mod:`iscc_gym.render`). ``human``: print the current status line to
-        stdout (the env also prints it itself at reset, once per simulated second and at the episode's
-        end, so it works headless, e.g. under ``python -m rl_zoo3.enjoy``); returns None.
+        """``rgb_array``: the frame (:mod:`iscc_gym.render`). ``human``: print the current slot's status
+        line to stdout, once per slot (the env also prints it itself at reset, once per simulated second
+        and at the episode's end, so it works headless, e.g. under ``python -m rl_zoo3.enjoy``, which
+        calls ``render()`` after every step); returns None.
         """
         if self.render_mode is None:
             return None
         if self._state is None:
             raise RuntimeError("render() called before reset()")
         if self.render_mode == "human":
-            print(self._status_line(), flush=True)
+            key = (self._episodes, int(self._state.n[0]))
+            if key != self._printed:  # one line per slot, however often render() is called
+                self._printed = key
+                print(self._status_line(), flush=True)
             return None
         return self._renderer.frame()
 

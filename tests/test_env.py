@@ -992,3 +992,86 @@ def test_action_to_split_matches_the_numpy_oracle_bit_for_bit():
     np.testing.assert_array_equal(action_to_split(a[1, 3]), oracle_env.action_to_split(a[1, 3]))
     with pytest.raises(ValueError, match="shape"):
         action_to_split(np.zeros(4))
+
+
+# --- issue 23: the clients' API (item 4) and defect 14 ---------------------------------------------
+
+
+@pytest.mark.parametrize("env_id", [ENV_ID, iscc_gym.MULTI_ENV_ID])
+def test_unknown_keyword_has_pythons_own_typeerror_wording(env_id):
+    """TorchRL's GymEnv passes frameskip=1 and retries without it only on Python's standard wording."""
+    cls = "ISCCEnv" if env_id == ENV_ID else "ISCCMultiEnv"
+    with pytest.raises(TypeError, match=rf"^{cls}\.__init__\(\) got an unexpected keyword argument 'frameskip'; "
+                                        r"it takes .*Scenario fields"):
+        gym.make(env_id, frameskip=1)
+    with pytest.raises(TypeError, match=r"unexpected keyword argument 'sceanrio' \(did you mean 'scenario'\?\)"):
+        gym.make(env_id, sceanrio="paper")
+
+
+def test_reset_info_carries_the_step_info_keys():
+    """Reset and step infos have the same keys and types (TorchRL and others build specs from the reset
+    info): the initial tracking error, zero costs, NaN slot outcomes, no action yet."""
+    env = make()
+    _, info = env.reset(seed=3)
+    _, _, _, _, step_info = env.step(np.zeros(3, np.float32))
+    assert set(info) == set(step_info)
+    for key, val in info.items():
+        assert type(val) is type(step_info[key]), key
+        assert np.shape(val) == np.shape(step_info[key]) and np.asarray(val).dtype == np.asarray(step_info[key]).dtype
+    st = env.unwrapped._state
+    assert info["slot"] == 0 and info["cost"] == info["cost_rate"] == info["cost_stability"] == 0.0
+    assert info["packet_received"] is True
+    # the true initial error, recomputed from the env's state after a fresh reset with the same seed
+    env.reset(seed=3)
+    st = env.unwrapped._state
+    assert info["tracking_error_m"] == float(np.linalg.norm(st.x[0, :3] - st.ref[0, 0, :3]))
+    for key in ("snr_db", "snr_large_scale_db", "peb_m", "veb_mps", "eps_ctrl", "rate_comm_bps", "rate_ctrl_bps",
+                "estimation_error_m"):
+        assert math.isnan(info[key]), key
+    assert np.isnan(info["action"]).all()
+
+
+def test_multi_env_reset_info_carries_the_step_info_keys():
+    env = gym.make(iscc_gym.MULTI_ENV_ID, n_drones=3)
+    _, info = env.reset(seed=1)
+    _, _, _, _, step_info = env.step(np.zeros(9, np.float32))
+    assert set(info) - {"drone_seeds"} == set(step_info)
+    for key in step_info:
+        assert np.shape(info[key]) == np.shape(step_info[key]), key
+    assert info["cost"] == 0.0 and info["slot"] == 0 and info["tracking_error_m"].shape == (3,)
+    assert info["mean_tracking_error_m"] == pytest.approx(info["tracking_error_m"].mean())
+
+
+@pytest.mark.parametrize("env_id", [ENV_ID, iscc_gym.MULTI_ENV_ID])
+@pytest.mark.parametrize("bad", ["complex", "complex_list", "complex64"])
+def test_complex_action_is_refused_and_changes_nothing(env_id, bad):
+    """Defect 14: numpy dropped the imaginary part of a complex action (with only a ComplexWarning)."""
+    env = gym.make(env_id).unwrapped
+    env.reset(seed=0)
+    n = env.action_space.shape[0]
+    action = {"complex": np.full(n, 0.2 + 0.1j), "complex_list": [0.5j] + [0.0] * (n - 1),
+              "complex64": np.zeros(n, np.complex64)}[bad]
+    before = env._state
+    with pytest.raises(TypeError, match="action has complex dtype complex"):
+        env.step(action)
+    assert env._state is before
+    env.step(np.zeros(n, np.float32))  # and the env steps on
+
+
+def test_human_render_mode_prints_a_status_line_headless(capsys):
+    """rl_zoo3.enjoy renders in "human" mode: a status line at reset, once per simulated second, at the
+    episode's end, and at most once per slot however often render() is called."""
+    env = make(render_mode="human", max_episode_steps=25)
+    env.reset(seed=0)
+    env.render()  # the reset line is already printed
+    lines = capsys.readouterr().out.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("ISCC t=    0.0 s  slot     0  tracking error")
+    for _ in range(25):
+        env.step(np.zeros(3, np.float32))
+    lines = capsys.readouterr().out.splitlines()
+    assert [ln.split()[5] for ln in lines] == ["10", "20"]  # slots 10 and 20 (TimeLimit ends at 25)
+    env.render()
+    env.render()
+    lines = capsys.readouterr().out.splitlines()
+    assert len(lines) == 1 and " slot    25 " in lines[0] and "PEB" in lines[0]
+    assert env.render() is None

@@ -240,3 +240,95 @@ def test_positions_are_the_true_and_reference_positions_behind_the_tracking_erro
     assert pos.shape == ref.shape == (3, 3)
     np.testing.assert_allclose(np.linalg.norm(pos - ref, axis=1), info["tracking_error_m"], rtol=1e-9)
     assert venv.positions(2)[0].shape == (2, 3)
+
+
+# --- issue 23: the clients' API (item 4) and defects 14, 15 -----------------------------------------
+
+
+@pytest.mark.parametrize("n_drones", [None, 2])
+def test_reset_info_carries_the_step_info_keys(n_drones):
+    kw = {} if n_drones is None else {"n_drones": n_drones}
+    venv = ISCCVectorEnv(num_envs=3, **kw)
+    _, info = venv.reset(seed=5)
+    k = 3 * (n_drones or 1)
+    _, _, _, _, step_info = venv.step(np.zeros((3, k), np.float32))
+    assert set(info) == set(step_info)
+    for key, val in info.items():
+        assert np.shape(val) == np.shape(step_info[key]), key
+        assert np.asarray(val).dtype.kind == np.asarray(step_info[key]).dtype.kind, key
+        if key.startswith("_"):
+            assert val.all(), key
+    assert (info["slot"] == 0).all() and (info["cost"] == 0.0).all() and np.isnan(info["peb_m"]).all()
+    assert np.all(info["tracking_error_m"] > 0.0)
+    if n_drones is None:  # sub-env i: the single env's reset info with seed 5 + i
+        for i in range(3):
+            _, single = gym.make("iscc_gym/ISCC-v0").reset(seed=5 + i)
+            assert info["tracking_error_m"][i] == single["tracking_error_m"]
+    # a partial reset: values for the reset sub-env only, the others masked off
+    _, info = venv.reset(options={"reset_mask": np.array([False, True, False])})
+    assert info["_tracking_error_m"].tolist() == [False, True, False] and info["slot"][1] == 0
+
+
+@pytest.mark.parametrize("n_drones", [None, 2])
+def test_complex_actions_are_refused(n_drones):
+    kw = {} if n_drones is None else {"n_drones": n_drones}
+    venv = ISCCVectorEnv(num_envs=2, **kw)
+    venv.reset(seed=0)
+    before = venv._state
+    a = np.zeros((2, 3 * (n_drones or 1)), np.complex128)
+    with pytest.raises(TypeError, match="actions has complex dtype complex128"):
+        venv.step(a)
+    assert venv._state is before
+
+
+@pytest.mark.parametrize("kwargs, error, match", [
+    ({"max_episode_steps": 2.5}, TypeError, r"max_episode_steps = 2.5 \(float\); use an integer >= 1 or None"),
+    ({"max_episode_steps": "10"}, TypeError, r"max_episode_steps = '10' \(str\)"),
+    ({"max_episode_steps": float("nan")}, TypeError, r"max_episode_steps = nan \(float\)"),
+    ({"max_episode_steps": True}, TypeError, r"max_episode_steps = True \(bool\)"),
+    ({"max_episode_steps": 0}, ValueError, r"max_episode_steps = 0; use an integer >= 1"),
+    ({"num_envs": True}, TypeError, r"num_envs = True \(bool\); use an integer >= 1"),
+    ({"num_envs": 2.0}, TypeError, r"num_envs = 2.0 \(float\)"),
+    ({"num_envs": 0}, ValueError, r"num_envs = 0; use an integer >= 1"),
+])
+def test_counts_are_validated_with_errors_naming_them(kwargs, error, match):
+    """Defect 15: max_episode_steps=2.5 became 2, '10' and NaN gave unclear errors, num_envs=True was 1."""
+    with pytest.raises(error, match=match):
+        ISCCVectorEnv(**{"num_envs": 2, **kwargs})
+    if "max_episode_steps" in kwargs:  # the same through gymnasium.make_vec
+        with pytest.raises(error, match=match):
+            _make_vec(2, **kwargs)
+    assert ISCCVectorEnv(num_envs=np.int64(2), max_episode_steps=np.int32(7)).max_steps == 7
+
+
+def test_unknown_keyword_has_pythons_own_typeerror_wording():
+    with pytest.raises(TypeError, match=r"^ISCCVectorEnv\.__init__\(\) got an unexpected keyword argument "
+                                        r"'frameskip'; it takes num_envs, "):
+        ISCCVectorEnv(num_envs=2, frameskip=1)
+
+
+@pytest.mark.parametrize("mode", [gym.vector.AutoresetMode.SAME_STEP, "SameStep", "SAME_STEP", "same_step"])
+def test_autoreset_mode_as_gymnasium_passes_it(mode):
+    """A keyword of make_vec for the vector entry point; Gymnasium's own sync/async vector envs take it in
+    vector_kwargs. Gymnasium (1.1-1.4) refuses vector_kwargs for a vector entry point itself: if a
+    later Gymnasium passes them on, the env must honour them."""
+    venv = _make_vec(2, autoreset_mode=mode)
+    assert venv.autoreset_mode == venv.metadata["autoreset_mode"] == gym.vector.AutoresetMode.SAME_STEP
+    sync = gym.make_vec("iscc_gym/ISCC-v0", num_envs=2, vectorization_mode="sync",
+                        vector_kwargs={"autoreset_mode": gym.vector.AutoresetMode.SAME_STEP})
+    assert sync.metadata["autoreset_mode"] == gym.vector.AutoresetMode.SAME_STEP
+    try:
+        venv = gym.make_vec("iscc_gym/ISCC-v0", num_envs=2, vectorization_mode="vector_entry_point",
+                            vector_kwargs={"autoreset_mode": gym.vector.AutoresetMode.SAME_STEP})
+    except gym.error.Error as e:
+        assert "vector_kwargs" in str(e)  # Gymnasium's refusal, before our entry point is called
+    else:
+        assert venv.autoreset_mode == gym.vector.AutoresetMode.SAME_STEP
+
+
+def test_same_step_autoreset_ends_and_restarts_in_one_step():
+    venv = _make_vec(2, autoreset_mode="SAME_STEP", max_episode_steps=3)
+    venv.reset(seed=0)
+    for _ in range(3):
+        obs, _, term, trunc, info = venv.step(np.zeros((2, 3), np.float32))
+    assert trunc.all() and info["_final_obs"].all() and (venv._slots() == 0).all()

@@ -93,3 +93,45 @@ def test_vector_env_in_any_order_with_gymnasium_vector_wrappers():
 def test_bad_input_is_a_clear_error():
     with pytest.raises(TypeError, match="gymnasium.Env or VectorEnv"):
         SafetyCostWrapper(object())
+
+
+# --- issue 23 defects 12 and 13 ---------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("how", ["deepcopy", "pickle"])
+def test_wrapper_can_be_deep_copied_and_pickled(how):
+    """Defect 12: ``__new__(cls, env)`` needed ``env``, which copy and pickle do not pass."""
+    import copy
+    import pickle
+
+    env = SafetyCostWrapper(gym.make(iscc_gym.ENV_ID))
+    env.reset(seed=2)
+    env.step(np.zeros(3, np.float32))
+    clone = copy.deepcopy(env) if how == "deepcopy" else pickle.loads(pickle.dumps(env))
+    assert type(clone) is SafetyCostWrapper
+    for a in _actions(3, (3,)):
+        out, out_clone = env.step(a), clone.step(a)
+        assert len(out_clone) == 6
+        assert out_clone[1] == out[1] and out_clone[2] == out[2]  # the copy continues the same episode
+        np.testing.assert_array_equal(out_clone[0], out[0])
+
+
+@pytest.mark.parametrize("mode", ["sync", "async"])
+def test_wrapper_inside_gymnasium_vector_envs(mode):
+    """Defect 13: as a sub-env of SyncVectorEnv / AsyncVectorEnv it returned the 6-tuple ("too many values
+    to unpack"); they get the 5-tuple, and SafetyCostWrapper around the vector env gives the cost array."""
+    venv = gym.make_vec(iscc_gym.ENV_ID, num_envs=2, vectorization_mode=mode, wrappers=[SafetyCostWrapper])
+    try:
+        venv.reset(seed=[1, 2])
+        plain = gym.make_vec(iscc_gym.ENV_ID, num_envs=2, vectorization_mode="vector_entry_point")
+        plain.reset(seed=[1, 2])
+        safe = SafetyCostWrapper(venv)
+        for a in _actions(3, (2, 3)):
+            obs, rew, cost, term, trunc, info = safe.step(a)
+            pobs, prew, *_, pinfo = plain.step(a)
+            np.testing.assert_array_equal(cost, pinfo["cost"])
+            np.testing.assert_array_equal(obs, pobs)
+        out = venv.step(_actions(1, (2, 3))[0])
+        assert len(out) == 5
+    finally:
+        venv.close()

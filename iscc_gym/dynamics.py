@@ -83,6 +83,12 @@ def lqr_gain(a: ArrayLike, b: ArrayLike, q: ArrayLike, r: ArrayLike):
     return np.asarray(k, dtype=float), np.asarray(p, dtype=float)
 
 
+def _weights_message(s: Scenario, what: str) -> str:
+    return (f"Scenario.lqg_q_pos = {s.lqg_q_pos!r}, lqg_q_vel = {s.lqg_q_vel!r}, lqg_r = {s.lqg_r!r} (dt_s = "
+            f"{s.dt_s!r}) give no LQG feedback gain: {what}; bring the weights closer together (Table I: "
+            f"lqg_q_pos = 1e4, lqg_q_vel = 1e2, lqg_r = 0.01)")
+
+
 class ModelMatrices:
     """The constant matrices of one scenario: A, B, K, P (DARE), Q, R, Sigma_omega, A - BK, and the
     constants of the slot transition (GBS antenna position, Cholesky factor of Sigma_omega, GNSS whitening).
@@ -93,9 +99,16 @@ class ModelMatrices:
     def __init__(self, s: Scenario):
         self.a, self.b = system_matrices(s.dt_s)
         self.q, self.r = lqg_weights(s)
-        self.k, self.p = lqr_gain(self.a, self.b, self.q, self.r)
+        try:
+            self.k, self.p = lqr_gain(self.a, self.b, self.q, self.r)
+        except (np.linalg.LinAlgError, ValueError, ArithmeticError) as e:  # the DARE solver's failures
+            raise ValueError(_weights_message(s, f"the DARE has no solution ({str(e).splitlines()[0]})")) from e
         self.sigma_w = process_noise_cov(s)
         self.a_cl = self.a - self.b @ self.k
+        radius = float(np.max(np.abs(np.linalg.eigvals(self.a_cl)))) if np.all(np.isfinite(self.a_cl)) else np.inf
+        if not radius < 1.0:
+            raise ValueError(_weights_message(s, f"the LQ gain does not stabilise the loop (spectral radius of "
+                                                 f"A - BK = {radius:.12g})"))
         self.chol_w = np.sqrt(np.diag(self.sigma_w))
         # constants of the slot transition (loop.step)
         self.gbs_pos = np.array([0.0, 0.0, s.gbs_height_m])

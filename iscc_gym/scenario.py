@@ -5,7 +5,7 @@ states its unit in its name and its meaning in the docstring below. Variants are
 :func:`dataclasses.replace`, which re-runs the validation: every numeric field must lie in its
 physical range (``scenario_checks._RANGES``; e.g. dB values within +-100 or +-300 dB, at most 1,000,000 slots per
 mission), and the cross-field conditions below must hold (including what a reset can achieve: at
-most 1,000 expected waypoints, a coverage region filling at least 1e-3 of its bounding box). A
+most 16 waypoints, expected or required, a coverage region filling at least 1e-3 of its bounding box). A
 violation raises ``ValueError`` naming the field and its allowed range.
 
 Two presets live in :data:`SCENARIOS`:
@@ -38,7 +38,7 @@ class Scenario:
     Attributes
     ----------
     carrier_freq_ghz : float
-        Carrier frequency f_c in GHz (Table I: 2.4).
+        Carrier frequency f_c in GHz (Table I: 2.4), in [0.5, 100] (3GPP TR 38.901's range).
     bandwidth_hz : float
         System bandwidth B in Hz (Table I: 10 MHz).
     tx_power_dbm : float
@@ -167,7 +167,9 @@ class Scenario:
         Intensity of the homogeneous 3-D Poisson point process of waypoints in 1/km^3 (not given;
         15, i.e. about 9 waypoints in the 0.6 km^3 coverage region).
     min_waypoints : int
-        The PPP is conditioned on at least this many points (a spline needs a few).
+        The PPP is conditioned on at least this many points (a spline needs a few); at most 16
+        (``scenario_checks.MAX_WAYPOINTS``: through more, the spline leaves the altitude band in almost
+        every draw and a reset cannot find a trajectory).
     initial_pos_std_m : float
         Std of the initial position error (drone vs. reference start and prior estimate) in m.
     initial_vel_std_mps : float

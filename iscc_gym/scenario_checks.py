@@ -13,7 +13,8 @@ import numpy as np
 if TYPE_CHECKING:  # pragma: no cover
     from .scenario import Scenario
 
-__all__ = ["validate", "CHOICES", "MAX_SLOTS", "MAX_MEAN_WAYPOINTS", "MIN_BOX_FRACTION"]
+__all__ = ["validate", "reference_share", "CHOICES", "MAX_SLOTS", "MAX_WAYPOINTS", "MAX_MEAN_WAYPOINTS",
+           "MIN_BOX_FRACTION"]
 
 CHOICES: dict[str, tuple[str, ...]] = {
     "process_noise_reading": ("variance", "std"),
@@ -35,8 +36,11 @@ def _fail(name: str, value: Any, allowed: str) -> None:
 #: Allowed range of every numeric field: (low, high, low_open), i.e. (low, high] or [low, high]. The
 #: upper bounds are generous physical limits that keep every quantity of a slot finite and every
 #: array small; the lower bounds are what the model needs (a positive frequency, a non-negative std).
+#: The carrier frequency is held to 0.5-100 GHz, the range of 3GPP TR 38.901's channel models, whose
+#: UMa line-of-sight path loss (TR 36.777's aerial one, iscc_gym.channel) and Rician K-factor the model
+#: uses; far outside it the wavelength over- or underflows (1e-300 GHz: a 3e299 m wavelength).
 _RANGES: dict[str, tuple[float, float, bool]] = {
-    "carrier_freq_ghz": (0.0, 1e3, True),
+    "carrier_freq_ghz": (0.5, 100.0, False),
     "bandwidth_hz": (0.0, 1e11, True),
     "tx_power_dbm": (-100.0, 100.0, False),
     "gbs_height_m": (0.0, 1e5, False),
@@ -75,7 +79,7 @@ _RANGES: dict[str, tuple[float, float, bool]] = {
     "w_stab": (0.0, 1e6, False),
     "max_tracking_error_m": (0.0, 1e15, True),
     "waypoint_intensity_per_km3": (0.0, 1e6, True),
-    "min_waypoints": (2, 50, False),
+    "min_waypoints": (2, 16, False),  # MAX_WAYPOINTS
     "initial_pos_std_m": (0.0, 1e4, False),
     "initial_vel_std_mps": (0.0, 1e3, False),
     "gnss_pos_std_m": (0.0, 1e6, True),
@@ -84,8 +88,53 @@ _RANGES: dict[str, tuple[float, float, bool]] = {
 }
 #: At most this many slots per mission (the reference alone takes 72 bytes a slot per loop).
 MAX_SLOTS = 1_000_000
-#: At most this many waypoints expected per mission (intensity x coverage volume).
-MAX_MEAN_WAYPOINTS = 1000.0
+#: At most this many waypoints required per mission (``min_waypoints``), and expected (intensity x
+#: coverage volume) without a check of the region. A reset redraws the waypoints until the cubic spline
+#: through them stays inside the coverage region, and gives up after 1000 draws
+#: (``trajectory.sample_reference``); the more waypoints, the more often the spline overshoots the
+#: altitude band. Measured share of draws that stay inside with n waypoints, in the thinnest bands (the
+#: worst case: in a band much thinner than the region is wide, the share depends on n alone): n = 4:
+#: 0.61, 8: 0.25, 12: 0.10, 16: 0.045, 20: 0.02, 25: < 0.01 (paper preset: 0.63, 0.29, 0.13, 0.068,
+#: 0.025, 0.013). At 16 a reset needs ~22 draws on average and fails with probability ~1e-20; at 50
+#: (accepted before) every reset ran 1-2 minutes, then failed.
+MAX_WAYPOINTS = 16
+#: At most this many waypoints expected per mission in any region (the thickest regions keep ~2 % of
+#: their draws at 100 waypoints: a whole hemisphere 0.02, a 30-900 m band 0.0).
+MAX_MEAN_WAYPOINTS = 100.0
+#: Beyond ``MAX_WAYPOINTS`` expected, the share of references that stay in the region is estimated on
+#: this many draws (seeded, once per region) and must be at least ``MIN_REFERENCE_SHARE``: a reset then
+#: fails with probability below 1e-22 (thicker regions keep more: a 30-900 m band keeps 0.18 at 30).
+REFERENCE_SHARE_DRAWS = 64
+MIN_REFERENCE_SHARE = 0.05
+_reference_shares: dict[tuple, float] = {}
+
+
+def reference_share(s: Scenario) -> float:
+    """Share of :data:`REFERENCE_SHARE_DRAWS` seeded reference draws of ``s`` whose spline stays in the
+    coverage region (what ``trajectory.sample_reference`` accepts); cached per region and waypoint law.
+    """
+    from .trajectory import in_coverage, order_waypoints, sample_waypoints, spline_reference
+
+    key = (s.coverage_radius_m, s.altitude_min_m, s.altitude_max_m, s.waypoint_intensity_per_km3, s.min_waypoints,
+           s.mission_duration_s, s.dt_s)
+    if key not in _reference_shares:
+        rng = np.random.default_rng(0)
+        kept = sum(bool(np.all(in_coverage(s, spline_reference(s, order_waypoints(sample_waypoints(s, rng))).pos_m)))
+                   for _ in range(REFERENCE_SHARE_DRAWS))
+        if len(_reference_shares) >= 256:
+            _reference_shares.clear()
+        _reference_shares[key] = kept / REFERENCE_SHARE_DRAWS
+    return _reference_shares[key]
+
+
+#: Why a range is what it is, said after it where the bound is not plain physics.
+_WHY = {
+    "carrier_freq_ghz": "the 0.5-100 GHz range of the 3GPP TR 38.901 channel models the path loss and K-factor "
+                        "come from",
+    "min_waypoints": f"a reset redraws the waypoints until the spline through them stays in the coverage region and "
+                     f"gives up after 1000 draws; through more than {MAX_WAYPOINTS} waypoints the spline leaves a thin "
+                     f"altitude band in over 95 % of draws",
+}
 #: The coverage region must fill at least this share of its bounding box (waypoints are drawn by
 #: rejection from the box).
 MIN_BOX_FRACTION = 1e-3
@@ -115,7 +164,8 @@ def validate(s: Scenario) -> None:
         v = float(getattr(s, name))
         if not ((v > lo if lo_open else v >= lo) and v <= hi):
             what = "an integer " if name in integer else ""
-            _fail(name, getattr(s, name), what + _range_text(lo, hi, lo_open))
+            why = f" ({_WHY[name]})" if name in _WHY else ""
+            _fail(name, getattr(s, name), what + _range_text(lo, hi, lo_open) + why)
     for name, choices in CHOICES.items():
         if getattr(s, name) not in choices:
             _fail(name, getattr(s, name), f"one of {list(choices)}")
@@ -157,13 +207,21 @@ def validate(s: Scenario) -> None:
     if mean > MAX_MEAN_WAYPOINTS:
         _fail("waypoint_intensity_per_km3", s.waypoint_intensity_per_km3,
               f"at most {MAX_MEAN_WAYPOINTS:g} expected waypoints per mission (this coverage region of "
-              f"{coverage_volume_km3(s):.4g} km^3 expects {mean:.4g}); lower it or coverage_radius_m")
+              f"{coverage_volume_km3(s):.4g} km^3 expects {mean:.4g}: the spline through more leaves any region "
+              f"in almost every draw); lower it or coverage_radius_m")
     frac = coverage_box_fraction(s)
     if frac < MIN_BOX_FRACTION:
         _fail("altitude_min_m", s.altitude_min_m,
               f"low enough below coverage_radius_m = {s.coverage_radius_m} for the coverage region to fill at "
               f"least {MIN_BOX_FRACTION:g} of its bounding box (it fills {frac:.3g}): lower altitude_min_m or "
               f"altitude_max_m, or enlarge coverage_radius_m")
+    if mean > MAX_WAYPOINTS and (share := reference_share(s)) < MIN_REFERENCE_SHARE:
+        _fail("waypoint_intensity_per_km3", s.waypoint_intensity_per_km3,
+              f"low enough for a reset to find a reference: this coverage region expects {mean:.4g} waypoints, "
+              f"and the spline through them stays in the region in {round(share * REFERENCE_SHARE_DRAWS)} of "
+              f"{REFERENCE_SHARE_DRAWS} seeded draws (a share of at least {MIN_REFERENCE_SHARE:g} needed; a reset "
+              f"gives up after 1000 draws); lower it, "
+              f"or widen the altitude band (altitude_min_m, altitude_max_m)")
     if s.lqg_q_pos == 0.0:
         # (A, Q^{1/2}) must be detectable for the LQG gain to stabilise: position weight > 0.
         _fail("lqg_q_pos", s.lqg_q_pos, "> 0 (with zero position weight the LQR leaves the "

@@ -71,7 +71,7 @@ def test_resume_skips_an_incomplete_newest_checkpoint(run_256, tmp_path, damage,
     assert ckpt.name == "step_128" and manifest["timesteps"] == 128 and len(skipped) == 1
     summary = main(_args(out, total_timesteps=384, resume=True))
     assert summary["resumed_from"].endswith("step_128") and summary["timesteps"] == 384
-    assert "skipped an incomplete checkpoint" in capsys.readouterr().out
+    assert "resume skipped an incomplete checkpoint" in capsys.readouterr().err
 
 
 def test_an_interrupted_save_leaves_no_partial_file_and_the_old_unit_whole(run_256, tmp_path):

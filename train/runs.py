@@ -10,6 +10,7 @@ import math
 import os
 import re
 import shutil
+import sys
 import uuid
 import zipfile
 from pathlib import Path
@@ -228,7 +229,7 @@ def _prepare_out(args: Args, hyperparams: dict | None = None) -> tuple[Path | No
     if args.resume:
         ckpt, manifest, skipped = latest_checkpoint(out / "checkpoints")
         for why in skipped:
-            print(f"resume: skipped an incomplete checkpoint: {why}")
+            print(f"train: warning: resume skipped an incomplete checkpoint: {why}", file=sys.stderr, flush=True)
         if ckpt is None:
             older = " (model_<N>_steps.zip files of an older python -m train carry no manifest: retrain)" if list(
                 (out / "checkpoints").glob("model_*_steps.zip")) else ""

@@ -393,7 +393,12 @@ def _load_model(algo_cls, path: Path, **kw):
         raise ValueError(f"{path}: not a model python -m train can resume ({type(e).__name__}: {e})") from None
 
 
-def _resume(args: Args, out: Path, ckpt: Path | None, manifest: dict | None, say) -> dict:
+def _warn(text: str) -> None:
+    """A line on stderr that ``quiet`` does not silence (what a resume could not keep)."""
+    print(f"train: warning: {text}", file=sys.stderr, flush=True)
+
+
+def _resume(args: Args, out: Path, ckpt: Path | None, manifest: dict | None, say=_warn) -> dict:
     """What a run continues: for a new run nothing; for a resumed one its checkpoint's
     :data:`~train.runs.RESUME_FILE` (an older checkpoint without one: ``out``'s evaluations, learning curve
     and ``lagrange.yml``), the best score of ``out/best`` (after :func:`recover_unit`), and, for a
@@ -478,7 +483,7 @@ def main(args: Args, callback_after_eval=None) -> dict:
     ckpt, manifest = _prepare_out(args, hp)
     identity = run_identity(args, hp)
     out = Path(args.out)
-    resumed = _resume(args, out, ckpt, manifest, say)
+    resumed = _resume(args, out, ckpt, manifest)
     say((f"resuming {out} from {ckpt} (step {int(manifest['timesteps']):,})" if ckpt is not None else
          f"setting up {args.algo} on {args.env_id} into {out}")
         + f": {args.total_timesteps:,} steps on {args.n_envs} envs ({args.vec_env})")

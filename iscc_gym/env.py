@@ -387,6 +387,9 @@ class ISCCEnv(gym.Env):
       reset from ``np_random``, then :func:`iscc_gym.noise.slot_normals` (key, slot). (Before the
       first release they were drawn from ``np_random`` itself, in blocks of 64 slots, so seeded
       episodes of earlier development versions differ.)
+    * v0, issue 23 (no change to dynamics or rewards): the reset ``info`` carries a step's keys,
+      ``render_mode="human"`` (a status line on stdout), Python's own ``TypeError`` wording for an
+      unknown keyword, complex actions refused.
 
     ## Example
 

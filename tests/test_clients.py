@@ -10,6 +10,7 @@ library: they pin our side of the API the clients rely on.
 
 from __future__ import annotations
 
+import multiprocessing
 import os
 import subprocess
 import sys
@@ -24,6 +25,15 @@ from iscc_gym import ENV_ID
 #: the id form that needs no ``import iscc_gym`` (Gymnasium imports the module before the lookup)
 PREFIXED_ID = "iscc_gym:" + ENV_ID
 SAME_STEP = gym.vector.AutoresetMode.SAME_STEP
+
+
+@pytest.fixture(autouse=True)
+def _keep_the_multiprocessing_start_method():
+    """Importing torchrl sets the global start method to "spawn", which would make every later test that
+    starts worker processes (eval's, AsyncVectorEnv's) re-import the project in each worker: put it back."""
+    before = multiprocessing.get_start_method(allow_none=True)
+    yield
+    multiprocessing.set_start_method(before, force=True)
 
 
 def _pz(n_drones=2):

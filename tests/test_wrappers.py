@@ -135,3 +135,14 @@ def test_wrapper_inside_gymnasium_vector_envs(mode):
         assert len(out) == 5
     finally:
         venv.close()
+
+
+def test_wrapper_inside_sb3_dummy_vec_env():
+    """SB3's DummyVecEnv steps its sub-envs expecting Gymnasium's 5-tuple (the cost stays in info)."""
+    vec_env = pytest.importorskip("stable_baselines3.common.vec_env")
+    venv = vec_env.DummyVecEnv([lambda: SafetyCostWrapper(gym.make(iscc_gym.ENV_ID))] * 2)
+    venv.seed(0)
+    venv.reset()
+    for a in _actions(3, (2, 3)):
+        obs, rew, done, infos = venv.step(a)
+        assert obs.shape == (2, 23) and all("cost" in i for i in infos)

@@ -28,7 +28,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-__all__ = ["write_atomic", "atomic_target", "destination"]
+__all__ = ["write_atomic", "atomic_target", "destination", "create_exclusive"]
 
 #: A path naming an open descriptor of a process: ``/proc/self/fd/N``, ``/proc/<pid>/fd/N``,
 #: ``/proc/thread-self/fd/N`` or ``/proc/<pid>/task/<tid>/fd/N``.
@@ -144,3 +144,25 @@ def write_atomic(path: str | os.PathLike, text: str) -> Path:
     with atomic_target(path) as tmp:
         tmp.write_text(text)
     return Path(path)
+
+
+def create_exclusive(path: str | os.PathLike, text: str) -> bool:
+    """Create ``path`` holding ``text`` unless it exists, atomically: whole or not at all, and of two
+    processes creating it at once exactly one succeeds (a hard link of a finished temporary file).
+
+    Returns
+    -------
+    bool
+        True if this call created it, False if ``path`` existed (it is left as it was).
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp")
+    try:
+        tmp.write_text(text)
+        os.link(tmp, path)
+        return True
+    except FileExistsError:
+        return False
+    finally:
+        tmp.unlink(missing_ok=True)

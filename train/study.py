@@ -20,8 +20,19 @@ Storage (``--storage``): omitted, ``sqlite:///OUT/study.db``; otherwise any SQLA
 ``RDBStorage`` takes (``sqlite:///PATH``, ``postgresql://USER:PASS@HOST[:PORT]/DB``,
 ``mysql+pymysql://USER:PASS@HOST/DB``; the driver must be installed) or ``journal:PATH``, an Optuna
 journal file (``JournalFileBackend``) on a filesystem every worker mounts (NFS: no database server;
-SQLite files on NFS are not safe). Workers that run the same command with the same ``--storage`` and
-``--study-name`` share one study (``load_if_exists``); each worker runs ``--n-trials`` trials.
+SQLite files on NFS are not safe); a journal path must be a regular file holding an Optuna journal, or
+absent or empty. Workers that run the same command with the same ``--storage`` and ``--study-name``
+share one study (``load_if_exists``); each worker runs ``--n-trials`` trials.
+
+A killed worker: every storage records a heartbeat of each running trial (every 60 s; on a journal
+file, in the journal); the next worker that starts a trial marks FAIL any RUNNING trial without a
+heartbeat for 180 s and queues it once more with the same hyperparameters, as a new trial number
+(``train.study_io.HEARTBEAT_INTERVAL_S``, ``GRACE_PERIOD_S``, ``MAX_RETRY``). On a journal the ages
+are read on the workers' clocks, which must agree within those 180 s.
+
+One study per ``--out``: ``OUT/study.yml`` names it, and a study of another name is refused there
+(its ``trial_<n>`` directories and ``best_hyperparams.yml`` would overwrite the first study's); give
+each study its own ``--out``, or the same ``--study-name`` to add trials to it.
 
 Reproducibility: the sampler of trial ``n`` is seeded from ``(--seed, n)``, so a single worker's study
 is reproducible given ``--seed``, and parallel workers with the same ``--seed`` never draw the same
@@ -59,6 +70,7 @@ from .study_io import (
     SAMPLERS,
     StudyConfigError,
     best_trial,
+    claim_out,
     export_best,
     make_pruner,
     make_sampler,
@@ -124,8 +136,12 @@ class StudyArgs:
 _STUDY_HELP = {
     "n_trials": "trials this worker runs (each worker of a shared study runs its own)",
     "storage": "Optuna storage: sqlite:///PATH, postgresql://USER:PASS@HOST/DB, mysql+pymysql://..., or "
-               "journal:PATH (a journal file on a shared filesystem); default sqlite:///OUT/study.db",
-    "study_name": "study name in the storage (default <env>-<algo>); workers with the same name share it",
+               "journal:PATH (an Optuna journal file, or a new one, on a shared filesystem); default "
+               "sqlite:///OUT/study.db. On every storage a killed worker's trial is marked failed after 180 s "
+               "without a heartbeat and run once more",
+    "study_name": "study name in the storage (default <env>-<algo>); workers with the same name share it. One "
+                  "study per --out (OUT/study.yml names it): another study's --out is refused, so trial_<n> "
+                  "and best_hyperparams.yml of two studies never collide",
     "sampler": "tpe | random (seeded from --seed and the trial number)",
     "pruner": "median | none",
     "n_startup_trials": "random trials before TPE, and trials before the median pruner prunes",
@@ -144,7 +160,8 @@ def add_study_arguments(ap: argparse.ArgumentParser) -> None:
     """
     group = ap.add_argument_group("hyperparameter studies (Optuna) and multi-seed runs")
     group.add_argument("--optimize", action="store_true",
-                       help="run a study: each trial samples PPO hyperparameters and trains into OUT/trial_<n>")
+                       help="run a study: each trial samples PPO hyperparameters and trains into OUT/trial_<n> "
+                            "(one study per --out)")
     group.add_argument("--seeds", default=None, metavar="S0,S1,...",
                        help="train the configuration once per seed into OUT/seed_<s>; summary in OUT/seeds.yml")
     defaults = StudyArgs()
@@ -381,13 +398,15 @@ def open_study(args: Args, study: StudyArgs):
     Raises
     ------
     StudyConfigError
-        Bad flags, an unusable storage, or an existing study of that name that minimizes.
+        Bad flags, an unusable storage, an existing study of that name that minimizes, or an ``--out``
+        holding another study's trials (``OUT/study.yml`` names the study of an ``--out``).
     """
     import optuna
 
     _check_study(args, study)
-    storage, shown = make_storage(study.storage, args.out)
     name = study.study_name or f"{args.env_id.split('/')[-1]}-{args.algo}"
+    claim_out(args.out, name)  # another study's OUT is refused before anything is created
+    storage, shown = make_storage(study.storage, args.out)
     sampler = make_sampler(study.sampler, args.seed, study.n_startup_trials)
     pruner = make_pruner(study.pruner, study.n_startup_trials, study.n_evaluations)
     s = optuna.create_study(storage=storage, study_name=name, direction="maximize", sampler=sampler, pruner=pruner,
@@ -396,6 +415,7 @@ def open_study(args: Args, study: StudyArgs):
         found = " and ".join(d.name.lower() for d in s.directions)
         raise StudyConfigError(f"--study-name {name}: the study of that name in {shown} has direction {found}; this "
                                "objective (held-out reward) is maximized: choose another --study-name")
+    claim_out(args.out, name, shown, has_trials=bool(s.get_trials(deepcopy=False)))
     return s, shown
 
 

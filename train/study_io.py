@@ -5,8 +5,10 @@ the hyperparameter file.
 
 from __future__ import annotations
 
+import json
 import os
 import socket
+import stat
 import time
 import warnings
 from collections.abc import Callable
@@ -16,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import yaml
 
-from iscc_gym.files import write_atomic
+from iscc_gym.files import create_exclusive, write_atomic
 
 if TYPE_CHECKING:  # pragma: no cover
     import optuna
@@ -27,6 +29,18 @@ PRUNERS = ("median", "none")
 #: Ports probed (TCP, with a timeout) before a database URL without one is handed to SQLAlchemy.
 _DEFAULT_PORTS = {"postgresql": 5432, "mysql": 3306, "mariadb": 3306, "mssql": 1433, "oracle": 1521}
 CONNECT_TIMEOUT_S = 10
+#: Heartbeats of a running trial (every HEARTBEAT_INTERVAL_S, in the storage): a RUNNING trial whose last
+#: one is older than GRACE_PERIOD_S (its worker was killed, or its machine lost) is marked FAIL by the
+#: next worker that starts a trial of the study, and queued again once (MAX_RETRY) with the same
+#: hyperparameters, as a new trial. SQLite and server databases (Optuna's RDBStorage) and journal files
+#: (:func:`journal_storage`) alike.
+HEARTBEAT_INTERVAL_S = 60
+GRACE_PERIOD_S = 180
+MAX_RETRY = 1
+#: The trial system attribute holding a journal trial's last heartbeat (seconds since the epoch).
+HEARTBEAT_ATTR = "iscc_gym:heartbeat"
+#: ``OUT/study.yml``: the study whose trials ``OUT/trial_<n>`` are (one study per ``--out``).
+STUDY_FILE = "study.yml"
 
 
 class StudyConfigError(ValueError):
@@ -49,8 +63,8 @@ def make_storage(url: str | None, out: str | os.PathLike) -> tuple[Any, str]:
     Returns
     -------
     storage : optuna.storages.BaseStorage
-        ``RDBStorage`` (heartbeat every 60 s: a killed worker's trial is marked failed) or
-        ``JournalStorage``.
+        ``RDBStorage`` or a ``JournalStorage`` (:func:`journal_storage`), both with heartbeats: a killed
+        worker's trial is marked failed and run again once (:data:`HEARTBEAT_INTERVAL_S`).
     shown : str
         The URL as printed (no password).
 
@@ -58,8 +72,8 @@ def make_storage(url: str | None, out: str | os.PathLike) -> tuple[Any, str]:
     ------
     StudyConfigError
         Unparsable URL, unknown dialect, missing driver, unreachable host (TCP probe with a
-        ``CONNECT_TIMEOUT_S`` timeout, and the same connect timeout for the driver) or a database
-        that cannot be opened.
+        ``CONNECT_TIMEOUT_S`` timeout, and the same connect timeout for the driver), a database
+        that cannot be opened, or a journal path that is not a regular file or not an Optuna journal.
     """
     import optuna
     import sqlalchemy.exc
@@ -74,11 +88,12 @@ def make_storage(url: str | None, out: str | os.PathLike) -> tuple[Any, str]:
         if not path:
             raise StudyConfigError("--storage journal:: name the journal file, e.g. "
                                    "--storage journal:/shared/study.log")
+        check_journal_file(path, url)
         Path(path).parent.mkdir(parents=True, exist_ok=True)
         try:
             from optuna.storages.journal import JournalFileBackend
 
-            return optuna.storages.JournalStorage(JournalFileBackend(path)), url
+            return journal_storage(JournalFileBackend(path)), url
         except OSError as e:
             raise StudyConfigError(f"--storage {url}: cannot open the journal file ({e}); "
                                    "use a writable path") from None
@@ -105,8 +120,9 @@ def make_storage(url: str | None, out: str | os.PathLike) -> tuple[Any, str]:
         try:
             with warnings.catch_warnings():  # heartbeat_interval is flagged experimental
                 warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
-                storage = optuna.storages.RDBStorage(url, engine_kwargs=engine_kwargs, heartbeat_interval=60,
-                                                     grace_period=180)
+                storage = optuna.storages.RDBStorage(url, engine_kwargs=engine_kwargs,
+                                                     heartbeat_interval=HEARTBEAT_INTERVAL_S,
+                                                     grace_period=GRACE_PERIOD_S, **_stale_trial_callback())
             return storage, shown
         except (ModuleNotFoundError, ImportError) as e:
             raise StudyConfigError(f"--storage {shown}: the database driver is not installed ({e}); install it "
@@ -126,6 +142,169 @@ def make_storage(url: str | None, out: str | os.PathLike) -> tuple[Any, str]:
     reason = str(getattr(last, "orig", None) or last).splitlines()[0]
     raise StudyConfigError(f"--storage {shown}: cannot open the database ({reason}); check the URL, credentials "
                            "and that the server is running")
+
+
+def check_journal_file(path: str, url: str) -> None:
+    """Refuse a ``journal:PATH`` that is not a regular file (``/dev/zero`` was read without end) or a
+    file whose first line is not an Optuna journal entry; a missing or empty file is a new journal.
+
+    Raises
+    ------
+    StudyConfigError
+        Naming ``--storage`` and the fix.
+    """
+    try:
+        mode = os.stat(path).st_mode  # follows a symbolic link to what it names
+    except FileNotFoundError:
+        return
+    except OSError as e:
+        raise StudyConfigError(f"--storage {url}: cannot read {path} ({e.strerror or e}); "
+                               "use a readable path") from None
+    if not stat.S_ISREG(mode):
+        kind = "a directory" if stat.S_ISDIR(mode) else "not a regular file (a device, a FIFO or a socket)"
+        raise StudyConfigError(f"--storage {url}: {path} is {kind}; name an Optuna journal file, or a new file "
+                               "to start one, e.g. --storage journal:/shared/study.log")
+    try:
+        with open(path, "rb") as f:
+            first = f.readline(_JOURNAL_LINE_MAX)
+    except OSError as e:
+        raise StudyConfigError(f"--storage {url}: cannot read {path} ({e.strerror or e}); "
+                               "use a readable path") from None
+    if not first:
+        return
+    try:
+        entry = json.loads(first.decode("utf-8"))
+    except (UnicodeDecodeError, ValueError):
+        entry = None
+    if not (isinstance(entry, dict) and "op_code" in entry and "worker_id" in entry):
+        raise StudyConfigError(f"--storage {url}: {path} is not an Optuna journal (its first line is not a journal "
+                               "entry); name a journal file written by --storage journal:PATH, or a new file")
+
+
+#: The first line of an Optuna journal (the study's creation) is well under this many bytes.
+_JOURNAL_LINE_MAX = 1 << 20
+
+
+def _stale_trial_callback() -> dict:
+    """The keyword giving a storage the callback that queues a stale trial again (:data:`MAX_RETRY`)."""
+    import optuna
+
+    retry = getattr(optuna.storages, "RetryHeartbeatStaleTrialCallback", None)
+    with warnings.catch_warnings():  # flagged experimental
+        warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
+        if retry is not None:  # Optuna >= 4.9
+            return {"heartbeat_stale_trial_callback": retry(max_retry=MAX_RETRY)}
+        return {"failed_trial_callback": optuna.storages.RetryFailedTrialCallback(max_retry=MAX_RETRY)}
+
+
+def journal_storage(backend, heartbeat_interval: int | None = None, grace_period: int | None = None):
+    """An Optuna ``JournalStorage`` on ``backend`` with heartbeats, as Optuna's ``RDBStorage`` has them.
+
+    Optuna's journal storage has none: a worker killed during a trial left it RUNNING for ever. Here a
+    thread of the worker records the trial's heartbeat (a trial system attribute, :data:`HEARTBEAT_ATTR`)
+    every ``heartbeat_interval`` s; a worker starting a trial marks FAIL every RUNNING trial of the
+    study whose last heartbeat is older than ``grace_period`` s and queues it again (:data:`MAX_RETRY`).
+    The ages are read on the workers' clocks, which must agree within the grace period (NTP).
+
+    Parameters
+    ----------
+    backend : optuna.storages.journal.BaseJournalBackend
+        E.g. ``JournalFileBackend(PATH)``.
+    heartbeat_interval, grace_period : int, optional
+        Seconds; default :data:`HEARTBEAT_INTERVAL_S`, :data:`GRACE_PERIOD_S`.
+
+    Returns
+    -------
+    optuna.storages.JournalStorage
+    """
+    import optuna
+    from optuna.storages._heartbeat import BaseHeartbeat
+    from optuna.trial import TrialState
+
+    interval = HEARTBEAT_INTERVAL_S if heartbeat_interval is None else int(heartbeat_interval)
+    grace = GRACE_PERIOD_S if grace_period is None else int(grace_period)
+    callback = next(iter(_stale_trial_callback().values()))
+
+    class HeartbeatJournalStorage(optuna.storages.JournalStorage, BaseHeartbeat):
+        def record_heartbeat(self, trial_id: int) -> None:
+            try:
+                self.set_trial_system_attr(trial_id, HEARTBEAT_ATTR, time.time())
+            except optuna.exceptions.UpdateFinishedTrialError:
+                pass  # the trial ended while the beat was on its way
+
+        def _get_stale_trial_ids(self, study_id: int) -> list[int]:
+            now = time.time()
+            stale = []
+            for t in self.get_all_trials(study_id, deepcopy=False, states=(TrialState.RUNNING,)):
+                beat = t.system_attrs.get(HEARTBEAT_ATTR)
+                if beat is None:  # started, first beat not yet written
+                    beat = t.datetime_start.timestamp() if t.datetime_start is not None else now
+                if now - float(beat) > grace:
+                    stale.append(t._trial_id)
+            return stale
+
+        def get_heartbeat_interval(self) -> int:
+            return interval
+
+        def get_heartbeat_stale_trial_callback(self):
+            return callback
+
+        def get_failed_trial_callback(self):  # the name Optuna < 4.9 calls
+            return callback
+
+    return HeartbeatJournalStorage(backend)
+
+
+def claim_out(out: str | os.PathLike, study_name: str, shown: str | None = None,
+              has_trials: bool | None = None) -> Path:
+    """Record in ``OUT/study.yml`` that ``OUT``'s trial directories are study ``study_name``'s, or check
+    that they are: one study per ``--out`` (``trial_<n>`` of two studies would collide).
+
+    Parameters
+    ----------
+    out : path-like
+        The study's ``--out``.
+    study_name : str
+        The study being opened.
+    shown : str, optional
+        Its storage URL as printed (recorded for the message).
+    has_trials : bool, optional
+        Whether the study already has trials (an ``--out`` of an earlier version, with trial directories
+        but no ``study.yml``, is taken as this study's only then). None: only check an existing
+        ``study.yml`` (before the study is opened), record nothing.
+
+    Returns
+    -------
+    Path
+        ``OUT/study.yml``.
+
+    Raises
+    ------
+    StudyConfigError
+        ``OUT`` holds another study's trials; the message names both studies.
+    """
+    path = Path(out) / STUDY_FILE
+    if not path.exists():
+        if has_trials is None:
+            return path
+        earlier = sorted(p.name for p in Path(out).glob("trial_*"))
+        if earlier and not has_trials:
+            raise StudyConfigError(f"--out {out}: holds trial directories of an earlier study ({', '.join(earlier[:3])}"
+                                   f"{', ...' if len(earlier) > 3 else ''}) and no {STUDY_FILE}; study "
+                                   f"{study_name!r} has no trials yet: give it its own --out")
+        create_exclusive(path, yaml.safe_dump({"study_name": study_name, "storage": shown}, sort_keys=False))
+    try:
+        doc = yaml.safe_load(path.read_text())
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as e:
+        raise StudyConfigError(f"--out {out}: cannot read {path} ({str(e).splitlines()[0]}); it names the study "
+                               "whose trials this directory holds: restore it, or give another --out") from None
+    if not isinstance(doc, dict) or not isinstance(doc.get("study_name"), str):
+        raise StudyConfigError(f"--out {out}: {path} names no study_name; restore it, or give another --out")
+    if doc["study_name"] != study_name:
+        raise StudyConfigError(f"--out {out}: holds the trials of study {doc['study_name']!r} (storage "
+                               f"{doc.get('storage')}); study {study_name!r} would overwrite them (trial_0, ...): "
+                               f"give it its own --out, or --study-name {doc['study_name']} to add trials to that one")
+    return path
 
 
 def _probe(host: str, port: int, shown: str) -> None:

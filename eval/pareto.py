@@ -272,8 +272,9 @@ def build_parser(prog: str = "python -m eval.pareto") -> Parser:
     ap.add_argument("--families", default=",".join(KNOBS), help=f"scripted families (default: {','.join(KNOBS)})")
     ap.add_argument("--learned", action="append", default=None, metavar="NAME=PATH",
                     help="a trained run as one point, NAME = family/label, e.g. --learned ppo-lag/0.3=runs/ppo_lag "
-                         "(repeatable; default: the runs of agents/trained/pareto/; none: --learned none; pickles: "
-                         "only runs you trust)")
+                         "(repeatable, each NAME once; default: the runs of agents/trained/pareto/; none: --learned "
+                         "none, which with --families none leaves nothing and is refused; pickles: only runs you "
+                         "trust)")
     ap.add_argument("--targets", default="0.05,0.1", help="outage targets (default: 0.05,0.1)")
     ap.add_argument("--max-steps", type=positive_int, default=None, help="slots per mission (default: all)")
     ap.add_argument("--figure", default=None, help="write the figure to this PNG")
@@ -285,7 +286,7 @@ def build_parser(prog: str = "python -m eval.pareto") -> Parser:
 def _learned(items) -> dict:
     if items is None:
         return default_learned()
-    learned = {}
+    learned: dict[str, str] = {}
     for item in items:
         if item == "none":
             continue
@@ -293,6 +294,11 @@ def _learned(items) -> dict:
         if not sep or not name or not (Path(path) / "model.zip").is_file():
             raise ValueError(f"--learned {item!r}: give NAME=PATH with PATH a run directory holding model.zip "
                              "(or --learned none)")
+        same = [n for n in learned if learned_family(n) == learned_family(name)]
+        if same:
+            fam, label = learned_family(name)
+            raise ValueError(f"--learned {item!r}: the name {name!r} is given twice ({same[0]}={learned[same[0]]} "
+                             f"is the point {fam} {label} too); give each run its own NAME = family/label")
         learned[name] = path
     return learned
 
@@ -315,6 +321,10 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.pareto") -> 
     if not (np.isfinite(args.rate_min_mbps) and args.rate_min_mbps > 0):
         raise ValueError(f"--rate-min-mbps {args.rate_min_mbps}: use a positive number of Mbps, e.g. 12")
     learned = _learned(args.learned)
+    if not families and not learned:
+        raise ValueError(f"--families {args.families!r} and --learned {' '.join(args.learned or ['(default)'])}: no "
+                         "point to compare (no scripted family, no trained run); name a family, e.g. --families sca, "
+                         "or a run, --learned NAME=PATH")
     if args.figure:
         check_writable_file(args.figure, "--figure")
     s = scenario_at(args.rate_min_mbps * 1e6)

@@ -1,5 +1,7 @@
 """Pareto fronts (issue 15 item 3): dominance, the per-target winner, and the command on tiny budgets."""
 
+import time
+
 import numpy as np
 import pytest
 from iscc_gym.eval import pareto as P
@@ -51,3 +53,27 @@ def test_bad_input_is_refused_before_any_run():
                         (["--rate-min-mbps", "-1"], "rate-min-mbps")):
         with pytest.raises(ValueError, match=match):
             P.main(argv)
+
+
+# --- issue 23 defect 18: refused before the work --------------------------------------------------------------
+
+TINY = ["--episodes", "1", "--max-steps", "5", "--train-episodes", "1", "--iterations", "1", "--targets", "0.5"]
+
+
+def test_no_points_are_refused_before_any_work(tmp_path):
+    """--families none --learned none played the training missions, then failed drawing an empty figure."""
+    t0 = time.perf_counter()
+    with pytest.raises(ValueError, match=r"--families 'none' and --learned none: no point to compare"):
+        P.main(["--families", "none", "--learned", "none", "--figure", str(tmp_path / "p.png"), *TINY])
+    assert time.perf_counter() - t0 < 2.0 and not (tmp_path / "p.png").exists()
+
+
+@pytest.mark.parametrize("names", [("ppo/a", "ppo/a"), ("ppo", "ppo/ppo")], ids=["same", "same-point"])
+def test_duplicate_learned_names_are_refused_naming_the_duplicate(names):
+    """Two --learned of one name kept the last silently (a dict); "ppo" is the point "ppo/ppo" too."""
+    argv = ["--families", "none", *TINY]
+    for n in names:
+        argv += ["--learned", f"{n}=agents/trained/ppo_iscc"]
+    with pytest.raises(ValueError, match=rf"--learned '{names[1]}=agents/trained/ppo_iscc': the name '{names[1]}' "
+                                         rf"is given twice \({names[0]}="):
+        P.main(argv)

@@ -30,6 +30,7 @@ same whichever drone it is).
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 
 import numpy as np
@@ -45,6 +46,11 @@ __all__ = ["COSTS", "parse_cost_limits", "LagrangianVecEnv", "LagrangeCallback",
 
 #: Constraint name -> the ``info`` key whose positive value marks a violating slot.
 COSTS = {"rate": "cost_rate", "stability": "cost_stability"}
+#: ``lagrange.yml`` is rewritten at most this often during training (its history grows by one entry per
+#: rollout; every checkpoint holds the whole record, and the run's end writes it).
+SAVE_EVERY_S = 30.0
+#: libyaml's dumper where PyYAML has it (the history of a long run is ~1,000 entries).
+_DUMPER = getattr(yaml, "CSafeDumper", yaml.SafeDumper)
 
 
 def parse_cost_limits(text: str) -> dict[str, float]:
@@ -120,7 +126,8 @@ class LagrangianVecEnv(VecEnvWrapper):
 
 class LagrangeCallback(BaseCallback):
     """Projected dual ascent of :class:`LagrangianVecEnv`'s multipliers at every rollout end; logs
-    ``lagrange/lambda_<name>`` and ``lagrange/outage_<name>`` and writes ``out/lagrange.yml``.
+    ``lagrange/lambda_<name>`` and ``lagrange/outage_<name>`` and writes ``out/lagrange.yml`` (at most
+    every :data:`SAVE_EVERY_S` seconds, and by :meth:`save` at the end).
     """
 
     def __init__(self, wrapper: LagrangianVecEnv, lr: float, out: str | Path | None = None,
@@ -130,6 +137,7 @@ class LagrangeCallback(BaseCallback):
             raise ValueError(f"lagrange_lr = {lr!r}; use a positive number, e.g. 0.05")
         self.wrapper, self.lr, self.out = wrapper, float(lr), out
         self.history: list[dict] = list(history or [])  # of the run it resumes, continued
+        self.saved_at = -np.inf
 
     def _on_step(self) -> bool:
         return True
@@ -147,7 +155,8 @@ class LagrangeCallback(BaseCallback):
                              "outage": dict(zip(w.names, outage.tolist(), strict=True)),
                              "lambdas": dict(zip(w.names, w.lambdas.tolist(), strict=True))})
         w.reset_counts()
-        self.save()
+        if time.perf_counter() - self.saved_at >= SAVE_EVERY_S:
+            self.save()
 
     def state(self) -> dict:
         """The multipliers, limits, step and whole history (``lagrange.yml``, and a checkpoint's)."""
@@ -155,7 +164,8 @@ class LagrangeCallback(BaseCallback):
 
     def save(self) -> None:
         if self.out is not None:
-            write_atomic(Path(self.out) / LAGRANGE_FILE, yaml.safe_dump(self.state(), sort_keys=False))
+            write_atomic(Path(self.out) / LAGRANGE_FILE, yaml.dump(self.state(), Dumper=_DUMPER, sort_keys=False))
+            self.saved_at = time.perf_counter()
 
 
 def _number(value, where: str, minimum: float | None = None) -> float:

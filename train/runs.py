@@ -350,7 +350,8 @@ def resume_state(*, timesteps: int, wall_s: float, curve: list[dict], evaluation
     """The text of a checkpoint's :data:`RESUME_FILE`."""
     doc = {"timesteps": int(timesteps), "wall_s": float(wall_s), "schedule": schedule, "best": best,
            "lagrange": lagrange, "evaluations": evaluations, "curve": curve}
-    return yaml.safe_dump(doc, sort_keys=False, default_flow_style=None, width=120)
+    return yaml.dump(doc, Dumper=getattr(yaml, "CSafeDumper", yaml.SafeDumper), sort_keys=False,
+                     default_flow_style=None, width=120)
 
 
 def read_resume(ckpt: Path, manifest: dict) -> dict | None:
@@ -367,7 +368,7 @@ def read_resume(ckpt: Path, manifest: dict) -> dict | None:
         return None
     path = ckpt / RESUME_FILE
     try:
-        doc = yaml.safe_load(path.read_text())
+        doc = yaml.load(path.read_text(), Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader))
     except (yaml.YAMLError, UnicodeDecodeError) as e:
         raise ValueError(f"{path}: not valid YAML ({str(e).splitlines()[0]})") from None
     if not isinstance(doc, dict):

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from iscc_gym.files import atomic_target, destination, write_atomic
+from iscc_gym.files import atomic_target, create_exclusive, destination, write_atomic
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -91,12 +91,15 @@ def test_write_to_stdout_keeps_printed_lines_in_order(tmp_path, how):
         dest.symlink_to("/dev/stdout")
     else:
         dest = Path(how)
-    code = ("import sys\nfrom iscc_gym.files import write_atomic\nprint('printed before')\n"
-            "write_atomic(sys.argv[1], '{\"json\": 1}\\n')\nprint('printed after')\n")
+    code = ("import importlib.util, sys\n"  # iscc_gym/files.py alone: the package's import takes seconds
+            "spec = importlib.util.spec_from_file_location('files', sys.argv[2])\n"
+            "files = importlib.util.module_from_spec(spec)\nspec.loader.exec_module(files)\n"
+            "print('printed before')\n"
+            "files.write_atomic(sys.argv[1], '{\"json\": 1}\\n')\nprint('printed after')\n")
     out = tmp_path / "out.txt"
     with open(out, "w") as f:
-        r = subprocess.run([sys.executable, "-c", code, str(dest)], stdout=f, stderr=subprocess.PIPE, text=True,
-                           cwd=ROOT, timeout=60)
+        r = subprocess.run([sys.executable, "-c", code, str(dest), str(ROOT / "iscc_gym" / "files.py")], stdout=f,
+                           stderr=subprocess.PIPE, text=True, cwd=tmp_path, timeout=60)
     assert r.returncode == 0, r.stderr
     assert out.read_text() == 'printed before\n{"json": 1}\nprinted after\n'
     if how == "link to /dev/stdout":
@@ -122,3 +125,23 @@ def test_directory_is_refused_naming_it(tmp_path):
     with pytest.raises(IsADirectoryError, match=f"{tmp_path}: is a directory"):
         write_atomic(tmp_path, "x")
     assert destination(tmp_path / "missing.yml") == ("file", tmp_path / "missing.yml")
+
+
+def test_writable_check_accepts_what_is_written_through(tmp_path):
+    """``--json /dev/stdout`` passes the commands' check before the run (it probed /dev for a new file,
+    which only root may create) and a link is checked where its target is written."""
+    from iscc_gym.eval.options import check_writable_file
+
+    assert check_writable_file("/dev/stdout", "--json") == Path("/dev/stdout")
+    assert check_writable_file("/dev/null", "--json") == Path("/dev/null")
+    (tmp_path / "ro").mkdir()
+    link = tmp_path / "ro" / "out.json"
+    link.symlink_to(tmp_path / "elsewhere" / "out.json")
+    assert check_writable_file(link, "--json") == link
+
+
+def test_create_exclusive_creates_once_whole(tmp_path):
+    p = tmp_path / "d" / "study.yml"
+    assert create_exclusive(p, "first") is True
+    assert create_exclusive(p, "second") is False
+    assert p.read_text() == "first" and sorted(q.name for q in p.parent.iterdir()) == ["study.yml"]

@@ -229,6 +229,7 @@ def test_python_m_train_exits_0(tmp_path):
                            "--quiet"], cwd=ROOT, env=env, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout == "" and "{" not in proc.stderr  # --quiet: no closing line
+    assert "train:" not in proc.stderr  # nor progress lines
 
 
 def test_truncated_model_and_unknown_algo_and_other_env_are_clear_errors(tmp_path):

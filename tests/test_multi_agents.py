@@ -184,3 +184,14 @@ def test_scaled_sensing_moves_only_sensing_to_data():
     np.testing.assert_allclose(b.sum(-1), a.sum(-1), rtol=1e-5, atol=1e-7)
     with pytest.raises(ValueError, match="scale"):
         ScaledSensing(base, 3, -1.0)
+
+
+def test_the_shipped_agent_keeps_its_radar():
+    """Issue 23: the K = 4 agent trained on the per-drone mean reward scores more than the same agent with a tenth of
+    its sensing given to the data links (2 missions x 100 slots, training seeds; per slot -0.90 vs -0.99). The agent
+    of the old reward, which had starved its sensing already, gained only 0.014 per slot from its own sensing."""
+    from iscc_gym.agents.sb3_policy import SB3Policy
+    from iscc_gym.eval.multi import agent_dir
+
+    agent = SB3Policy.load(agent_dir(4), check_env=None)
+    assert _rewards(agent, 4, steps=100)[0] > _rewards(ScaledSensing(agent, 4, 0.1), 4, steps=100)[0] + 0.03

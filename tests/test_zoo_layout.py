@@ -4,16 +4,16 @@ or are refused / warned about, never silently evaluated on unnormalised observat
 from collections import OrderedDict
 
 import gymnasium as gym
-import iscc_gym  # noqa: F401
 import numpy as np
 import pytest
 import yaml
 
+import iscc_gym  # noqa: F401
+
 pytest.importorskip("stable_baselines3")
+from iscc_gym.agents.sb3_policy import SB3Policy, find_vecnormalize  # noqa: E402
 from stable_baselines3 import PPO  # noqa: E402
 from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize  # noqa: E402
-
-from iscc_gym.agents.sb3_policy import SB3Policy, find_vecnormalize  # noqa: E402
 
 ENV = "iscc_gym/ISCC-v0"
 

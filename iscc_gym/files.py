@@ -76,7 +76,7 @@ def destination(path: str | os.PathLike) -> tuple[str, Path | int]:
         return "descriptor", fd
     try:
         mode = os.stat(path).st_mode  # follows links
-    except FileNotFoundError:
+    except (FileNotFoundError, NotADirectoryError):  # nothing there yet (or a file where a parent should be)
         mode = None
     if mode is not None and stat.S_ISDIR(mode):
         raise IsADirectoryError(f"{path}: is a directory; give a file name")

@@ -125,6 +125,8 @@ def test_directory_is_refused_naming_it(tmp_path):
     with pytest.raises(IsADirectoryError, match=f"{tmp_path}: is a directory"):
         write_atomic(tmp_path, "x")
     assert destination(tmp_path / "missing.yml") == ("file", tmp_path / "missing.yml")
+    (tmp_path / "a.txt").write_text("")
+    assert destination(tmp_path / "a.txt" / "b.yml") == ("file", tmp_path / "a.txt" / "b.yml")  # fails on writing
 
 
 def test_writable_check_accepts_what_is_written_through(tmp_path):

@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 from iscc_gym.eval.evaluate import mean_ci, run_episodes
-from iscc_gym.eval.options import Parser, check_writable_file, nonneg_int, positive_int, run_console
+from iscc_gym.eval.options import Parser, Stages, check_writable_file, nonneg_int, positive_int, run_console
 from iscc_gym.eval.outage import build, find_knob
 from iscc_gym.eval.tune import TUNE_SEED_START, check_tuning_seeds
 
@@ -76,19 +76,22 @@ def _play_learned(path, seeds, s, max_steps) -> dict:
 
 
 def points(seeds, scenario=None, families=tuple(KNOBS), knobs: dict | None = None, learned: dict | None = None,
-           max_steps: int | None = None) -> list[dict]:
+           max_steps: int | None = None, on_step=None) -> list[dict]:
     """Every family over its knob grid and every learned run (``name -> run directory``, the name
     ``family/label``), on ``seeds`` (common random numbers), at ``scenario`` (default
-    :func:`scenario_at`).
+    :func:`scenario_at`). ``on_step(label)`` is called before each point (progress).
     """
     s = scenario_at() if scenario is None else make_scenario(scenario)
     knobs = {**KNOBS, **(knobs or {})}
+    step = on_step or (lambda label: None)
     out = []
     for fam in families:
         for k in knobs[fam]:
+            step(f"{fam} {float(k):.4g}")
             out.append(_point(fam, float(k), run_episodes(build(fam, k, s), seeds, s, max_steps=max_steps)["episodes"]))
     for name, path in (learned or {}).items():
         fam, label = learned_family(name)
+        step(name)
         out.append({**_point(fam, None, _play_learned(path, seeds, s, max_steps), label), "path": str(path)})
     return out
 
@@ -278,6 +281,7 @@ def build_parser(prog: str = "python -m eval.pareto") -> Parser:
     ap.add_argument("--targets", default="0.05,0.1", help="outage targets (default: 0.05,0.1)")
     ap.add_argument("--max-steps", type=positive_int, default=None, help="slots per mission (default: all)")
     ap.add_argument("--figure", default=None, help="write the figure to this PNG")
+    ap.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
     ap.add_argument("--write-docs", action="store_true", help="write the table into docs/results.md and the figure "
                                                                "into docs/figures/pareto.png")
     return ap
@@ -331,10 +335,16 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.pareto") -> 
     seeds = held_out_seeds(SEED_START, args.episodes, args.seed)
     train_seeds = list(range(TUNE_SEED_START, TUNE_SEED_START + args.train_episodes))
     check_tuning_seeds(train_seeds)
-    pts = points(seeds, s, families=families, learned=learned, max_steps=args.max_steps)
-    cache: dict = {}
-    results = [at_target(t, select(t, train_seeds, s, families, learned, args.max_steps, args.iterations, cache),
-                         seeds, pts, s, args.max_steps) for t in targets]
+    n_points = sum(len(KNOBS[f]) for f in families) + len(learned)
+    with Stages(n_points + 2 * len(targets), prog, enabled=not args.quiet) as st:
+        pts = points(seeds, s, families=families, learned=learned, max_steps=args.max_steps, on_step=st.next)
+        cache: dict = {}
+        results = []
+        for t in targets:
+            st.next(f"target {t:g}: operating points on the training missions")
+            chosen = select(t, train_seeds, s, families, learned, args.max_steps, args.iterations, cache)
+            st.next(f"target {t:g}: held out")
+            results.append(at_target(t, chosen, seeds, pts, s, args.max_steps))
     table = markdown(pts, results, docs_command(prog, argv), seeds, train_seeds, s.rate_min_bps)
     print(table)
     res = {"points": pts, "targets": {str(r["target"]): r for r in results}, "seeds": [seeds[0], seeds[-1]],

@@ -38,8 +38,14 @@ def test_operating_points_are_chosen_on_training_seeds_then_played_held_out(tmp_
         d = np.subtract(r["best"][f]["per_mission_error_m"], r["best"][r["winner"]]["per_mission_error_m"]).mean()
         assert r["paired_vs_winner"][f][0] == pytest.approx(d) and d >= 0.0
     assert (tmp_path / "p.png").stat().st_size > 1000
-    out = capsys.readouterr().out
+    captured = capsys.readouterr()
+    out = captured.out
     assert "non-dominated" in out and "At 95 % outage" in out and "Learned points against the scripted ones" in out
+    # issue 23 item 5: a line per point and per target stage on stderr, also without a terminal
+    n = len(P.KNOBS["sca"]) + 1 + 2
+    assert f"[python -m eval.pareto] 0/{n} stage (sca " in captured.err
+    assert "stage (ppo/shipped)" in captured.err and "stage (target 0.95: held out)" in captured.err
+    assert f"done: {n}/{n} stage" in captured.err
 
 
 def test_selection_refuses_evaluation_seeds():

@@ -236,7 +236,9 @@ def test_figures_are_written_atomically(tmp_path):
 
 def test_a_failing_worker_stops_the_others_at_once():
     """A policy failing in one worker is reported at once: the policy still being played in the other worker
-    (myopic over 20 whole missions, ~30 s) is ended, not waited for."""
+    (myopic over 1000 whole missions, about 25 min on a quiet machine) is ended, not waited for. The bound is
+    wide (two minutes: spawning and importing a worker takes 20 s on a loaded machine) and still far below the
+    other worker's job, so the test says whether it was waited for, not how fast the machine is."""
     import multiprocessing
     import time
 
@@ -244,12 +246,12 @@ def test_a_failing_worker_stops_the_others_at_once():
 
     t0 = time.perf_counter()
     with pytest.raises(ValueError, match="unknown policy spec 'bogus'"):
-        run_parallel("myopic,bogus", list(range(10_000, 10_020)), workers=2)
+        run_parallel("myopic,bogus", list(range(10_000, 11_000)), workers=2)
     deadline = time.perf_counter() + 5
     while any(p.is_alive() for p in multiprocessing.active_children()) and time.perf_counter() < deadline:
         time.sleep(0.05)
     assert not [p for p in multiprocessing.active_children() if p.is_alive()]
-    assert time.perf_counter() - t0 < 20
+    assert time.perf_counter() - t0 < 120
 
 
 def test_docs_quote_the_command_without_its_output_flags():

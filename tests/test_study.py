@@ -232,3 +232,12 @@ def test_seeds_trains_each_seed_and_writes_the_summary(tmp_path, capsys):
     assert not list(tmp_path.glob(".seeds.yml.*"))  # the temporary file was renamed
     table = capsys.readouterr().out
     assert "final held-out reward" in table and str(tmp_path / "seed_1") in table
+
+
+def test_seeds_with_a_held_out_seed_are_refused_before_any_run(tmp_path):
+    """--seeds 0,10000: seed 10000 is an evaluation seed; refused before seed 0 trains (it trained first)."""
+    with pytest.raises(SystemExit) as e:
+        cli(["--seeds", "0,10000", "--init-policy", "none", "--total-timesteps", "256", "--n-envs", "4", "--set",
+             "n_steps=32", "--set", "batch_size=32", "--no-tensorboard", "--out", str(tmp_path)])
+    assert e.value.code == 2
+    assert not (tmp_path / "seed_0").exists()

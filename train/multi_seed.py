@@ -17,6 +17,8 @@ from iscc_gym.train.train import (
     _check,
     _resolve_policy_kwargs,
     check_hyperparams,
+    check_resolved,
+    expand_algo,
     main,
     resolve_args,
 )
@@ -117,6 +119,12 @@ def run_seeds(args: Args, seeds: list[int]) -> dict:
     if not seeds:
         raise StudyConfigError("--seeds: name at least one seed, e.g. --seeds 0,1,2")
     resolved, hp = check_run_config(args)
+    for seed in seeds:  # every seed's run checked before the first one trains (a held-out seed among them)
+        try:
+            res, hp_seed = resolve_args(dataclasses.replace(expand_algo(args), seed=seed))
+            check_resolved(res, check_hyperparams(res.algo, _resolve_policy_kwargs(hp_seed)))
+        except ValueError as e:
+            raise StudyConfigError(f"--seeds {seed}: {e}") from None
     rows = []
     for seed in seeds:
         run = dataclasses.replace(args, seed=seed, out=str(Path(args.out) / f"seed_{seed}"))

@@ -165,17 +165,19 @@ def tune_margin(seeds=TUNE_SEEDS, grid=None, scenario: str = "paper", refine: bo
     }
 
 
-def sca_per_slot_reward(fraction: float, seeds, scenario="paper") -> float:
-    """Mean episode reward over ``seeds`` of per-slot SCA designed at ``fraction`` x eps*."""
+def sca_per_slot_reward(fraction: float, seeds, scenario="paper", max_steps: int | None = None) -> float:
+    """Mean episode reward over ``seeds`` of per-slot SCA designed at ``fraction`` x eps* (``max_steps`` slots
+    per mission, default all).
+    """
     policy = SCAPolicy(make_scenario(scenario), mode="per_slot", loss_design_fraction=float(fraction))
-    return float(run_episodes(policy, list(seeds), scenario)["episodes"]["reward"].mean())
+    return float(run_episodes(policy, list(seeds), scenario, max_steps=max_steps)["episodes"]["reward"].mean())
 
 
 def tune_sca_per_slot(seeds=TUNE_SEEDS, grid=SCA_FRACTION_GRID, scenario: str = "paper", refine: bool = True,
-                      log=print, progress=None) -> dict:
+                      log=print, progress=None, max_steps: int | None = None) -> dict:
     """Per-slot SCA's design loss fraction: the grid, then a bounded scalar search between the best
     grid point's neighbours, every point on the same tuning seeds; returns the tuning record.
-    ``progress(1)``, if given, is called after each evaluation.
+    ``progress(1)``, if given, is called after each evaluation; ``max_steps`` cuts the missions (tests).
     """
     seeds = check_tuning_seeds(seeds)
     grid = sorted(float(g) for g in grid)
@@ -184,7 +186,7 @@ def tune_sca_per_slot(seeds=TUNE_SEEDS, grid=SCA_FRACTION_GRID, scenario: str = 
     t0 = time.perf_counter()
 
     def reward(x):
-        r = sca_per_slot_reward(x, seeds, scenario)
+        r = sca_per_slot_reward(x, seeds, scenario, max_steps)
         if progress is not None:
             progress(1)
         return r

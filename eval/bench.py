@@ -301,7 +301,8 @@ def run(n_steps: int = 5000, repeats: int = 5, quick: bool = False, ppo: bool = 
                                               1 if quick else repeats)
         if under_load:
             st.next("kernel modes under load")
-            res["vector_under_load"] = vector_under_load(n_steps=50 if quick else 3000, repeats=1 if quick else repeats)
+            res["vector_under_load"] = (vector_under_load(sizes=(64,), n_steps=20, repeats=1) if quick
+                                        else vector_under_load(n_steps=3000, repeats=repeats))
         st.next("render")
         res["render"] = render_ms(5 if quick else 50)
         st.next("static SCA evaluation")

@@ -215,7 +215,10 @@ class Stages:
 
     def next(self, label: str) -> None:
         if self.started:
-            self.bar.update(1)
+            if isinstance(self.bar, LineProgress):
+                self.bar.n += 1  # the stage's own line follows: no interval line with the old stage's name
+            else:
+                self.bar.update(1)
         self.started = True
         self.bar.set_postfix_str(label)
 

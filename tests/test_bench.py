@@ -22,6 +22,7 @@ def test_bench_quick_reports_every_figure(tmp_path, capsys):
     # issue 23: a line per stage on stderr, also without a terminal
     assert "[python -m eval.bench] 0/7 stage (single env)" in captured.err
     assert "[python -m eval.bench] done: 7/7 stage" in captured.err
+    assert captured.err.count("stage (render)") == 1  # one line a stage, none with a finished stage's name
 
 
 def test_bench_write_docs_needs_the_full_run():

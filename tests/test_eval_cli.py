@@ -197,14 +197,13 @@ def test_line_progress_prints_stages_every_interval_and_the_end():
     assert lines[2].startswith("[cmd] done: 60/100 slot") and len(lines) == 3
 
 
-def test_python_m_eval_prints_progress_lines_without_a_terminal():
-    out = subprocess.run([sys.executable, "-m", "eval", "--policies", "equal", "--episodes", "1", "--max-steps", "5"],
-                         cwd=ROOT, capture_output=True, text=True, timeout=300)
-    assert out.returncode == 0, out.stderr
-    assert "[evaluating] done: 5/5 slot" in out.stderr
-    quiet = subprocess.run([sys.executable, "-m", "eval", "--policies", "equal", "--episodes", "1", "--max-steps",
-                            "5", "--quiet"], cwd=ROOT, capture_output=True, text=True, timeout=300)
-    assert quiet.returncode == 0 and "[evaluating]" not in quiet.stderr
+def test_python_m_eval_prints_progress_lines_without_a_terminal(capsys):
+    from iscc_gym.eval.__main__ import main
+
+    main(["--policies", "equal", "--episodes", "1", "--max-steps", "5"])
+    assert "[evaluating] done: 5/5 slot" in capsys.readouterr().err  # capsys's stderr is no terminal
+    main(["--policies", "equal", "--episodes", "1", "--max-steps", "5", "--quiet"])
+    assert "[evaluating]" not in capsys.readouterr().err
 
 
 def test_python_m_eval_exits_2_with_one_line_on_a_mistake():

@@ -14,9 +14,14 @@ MODULE = textwrap.dedent("""
 """)
 
 RUN = textwrap.dedent("""
-    import io, sys
+    import importlib.util, sys
     from numba.core import event
-    from iscc_gym.compile_note import CompileNote, NOTE
+    # the module alone (importing the iscc_gym package costs seconds a process): it needs numba only
+    spec = importlib.util.spec_from_file_location("compile_note", sys.argv[1])
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    event.unregister("numba:compile", mod.LISTENER)
+    CompileNote, NOTE = mod.CompileNote, mod.NOTE
     note = CompileNote(stream=sys.stdout, package="probe_pkg")
     event.register("numba:compile", note)
     from probe_pkg.mod import twice
@@ -26,9 +31,11 @@ RUN = textwrap.dedent("""
 
 
 def _run(tmp_path, **env):
-    return subprocess.run([sys.executable, "-c", RUN], capture_output=True, text=True, timeout=300, cwd=tmp_path,
-                          env={**os.environ, "PYTHONPATH": str(tmp_path), "NUMBA_CACHE_DIR": str(tmp_path / "cache"),
-                               **env})
+    import iscc_gym.compile_note
+
+    env = {**os.environ, "PYTHONPATH": str(tmp_path), "NUMBA_CACHE_DIR": str(tmp_path / "cache"), **env}
+    return subprocess.run([sys.executable, "-c", RUN, iscc_gym.compile_note.__file__], capture_output=True, text=True,
+                          timeout=300, cwd=tmp_path, env=env)
 
 
 def test_note_once_on_a_cache_miss_and_none_on_a_hit(tmp_path):
@@ -43,11 +50,29 @@ def test_note_once_on_a_cache_miss_and_none_on_a_hit(tmp_path):
     second = _run(tmp_path)  # loaded from the cache written by the first run
     assert second.returncode == 0, second.stderr
     assert NOTE not in second.stdout
-    quiet_dir = tmp_path / "other"
-    quiet_dir.mkdir()
-    (tmp_path / "probe_pkg" / "mod.py").write_text(MODULE.replace("2 * x", "3 * x"))  # a cache miss again
-    quiet = _run(tmp_path, ISCC_GYM_QUIET="1")
-    assert quiet.returncode == 0 and NOTE not in quiet.stdout
+
+
+def test_note_in_process_and_quiet_silences_it(monkeypatch):
+    import io
+
+    from numba import njit
+    from numba.core import event
+
+    from iscc_gym.compile_note import NOTE, CompileNote
+
+    for quiet, expected in ((True, ""), (False, NOTE + "\n")):
+        if quiet:
+            monkeypatch.setenv("ISCC_GYM_QUIET", "1")
+        else:
+            monkeypatch.delenv("ISCC_GYM_QUIET", raising=False)
+        stream = io.StringIO()
+        note = CompileNote(stream=stream, package=__name__.split(".")[0])  # this test module's functions
+        event.register("numba:compile", note)
+        try:
+            njit(lambda x: x * 2.0)(1.0)
+        finally:
+            event.unregister("numba:compile", note)
+        assert stream.getvalue() == expected
 
 
 def test_other_packages_compilations_print_nothing(tmp_path):

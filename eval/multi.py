@@ -23,8 +23,16 @@ import sys
 from pathlib import Path
 
 from iscc_gym.agents.sb3_policy import LAGRANGE_FILE
-from iscc_gym.eval.evaluate import Entry, ci_cell, evaluate, markdown_table
-from iscc_gym.eval.options import Parser, check_writable_file, nonneg_int, positive_int, run_console
+from iscc_gym.eval.evaluate import Entry, ci_cell, evaluate, horizon_slots, markdown_table
+from iscc_gym.eval.options import (
+    Parser,
+    check_writable_file,
+    nonneg_int,
+    positive_int,
+    progress_bar,
+    run_console,
+    show_progress,
+)
 
 from iscc_gym.docs import RESULTS_PATH, docs_path, write_section
 from iscc_gym.multi import N_DRONES, check_n_drones, drone_scenario
@@ -67,9 +75,10 @@ def agent_label(path) -> str:
 
 
 def compare(n_drones: int, seeds, policies: str = DEFAULT_POLICIES, agent: str | None = None, scenario="paper",
-            max_steps: int | None = None) -> dict:
+            max_steps: int | None = None, progress=None) -> dict:
     """The comparison of :func:`iscc_gym.eval.evaluate.evaluate` for ``n_drones`` drones (``agent``: a
     run directory, played as :func:`agent_label`; the reference ``joint-sca`` where it is played).
+    ``progress(n)``: called with the slots played, as in :func:`~iscc_gym.eval.evaluate.evaluate`.
     """
     from iscc_gym.agents.multi import make_multi_policy
 
@@ -83,7 +92,7 @@ def compare(n_drones: int, seeds, policies: str = DEFAULT_POLICIES, agent: str |
         entries[spec] = Entry(make_multi_policy(spec, s, k), {"n_drones": k})
     reference = REFERENCE if REFERENCE in entries else None
     return evaluate(entries, seeds, scenario, max_steps=max_steps, reference=reference,
-                    focus=focus)
+                    focus=focus, progress=progress)
 
 
 def _advantage_line(k: int, res: dict) -> str:
@@ -124,6 +133,7 @@ def build_parser(prog: str = "python -m eval.multi") -> Parser:
     ap.add_argument("--scenario", default="paper", help="scenario preset (default: paper)")
     ap.add_argument("--max-steps", type=positive_int, default=None, help="slots per mission (default: all)")
     ap.add_argument("--write-docs", action="store_true", help="write the tables into docs/results.md")
+    ap.add_argument("--quiet", action="store_true", help="no progress (bar on a terminal, else lines on stderr)")
     return ap
 
 
@@ -158,12 +168,17 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.multi") -> d
     seeds = held_out_seeds(SEED_START, args.episodes, args.seed)
     command = docs_command(prog, argv)
     out, sections = {}, []
+    n_baselines = len([p for p in args.policies.split(",") if p.strip()])
+    n_runs = sum(n_baselines + (1 if agents[k] else 0) for k in ks)
+    bar = progress_bar(n_runs * len(seeds) * horizon_slots(args.scenario, args.max_steps), prog, unit="slot",
+                       enabled=show_progress(args.quiet), unit_scale=True)
     for k in ks:
-        res = compare(k, seeds, args.policies, agents[k], args.scenario, args.max_steps)
+        res = compare(k, seeds, args.policies, agents[k], args.scenario, args.max_steps, progress=bar.update)
         out[k] = res
         text = markdown_table(res, command).replace(" --write-docs`", "`", 1)
         print(f"\n{k} drones{' (agent: ' + agents[k] + ')' if agents[k] else ''}:\n{text}")
         sections.append(f"### {k} drones\n\n" + text)
+    bar.close()
     if len(ks) > 1:
         summary = scan_table(out)
         print("\n" + summary)

@@ -115,7 +115,9 @@ def test_the_commands_train_and_compare_on_tiny_budgets(tmp_path, monkeypatch, c
     capsys.readouterr()
     scan = EM.main(["--k-scan", "1,2", "--episodes", "1", "--max-steps", "5", "--agent", "none",
                     "--policies", "margin"])
-    text = capsys.readouterr().out
+    captured = capsys.readouterr()
+    text = captured.out
+    assert "[python -m eval.multi] done: 10/10 slot" in captured.err  # issue 23: progress without a terminal
     assert "| K | policy | episode reward ↑ | tracking error (m) ↓ | PEB (m) ↓ | sensing share |" in text
     for k in ("1", "2"):  # one row per K and policy, with the comparison's own figures
         p = scan["results"][k]["policies"]["margin"]

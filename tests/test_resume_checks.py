@@ -14,17 +14,10 @@ from iscc_gym.train import train as T
 from iscc_gym.train.config import EVAL_SEED_RANGES
 from iscc_gym.train.runs import RESUME_FILE, latest_checkpoint
 from iscc_gym.train.train import console
+from tiny_runs import tiny_args as _args
 
-TINY = {"n_steps": 64, "batch_size": 64, "n_epochs": 1}
 TINY_FLAGS = ["--total-timesteps", "64", "--n-envs", "2", "--set", "n_steps=32", "--set", "batch_size=64",
               "--set", "n_epochs=1", "--no-tensorboard", "--init-policy", "none"]
-
-
-def _args(out, **kw):
-    base = dict(total_timesteps=256, n_envs=2, eval_freq=128, eval_episodes=2, eval_max_steps=50,
-                checkpoint_freq=128, out=str(out), overrides=dict(TINY), tensorboard=False, init_policy="none")
-    base.update(kw)
-    return Args(**base)
 
 
 @pytest.fixture(scope="module")

@@ -11,27 +11,21 @@ import numpy as np
 import pytest
 import yaml
 from iscc_gym.agents.sb3_policy import SB3Policy, read_manifest, write_manifest
-from iscc_gym.train import Args, main
+from iscc_gym.train import main
 from iscc_gym.train import train as T
 from iscc_gym.train.lagrangian import load_lagrange
 from iscc_gym.train.runs import RESUME_FILE, recover_unit, replace_unit
 from stable_baselines3 import PPO
 from stable_baselines3.common import evaluation
 from stable_baselines3.common.callbacks import BaseCallback
+from tiny_runs import TINY
+from tiny_runs import tiny_args as _args
 
-TINY = {"n_steps": 64, "batch_size": 64, "n_epochs": 1}
 LAG = {"cost_limit": "rate=0.05,stability=0.0", "lagrange_lr": 0.5}
 
 
 class Killed(BaseException):
     """A kill (not an Exception: nothing in train may catch it)."""
-
-
-def _args(out, **kw):
-    base = dict(total_timesteps=256, n_envs=2, eval_freq=128, eval_episodes=2, eval_max_steps=50,
-                checkpoint_freq=128, out=str(out), overrides=dict(TINY), tensorboard=False, init_policy="none")
-    base.update(kw)
-    return Args(**base)
 
 
 def _kill_at(step):

@@ -5,15 +5,8 @@ import pytest
 import yaml
 from iscc_gym.agents.sb3_policy import SB3Policy
 from iscc_gym.train import Args, load_hyperparams, main, parse_args
-
-TINY = {"n_steps": 64, "batch_size": 64, "n_epochs": 1}
-
-
-def _args(out, **kw):
-    base = dict(total_timesteps=256, n_envs=2, eval_freq=128, eval_episodes=2, eval_max_steps=50,
-                checkpoint_freq=128, out=str(out), overrides=dict(TINY), tensorboard=False, init_policy="none")
-    base.update(kw)
-    return Args(**base)
+from tiny_runs import TINY
+from tiny_runs import tiny_args as _args
 
 
 def test_train_writes_every_artifact_and_resume_continues(tmp_path):

@@ -24,17 +24,11 @@ from iscc_gym.train.train import (
     resolve_args,
     save_unit,
 )
+from tiny_runs import TINY
+from tiny_runs import tiny_args as _args
 
 ROOT = Path(__file__).resolve().parents[1]
-TINY = {"n_steps": 64, "batch_size": 64, "n_epochs": 1}
 SHIPPED = ROOT / "agents" / "trained" / "ppo_iscc"
-
-
-def _args(out, **kw):
-    base = dict(total_timesteps=256, n_envs=2, eval_freq=128, eval_episodes=2, eval_max_steps=50,
-                checkpoint_freq=128, out=str(out), overrides=dict(TINY), tensorboard=False, init_policy="none")
-    base.update(kw)
-    return Args(**base)
 
 
 @pytest.fixture(scope="module")

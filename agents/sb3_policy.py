@@ -119,9 +119,9 @@ def find_vecnormalize(model_path: str | Path) -> tuple[Path | None, object]:
     beside = model_path.parent / "vecnormalize.pkl"
     zoo = [d for d in sorted(model_path.parent.iterdir()) if d.is_dir()
            and ((d / "vecnormalize.pkl").exists() or (d / "config.yml").exists())]
-    if len(zoo) > 1:
+    if len(zoo) > 1:  # the folder named after the model (rl-zoo3's <env>.zip beside <env>/), if one is
         named = [d for d in zoo if d.name == model_path.stem]
-        if len(named) != 1:
+        if not named and not beside.exists():
             raise ValueError(f"{model_path}: several rl-zoo3 run folders beside it ({', '.join(d.name for d in zoo)}) "
                              "hold statistics; pass the model of a folder that holds one run")
         zoo = named

@@ -71,3 +71,16 @@ def test_two_rl_zoo3_folders_beside_a_model_are_refused(zoo_run, tmp_path):
         (tmp_path / d / "vecnormalize.pkl").write_bytes((run / "iscc_gym-ISCC-v0" / "vecnormalize.pkl").read_bytes())
     with pytest.raises(ValueError, match="several rl-zoo3 run folders"):
         SB3Policy.load(tmp_path / "m.zip")
+
+
+def test_statistics_beside_the_model_win_over_several_sub_folders(zoo_run, tmp_path):
+    """An older run directory (no manifest) holds best/ and other folders with statistics: the model's own
+    vecnormalize.pkl beside it is meant, nothing is ambiguous."""
+    run, _ = zoo_run
+    (tmp_path / "m.zip").write_bytes((run / "best_model.zip").read_bytes())
+    pkl = (run / "iscc_gym-ISCC-v0" / "vecnormalize.pkl").read_bytes()
+    (tmp_path / "vecnormalize.pkl").write_bytes(pkl)
+    for d in ("best", "other"):
+        (tmp_path / d).mkdir()
+        (tmp_path / d / "vecnormalize.pkl").write_bytes(pkl)
+    assert find_vecnormalize(tmp_path / "m.zip") == (tmp_path / "vecnormalize.pkl", None)

@@ -1,8 +1,6 @@
 """iscc_gym.threads: the serial kernel by default, the parallel one on request, the same results either way."""
 
-import os
-import subprocess
-import sys
+import importlib
 
 import gymnasium as gym
 import numba
@@ -54,14 +52,23 @@ def test_parallel_kernel_on_request_gives_the_same_results_bit_for_bit(monkeypat
         np.testing.assert_array_equal(a, b)
 
 
-def test_bad_settings_are_refused_with_the_fix():
+def test_bad_settings_are_refused_with_the_fix(monkeypatch):
     with pytest.raises(TypeError, match="True or False"):
         threads.set_parallel("yes")
-    env = {**os.environ, "ISCC_GYM_PARALLEL": "sometimes"}
-    r = subprocess.run([sys.executable, "-c", "import iscc_gym"], env=env, capture_output=True, text=True,
-                       timeout=120)
-    assert r.returncode != 0 and "ISCC_GYM_PARALLEL" in r.stderr and "use 1" in r.stderr
-    env["ISCC_GYM_PARALLEL"] = "1"
-    r = subprocess.run([sys.executable, "-c", "from iscc_gym import threads; print(threads.get_parallel())"],
-                       env=env, capture_output=True, text=True, timeout=120)
-    assert r.stdout.strip() == "True", r.stderr
+    # ISCC_GYM_PARALLEL is read when iscc_gym.threads is imported (iscc_gym imports it): the module is run
+    # again here under each value rather than importing iscc_gym in a new process (~4 s each, more under load)
+    before = threads.get_parallel()
+    try:
+        monkeypatch.setenv("ISCC_GYM_PARALLEL", "sometimes")
+        with pytest.raises(ValueError, match=r"ISCC_GYM_PARALLEL='sometimes'; use 1"):
+            importlib.reload(threads)
+        monkeypatch.setenv("ISCC_GYM_PARALLEL", "1")
+        importlib.reload(threads)
+        assert threads.get_parallel() is True
+        monkeypatch.setenv("ISCC_GYM_PARALLEL", "0")
+        importlib.reload(threads)
+        assert threads.get_parallel() is False
+    finally:
+        monkeypatch.delenv("ISCC_GYM_PARALLEL", raising=False)
+        importlib.reload(threads)
+        threads.set_parallel(before)

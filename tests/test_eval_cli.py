@@ -85,9 +85,14 @@ def test_train_steps_refuse_a_used_run_directory_first(tmp_path, no_episodes):
         cli.main(["--train-steps", "64", "--train-out", str(tmp_path), "--policies", "sca", "--quiet"])
 
 
-def test_train_steps_trains_through_the_command_line_then_evaluates(tmp_path):
+def test_train_steps_trains_through_the_command_line_then_evaluates(tmp_path, monkeypatch):
     """--train-steps runs python -m iscc_gym.train in a subprocess (eval never imports train) and then
-    evaluates the fresh agent as ``ppo``."""
+    evaluates the fresh agent as ``ppo``. The run is made tiny (2 envs, 64-step rollouts, no warm start)
+    by flags appended to the command eval builds, so the command line eval writes is still the one run."""
+    tiny = ["--n-envs", "2", "--set", "n_steps=64", "--set", "batch_size=64", "--set", "n_epochs=1",
+            "--init-policy", "none", "--eval-freq", "0", "--checkpoint-freq", "0"]
+    real = cli.run_training
+    monkeypatch.setattr(cli, "run_training", lambda argv, *a, **kw: real([*argv, *tiny], *a, **kw))
     out = tmp_path / "run"
     res = cli.main(["--train-steps", "256", "--train-out", str(out), "--policies", "ppo,equal", "--episodes", "2",
                     "--max-steps", "5", "--quiet"])

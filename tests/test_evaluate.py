@@ -1,5 +1,10 @@
 """The common-random-number evaluator: pairing, agreement with single-env rollouts, statistics."""
 
+import json
+import subprocess
+import sys
+from pathlib import Path
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -70,8 +75,6 @@ def test_eval_cli_writes_json_and_plots(tmp_path, capsys):
     path = tmp_path / "out.json"
     res = main(["--policies", "sca,equal,fixed:0.3,0.2,0.5", "--episodes", "2", "--seed-start", "50",
                 "--max-steps", "40", "--json", str(path), "--plots", str(tmp_path / "figs")])
-    import json
-
     saved = json.loads(path.read_text())
     assert saved["seeds"] == [50, 51]
     for name in ("sca", "equal", "fixed:0.3,0.2,0.5"):
@@ -129,37 +132,30 @@ class FakeBar:
         pass
 
 
-def test_eval_cli_in_worker_processes_gives_the_same_results(monkeypatch):
-    """Policies played in two spawned processes: every per-episode figure equals the serial run's; on a
-    terminal the progress reported (through the workers' queue, or directly) adds up to every slot played."""
+def test_python_m_eval_in_worker_processes_gives_the_serial_results(monkeypatch, tmp_path):
+    """``python -m eval --workers 2`` runs as ``__main__`` (its spawned workers must import what they run from
+    a module): every per-episode figure equals the serial in-process run's, and the progress it reports
+    through the workers' queue (lines on stderr without a terminal) adds up to every slot played, as the
+    serial run's bar does on a terminal."""
     import iscc_gym.eval.__main__ as cli
 
     monkeypatch.setattr(cli, "show_progress", lambda quiet: True)
     monkeypatch.setattr(cli, "progress_bar", FakeBar)
-    main = cli.main
     argv = ["--policies", "equal,margin,sca", "--episodes", "3", "--seed-start", "60", "--max-steps", "30"]
-    serial = main([*argv, "--workers", "1"])
+    serial = cli.main([*argv, "--workers", "1"])
     assert FakeBar.last.total == FakeBar.last.n == 3 * 30
-    parallel = main([*argv, "--workers", "2"])
-    assert FakeBar.last.total == FakeBar.last.n == 3 * 30
-    assert list(parallel["policies"]) == ["equal", "margin", "sca"]
-    for name in serial["policies"]:
-        assert parallel["policies"][name]["episodes"] == serial["policies"][name]["episodes"]
-    pair = "margin_vs_sca"
-    assert parallel["paired"][pair]["reward_diff_mean"] == serial["paired"][pair]["reward_diff_mean"]
-
-
-def test_python_m_eval_with_workers_runs_as_a_command():
-    """``python -m eval`` runs as ``__main__``: its workers must import what they run from a module."""
-    import subprocess
-    import sys
-    from pathlib import Path
-
     root = Path(__file__).resolve().parents[1]
-    out = subprocess.run([sys.executable, "-m", "eval", "--policies", "equal,sca", "--episodes", "2", "--max-steps",
-                          "10", "--workers", "2"], cwd=root, capture_output=True, text=True, timeout=300)
+    out = subprocess.run([sys.executable, "-m", "eval", *argv, "--workers", "2", "--json", str(tmp_path / "p.json")],
+                         cwd=root, capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr
     assert "Paired differences against sca" in out.stdout
+    assert "done: 90/90 slot" in out.stderr.splitlines()[-1]
+    parallel = json.loads((tmp_path / "p.json").read_text())
+    assert list(parallel["policies"]) == ["equal", "margin", "sca"]
+    for name in serial["policies"]:
+        assert parallel["policies"][name]["episodes"] == json.loads(json.dumps(serial["policies"][name]["episodes"]))
+    pair = "margin_vs_sca"
+    assert parallel["paired"][pair]["reward_diff_mean"] == serial["paired"][pair]["reward_diff_mean"]
 
 
 def test_focus_pairs_one_policy_against_every_other():

@@ -1,15 +1,17 @@
 """Optuna studies that went wrong without a word (issue 23, defects 8, 9, 10): a journal path that is not a
 journal, two studies in one --out, a killed worker's trial left RUNNING on a journal. No training here:
-the objectives are tiny fakes, the studies are opened and refused before any trial.
+the objectives are tiny fakes, the studies are opened and refused before any trial. The workers that must die or
+be capped are forks of the test process (a new interpreter importing iscc_gym took 4-8 s).
 """
 
 from __future__ import annotations
 
 import os
-import subprocess
+import resource
+import signal
 import sys
-import textwrap
 import time
+import traceback
 from pathlib import Path
 
 import optuna
@@ -27,33 +29,45 @@ TINY = ["--init-policy", "none", "--n-trials", "1", "--n-envs", "2", "--set", "n
         "--n-evaluations", "1"]
 
 
-def _env() -> dict:
-    env = dict(os.environ)
-    env.update(OMP_NUM_THREADS="1", MKL_NUM_THREADS="1", NUMBA_NUM_THREADS="1",
-               PYTHONPATH=str(ROOT) + os.pathsep + env.get("PYTHONPATH", ""))
-    return env
+def _in_child(fn, *args) -> int:
+    """Run ``fn(*args)`` in a forked child (everything already imported) and return its wait status: the exit
+    code ``fn`` returns, or minus the signal that killed it. The child never returns into pytest."""
+    pid = os.fork()
+    if pid == 0:  # pragma: no cover - the child
+        code = 1
+        try:
+            code = fn(*args)
+        except BaseException:
+            traceback.print_exc()
+        finally:
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os._exit(code)
+    _, status = os.waitpid(pid, 0)
+    return os.waitstatus_to_exitcode(status)
 
 
 # --- defect 8: --storage journal:PATH --------------------------------------------------------------------------
 
-def test_journal_on_dev_zero_is_refused_without_reading_it(tmp_path):
-    """/dev/zero was read without end (memory exhausted). Run in a process capped at 1.5 GB of address
-    space, so that without the check it dies of MemoryError instead of taking the machine's memory."""
-    code = textwrap.dedent("""
-        import resource, sys
-        resource.setrlimit(resource.RLIMIT_AS, (1536 << 20, 1536 << 20))
-        from iscc_gym.train.study_io import StudyConfigError, make_storage
+def test_journal_on_dev_zero_is_refused_without_reading_it(tmp_path, capfd):
+    """/dev/zero was read without end (memory exhausted). Run in a child whose address space may grow by at most
+    1.5 GB, so that without the check it dies of MemoryError instead of taking the machine's memory."""
+    def child(out):
+        pages = int(Path("/proc/self/statm").read_text().split()[0])  # the size the fork starts with
+        cap = pages * os.sysconf("SC_PAGE_SIZE") + (1536 << 20)
+        resource.setrlimit(resource.RLIMIT_AS, (cap, resource.getrlimit(resource.RLIMIT_AS)[1]))
         try:
-            make_storage("journal:/dev/zero", sys.argv[1])
+            make_storage("journal:/dev/zero", out)
         except StudyConfigError as e:
             print(e)
-            sys.exit(2)
-    """)
+            return 2
+        return 0
+
     t0 = time.perf_counter()
-    r = subprocess.run([sys.executable, "-c", code, str(tmp_path)], env=_env(), cwd=ROOT, capture_output=True,
-                       text=True, timeout=120)
-    assert r.returncode == 2, r.stderr[-2000:]
-    assert r.stdout.startswith("--storage journal:/dev/zero: /dev/zero is not a regular file")
+    code = _in_child(child, str(tmp_path))
+    out, err = capfd.readouterr()
+    assert code == 2, err[-2000:]
+    assert out.startswith("--storage journal:/dev/zero: /dev/zero is not a regular file")
     assert time.perf_counter() - t0 < 60
 
 
@@ -124,12 +138,9 @@ def test_killed_workers_trial_on_a_journal_is_failed_and_retried(tmp_path, monke
     """A worker killed mid-trial (SIGKILL: no clean-up) left its trial RUNNING for ever on a journal
     (SQLite's heartbeat recovered it). Now the next worker fails it and runs its parameters again."""
     journal = tmp_path / "study.log"
-    code = textwrap.dedent("""
-        import os, signal, sys
-        import optuna
-        from iscc_gym.train.study_io import make_storage
 
-        storage, _ = make_storage("journal:" + sys.argv[1], sys.argv[2])
+    def worker():
+        storage, _ = make_storage(f"journal:{journal}", tmp_path)
         study = optuna.create_study(storage=storage, study_name="s", direction="maximize")
 
         def objective(trial):
@@ -137,16 +148,15 @@ def test_killed_workers_trial_on_a_journal_is_failed_and_retried(tmp_path, monke
             os.kill(os.getpid(), signal.SIGKILL)
 
         study.optimize(objective, n_trials=1)
-    """)
-    r = subprocess.run([sys.executable, "-c", code, str(journal), str(tmp_path)], env=_env(), cwd=ROOT,
-                       capture_output=True, text=True, timeout=120)
-    assert r.returncode == -9, r.stderr[-2000:]
+        return 0
+
+    monkeypatch.setattr(study_io, "HEARTBEAT_INTERVAL_S", 0.2)
+    monkeypatch.setattr(study_io, "GRACE_PERIOD_S", 0.5)
+    assert _in_child(worker) == -signal.SIGKILL
     (dead,) = optuna.load_study(study_name="s", storage=make_storage(f"journal:{journal}", tmp_path)[0]).trials
     assert dead.state == optuna.trial.TrialState.RUNNING
 
-    monkeypatch.setattr(study_io, "HEARTBEAT_INTERVAL_S", 1)
-    monkeypatch.setattr(study_io, "GRACE_PERIOD_S", 1)
-    time.sleep(2.5)  # the dead worker's last heartbeat is now older than the grace period
+    time.sleep(1.0)  # the dead worker's last heartbeat is now older than the grace period
     storage, _ = make_storage(f"journal:{journal}", tmp_path)
     study = optuna.load_study(study_name="s", storage=storage)
     seen = []
@@ -160,17 +170,17 @@ def test_killed_workers_trial_on_a_journal_is_failed_and_retried(tmp_path, monke
 def test_live_trials_keep_beating_and_are_not_failed(tmp_path, monkeypatch):
     """A trial longer than the grace period whose worker is alive is never failed: its heartbeat thread
     writes into the journal every interval."""
-    monkeypatch.setattr(study_io, "HEARTBEAT_INTERVAL_S", 1)
-    monkeypatch.setattr(study_io, "GRACE_PERIOD_S", 2)
+    monkeypatch.setattr(study_io, "HEARTBEAT_INTERVAL_S", 0.4)
+    monkeypatch.setattr(study_io, "GRACE_PERIOD_S", 1.0)
     storage, _ = make_storage(f"journal:{tmp_path / 'j.log'}", tmp_path)
     study = optuna.create_study(storage=storage, study_name="s")
     other = make_storage(f"journal:{tmp_path / 'j.log'}", tmp_path)[0]  # a second worker's view
 
     def slow(trial):
-        time.sleep(3.5)
+        time.sleep(1.8)
         return float(len(other._get_stale_trial_ids(study._study_id)))  # checked while this one runs
 
     study.optimize(slow, n_trials=1)
     (t,) = study.trials
     assert t.state == optuna.trial.TrialState.COMPLETE and t.value == 0.0
-    assert t.system_attrs[study_io.HEARTBEAT_ATTR] > t.datetime_start.timestamp() + 2
+    assert t.system_attrs[study_io.HEARTBEAT_ATTR] > t.datetime_start.timestamp() + 1.0  # beat past the grace

@@ -197,7 +197,7 @@ def _stale_trial_callback() -> dict:
         return {"failed_trial_callback": optuna.storages.RetryFailedTrialCallback(max_retry=MAX_RETRY)}
 
 
-def journal_storage(backend, heartbeat_interval: int | None = None, grace_period: int | None = None):
+def journal_storage(backend, heartbeat_interval: float | None = None, grace_period: float | None = None):
     """An Optuna ``JournalStorage`` on ``backend`` with heartbeats, as Optuna's ``RDBStorage`` has them.
 
     Optuna's journal storage has none: a worker killed during a trial left it RUNNING for ever. Here a
@@ -210,8 +210,8 @@ def journal_storage(backend, heartbeat_interval: int | None = None, grace_period
     ----------
     backend : optuna.storages.journal.BaseJournalBackend
         E.g. ``JournalFileBackend(PATH)``.
-    heartbeat_interval, grace_period : int, optional
-        Seconds; default :data:`HEARTBEAT_INTERVAL_S`, :data:`GRACE_PERIOD_S`.
+    heartbeat_interval, grace_period : float, optional
+        Seconds (fractions allowed); default :data:`HEARTBEAT_INTERVAL_S`, :data:`GRACE_PERIOD_S`.
 
     Returns
     -------
@@ -221,8 +221,8 @@ def journal_storage(backend, heartbeat_interval: int | None = None, grace_period
     from optuna.storages._heartbeat import BaseHeartbeat
     from optuna.trial import TrialState
 
-    interval = HEARTBEAT_INTERVAL_S if heartbeat_interval is None else int(heartbeat_interval)
-    grace = GRACE_PERIOD_S if grace_period is None else int(grace_period)
+    interval = float(HEARTBEAT_INTERVAL_S if heartbeat_interval is None else heartbeat_interval)
+    grace = float(GRACE_PERIOD_S if grace_period is None else grace_period)
     callback = next(iter(_stale_trial_callback().values()))
 
     class HeartbeatJournalStorage(optuna.storages.JournalStorage, BaseHeartbeat):
@@ -243,7 +243,7 @@ def journal_storage(backend, heartbeat_interval: int | None = None, grace_period
                     stale.append(t._trial_id)
             return stale
 
-        def get_heartbeat_interval(self) -> int:
+        def get_heartbeat_interval(self) -> float:
             return interval
 
         def get_heartbeat_stale_trial_callback(self):

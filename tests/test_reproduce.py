@@ -33,7 +33,8 @@ def quick_paper(tmp_path_factory, figures_dir):
 
 
 @pytest.fixture(scope="module")
-def quick_literal():
+def quick_literal(quick_paper):
+    # after quick_paper: the paper preset's sensing calibration, the same for both presets, is then cached
     return reproduce.run("literal", quick=True, schemes=False)
 
 
@@ -318,7 +319,31 @@ def test_other_modules_are_merged(tmp_path, monkeypatch):
     monkeypatch.setattr(reproduce, "OTHER_MODULES", ("fake_study", "no_such_module"))
     monkeypatch.setattr(reproduce.paper_figures, "run", lambda *a, **k: {"claims": [], "sources": {}})
     monkeypatch.setattr(reproduce.paper_figures, "draw", lambda res, d: {})
+    monkeypatch.setattr(reproduce, "calibrate", lambda *a, **k: {"comm_snr_offset_db": 0.0})  # timed elsewhere
     res = reproduce.run("paper", quick=True, schemes=False, paper_figs=True, figures_dir=tmp_path)
     assert [c["id"] for c in res["claims"]] == ["fake-1"] and res["claims"][0]["module"] == "eval.fake_study"
     assert res["figures"] == {"fake.png": str(tmp_path / "fake.png")} and res["other_modules"]["fake_study"]["x"] == 1
     assert res["claims_holding"] == 0
+
+
+def test_sensing_calibration_is_computed_once_per_scenario_and_budget(monkeypatch):
+    """--write-docs runs both presets, each calibrating the paper preset the same way: the second call reuses
+    the first's rollouts, and a caller editing its result cannot change what the next one gets."""
+    from iscc_gym.eval import fading
+
+    calls = []
+    target = reproduce.PAPER["peb_m_table2_sca"]
+
+    def fake_rollout(splits, seeds, s, max_steps=None):
+        calls.append(len(seeds))
+        return {"peb_m": np.array([[target * (1.0 + 0.01 * (s.sensing_snr_offset_db == 7.0))]])}
+
+    monkeypatch.setattr(fading, "rollout", fake_rollout)
+    s = SCENARIOS["paper"].replace(sensing_snr_offset_db=7.0)
+    first = reproduce.calibrate_sensing_offset(s, n_missions=3, rtol=1e-6)
+    assert calls == [3, 3] and first["iterations"] == 2 and first["sensing_snr_offset_db"] != 7.0
+    first["sensing_snr_offset_db"] = -1.0
+    again = reproduce.calibrate_sensing_offset(s, n_missions=3, rtol=1e-6)
+    assert calls == [3, 3] and again["sensing_snr_offset_db"] == pytest.approx(7.0 + 20 * np.log10(1.01))
+    reproduce.calibrate_sensing_offset(s, n_missions=5, rtol=1e-6)  # another budget: computed
+    assert calls == [3, 3, 5, 5]

@@ -10,12 +10,14 @@ that would shadow top-level ``agents``/``train``/``eval`` packages.
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import subprocess
 import sys
 import venv
 import zipfile
+from importlib import metadata
 from pathlib import Path
 
 import pytest
@@ -27,6 +29,14 @@ SOURCES = ("pyproject.toml", "README.md", "iscc_gym", "agents", "train", "eval")
 def _run(cmd, cwd, **kw):
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
     return subprocess.run(cmd, cwd=cwd, capture_output=True, text=True, timeout=300, env=env, **kw)
+
+
+def _has_build_backend() -> bool:
+    """Whether this interpreter has pyproject's build requirements (setuptools>=68, wheel)."""
+    try:
+        return int(metadata.version("setuptools").split(".")[0]) >= 68 and bool(metadata.version("wheel"))
+    except (metadata.PackageNotFoundError, ValueError):
+        return False
 
 
 @pytest.fixture(scope="module")
@@ -42,7 +52,10 @@ def installed(tmp_path_factory):
         else:
             shutil.copy2(p, src / name)
     wheels = tmp / "wheels"
-    r = _run([sys.executable, "-m", "pip", "wheel", str(src), "--no-deps", "-q",
+    # the build backend this interpreter already has, if it meets pyproject's build-system requirements,
+    # spares pip an isolated build environment (~4 s); a fresh venv without setuptools gets one
+    isolation = ["--no-build-isolation"] if _has_build_backend() else []
+    r = _run([sys.executable, "-m", "pip", "wheel", str(src), "--no-deps", "-q", *isolation,
               "-w", str(wheels)], cwd=tmp)
     assert r.returncode == 0, r.stderr
     (wheel,) = wheels.glob("iscc_gym-*.whl")
@@ -94,26 +107,81 @@ def test_core_requirements_are_light(installed):
         assert any(r.lower().startswith(h) and 'extra == "train"' in r for r in requires), h
 
 
-def test_installed_package_is_not_shadowed_by_user_modules(installed):
-    code = ("import iscc_gym, iscc_gym.agents, iscc_gym.eval.evaluate, iscc_gym.train.train\n"
-            "from iscc_gym.agents import make_policy\n"
-            "print(iscc_gym.agents.__file__)\n"
-            "print(make_policy('margin').__class__.__name__)\n")
-    r = _run([str(installed["py"]), "-c", code], cwd=installed["work"])
-    assert r.returncode == 0, r.stderr
-    path, name = r.stdout.split()
+#: One launch of the installed interpreter in the folder of shadowing modules (on sys.path first, as for
+#: ``python -m``): ``python -m iscc_gym.eval --help`` and ``python -m iscc_gym.train --help`` run in it as
+#: ``-m`` runs them (runpy), then the imports of the shadowing check; a JSON line of what each printed.
+IN_ONE_LAUNCH = """
+import contextlib, io, json, runpy, sys, traceback
+out = {}
+for mod in ("iscc_gym.eval", "iscc_gym.train"):
+    buf, code = io.StringIO(), None
+    sys.argv = [mod, "--help"]
+    try:
+        with contextlib.redirect_stdout(buf):
+            runpy.run_module(mod, run_name="__main__", alter_sys=True)
+    except SystemExit as e:
+        code = e.code
+    except BaseException:
+        code = traceback.format_exc()
+    out["python -m " + mod + " --help"] = [code, buf.getvalue()]
+try:
+    import iscc_gym, iscc_gym.agents, iscc_gym.eval.evaluate, iscc_gym.train.train
+    from iscc_gym.agents import make_policy
+    out["shadow"] = [0, iscc_gym.agents.__file__ + " " + make_policy("margin").__class__.__name__]
+except BaseException:
+    out["shadow"] = [traceback.format_exc(), ""]
+print(json.dumps(out))
+"""
+#: The console scripts, each launched as a user would.
+SCRIPTS = (("iscc-eval", "--help"), ("iscc-train", "--help"))
+
+
+@pytest.fixture(scope="module")
+def launched(installed):
+    """The launches from the folder of shadowing modules, started together so their imports overlap
+    (the console scripts, and one interpreter for ``-m`` and the shadowing check): {name: Popen}."""
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
+    runs = {"one": [str(installed["py"]), "-c", IN_ONE_LAUNCH]}
+    runs.update({" ".join(c): [str(installed["bin"] / c[0]), *c[1:]] for c in SCRIPTS})
+    procs = {name: subprocess.Popen(cmd, cwd=installed["work"], env=env, stdout=subprocess.PIPE,
+                                    stderr=subprocess.PIPE, text=True) for name, cmd in runs.items()}
+    results = {}
+
+    def result(name):
+        if name not in results:
+            results[name] = procs[name].communicate(timeout=300)
+        return procs[name].returncode, *results[name]
+
+    yield result
+    for p in procs.values():
+        if p.poll() is None:
+            p.kill()
+        p.communicate()
+
+
+def _in_one_launch(launched) -> dict:
+    code, out, err = launched("one")
+    assert code == 0, err
+    return json.loads(out.splitlines()[-1])
+
+
+def test_installed_package_is_not_shadowed_by_user_modules(installed, launched):
+    code, out = _in_one_launch(launched)["shadow"]
+    assert code == 0, code
+    path, name = out.split()
     assert Path(path).resolve().is_relative_to(installed["site"].resolve())
     assert name == "MarginPolicy"
 
 
-@pytest.mark.parametrize("command", [["iscc-eval", "--help"], ["iscc-train", "--help"],
-                                     ["python", "-m", "iscc_gym.eval", "--help"],
-                                     ["python", "-m", "iscc_gym.train", "--help"]])
-def test_console_commands_run_from_any_directory(installed, command):
-    exe = str(installed["bin"] / command[0])
-    r = _run([exe, *command[1:]], cwd=installed["work"])
-    assert r.returncode == 0, r.stderr
-    assert "usage" in r.stdout.lower()
+def test_console_commands_run_from_any_directory(launched):
+    for command in SCRIPTS:
+        code, out, err = launched(" ".join(command))
+        assert code == 0, (command, err)
+        assert "usage" in out.lower(), command
+    for command, (code, out) in _in_one_launch(launched).items():
+        if command.startswith("python -m"):
+            assert code in (0, None), (command, code)
+            assert "usage" in out.lower(), command
 
 
 def test_env_and_scripted_policies_work_without_the_train_extra():

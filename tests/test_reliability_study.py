@@ -29,9 +29,10 @@ TINY = ["--init-policy", "none", "--n-trials", "1", "--n-envs", "2", "--set", "n
         "--n-evaluations", "1"]
 
 
-def _in_child(fn, *args) -> int:
+def _in_child(fn, *args, timeout: float = 120) -> int:
     """Run ``fn(*args)`` in a forked child (everything already imported) and return its wait status: the exit
-    code ``fn`` returns, or minus the signal that killed it. The child never returns into pytest."""
+    code ``fn`` returns, or minus the signal that killed it. The child never returns into pytest; one still
+    running after ``timeout`` s is killed and the test fails."""
     pid = os.fork()
     if pid == 0:  # pragma: no cover - the child
         code = 1
@@ -43,8 +44,15 @@ def _in_child(fn, *args) -> int:
             sys.stdout.flush()
             sys.stderr.flush()
             os._exit(code)
-    _, status = os.waitpid(pid, 0)
-    return os.waitstatus_to_exitcode(status)
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        done, status = os.waitpid(pid, os.WNOHANG)
+        if done:
+            return os.waitstatus_to_exitcode(status)
+        time.sleep(0.02)
+    os.kill(pid, signal.SIGKILL)
+    os.waitpid(pid, 0)
+    raise AssertionError(f"the child ran longer than {timeout} s")
 
 
 # --- defect 8: --storage journal:PATH --------------------------------------------------------------------------

@@ -86,16 +86,36 @@ def test_train_steps_refuse_a_used_run_directory_first(tmp_path, no_episodes):
 
 
 def test_train_steps_trains_through_the_command_line_then_evaluates(tmp_path, monkeypatch):
-    """--train-steps runs python -m iscc_gym.train in a subprocess (eval never imports train) and then
-    evaluates the fresh agent as ``ppo``. The run is made tiny (2 envs, 64-step rollouts, no warm start)
-    by flags appended to the command eval builds, so the command line eval writes is still the one run."""
+    """--train-steps runs ``python -m iscc_gym.train`` (eval never imports train) and then evaluates the fresh
+    agent as ``ppo``. The command eval builds is checked and run here in process as the interpreter would run it
+    (``runpy``; a new interpreter spends 10-20 s on imports, and ``test_bench`` runs one), made tiny (2 envs,
+    64-step rollouts, no warm start) by flags appended to it."""
+    import runpy
+
+    from iscc_gym.eval import training
+
     tiny = ["--n-envs", "2", "--set", "n_steps=64", "--set", "batch_size=64", "--set", "n_epochs=1",
             "--init-policy", "none", "--eval-freq", "0", "--checkpoint-freq", "0"]
-    real = cli.run_training
-    monkeypatch.setattr(cli, "run_training", lambda argv, *a, **kw: real([*argv, *tiny], *a, **kw))
+    commands, real_run = [], subprocess.run
+
+    def run_in_process(cmd, **kw):
+        if cmd[:3] != [sys.executable, "-m", "iscc_gym.train"]:  # not the training command (e.g. platform's)
+            return real_run(cmd, **kw)
+        commands.append(cmd)
+        with pytest.MonkeyPatch.context() as mp:
+            mp.setattr(sys, "argv", ["python -m iscc_gym.train", *cmd[3:], *tiny])
+            try:
+                runpy.run_module("iscc_gym.train", run_name="__main__", alter_sys=True)
+            except SystemExit as e:
+                return subprocess.CompletedProcess(cmd, e.code or 0, "", "")
+        return subprocess.CompletedProcess(cmd, 0, "", "")
+
+    monkeypatch.setattr(training.subprocess, "run", run_in_process)
     out = tmp_path / "run"
     res = cli.main(["--train-steps", "256", "--train-out", str(out), "--policies", "ppo,equal", "--episodes", "2",
                     "--max-steps", "5", "--quiet"])
+    assert len(commands) == 1 and commands[0][3:] == ["--total-timesteps", "256", "--scenario", "paper", "--out",
+                                                      str(out), "--quiet"]
     assert (out / "model.zip").is_file() and (out / "summary.yml").is_file()
     assert {"ppo", "equal"} <= set(res["policies"])
 
@@ -211,12 +231,17 @@ def test_python_m_eval_prints_progress_lines_without_a_terminal(capsys):
     assert "[evaluating]" not in capsys.readouterr().err
 
 
-def test_python_m_eval_exits_2_with_one_line_on_a_mistake():
-    out = subprocess.run([sys.executable, "-m", "eval", "--seeds", "5,5"], cwd=ROOT, capture_output=True, text=True,
-                         timeout=120)
-    assert out.returncode == 2
-    assert out.stderr == "python -m eval: error: --seeds: seed 5 is given twice; every mission must be a different " \
-                         "seed\n"
+def test_python_m_eval_exits_2_with_one_line_on_a_mistake(monkeypatch, capsys):
+    """Run as the interpreter runs ``python -m eval`` (``runpy``, in process: a new interpreter spends 10-20 s
+    on imports; ``test_evaluate`` launches ``python -m eval`` from the checkout as a real command)."""
+    import runpy
+
+    monkeypatch.setattr(sys, "argv", ["python -m eval", "--seeds", "5,5"])
+    with pytest.raises(SystemExit) as e:
+        runpy.run_module("iscc_gym.eval", run_name="__main__", alter_sys=True)
+    assert e.value.code == 2
+    assert capsys.readouterr().err == "python -m eval: error: --seeds: seed 5 is given twice; every mission must " \
+                                      "be a different seed\n"
 
 
 def test_figures_are_written_atomically(tmp_path):

@@ -112,7 +112,8 @@ def test_train_steps_trains_through_the_command_line_then_evaluates(tmp_path, mo
 
     monkeypatch.setattr(training.subprocess, "run", run_in_process)
     out = tmp_path / "run"
-    res = cli.main(["--train-steps", "256", "--train-out", str(out), "--policies", "ppo,equal", "--episodes", "2",
+    res = cli.main(["--train-steps", "256", "--train-out", str(out), "--policies", "ppo,equal", "--workers", "1",
+                    "--episodes", "2",
                     "--max-steps", "5", "--quiet"])
     assert len(commands) == 1 and commands[0][3:] == ["--total-timesteps", "256", "--scenario", "paper", "--out",
                                                       str(out), "--quiet"]

@@ -73,7 +73,7 @@ def test_eval_cli_writes_json_and_plots(tmp_path, capsys):
 
     assert _split_specs("sca,fixed:0.2,0.2,0.6,equal") == ["sca", "fixed:0.2,0.2,0.6", "equal"]
     path = tmp_path / "out.json"
-    res = main(["--policies", "sca,equal,fixed:0.3,0.2,0.5", "--episodes", "2", "--seed-start", "50",
+    res = main(["--policies", "sca,equal,fixed:0.3,0.2,0.5", "--episodes", "2", "--seed-start", "50", "--workers", "1",
                 "--max-steps", "40", "--json", str(path), "--plots", str(tmp_path / "figs")])
     saved = json.loads(path.read_text())
     assert saved["seeds"] == [50, 51]
@@ -109,13 +109,14 @@ def test_eval_write_docs_owns_only_its_sections_of_the_checkout(tmp_path, monkey
     elsewhere = tmp_path / "elsewhere"
     elsewhere.mkdir()
     monkeypatch.chdir(elsewhere)
-    main(["--policies", "sca,equal", "--episodes", "2", "--max-steps", "20", "--write-docs", "--quiet"])
+    main(["--policies", "sca,equal", "--episodes", "2", "--max-steps", "20", "--workers", "1", "--write-docs",
+          "--quiet"])
     assert list(elsewhere.iterdir()) == []
     results = (repo / "docs" / "results.md").read_text()
     readme = (repo / "README.md").read_text()
     assert "keep me" in results and "| equal vs sca |" in results
     assert readme.startswith("intro\n") and readme.endswith("outro\n") and "old" not in readme
-    assert "`python -m eval --policies sca,equal --episodes 2 --max-steps 20 --write-docs`" in readme
+    assert "`python -m eval --policies sca,equal --episodes 2 --max-steps 20 --workers 1 --write-docs`" in readme
 
 
 class FakeBar:

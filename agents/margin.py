@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from iscc_gym.schema import OBS, OBS_SCALING
+from iscc_gym.sim.schema import OBS, OBS_SCALING
 
 from .base import SplitPolicy
 from .tuned_records import TUNED_DIR, load_tuned, save_tuned
@@ -30,7 +30,7 @@ __all__ = ["MarginPolicy", "margin_split", "predicted_needs", "load_tuned", "sav
 
 def predicted_needs(obs) -> tuple[np.ndarray, np.ndarray]:
     """The control and data shares the GBS predicts the slot needs, read from observations (n, 23):
-    ``alpha_ctrl_min`` and ``alpha_comm_min`` (both scaled linearly, :data:`iscc_gym.schema.OBS_SCALING`).
+    ``alpha_ctrl_min`` and ``alpha_comm_min`` (both scaled linearly, :data:`iscc_gym.sim.schema.OBS_SCALING`).
     """
     o = np.asarray(obs, dtype=float)
     return tuple(o[:, OBS[name]] / OBS_SCALING[name][1] for name in ("alpha_ctrl_min", "alpha_comm_min"))

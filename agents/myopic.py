@@ -4,13 +4,14 @@ r"""Model-based per-slot optimiser: each slot, the split that maximises the expe
 large-scale SNR, geometry) and picks, for every env of a batch at once, the split
 :math:`(\alpha_\mathrm{sen}, \alpha_\mathrm{ctrl}, \alpha_\mathrm{comm})` that maximises the env's
 reward in expectation over the slot's Rician fading. Every equation comes from :mod:`iscc_gym`:
-the FBL link (:func:`iscc_gym.fbl.slot_link`, :func:`iscc_gym.fbl.min_shares`), the fading
-quadrature (:func:`iscc_gym.quadrature.rician_power_nodes`), the CRLB
-(:func:`iscc_gym.sensing_share.sensing_coefficients`, :func:`iscc_gym.sensing_share.local_crlb`), the Kalman
-steady state (:func:`iscc_gym.kalman_steady.axis_kalman_steady_state`), the second-moment recursion under
-packet loss (:func:`iscc_gym.stability.stability_matrix`) and the mean error norm
-(:func:`iscc_gym.quadrature.expected_norm`). Two helpers the library does not have live here:
-:func:`rician_power_cdf` (the CDF of :func:`iscc_gym.channel.rician_power_gain`) and
+the FBL link (:func:`iscc_gym.physics.fbl.slot_link`, :func:`iscc_gym.physics.fbl.min_shares`), the fading
+quadrature (:func:`iscc_gym.analysis.quadrature.rician_power_nodes`), the CRLB
+(:func:`iscc_gym.analysis.sensing_share.sensing_coefficients`,
+:func:`iscc_gym.analysis.sensing_share.local_crlb`), the Kalman
+steady state (:func:`iscc_gym.analysis.kalman_steady.axis_kalman_steady_state`), the second-moment recursion under
+packet loss (:func:`iscc_gym.physics.stability.stability_matrix`) and the mean error norm
+(:func:`iscc_gym.analysis.quadrature.expected_norm`). Two helpers the library does not have live here:
+:func:`rician_power_cdf` (the CDF of :func:`iscc_gym.physics.channel.rician_power_gain`) and
 :class:`LocalTrackingModel` (the steady-state tracking error of ``iscc_gym.analysis`` at one
 geometry, for any sensing share and loss rate).
 """
@@ -23,16 +24,17 @@ from dataclasses import dataclass, fields, replace
 import numpy as np
 from scipy.special import chndtr
 
-from iscc_gym.channel import beam_gain, link_snr, matched_gain
-from iscc_gym.dynamics import axis_gain, axis_matrices
-from iscc_gym.env import decode_observation
-from iscc_gym.fbl import min_shares, slot_link
-from iscc_gym.kalman_steady import axis_kalman_steady_state
-from iscc_gym.kernel import reward_from_costs
-from iscc_gym.quadrature import expected_norm, rician_power_nodes
+from iscc_gym.analysis.kalman_steady import axis_kalman_steady_state
+from iscc_gym.analysis.quadrature import expected_norm, rician_power_nodes
+from iscc_gym.analysis.sensing_share import SensingCoefficients, local_crlb, sensing_coefficients
+from iscc_gym.envs.env import decode_observation
+from iscc_gym.physics.channel import beam_gain, link_snr, matched_gain
+from iscc_gym.physics.dynamics import axis_gain, axis_matrices
+from iscc_gym.physics.fbl import min_shares, slot_link
+from iscc_gym.physics.stability import scenario_eps_star, stability_matrix
 from iscc_gym.scenario import Scenario, make_scenario
-from iscc_gym.sensing_share import SensingCoefficients, local_crlb, sensing_coefficients
-from iscc_gym.stability import scenario_eps_star, stability_matrix
+from iscc_gym.sim.kernel import reward_from_costs
+from iscc_gym.sim.task import check_split
 from iscc_gym.units import db_to_lin
 
 from .base import SplitPolicy, as_obs_batch
@@ -42,10 +44,10 @@ __all__ = ["MyopicPolicy", "LocalTrackingModel", "rician_power_cdf"]
 
 def rician_power_cdf(s: Scenario, x):
     r"""CDF :math:`P(|g|^2 \le x)` of the unit-mean Rician power gain of
-    :func:`iscc_gym.channel.rician_power_gain`.
+    :func:`iscc_gym.physics.channel.rician_power_gain`.
 
     :math:`|g|^2 = \sigma^2\chi'^2_2(2K)` with :math:`\sigma^2 = 1/(2(K+1))` and K = ``rician_k_db``
-    (linear), the distribution whose quantiles :func:`iscc_gym.quadrature.rician_power_nodes` takes.
+    (linear), the distribution whose quantiles :func:`iscc_gym.analysis.quadrature.rician_power_nodes` takes.
 
     Parameters
     ----------
@@ -66,10 +68,10 @@ class LocalTrackingModel:
     r"""Steady-state mean tracking error at one geometry for a sensing share and a loss rate.
 
     The model of :mod:`iscc_gym.analysis` (frozen geometry, exact closed-loop recursion) at a
-    single position: the local CRLB (:func:`iscc_gym.sensing_share.local_crlb`) splits the filter into
+    single position: the local CRLB (:func:`iscc_gym.analysis.sensing_share.local_crlb`) splits the filter into
     three 2-state axes (range: position and radial velocity measured; the two principal cross-range
     axes: position only). On each axis, with the Kalman steady state :math:`\mathbf P_{n|n-1}`,
-    :math:`\Sigma_\mathrm{est}` (:func:`iscc_gym.kalman_steady.axis_kalman_steady_state`) and the loss rate
+    :math:`\Sigma_\mathrm{est}` (:func:`iscc_gym.analysis.kalman_steady.axis_kalman_steady_state`) and the loss rate
     :math:`\varepsilon`,
 
     .. math::
@@ -78,7 +80,7 @@ class LocalTrackingModel:
         \lambda = [\Sigma_{\hat z}]_{pp} + [\Sigma_\mathrm{est}]_{pp},\qquad
         T = \mathbb E\|\mathbf e_\mathbf p\| = \texttt{expected\_norm}(\lambda_r, \lambda_1, \lambda_2)
 
-    with :math:`\mathbf M_1` the per-axis eq:M (:func:`iscc_gym.stability.stability_matrix`). The
+    with :math:`\mathbf M_1` the per-axis eq:M (:func:`iscc_gym.physics.stability.stability_matrix`). The
     Kalman steady state is tabulated once on a grid of measurement variances (0.05 decade steps,
     bilinear in the logarithms; clamped outside :math:`[10^{-10}, 10^{6.5}]` m^2 and
     :math:`[10^{-14}, 10^{6.5}]` (m/s)^2, where it no longer changes); :math:`\varepsilon \ge
@@ -179,14 +181,14 @@ class SlotContext:
     ----------
     snr : (n,)
         Predicted large-scale SNR :math:`\bar\gamma_n` (linear), from ``snr_db`` of
-        :func:`iscc_gym.env.decode_observation`.
+        :func:`iscc_gym.envs.env.decode_observation`.
     coef : SensingCoefficients
         Position-domain Fisher information at :math:`\alpha_\mathrm{sen} = 1` at the predicted range
         and direction (``range``, ``sin_elevation``, ``cos_azimuth``, ``sin_azimuth``) with the slot's
         shadowing (recovered from the SNR and the range).
     rate_per_share : (n, J)
         Data rate per unit share over ``rate_min_bps`` at the fading nodes
-        (:func:`iscc_gym.quadrature.rician_power_nodes`); unused if ``rate_min_bps`` is 0.
+        (:func:`iscc_gym.analysis.quadrature.rician_power_nodes`); unused if ``rate_min_bps`` is 0.
     """
 
     snr: np.ndarray
@@ -214,16 +216,16 @@ class MyopicPolicy(SplitPolicy):
 
     over :math:`\Delta = \{\alpha_\mathrm{sen} \ge` ``sensing_floor``,
     :math:`\alpha_\mathrm{ctrl} \ge` ``ctrl_floor``, :math:`\alpha_\mathrm{comm} \ge 0`, sum 1\},
-    the env's reward (:func:`iscc_gym.env.reward_and_costs`) in expectation over the slot's
+    the env's reward (:func:`iscc_gym.envs.env.reward_and_costs`) in expectation over the slot's
     small-scale fading :math:`g = |g_C|^2` (Rician, drawn after the allocation), where
 
     * :math:`\bar\gamma_n` is ``snr_db`` (the predicted large-scale SNR); the rate
-      (:func:`iscc_gym.fbl.slot_link`) shortfall is averaged over the fading quadrature of
-      :func:`iscc_gym.quadrature.rician_power_nodes`;
+      (:func:`iscc_gym.physics.fbl.slot_link`) shortfall is averaged over the fading quadrature of
+      :func:`iscc_gym.analysis.quadrature.rician_power_nodes`;
     * the stability term is in closed form: :math:`\varepsilon_\mathrm{ctrl}` falls with the SNR,
       so :math:`P(\varepsilon_\mathrm{ctrl} > \varepsilon^\star) = F_g(\gamma^\star(\alpha_\mathrm{ctrl})
       / \bar\gamma_n)` with :math:`\gamma^\star` the inverse of
-      :func:`iscc_gym.fbl.min_shares` at :math:`\varepsilon^\star` (tabulated) and :math:`F_g`
+      :func:`iscc_gym.physics.fbl.min_shares` at :math:`\varepsilon^\star` (tabulated) and :math:`F_g`
       :func:`rician_power_cdf`;
     * :math:`T` is the steady-state mean tracking error at the predicted geometry
       (:class:`LocalTrackingModel`: range, direction, shadowing) for the
@@ -394,9 +396,7 @@ class MyopicPolicy(SplitPolicy):
             a = np.broadcast_to(a, (n,) + a.shape)
         if a.ndim != 3 or a.shape[0] != n or a.shape[2] != 3:
             raise ValueError(f"split must have shape (m, 3) or ({n}, m, 3), got {np.shape(split)}")
-        if not np.all(np.isfinite(a)) or np.any(a < 0.0) or not np.allclose(a.sum(-1), 1.0, atol=1e-9):
-            raise ValueError("split must hold finite, non-negative shares (alpha_sen, alpha_ctrl, alpha_comm) "
-                             "summing to 1")
+        check_split(a, "split")
         value, terms = self._objective(ctx, a[..., 1], a[..., 2])
         return {"reward": value, **terms}
 

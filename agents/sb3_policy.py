@@ -22,6 +22,8 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from iscc_gym import ENV_ID
+
 __all__ = ["SB3Policy", "MANIFEST", "LAGRANGE_FILE", "write_manifest", "read_manifest", "ALGOS"]
 
 MANIFEST = "manifest.yml"
@@ -139,7 +141,7 @@ def find_vecnormalize(model_path: str | Path) -> tuple[Path | None, object]:
     return None, normalize
 
 
-def _load_vecnormalize(path: Path):
+def read_vecnormalize(path: Path):
     """SB3's VecNormalize statistics pickled at ``path``; a ``ValueError`` naming the file for one that is
     truncated, corrupt or holds something else.
     """
@@ -185,7 +187,7 @@ class SB3Policy:
                                  f"{self.obs_shape}: they come from different runs")
 
     @classmethod
-    def load(cls, path: str | Path, best: bool = False, check_env: str | None = "iscc_gym/ISCC-v0") -> SB3Policy:
+    def load(cls, path: str | Path, best: bool = False, check_env: str | None = ENV_ID) -> SB3Policy:
         """Load a run directory written by ``python -m train`` (``model.zip``, or
         ``best/best_model.zip`` with ``best=True``, each with the VecNormalize statistics of its own
         unit), a checkpoint directory, or a model ``.zip`` (with a ``vecnormalize.pkl`` beside it, if
@@ -248,7 +250,7 @@ class SB3Policy:
                              f"{model_path.name} (older python -m train runs kept none in best/): load the run's "
                              "final model.zip instead")
         model = _load_model(algo, model_path)
-        vecnormalize = _load_vecnormalize(vn_path) if has_vn else None
+        vecnormalize = read_vecnormalize(vn_path) if has_vn else None
         policy = cls(model, vecnormalize)
         if check_env is not None:
             want = _obs_shape(check_env)
@@ -270,8 +272,8 @@ class SB3Policy:
 
 def _obs_shape(env_id: str):
     """The observation shape of ``env_id`` (the ISCC env's without building one), or None if unknown."""
-    if env_id == "iscc_gym/ISCC-v0":
-        from iscc_gym.env import OBS_NAMES
+    if env_id == ENV_ID:
+        from iscc_gym.envs.env import OBS_NAMES
 
         return (len(OBS_NAMES),)
     return None

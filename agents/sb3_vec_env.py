@@ -1,6 +1,6 @@
 """Stable-Baselines3 ``VecEnv`` over the native batched env, so PPO and friends train on it directly.
 
-``ISCCBatchedVecEnv(num_envs, scenario=..., **overrides)`` wraps :class:`iscc_gym.vector.ISCCVectorEnv`
+``ISCCBatchedVecEnv(num_envs, scenario=..., **overrides)`` wraps :class:`iscc_gym.envs.vector.ISCCVectorEnv`
 in ``SameStep`` autoreset mode and speaks SB3's protocol: ``reset() -> obs``, ``step_wait() ->
 (obs, rewards, dones, infos)`` with ``infos[i]["terminal_observation"]`` and
 ``infos[i]["TimeLimit.truncated"]`` where sub-env i's episode ended. To keep a step of a large batch
@@ -20,8 +20,8 @@ from typing import Any
 import numpy as np
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv
 
+from iscc_gym.envs.vector import INFO_KEYS, ISCCVectorEnv
 from iscc_gym.scenario import Scenario
-from iscc_gym.vector import INFO_KEYS, ISCCVectorEnv
 
 __all__ = ["ISCCBatchedVecEnv"]
 

@@ -52,17 +52,17 @@ import numpy as np
 from scipy.optimize import brentq, minimize, nnls
 
 from iscc_gym.analysis import StaticModel, static_model
-from iscc_gym.fbl import ctrl_bler, ctrl_goodput_bits, min_shares
+from iscc_gym.analysis.sensing_share import crlb_trace
+from iscc_gym.physics.fbl import ctrl_bler, ctrl_goodput_bits, min_shares
 from iscc_gym.scenario import Scenario
-from iscc_gym.sensing_share import crlb_trace
 
 __all__ = ["SCAProblem", "SCAResult", "solve_sca", "static_problem", "sca_allocation", "MIN_SHARE"]
 
 #: Smallest share of any function: the strict bounds 0 < alpha_i < 1 of cons:alpha_range.
 MIN_SHARE = 1e-3
 
-_LOSS_MODELS = ("local", "trajectory", "mean_snr")
-_MODES = ("static", "per_slot")
+LOSS_MODELS = ("local", "trajectory", "mean_snr")
+MODES = ("static", "per_slot")
 
 
 @dataclass
@@ -237,7 +237,7 @@ def _subproblem_kkt(prob, x_k, f0, rho, g_k, dg_k, l_k):
     return np.array([a_s, min(max(u - a_s, lo_c), hi_c)])
 
 
-_SOLVERS = {"slsqp": _subproblem_slsqp, "kkt": _subproblem_kkt}
+SOLVERS = {"slsqp": _subproblem_slsqp, "kkt": _subproblem_kkt}
 
 
 def solve_sca(prob: SCAProblem, x0=None, rho: float = 1.0, tol: float = 1e-12, max_iter: int = 100,
@@ -268,8 +268,8 @@ def solve_sca(prob: SCAProblem, x0=None, rho: float = 1.0, tol: float = 1e-12, m
     ValueError
         Unknown ``solver`` or non-positive ``rho``/``tol``.
     """
-    if solver not in _SOLVERS:
-        raise ValueError(f"solver = {solver!r} is invalid: use one of {sorted(_SOLVERS)}")
+    if solver not in SOLVERS:
+        raise ValueError(f"solver = {solver!r} is invalid: use one of {sorted(SOLVERS)}")
     if not rho > 0.0:
         raise ValueError(f"rho = {rho!r} is invalid: must be > 0")
     if not tol > 0.0:
@@ -283,7 +283,7 @@ def solve_sca(prob: SCAProblem, x0=None, rho: float = 1.0, tol: float = 1e-12, m
                          time.perf_counter() - t0)
     x = start if x0 is None else _project(prob, np.asarray(x0, dtype=float))
     f0 = float(prob.f_sen(x[0])[0])
-    sub = _SOLVERS[solver]
+    sub = SOLVERS[solver]
     history = [x.copy()]
     converged = False
     iterations = 0
@@ -357,7 +357,7 @@ def _fallback_split(prob: SCAProblem) -> np.ndarray:
 # --------------------------------------------------------------------------------------------------
 # the static problem (trajectory-averaged quantities)
 # --------------------------------------------------------------------------------------------------
-def _check_choice(name, value, choices):
+def check_choice(name, value, choices):
     if value not in choices:
         raise ValueError(f"{name} = {value!r} is invalid: use one of {list(choices)}")
 
@@ -389,7 +389,7 @@ def static_problem(model: StaticModel, loss_model: str = "local", loss_design_fr
     ValueError
         Unknown ``loss_model``; ``loss_design_fraction`` outside (0, 1].
     """
-    _check_choice("loss_model", loss_model, _LOSS_MODELS)
+    check_choice("loss_model", loss_model, LOSS_MODELS)
     if not 0.0 < loss_design_fraction <= 1.0:
         raise ValueError(f"loss_design_fraction = {loss_design_fraction!r} is invalid: must be in (0, 1]")
     s = model.scenario

@@ -9,22 +9,22 @@ import math
 import numpy as np
 
 from iscc_gym.analysis import StaticModel, static_model
-from iscc_gym.channel import beam_gain, link_snr, matched_gain
-from iscc_gym.env import decode_observation
-from iscc_gym.fbl import comm_rate_bps, ctrl_bler, ctrl_goodput_bits
-from iscc_gym.quadrature import rician_power_nodes
+from iscc_gym.analysis.quadrature import rician_power_nodes
+from iscc_gym.analysis.sensing_share import crlb_trace_one, sensing_coefficients
+from iscc_gym.envs.env import decode_observation
+from iscc_gym.physics.channel import beam_gain, link_snr, matched_gain
+from iscc_gym.physics.fbl import comm_rate_bps, ctrl_bler, ctrl_goodput_bits
+from iscc_gym.physics.stability import scenario_eps_star
 from iscc_gym.scenario import Scenario
-from iscc_gym.sensing_share import crlb_trace_one, sensing_coefficients
-from iscc_gym.stability import scenario_eps_star
 from iscc_gym.units import db_to_lin
 
 from .base import SplitPolicy, validate_split
-from .sca import _LOSS_MODELS, _MODES, _SOLVERS, SCAProblem, SCAResult, _check_choice, sca_allocation, solve_sca
+from .sca import LOSS_MODELS, MODES, SOLVERS, SCAProblem, SCAResult, check_choice, sca_allocation, solve_sca
 from .tuned_records import load_tuned
 
 __all__ = ["SCAPolicy", "per_slot_loss_design_fraction"]
 
-#: The decoded observation entries the per-slot problem reads (:func:`iscc_gym.env.decode_observation`).
+#: The decoded observation entries the per-slot problem reads (:func:`iscc_gym.envs.env.decode_observation`).
 _READ = ("snr_db", "range_m", "sin_elevation", "cos_azimuth", "sin_azimuth")
 
 
@@ -106,9 +106,9 @@ class SCAPolicy(SplitPolicy):
     (:func:`sca_allocation`), played every slot (the paper's design). ``mode="per_slot"``: Algorithm 1
     re-solved every slot for that slot's predicted link and geometry.
 
-    What ``per_slot`` reads from the observation (``iscc_gym.env.OBS_NAMES``), all predicted by the
+    What ``per_slot`` reads from the observation (``iscc_gym.envs.env.OBS_NAMES``), all predicted by the
     GBS from its estimate :math:`\hat{\mathbf x}_{n|n-1}` before the slot's fading is drawn, decoded
-    by :func:`iscc_gym.env.decode_observation`:
+    by :func:`iscc_gym.envs.env.decode_observation`:
 
     * ``snr_db``: the slot's large-scale SNR :math:`\bar\gamma_n` (path loss, beam gain,
       shadowing). The stability threshold is the smallest share whose loss rate eq:ctrl_bler,
@@ -160,8 +160,8 @@ class SCAPolicy(SplitPolicy):
                  loss_model: str = "local", loss_design_fraction: float | None = None, rho: float = 1.0,
                  tol: float = 1e-12, max_iter: int = 100, solver: str | None = None,
                  model: StaticModel | None = None):
-        _check_choice("mode", mode, _MODES)
-        _check_choice("loss_model", loss_model, _LOSS_MODELS)
+        check_choice("mode", mode, MODES)
+        check_choice("loss_model", loss_model, LOSS_MODELS)
         if not isinstance(scenario, Scenario):
             raise ValueError(f"scenario must be a Scenario, got {type(scenario).__name__}")
         self.scenario = scenario
@@ -173,7 +173,7 @@ class SCAPolicy(SplitPolicy):
         self.loss_design_fraction = float(loss_design_fraction)
         self.rho, self.tol, self.max_iter = float(rho), float(tol), int(max_iter)
         self.solver = solver or ("slsqp" if mode == "static" else "kkt")
-        _check_choice("solver", self.solver, tuple(_SOLVERS))
+        check_choice("solver", self.solver, tuple(SOLVERS))
         model = static_model(scenario) if model is None else model
         self.result = sca_allocation(scenario, loss_model, self.loss_design_fraction, self.ignore_loss,
                                      model=model, rho=self.rho, tol=self.tol, max_iter=self.max_iter,
@@ -195,7 +195,7 @@ class SCAPolicy(SplitPolicy):
     def slot_terms(self, snr_db, range_m, sin_el, cos_az, sin_az):
         r"""The per-slot problem's inputs for slots with these decoded observation entries (arrays or
         floats): ``(coefficients, ctrl_min, comm_min)``: the
-        :class:`iscc_gym.sensing_share.SensingCoefficients` of :math:`f_\mathrm{sen}`, the stability
+        :class:`iscc_gym.analysis.sensing_share.SensingCoefficients` of :math:`f_\mathrm{sen}`, the stability
         threshold and the data share (see the class docstring).
         """
         s = self.scenario

@@ -1,6 +1,6 @@
 """Search baselines over static allocations: grid search and differential evolution.
 
-Both minimise :attr:`iscc_gym.allocation.AllocationMetrics.objective` (the steady-state mean tracking
+Both minimise :attr:`iscc_gym.analysis.allocation.AllocationMetrics.objective` (the steady-state mean tracking
 error where the split is feasible, a finite penalty elsewhere) of
 :class:`iscc_gym.analysis.StaticModel`, the same evaluator that scores the SCA allocation: the
 paper's Table II compares SCA with a grid search and a genetic algorithm on the tracking error.
@@ -42,7 +42,7 @@ class SearchResult:
     objective : float
         Its objective (mean tracking error in m if feasible).
     metrics : dict
-        :meth:`iscc_gym.allocation.AllocationMetrics.as_dict` of the best split.
+        :meth:`iscc_gym.analysis.allocation.AllocationMetrics.as_dict` of the best split.
     n_evaluations : int
         Splits evaluated.
     wall_time_s : float

@@ -8,12 +8,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from iscc_gym.agents.shipped import TUNED_DIR
+
 from iscc_gym.files import write_atomic
 
 __all__ = ["TUNED_DIR", "load_tuned", "save_tuned"]
 
-#: Where the tuning commands store their results (package data).
-TUNED_DIR = Path(__file__).resolve().parent / "tuned"
 
 
 def load_tuned(name: str, path: str | Path | None = None) -> dict:

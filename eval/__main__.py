@@ -44,19 +44,20 @@ from iscc_gym.eval.options import (
 )
 from iscc_gym.eval.policies import (  # noqa: F401
     SHIPPED_AGENT,
-    _items,
-    _split_specs,
     build_policies,
     build_policy,
     check_specs,
     policy_name,
     resolve_specs,
     run_parallel,
+    split_specs,
 )
 from iscc_gym.eval.training import run_training
 
+from iscc_gym import ENV_ID, MULTI_ENV_ID
 from iscc_gym.cli import run
 from iscc_gym.docs import README_PATH, RESULTS_PATH, docs_path, publish, save_json
+from iscc_gym.protocol import EVAL_SEED_START
 
 DEFAULT_POLICIES = "ppo,sca,sca-per-slot,margin,myopic,equal"
 PROG = "python -m eval"
@@ -119,7 +120,7 @@ def save_plots(res: dict, out_dir: str | Path, dt_s: float = 0.1) -> list[str]:
 
 def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
     ap = Parser(prog=prog, description=__doc__.split("\n")[0], epilog=PICKLE_WARNING)
-    ap.add_argument("--env", default="iscc_gym/ISCC-v0", metavar="ID",
+    ap.add_argument("--env", default=ENV_ID, metavar="ID",
                     help="env id (default: iscc_gym/ISCC-v0); iscc_gym/ISCC-Multi-v0 runs python -m eval.multi with "
                          "the other flags (--n-drones K, --k-scan, ...: python -m eval.multi --help)")
     ap.add_argument("--policies", default=DEFAULT_POLICIES, metavar="LIST",
@@ -130,7 +131,7 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
                          f"margin:M_CTRL,M_COMM, myopic (default: {DEFAULT_POLICIES})")
     ap.add_argument("--episodes", type=positive_int, default=20, metavar="N",
                     help="held-out episodes (missions) per policy (default: 20)")
-    ap.add_argument("--seed-start", type=nonneg_int, default=10_000, metavar="SEED",
+    ap.add_argument("--seed-start", type=nonneg_int, default=EVAL_SEED_START, metavar="SEED",
                     help="seed of the first episode; the others follow (default: 10000)")
     ap.add_argument("--seeds", metavar="LIST",
                     help="explicit comma-separated distinct seeds, instead of --episodes/--seed-start")
@@ -183,8 +184,8 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> dict:
 
         return multi_main(rest, prog=f"{prog} --env {MULTI_ENV_ID}")
     args = build_parser(prog).parse_args(argv)
-    if args.env != "iscc_gym/ISCC-v0":
-        raise ValueError(f"--env {args.env!r}: use iscc_gym/ISCC-v0 or {MULTI_ENV_ID}")
+    if args.env != ENV_ID:
+        raise ValueError(f"--env {args.env!r}: use {ENV_ID} or {MULTI_ENV_ID}")
     from iscc_gym import make_scenario
 
     try:
@@ -254,9 +255,6 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> dict:
     if args.json:
         save_json(args.json, res)
     return res
-
-
-MULTI_ENV_ID = "iscc_gym/ISCC-Multi-v0"
 
 
 def _multi_argv(argv: list[str]) -> list[str] | None:

@@ -23,8 +23,8 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
+from iscc_gym.envs.vector import ISCCVectorEnv
 from iscc_gym.scenario import Scenario, make_scenario
-from iscc_gym.vector import ISCCVectorEnv
 
 __all__ = ["Entry", "evaluate", "summarize", "run_episodes", "mean_ci", "format_table", "markdown_table",
            "EPISODE_METRICS", "METRIC_RANGES", "PEB_NOTE", "ci_cell", "horizon_slots"]

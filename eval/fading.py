@@ -29,23 +29,22 @@ import time
 
 import numpy as np
 from iscc_gym.agents.base import SplitPolicy
+from iscc_gym.eval.fading_draw import draw
 from scipy import stats
 
 from iscc_gym import SCENARIOS
 from iscc_gym.analysis import TRUST_LOSS_FRACTION, StaticModel, static_model
-from iscc_gym.averages import mean_snr, sample_positions
-from iscc_gym.dynamics import model_matrices
-from iscc_gym.fbl import ctrl_bler
+from iscc_gym.analysis.averages import mean_snr, sample_positions
+from iscc_gym.physics.dynamics import model_matrices
+from iscc_gym.physics.fbl import ctrl_bler
+from iscc_gym.physics.stability import alpha_ctrl_star, spectral_radius, stability_matrix
+from iscc_gym.protocol import FADING_SEED_START as SEED_START
+from iscc_gym.protocol import held_out_seeds
 from iscc_gym.scenario import Scenario, make_scenario
-from iscc_gym.stability import alpha_ctrl_star, spectral_radius, stability_matrix
 
 __all__ = ["run", "draw", "main", "mission_seeds", "rollout", "summarize_missions", "ALPHA_CTRL_GRID",
            "TOLERANCE", "SEED_START"]
 
-#: First mission seed (seed 0); inside the held-out evaluation range of ``eval.tune.EVAL_SEED_RANGES``.
-SEED_START = 1_100_000
-#: The held-out evaluation range the missions must stay in.
-EVAL_RANGE = (1_000_000, 2_000_000)
 #: Control shares of the stability study (alpha_sen = 0.2, data the rest).
 ALPHA_CTRL_GRID = (0.035, 0.04, 0.045, 0.05, 0.055, 0.06, 0.065, 0.07, 0.075, 0.08, 0.0825, 0.085, 0.0875,
                    0.09, 0.095, 0.1, 0.105, 0.11, 0.12, 0.14, 0.16, 0.2)
@@ -60,21 +59,6 @@ TOLERANCE = {"mean": 0.02, "rms": 0.05}
 MAX_BATCH = 1024
 #: Rate floor of the scenario where the trust bound binds for the searches (control share is scarce).
 TIGHT_RATE_MIN_BPS = 29e6
-
-
-def held_out_seeds(start: int, n: int, seed: int = 0) -> list[int]:
-    """``n`` mission seeds for run ``seed`` from ``start``: ``start + 1000 * seed + i``; ``ValueError`` if
-    any leaves :data:`EVAL_RANGE` or ``n`` is outside [1, 1000].
-    """
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise ValueError(f"seed = {seed!r} is invalid: use an integer >= 0")
-    if not 1 <= n <= 1000:
-        raise ValueError(f"n = {n!r} missions is invalid: use 1 to 1000 per run seed")
-    seeds = [start + 1000 * int(seed) + i for i in range(int(n))]
-    if seeds[-1] >= EVAL_RANGE[1]:
-        raise ValueError(f"seed = {seed}: missions {seeds[0]}-{seeds[-1]} leave the held-out evaluation range "
-                         f"[{EVAL_RANGE[0]}, {EVAL_RANGE[1]}); use a seed below {(EVAL_RANGE[1] - start) // 1000}")
-    return seeds
 
 
 def mission_seeds(n: int, seed: int = 0) -> list[int]:
@@ -390,13 +374,6 @@ def claims(res: dict) -> list[dict]:
         "why": "feasible requires trusted in the evaluator; SCA's threshold is at least the trust edge",
     })
     return out
-
-
-def draw(*args, **kwargs):
-    """:func:`iscc_gym.eval.fading_draw.draw` (drawing lives there)."""
-    from .fading_draw import draw as _impl
-
-    return _impl(*args, **kwargs)
 
 
 # --------------------------------------------------------------------------------------------------

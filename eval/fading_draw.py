@@ -5,28 +5,12 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-
-from .fading import TOLERANCE
+from iscc_gym.eval.figures import new_figure, save_figure
 
 
 # --------------------------------------------------------------------------------------------------
 # figures
 # --------------------------------------------------------------------------------------------------
-def _figure(size):
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=size, dpi=110)
-    FigureCanvasAgg(fig)
-    return fig
-
-
-def _save(fig, path: Path) -> str:
-    from iscc_gym.eval.figures import save_figure
-
-    return str(save_figure(fig, path))
-
-
 def draw(res: dict, figures_dir) -> dict[str, str]:
     """Two PNG figures: ``fading_stability`` (loss rate, loss of track and tracking error vs alpha_ctrl,
     env beside the analysis) and ``evaluator_trust`` (evaluator vs env against the worst position's
@@ -45,7 +29,7 @@ def draw(res: dict, figures_dir) -> dict[str, str]:
                              ("alpha_ctrl_trusted", "trust edge (ε ≤ 0.4 ε* everywhere)", "-")):
             ax.axvline(100 * e[key], color="0.45", ls=ls, lw=0.9, label=lab)
 
-    fig = _figure((15, 4.4))
+    fig = new_figure((15, 4.4), dpi=110)
     ax1, ax2, ax3 = fig.subplots(1, 3)
     ax1.semilogy(a, [r["eps_mean_snr"] for r in rows], "k-", label="ε at the averaged SNR (paper)")
     ax1.semilogy(a, [r["evaluator"]["eps_traj"] for r in rows], "C0-", label="ε, slot average (evaluator)")
@@ -91,9 +75,9 @@ def draw(res: dict, figures_dir) -> dict[str, str]:
     fig.suptitle("Stability rule under fading: the paper's α_ctrl* (averaged SNR) against the env "
                  f"(missions {res['mission_seeds'][0]}–{res['mission_seeds'][1]})", fontsize=10)
     fig.tight_layout()
-    out = {"fading_stability": _save(fig, d / "fading_stability.png")}
+    out = {"fading_stability": str(save_figure(fig, d / "fading_stability.png"))}
 
-    fig = _figure((7, 4.4))
+    fig = new_figure((7, 4.4), dpi=110)
     ax = fig.subplots()
     pts = [r for r in rows if r["evaluator"]["local_mean_m"] is not None and r["env"]["mean_error_m"] is not None]
     x = np.array([r["evaluator"]["eps_worst_over_star"] for r in pts])
@@ -110,10 +94,10 @@ def draw(res: dict, figures_dir) -> dict[str, str]:
             ax.plot(c["evaluator"]["eps_worst_over_star"], 100 * ag["mean_rel"], "s", color="C1", ms=4)
     ax.plot([], [], "s", color="C1", ms=4, label="checked splits and optimiser picks (mean)")
     ax.axvline(res["trust_loss_fraction"], color="k", lw=1, label="trust bound")
-    ax.axhspan(-100 * TOLERANCE["mean"], 100 * TOLERANCE["mean"], color="C0", alpha=0.1)
+    ax.axhspan(-100 * res["tolerance"]["mean"], 100 * res["tolerance"]["mean"], color="C0", alpha=0.1)
     ax.set(xlabel="worst sampled position's loss rate / ε*", ylabel="env − evaluator (%)",
            title="Where the steady-state evaluator can be trusted")
     ax.legend(fontsize=7)
     fig.tight_layout()
-    out["evaluator_trust"] = _save(fig, d / "evaluator_trust.png")
+    out["evaluator_trust"] = str(save_figure(fig, d / "evaluator_trust.png"))
     return out

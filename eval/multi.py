@@ -23,6 +23,7 @@ import sys
 from pathlib import Path
 
 from iscc_gym.agents.sb3_policy import LAGRANGE_FILE
+from iscc_gym.agents.shipped import multi_agent_dir
 from iscc_gym.eval.evaluate import Entry, ci_cell, evaluate, horizon_slots, markdown_table
 from iscc_gym.eval.options import (
     Parser,
@@ -35,13 +36,14 @@ from iscc_gym.eval.options import (
 )
 
 from iscc_gym.docs import RESULTS_PATH, docs_path, write_section
-from iscc_gym.multi import N_DRONES, check_n_drones, drone_scenario
+from iscc_gym.envs.multi import N_DRONES, check_n_drones, drone_scenario
+from iscc_gym.protocol import MULTI_SEED_START as SEED_START
+from iscc_gym.protocol import held_out_seeds
 from iscc_gym.scenario import make_scenario
 
 __all__ = ["SEED_START", "DEFAULT_POLICIES", "agent_dir", "compare", "scan_table", "main"]
 
 #: First held-out mission of this command (inside the evaluation range, apart from the others).
-SEED_START = 1_400_000
 #: The scripted baselines played by default (``margin-starved``: ``margin`` with a tenth of its sensing,
 #: the rest to data, the policy that buys rate with the radar; issue 23).
 DEFAULT_POLICIES = "equal-sca,joint-sca,margin,margin-starved"
@@ -54,13 +56,13 @@ REFERENCE = "joint-sca"
 
 def agent_dir(n_drones: int) -> Path:
     """Where ``python -m train.multi`` ships the agent for ``n_drones`` drones."""
-    return Path(__file__).resolve().parent.parent / "agents" / "trained" / "multi" / f"k{int(n_drones)}"
+    return multi_agent_dir(n_drones)
 
 
 def _load_agent(path, n_drones: int):
     from iscc_gym.agents.sb3_policy import SB3Policy
 
-    from iscc_gym.schema import N_OBS
+    from iscc_gym.sim.schema import N_OBS
 
     pol = SB3Policy.load(path, check_env=None)
     if pol.obs_shape != (n_drones * N_OBS,):
@@ -139,7 +141,6 @@ def build_parser(prog: str = "python -m eval.multi") -> Parser:
 
 def main(argv: list[str] | None = None, prog: str = "python -m eval.multi") -> dict:
     from iscc_gym.agents.multi import MULTI_POLICY_SPECS
-    from iscc_gym.eval.fading import held_out_seeds
     from iscc_gym.eval.options import docs_command
 
     args = build_parser(prog).parse_args(argv)

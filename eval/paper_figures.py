@@ -5,8 +5,8 @@ numbers are the paper's (LaTeX order; Figs. 1-2 are illustrations). Where each f
 from:
 
 * **Fig. 3** (VEB, PEB vs alpha_sen at several SNRs) and **Fig. 4** (rho(M) vs eps_ctrl, eps_ctrl vs
-  alpha_ctrl, rho(M) vs alpha_ctrl): closed forms (the CRLB of :mod:`iscc_gym.sensing` on the
-  trajectory sample, eq:M and eq:ctrl_bler of :mod:`iscc_gym.stability` / :mod:`iscc_gym.fbl`), as in
+  alpha_ctrl, rho(M) vs alpha_ctrl): closed forms (the CRLB of :mod:`iscc_gym.physics.sensing` on the
+  trajectory sample, eq:M and eq:ctrl_bler of :mod:`iscc_gym.physics.stability` / :mod:`iscc_gym.physics.fbl`), as in
   the paper. The SNR levels of Fig. 3 are shifts of the sensing link's echo SNR around the ``paper``
   preset (the paper does not give its levels).
 * **Figs. 5-8** (LQG cost and tracking error over (alpha_sen, alpha_ctrl), error vs PEB, the coupling
@@ -24,45 +24,20 @@ the measured numbers only (the paper's words and numbers are quoted in :data:`PA
 from __future__ import annotations
 
 import numpy as np
+from iscc_gym.eval.paper_figures_draw import FIGURES, PAPER, draw
 from iscc_gym.eval.paper_mc import fly_splits
 
 from iscc_gym.analysis import static_model
-from iscc_gym.averages import mean_bounds, mean_snr, sample_positions
-from iscc_gym.dynamics import model_matrices
-from iscc_gym.fbl import ctrl_bler
+from iscc_gym.analysis.averages import mean_bounds, mean_snr, sample_positions
+from iscc_gym.physics.dynamics import model_matrices
+from iscc_gym.physics.fbl import ctrl_bler
+from iscc_gym.physics.sensing import echo_amplitude_sq, sensing_noise_var_w
+from iscc_gym.physics.stability import alpha_ctrl_star, eps_star, spectral_radius, stability_matrix
 from iscc_gym.scenario import Scenario
-from iscc_gym.sensing import echo_amplitude_sq, sensing_noise_var_w
-from iscc_gym.stability import alpha_ctrl_star, eps_star, spectral_radius, stability_matrix
 from iscc_gym.units import w_to_dbm
 
 __all__ = ["PAPER", "FIGURES", "run", "draw", "claims", "fit_line"]
 
-#: The paper's words and numbers (Sec. II-C, IV-C.1, V-B) that the claims test.
-PAPER = {
-    "eps_ctrl_star": 0.5055,
-    "alpha_ctrl_star": 0.0403,
-    "rho_m_saturated": 0.1,
-    "lqg_cost_floor": 3.7e3,
-    "lqg_flat_alpha_sen": 0.15,
-    "ctrl_saturation": 0.07,
-    "error_floor_m": 0.4,
-    "error_flat_alpha_sen": 0.10,
-    "rate_knee_mbps": 35.0,
-    "table2_peb_m": 0.0635,
-    "table2_error_m": 0.4122,
-}
-
-#: File name -> title of the figures :func:`draw` writes.
-FIGURES = {
-    "fig3_veb_peb_vs_alpha_sen.png": "Fig. 3: (a) VEB and (b) PEB versus alpha_sen for several echo SNRs",
-    "fig4_stability.png": "Fig. 4: (a) rho(M) vs eps_ctrl, (b) eps_ctrl vs alpha_ctrl, (c) rho(M) vs alpha_ctrl",
-    "fig5_lqg_cost.png": "Fig. 5: LQG cost over (alpha_sen, alpha_ctrl): (a) surface, (b) vs alpha_ctrl, "
-                         "(c) vs alpha_sen",
-    "fig6_tracking_error.png": "Fig. 6: tracking error over (alpha_sen, alpha_ctrl): (a) surface, (b) vs alpha_ctrl, "
-                               "(c) vs alpha_sen",
-    "fig7_error_vs_peb.png": "Fig. 7: tracking error versus PEB with a fitted line per alpha_ctrl",
-    "fig8_coupling.png": "Fig. 8: coupling of PEB, data rate and LQG cost with the tracking error",
-}
 #: Where each figure's numbers come from (docs/results.md).
 SOURCES = {
     "Fig. 3": "closed form: the CRLB on the trajectory sample (large-scale echo, no fading)",
@@ -495,10 +470,3 @@ def claims(res: dict) -> list[dict]:
 
 def _split(a) -> str:
     return "/".join(f"{100 * x:.1f}" for x in a) + " %"
-
-
-def draw(*args, **kwargs):
-    """:func:`iscc_gym.eval.paper_figures_draw.draw` (drawing lives there)."""
-    from .paper_figures_draw import draw as _impl
-
-    return _impl(*args, **kwargs)

@@ -2,7 +2,7 @@ r"""Closed-loop Monte Carlo of static splits for the paper's Figs. 5-8 (``python
 
 Every split of a list is flown on the same ``n_missions`` seeded missions (common random numbers:
 the same trajectories, shadowing, fading, measurement, process-noise and drop draws for every split),
-all splits and missions stepped as one batch through :func:`iscc_gym.loop.step` (the env's
+all splits and missions stepped as one batch through :func:`iscc_gym.sim.loop.step` (the env's
 transition, compiled kernel). Per slot it records what the env reports (tracking error, PEB, data
 rate, loss rate) and one thing the env does not: the LQG stage cost of eq:LQG_cost,
 :math:`\mathbf x_n^T\mathbf Q\mathbf x_n + \tilde{\mathbf u}_n^T\mathbf R\tilde{\mathbf u}_n`, with
@@ -10,7 +10,7 @@ rate, loss rate) and one thing the env does not: the LQG stage cost of eq:LQG_co
 (zero when the command is lost). The applied command is recovered exactly from the transition,
 :math:`\mathbf B\tilde{\mathbf u}_n = \mathbf x_{n+1} - \mathbf A\mathbf x_n - \mathbf w_n`, with
 :math:`\mathbf w_n` the slot's process noise regenerated from the episode's noise key
-(:func:`iscc_gym.loop.slot_noise`).
+(:func:`iscc_gym.sim.loop.slot_noise`).
 
 A mission that loses track (tracking error above ``max_tracking_error_m``, the env's termination)
 stops counting at that slot, as in the env; its mean is the mean up to then and ``lost`` flags it.
@@ -20,9 +20,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from iscc_gym import loop
-from iscc_gym.dynamics import model_matrices
+from iscc_gym.physics.dynamics import model_matrices
 from iscc_gym.scenario import Scenario
+from iscc_gym.sim import loop
+from iscc_gym.sim.task import check_split
 from iscc_gym.trajectory import sample_reference
 
 __all__ = ["fly_splits", "SPLIT_METRICS"]
@@ -31,7 +32,7 @@ __all__ = ["fly_splits", "SPLIT_METRICS"]
 SPLIT_METRICS = ("tracking_error_m", "tracking_ms_m2", "lqg_cost", "peb_m", "rate_mbps", "eps_ctrl",
                  "packet_loss", "lost", "slots")
 
-#: Columns of the slot's normals that hold the process noise (:mod:`iscc_gym.loop`'s layout).
+#: Columns of the slot's normals that hold the process noise (:mod:`iscc_gym.sim.loop`'s layout).
 _PROC = slice(11, 17)
 
 
@@ -59,9 +60,7 @@ def fly_splits(s: Scenario, splits, n_missions: int, seed: int = 0, n_slots: int
         arrays (K,): means over missions (``lost``: the fraction of missions that lost track);
         ``tracking_rmse_m`` (K,) = sqrt(mean of ``tracking_ms_m2``); ``splits`` (K, 3).
     """
-    al = np.asarray(splits, dtype=float).reshape(-1, 3)
-    if np.any(al < 0) or not np.allclose(al.sum(-1), 1.0, atol=1e-9):
-        raise ValueError("splits must hold non-negative shares summing to 1, shape (K, 3)")
+    al = check_split(np.asarray(splits, dtype=float).reshape(-1, 3), "splits")
     if isinstance(n_missions, bool) or int(n_missions) != n_missions or n_missions < 1:
         raise ValueError(f"n_missions = {n_missions!r} is invalid: must be an integer >= 1")
     k, m = len(al), int(n_missions)

@@ -25,13 +25,16 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from iscc_gym.agents.shipped import PARETO_DIR
 from iscc_gym.eval.evaluate import mean_ci, run_episodes
 from iscc_gym.eval.options import Parser, Stages, check_writable_file, nonneg_int, positive_int, run_console
 from iscc_gym.eval.outage import build, find_knob
-from iscc_gym.eval.tune import TUNE_SEED_START, check_tuning_seeds
+from iscc_gym.eval.tune import check_tuning_seeds
 
 from iscc_gym.docs import RESULTS_PATH, docs_path, write_section
-from iscc_gym.scenario import PARETO_RATE_MIN_BPS, make_scenario
+from iscc_gym.protocol import PARETO_RATE_MIN_BPS, TUNE_SEED_START, held_out_seeds
+from iscc_gym.protocol import PARETO_SEED_START as SEED_START
+from iscc_gym.scenario import make_scenario
 
 __all__ = ["KNOBS", "RATE_MIN_BPS", "points", "non_dominated", "select", "at_target", "markdown", "main"]
 
@@ -39,7 +42,6 @@ __all__ = ["KNOBS", "RATE_MIN_BPS", "points", "non_dominated", "select", "at_tar
 KNOBS = {"sca": (1.0, 1.5, 2.0, 2.5, 3.0, 3.5), "margin": (1.0, 2.0, 3.0, 5.0, 10.0, 30.0),
          "myopic": (0.5, 2.0, 5.0, 20.0, 50.0)}
 #: First held-out mission of this command (inside the evaluation range, apart from the others).
-SEED_START = 1_300_000
 #: The rate requirement of the Pareto comparison (bps): 12 Mbps, not the ``paper`` preset's 20 Mbps,
 #: at which no split meets a 5 % or 10 % outage target (docs/model.md 4.6).
 RATE_MIN_BPS = PARETO_RATE_MIN_BPS
@@ -257,7 +259,7 @@ def default_learned() -> dict:
     """``name -> directory`` of the shipped Pareto runs (``agents/trained/pareto/<family>/<label>``)."""
     from iscc_gym.agents.sb3_policy import SB3Policy  # noqa: F401  (fails clearly without the train extra)
 
-    root = Path(__file__).resolve().parent.parent / "agents" / "trained" / "pareto"
+    root = PARETO_DIR
     return {f"{d.parent.name}/{d.name}": str(d) for d in sorted(root.glob("*/*")) if (d / "model.zip").is_file()}
 
 
@@ -308,7 +310,6 @@ def _learned(items) -> dict:
 
 
 def main(argv: list[str] | None = None, prog: str = "python -m eval.pareto") -> dict:
-    from iscc_gym.eval.fading import held_out_seeds
     from iscc_gym.eval.options import docs_command
 
     args = build_parser(prog).parse_args(argv)

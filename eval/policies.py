@@ -8,13 +8,14 @@ from __future__ import annotations
 import importlib.util
 from pathlib import Path
 
+from iscc_gym.agents.shipped import PPO_AGENT
 from iscc_gym.eval.evaluate import run_episodes
 
 __all__ = ["build_policy", "build_policies", "run_parallel", "resolve_specs", "check_specs", "policy_name",
            "SLOW_SPECS", "SHIPPED_AGENT"]
 
 #: The trained PPO agent shipped with the package (``agents/trained/ppo_iscc``; produced by ``python -m train.ship``).
-SHIPPED_AGENT = Path(__file__).resolve().parent.parent / "agents" / "trained" / "ppo_iscc"
+SHIPPED_AGENT = PPO_AGENT
 
 #: Specs whose policy is expensive to build (a solve or tables): known valid, so not built to check them.
 _KNOWN_SPECS = ("sca", "sca-per-slot", "sca-ignore-loss", "grid", "evolutionary", "myopic")
@@ -46,7 +47,7 @@ def resolve_specs(specs: str) -> list[str]:
     """The items of a ``--policies`` value: a bare ``ppo`` becomes the shipped agent (``ppo=`` its path);
     ``ValueError`` if it is empty or names a policy twice (results are keyed by name).
     """
-    items = [p.strip() for p in _split_specs(specs) if p.strip()]
+    items = [p.strip() for p in split_specs(specs) if p.strip()]
     if not items:
         raise ValueError("--policies is empty; e.g. --policies ppo,sca,equal")
     items = [f"ppo={SHIPPED_AGENT}" if item.lower() == "ppo" else item for item in items]
@@ -61,7 +62,6 @@ def resolve_specs(specs: str) -> list[str]:
     return items
 
 
-_items = resolve_specs  # the former name
 
 
 def check_specs(items: list[str], scenario: str = "paper") -> None:
@@ -202,7 +202,7 @@ def _stop(pool) -> None:
             proc.terminate()
 
 
-def _split_specs(specs: str) -> list[str]:
+def split_specs(specs: str) -> list[str]:
     """Split on commas, except inside ``fixed:a,b,c`` and ``margin:a,b``."""
     out, parts = [], specs.split(",")
     i = 0

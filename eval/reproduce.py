@@ -42,20 +42,20 @@ from iscc_gym.eval.reproduce_docs import LARGE_ALPHA_CTRL, format_table, write_d
 from scipy.optimize import brentq
 
 from iscc_gym import SCENARIOS, Scenario, make_scenario
-from iscc_gym.averages import TrajectorySample, mean_bounds, mean_comm_rate_bps, mean_snr, sample_positions
-from iscc_gym.channel import geometry
+from iscc_gym.analysis.averages import TrajectorySample, mean_bounds, mean_comm_rate_bps, mean_snr, sample_positions
 from iscc_gym.docs import README_PATH, RESULTS_PATH, docs_path
-from iscc_gym.dynamics import model_matrices
-from iscc_gym.fbl import ctrl_bler, min_shares
 from iscc_gym.files import write_atomic
-from iscc_gym.sensing import (
+from iscc_gym.physics.channel import geometry
+from iscc_gym.physics.dynamics import model_matrices
+from iscc_gym.physics.fbl import ctrl_bler, min_shares
+from iscc_gym.physics.sensing import (
     crlb,
     echo_amplitude_sq,
     peb,
     sensing_noise_var_w,
 )
-from iscc_gym.signature import signature_derivatives
-from iscc_gym.stability import (
+from iscc_gym.physics.signature import signature_derivatives
+from iscc_gym.physics.stability import (
     alpha_ctrl_star,
     entropy_power,
     eps_star,
@@ -67,6 +67,7 @@ from iscc_gym.stability import (
     spectral_radius,
     stability_matrix,
 )
+from iscc_gym.protocol import CALIBRATION_SEED_START
 from iscc_gym.units import lin_to_db, w_to_dbm
 
 #: The paper's reported model-level figures (its Fig. 4 in Sec. IV-C.1, Sec. V Table II and text).
@@ -91,7 +92,6 @@ ALPHA_CTRL_GRID = (0.02, 0.03, 0.035, 0.04, 0.045, 0.05, 0.06, 0.08, 0.1)
 TABLE2_SCA_SPLIT = (0.2, 0.2, 0.6)
 #: Missions of the PEB calibration: seeds from 600,000, outside the held-out evaluation seeds; 1024 of
 #: them, since the mission-mean PEB varies 20-fold between trajectories (standard error ~2 % of the mean).
-CALIBRATION_SEED_START = 600_000
 CALIBRATION_MISSIONS = 1024
 
 

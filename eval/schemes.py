@@ -29,7 +29,7 @@ from iscc_gym.eval.evaluate import Entry, evaluate
 from scipy.optimize import brentq
 
 from iscc_gym.analysis import static_model
-from iscc_gym.kalman_steady import gnss_steady_error_m
+from iscc_gym.analysis.kalman_steady import gnss_steady_error_m
 from iscc_gym.scenario import Scenario
 
 __all__ = ["PAPER_SCHEMES", "SEEDS", "QUICK_SEEDS", "QUICK_MAX_STEPS", "LIFTED_BOUND_M", "SCHEME_SPLITS",

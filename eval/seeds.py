@@ -32,6 +32,8 @@ from iscc_gym.eval.options import (
     show_progress,
 )
 
+from iscc_gym.protocol import EVAL_SEED_START
+
 #: Scripted policies every seed is compared with.
 SCRIPTED = ("sca", "margin", "myopic")
 
@@ -100,7 +102,7 @@ def build_parser(prog: str = "python -m eval.seeds") -> Parser:
                                  "vecnormalize.pkl: pickles, loaded and so executed; only runs you trust)")
     ap.add_argument("--episodes", type=positive_int, default=20, metavar="N",
                     help="held-out missions, >= 2 (default: 20)")
-    ap.add_argument("--seed-start", type=nonneg_int, default=10_000, metavar="SEED",
+    ap.add_argument("--seed-start", type=nonneg_int, default=EVAL_SEED_START, metavar="SEED",
                     help="seed of the first mission (default: 10000)")
     ap.add_argument("--scenario", default="paper", help="scenario preset (default: paper)")
     ap.add_argument("--max-steps", type=positive_int, metavar="N",

@@ -28,16 +28,18 @@ from pathlib import Path
 
 import numpy as np
 from iscc_gym.agents.sca import sca_allocation
-from iscc_gym.eval.fading import held_out_seeds, rollout, summarize_missions
+from iscc_gym.eval.fading import rollout, summarize_missions
+from iscc_gym.eval.figures import new_figure, save_figure
 
 from iscc_gym import SCENARIOS
 from iscc_gym.analysis import TRUST_LOSS_FRACTION, static_model
-from iscc_gym.averages import mean_bounds, sample_positions
+from iscc_gym.analysis.averages import mean_bounds, sample_positions
+from iscc_gym.protocol import SENSITIVITY_SEED_START as SEED_START
+from iscc_gym.protocol import held_out_seeds
 
 __all__ = ["run", "draw", "main", "mission_seeds", "RATE_MIN_MBPS", "LOSS_DESIGN_FRACTIONS", "PEB_TABLE2_M",
            "SEED_START"]
 
-SEED_START = 1_200_000
 #: Sweeps (full, quick).
 RATE_MIN_MBPS = (10.0, 15.0, 18.0, 20.0, 22.0, 25.0, 28.0, 30.0)
 QUICK_RATE_MIN_MBPS = (15.0, 20.0, 25.0)
@@ -233,9 +235,7 @@ def draw(res: dict, figures_dir) -> dict[str, str]:
     """``sensitivity_constants``: SCA's split, its tracking error and the violation fraction over
     ``rate_min_bps`` (top row) and ``loss_design_fraction`` (bottom row). Returns {name: path}.
     """
-    from iscc_gym.eval.fading_draw import _figure, _save
-
-    fig = _figure((14, 7.5))
+    fig = new_figure((14, 7.5), dpi=110)
     axes = fig.subplots(2, 3)
 
     def panel(row_axes, rows, x, xlabel, mark, logx=False, label=""):
@@ -292,7 +292,7 @@ def draw(res: dict, figures_dir) -> dict[str, str]:
                  f"per point, seeds {res['mission_seeds'][0]}–{res['mission_seeds'][1]}; dashed: the preset)",
                  fontsize=10)
     fig.tight_layout()
-    return {"sensitivity_constants": _save(fig, Path(figures_dir) / "sensitivity_constants.png")}
+    return {"sensitivity_constants": str(save_figure(fig, Path(figures_dir) / "sensitivity_constants.png"))}
 
 
 # --------------------------------------------------------------------------------------------------

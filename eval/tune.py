@@ -44,14 +44,9 @@ from iscc_gym.eval.options import (
 )
 from scipy import optimize
 
+from iscc_gym.protocol import TUNE_SEED_START, TUNE_SEEDS, check_outside_evaluation
 from iscc_gym.scenario import make_scenario
 
-#: First tuning seed (training seeds for the scripted baselines).
-TUNE_SEED_START = 500_000
-#: Default tuning seeds.
-TUNE_SEEDS = tuple(range(TUNE_SEED_START, TUNE_SEED_START + 40))
-#: Evaluation seeds of the project, which tuning seeds must avoid: [start, stop).
-EVAL_SEED_RANGES = ((10_000, 11_000), (1_000_000, 2_000_000))
 #: Default grid of ``python -m eval.tune margin``.
 MARGIN_GRID = {"m_ctrl": (2.5, 3.0, 3.5, 4.0, 5.0, 6.0, 8.0),
                "m_comm": (1.0, 1.2, 1.4, 1.7, 2.0, 2.5, 3.0, 4.0, 6.0),
@@ -79,11 +74,9 @@ def check_tuning_seeds(seeds) -> list[int]:
     seeds = [int(s) for s in seeds]
     if not seeds:
         raise ValueError("tuning seeds are empty; pass --episodes >= 1")
-    for lo, hi in EVAL_SEED_RANGES:
-        bad = [s for s in seeds if lo <= s < hi]
-        if bad:
-            raise ValueError(f"tuning seed {bad[0]} lies in the evaluation range [{lo}, {hi}); tune on seeds "
-                             f"outside it (default: from {TUNE_SEED_START})")
+    for seed in seeds:
+        check_outside_evaluation(seed, seed, "tuning seed",
+                                 f"tune on seeds outside it (default: from {TUNE_SEED_START})")
     return seeds
 
 

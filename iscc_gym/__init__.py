@@ -1,45 +1,44 @@
 """iscc-gym: learned resource allocation for integrated sensing, communication and control.
 
 The closed loop of Li et al., "Closed-Loop Integrated Sensing, Communication, and Control for
-Efficient Drone Flight", as pure batched numpy functions (``channel``, ``fbl``, ``sensing``,
-``dynamics``, ``kalman``, ``stability``, ``trajectory``, ``loop``) around one frozen
-:class:`Scenario`.
-"""
+Efficient Drone Flight" around one frozen :class:`Scenario` (``scenario.py``), in four layers whose
+imports run one way (``tests/test_imports.py``):
 
-import os as _os
+- :mod:`iscc_gym.physics`: per-drone equations, one module per concept;
+- :mod:`iscc_gym.sim`: the compiled slot and env step composed of them;
+- :mod:`iscc_gym.envs`: the Gymnasium and PettingZoo faces;
+- :mod:`iscc_gym.analysis`: the steady-state evaluator, off the step path.
+
+The repository's ``agents/``, ``train/`` and ``eval/`` folders install as ``iscc_gym.agents``,
+``iscc_gym.train`` and ``iscc_gym.eval`` (``pyproject.toml``'s ``package-dir``); this core never imports them.
+"""
 
 import gymnasium as _gym
 
-from . import compile_note as _compile_note  # noqa: F401 (a note on stderr when the kernels are first built)
-from . import multi
-from .env import REGISTERED_MAX_EPISODE_STEPS, ISCCEnv, action_to_split, split_to_action
-from .scenario import SCENARIOS, Scenario, make_scenario
+from iscc_gym import compile_note as _compile_note  # noqa: F401 (a note on stderr when the kernels are first built)
+from iscc_gym.envs.env import ENV_ID, REGISTERED_MAX_EPISODE_STEPS, ISCCEnv, action_to_split, split_to_action
+from iscc_gym.envs.multi import MULTI_ENV_ID
+from iscc_gym.scenario import SCENARIOS, Scenario, make_scenario
 
 __all__ = ["Scenario", "SCENARIOS", "make_scenario", "ISCCEnv", "action_to_split", "split_to_action",
-           "ENV_ID", "MULTI_ENV_ID", "multi"]
-
-#: The registered environment id.
-ENV_ID = "iscc_gym/ISCC-v0"
+           "ENV_ID", "MULTI_ENV_ID", "parallel_env"]
 
 assert SCENARIOS["paper"].n_slots == REGISTERED_MAX_EPISODE_STEPS
 if ENV_ID not in _gym.registry:
-    _gym.register(id=ENV_ID, entry_point="iscc_gym.env:ISCCEnv",
-                  vector_entry_point="iscc_gym.vector:ISCCVectorEnv",
+    _gym.register(id=ENV_ID, entry_point="iscc_gym.envs.env:ISCCEnv",
+                  vector_entry_point="iscc_gym.envs.vector:ISCCVectorEnv",
                   max_episode_steps=REGISTERED_MAX_EPISODE_STEPS)
-#: The registered id of the multi-drone env (:mod:`iscc_gym.multi`).
-MULTI_ENV_ID = "iscc_gym/ISCC-Multi-v0"
 if MULTI_ENV_ID not in _gym.registry:
-    _gym.register(id=MULTI_ENV_ID, entry_point="iscc_gym.multi:ISCCMultiEnv",
-                  vector_entry_point="iscc_gym.vector:ISCCMultiVectorEnv",
+    _gym.register(id=MULTI_ENV_ID, entry_point="iscc_gym.envs.multi:ISCCMultiEnv",
+                  vector_entry_point="iscc_gym.envs.vector:ISCCMultiVectorEnv",
                   max_episode_steps=REGISTERED_MAX_EPISODE_STEPS)
 __version__ = "0.1.0"
 
-# agents/, train/ and eval/ sit at the top of the repo and install as iscc_gym.agents, iscc_gym.train
-# and iscc_gym.eval (pyproject's package-dir). In a source checkout that is not installed that way
-# (a plain `pip install .` run from the repo root, or no install at all), let this package's path
-# reach the checkout's folders too, so `python -m eval` from the root resolves `iscc_gym.agents`.
-_root = _os.path.dirname(_os.path.dirname(_os.path.abspath(__file__)))
-if (not _os.path.isdir(_os.path.join(_os.path.dirname(_os.path.abspath(__file__)), "agents"))
-        and _os.path.isfile(_os.path.join(_root, "pyproject.toml"))
-        and _os.path.isfile(_os.path.join(_root, "agents", "__init__.py"))):
-    __path__.append(_root)  # noqa: F821 (the package's own __path__)
+
+def parallel_env(n_drones: int = 4, **kwargs):
+    """The PettingZoo ``ParallelEnv`` of the multi-drone env, one agent per drone
+    (:func:`iscc_gym.envs.multi_pz.parallel_env`; needs ``pip install pettingzoo``, imported on first use).
+    """
+    from iscc_gym.envs.multi_pz import parallel_env as make
+
+    return make(n_drones=n_drones, **kwargs)

@@ -12,7 +12,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from .files import write_atomic
+from iscc_gym.files import write_atomic
 
 __all__ = ["write_section", "publish", "save_json", "project_root", "docs_path", "RESULTS_PATH", "README_PATH"]
 

@@ -25,7 +25,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
-from .scenario_checks import validate
+from iscc_gym.scenario_checks import validate
 
 __all__ = ["Scenario", "SCENARIOS", "make_scenario", "per_scenario"]
 
@@ -305,12 +305,6 @@ class Scenario:
 
 
 SPEED_OF_LIGHT_MPS = 299_792_458.0
-
-#: The rate requirement (bps) of the Pareto comparison (``python -m eval.pareto``, ``python -m
-#: train.pareto``): at the ``paper`` preset's 20 Mbps no split meets a 5 % or 10 % rate-outage target
-#: (docs/model.md 4.6).
-PARETO_RATE_MIN_BPS = 12e6
-
 
 #: Overrides turning the calibrated ``paper`` preset into Table I / the equations as printed.
 LITERAL_OVERRIDES: dict[str, Any] = {

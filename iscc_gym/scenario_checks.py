@@ -10,8 +10,17 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from iscc_gym.trajectory import (
+    coverage_box_fraction,
+    coverage_volume_km3,
+    in_coverage,
+    order_waypoints,
+    sample_waypoints,
+    spline_reference,
+)
+
 if TYPE_CHECKING:  # pragma: no cover
-    from .scenario import Scenario
+    from iscc_gym.scenario import Scenario
 
 __all__ = ["validate", "reference_share", "CHOICES", "MAX_SLOTS", "MAX_WAYPOINTS", "MAX_MEAN_WAYPOINTS",
            "MIN_BOX_FRACTION"]
@@ -37,7 +46,7 @@ def _fail(name: str, value: Any, allowed: str) -> None:
 #: upper bounds are generous physical limits that keep every quantity of a slot finite and every
 #: array small; the lower bounds are what the model needs (a positive frequency, a non-negative std).
 #: The carrier frequency is held to 0.5-100 GHz, the range of 3GPP TR 38.901's channel models, whose
-#: UMa line-of-sight path loss (TR 36.777's aerial one, iscc_gym.channel) and Rician K-factor the model
+#: UMa line-of-sight path loss (TR 36.777's aerial one, iscc_gym.physics.channel) and Rician K-factor the model
 #: uses; far outside it the wavelength over- or underflows (1e-300 GHz: a 3e299 m wavelength).
 _RANGES: dict[str, tuple[float, float, bool]] = {
     "carrier_freq_ghz": (0.5, 100.0, False),
@@ -113,8 +122,6 @@ def reference_share(s: Scenario) -> float:
     """Share of :data:`REFERENCE_SHARE_DRAWS` seeded reference draws of ``s`` whose spline stays in the
     coverage region (what ``trajectory.sample_reference`` accepts); cached per region and waypoint law.
     """
-    from .trajectory import in_coverage, order_waypoints, sample_waypoints, spline_reference
-
     key = (s.coverage_radius_m, s.altitude_min_m, s.altitude_max_m, s.waypoint_intensity_per_km3, s.min_waypoints,
            s.mission_duration_s, s.dt_s)
     if key not in _reference_shares:
@@ -201,8 +208,6 @@ def validate(s: Scenario) -> None:
               f"at most {MAX_SLOTS:,} slots of dt_s = {s.dt_s} s (it gives {round(n):,}); shorten the mission or "
               f"lengthen dt_s")
     # what a reset can achieve: a bounded number of waypoints, drawn by rejection from the bounding box
-    from .trajectory import coverage_box_fraction, coverage_volume_km3
-
     mean = s.waypoint_intensity_per_km3 * coverage_volume_km3(s)
     if mean > MAX_MEAN_WAYPOINTS:
         _fail("waypoint_intensity_per_km3", s.waypoint_intensity_per_km3,

@@ -6,12 +6,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike
 from scipy.interpolate import CubicSpline
 
-from .scenario import Scenario
+if TYPE_CHECKING:  # annotations only: the scenario's checks (scenario_checks) draw references with this module
+    from iscc_gym.scenario import Scenario
 
 __all__ = ["coverage_volume_km3", "coverage_box_fraction", "in_coverage", "sample_waypoints", "order_waypoints",
            "Reference", "spline_reference", "sample_reference"]

@@ -1,8 +1,8 @@
-"""Test oracles of the env's task in plain numpy: the reward (:class:`iscc_gym.env.ISCCEnv`, Rewards) and
+"""Test oracles of the env's task in plain numpy: the reward (:class:`iscc_gym.envs.env.ISCCEnv`, Rewards) and
 the action map.
 
-The library computes each once (:func:`iscc_gym.kernel.reward_one`, :func:`iscc_gym.kernel.split_one`,
-also behind :func:`iscc_gym.env.reward_and_costs` and :func:`iscc_gym.env.action_to_split`); these
+The library computes each once (:func:`iscc_gym.sim.kernel.reward_one`, :func:`iscc_gym.sim.kernel.split_one`,
+also behind :func:`iscc_gym.envs.env.reward_and_costs` and :func:`iscc_gym.envs.env.action_to_split`); these
 independent paths check them.
 """
 
@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from iscc_gym.physics.stability import scenario_eps_star
 from iscc_gym.scenario import Scenario
-from iscc_gym.stability import scenario_eps_star
 
 
 def reward_and_costs(s: Scenario, metrics: dict, n_next, evaluable=True):

@@ -1,7 +1,7 @@
 """Test oracle of the closed loop and the env step in numpy: the transition (``step_reference``), the
 observation (``observe_reference``) and the env step (``env_step_reference``), written with the numpy
 physics functions (``channel``, ``fbl``, ``sensing``, ``kalman``) independently of the compiled slot
-(:func:`iscc_gym.loop.step_one`, :mod:`iscc_gym.kernel`), which ``tests/test_kernel.py`` checks
+(:func:`iscc_gym.sim.loop.step_one`, :mod:`iscc_gym.sim.kernel`), which ``tests/test_kernel.py`` checks
 against them (issue 14: the library computes each equation once, the numpy path lives here).
 """
 
@@ -12,13 +12,22 @@ from oracle_env import action_to_split, reward_and_costs
 from oracle_kalman import kf_predict, kf_update
 from oracle_sensing import crlb_local
 
-from iscc_gym import loop
-from iscc_gym.channel import beam_gain, direction_trig, link_snr, rician_power_gain, shadowing_std_db, shadowing_step
-from iscc_gym.dynamics import model_matrices
-from iscc_gym.fbl import q_func, slot_link
-from iscc_gym.loop import LoopState, _at, _check_step, _norm, slot_noise
+from iscc_gym.physics.channel import (
+    beam_gain,
+    direction_trig,
+    link_snr,
+    rician_power_gain,
+    shadowing_std_db,
+    shadowing_step,
+)
+from iscc_gym.physics.dynamics import model_matrices
+from iscc_gym.physics.fbl import q_func, slot_link
+from iscc_gym.physics.sensing import whitened_observation_matrix
+from iscc_gym.physics.stability import scenario_eps_star
 from iscc_gym.scenario import Scenario
-from iscc_gym.schema import (
+from iscc_gym.sim import loop
+from iscc_gym.sim.loop import LoopState, _at, _check_step, _norm, slot_noise
+from iscc_gym.sim.schema import (
     COL,
     CTRL_SHARE_SCALE,
     ERR_SCALE,
@@ -36,8 +45,6 @@ from iscc_gym.schema import (
     Z_PROC,
     Z_SHADOW,
 )
-from iscc_gym.sensing import whitened_observation_matrix
-from iscc_gym.stability import scenario_eps_star
 
 _MEAS, _DROP, _PROC, _SHAD = slice(Z_MEAS, Z_MEAS + 6), Z_DROP, slice(Z_PROC, Z_PROC + 6), Z_SHADOW
 

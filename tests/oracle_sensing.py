@@ -1,7 +1,7 @@
 """Test oracles of the sensing model: the FIM from its definition (the echo's derivatives), the
 printed eq:CRLB_pos through the Jacobian, and the position information in the global frame.
 
-Independent numpy paths kept out of the library (issue 14): the tests check :mod:`iscc_gym.sensing`'s
+Independent numpy paths kept out of the library (issue 14): the tests check :mod:`iscc_gym.physics.sensing`'s
 closed forms against them.
 """
 
@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from iscc_gym.channel import array_response, geometry
+from iscc_gym.physics.channel import array_response, geometry
 from iscc_gym.scenario import SPEED_OF_LIGHT_MPS, Scenario
 
 
@@ -101,15 +101,15 @@ def fim_from_definition(dmu, noise_var_w: float):
 
 
 def crlb_local(s: Scenario, alpha_sen, dist_m, trig, shadow_db, fading_gain=1.0):
-    """Numpy oracle of :func:`iscc_gym.sensing.crlb_local` (the compiled one): the printed FIM
+    """Numpy oracle of :func:`iscc_gym.physics.sensing.crlb_local` (the compiled one): the printed FIM
     (eq:FIM_tau -- eq:FIM_zero, angle entries per ``fim_angle_convention``) with the signature summed over
-    the array response (:func:`iscc_gym.signature.signature_derivatives` with an explicit beamformer), the
+    the array response (:func:`iscc_gym.physics.signature.signature_derivatives` with an explicit beamformer), the
     echo power from the radar path loss in dB, the prior added and the angle block inverted by
     ``numpy.linalg.inv``. Returns ``(m_r, m_tt, m_tp, m_pp, crlb_vr)``.
     """
-    from iscc_gym.channel import beamformer
-    from iscc_gym.sensing import sensing_noise_var_w, sensing_path_loss_db
-    from iscc_gym.signature import signature_derivatives
+    from iscc_gym.physics.channel import beamformer
+    from iscc_gym.physics.sensing import sensing_noise_var_w, sensing_path_loss_db
+    from iscc_gym.physics.signature import signature_derivatives
     from iscc_gym.units import dbm_to_w
 
     ct, st, cp, sp = (np.asarray(v, dtype=float) for v in trig)

@@ -1,6 +1,6 @@
 """Tests of iscc_gym.analysis: the steady-state evaluator of a static allocation.
 
-Oracles: the 6-state Kalman DARE and the vectorised second-moment recursion of iscc_gym.stability,
+Oracles: the 6-state Kalman DARE and the vectorised second-moment recursion of iscc_gym.physics.stability,
 sensing.crlb_local, finite differences, a seeded Monte Carlo of a Gaussian, and rollouts of the env.
 """
 
@@ -14,13 +14,15 @@ import pytest
 import scipy.linalg
 
 import iscc_gym  # noqa: F401  (registers the env)
-from iscc_gym import SCENARIOS, analysis, averages, fbl, quadrature, sensing_share
-from iscc_gym.channel import geometry, rician_power_gain
-from iscc_gym.dynamics import model_matrices
-from iscc_gym.fbl import ctrl_bler, slot_link
-from iscc_gym.kalman import isac_observation_matrix
-from iscc_gym.sensing import crlb, crlb_local
-from iscc_gym.stability import kalman_steady_state, lqg_cost, steady_state_covariance
+from iscc_gym import SCENARIOS, analysis
+from iscc_gym.analysis import averages, quadrature, sensing_share
+from iscc_gym.physics import fbl
+from iscc_gym.physics.channel import geometry, rician_power_gain
+from iscc_gym.physics.dynamics import model_matrices
+from iscc_gym.physics.fbl import ctrl_bler, slot_link
+from iscc_gym.physics.kalman import isac_observation_matrix
+from iscc_gym.physics.sensing import crlb, crlb_local
+from iscc_gym.physics.stability import kalman_steady_state, lqg_cost, steady_state_covariance
 
 S = SCENARIOS["paper"]
 
@@ -98,7 +100,7 @@ def test_single_position_evaluation_matches_the_six_state_recursion():
         quadrature.expected_norm(np.linalg.eigvalsh(sig_x[:3, :3])), rel=1e-6)
     assert res.lqg_cost[0] == pytest.approx(lqg_cost(mm.q, mm.r, mm.k, eps, sig_x, est6), rel=1e-6)
     # the paper's recursion: eq:omega_tilde_cov fed to eq:covariance_recursion
-    from iscc_gym.stability import equivalent_noise_cov
+    from iscc_gym.physics.stability import equivalent_noise_cov
 
     sig_p = steady_state_covariance(mm.a, mm.b, mm.k, eps, equivalent_noise_cov(mm.sigma_w, mm.b, mm.k, est6, eps))
     res_p = m.evaluate(alpha, recursion="paper")
@@ -126,7 +128,7 @@ def test_fading_and_shadowing_quadrature_against_sampling(model):
     """The node average of eq:ctrl_bler and of the data rate equals sampled slots (same positions)."""
     rng = np.random.default_rng(1)
     pos_idx = rng.integers(0, model.n_positions, 200_000)
-    from iscc_gym.channel import large_scale_snr, shadowing_std_db
+    from iscc_gym.physics.channel import large_scale_snr, shadowing_std_db
 
     pos = model.sample.pos_m[pos_idx]
     sh = shadowing_std_db(S, pos[:, 2]) * rng.standard_normal(len(pos))
@@ -175,8 +177,8 @@ def test_trust_bound_and_the_averaged_snr_reading(model):
     """trusted iff every sampled position's loss rate (recomputed here from eq:ctrl_bler by Monte Carlo
     over shadowing and Rician fading, not from the evaluator's table) is at most 0.4 eps*; the
     mean_snr reading is stable exactly above the paper's alpha_ctrl* (stability.alpha_ctrl_star)."""
-    from iscc_gym.channel import large_scale_snr, shadowing_std_db
-    from iscc_gym.stability import alpha_ctrl_star
+    from iscc_gym.physics.channel import large_scale_snr, shadowing_std_db
+    from iscc_gym.physics.stability import alpha_ctrl_star
 
     assert analysis.TRUST_LOSS_FRACTION == 0.4
     edge = model.alpha_ctrl_trusted()

@@ -34,7 +34,7 @@ def test_bench_write_docs_needs_the_full_run():
 
 def test_ppo_figure_of_the_train_configuration():
     """The PPO figure trains python -m train's own configuration (the YAML's env count) per thread setting."""
-    from iscc_gym.train.train import Args, resolve_args
+    from iscc_gym.train.config import Args, resolve_args
 
     res = bench.ppo_shipped_steps_per_second(256, 1, settings=((1, 1),))
     assert res["n_envs"] == resolve_args(Args())[0].n_envs

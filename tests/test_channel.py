@@ -1,4 +1,4 @@
-"""Tests of iscc_gym.channel against independent oracles.
+"""Tests of iscc_gym.physics.channel against independent oracles.
 
 Every expected value below is written out from the paper's equations (Sec. II-B, "Communication
 Signal Model under FBL"), from Table I, from physical array geometry, from finite differences, or
@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from iscc_gym import channel as ch
+from iscc_gym.physics import channel as ch
 from iscc_gym.scenario import SCENARIOS, Scenario
 
 S = Scenario()

@@ -37,7 +37,7 @@ def _keep_the_multiprocessing_start_method():
 
 
 def _pz(n_drones=2):
-    return iscc_gym.multi.parallel_env(n_drones=n_drones)
+    return iscc_gym.parallel_env(n_drones=n_drones)
 
 
 # --- our side: what the clients rely on ------------------------------------------------------------

@@ -1,4 +1,4 @@
-"""Tests of iscc_gym.dynamics against closed forms and scipy's DARE solver (paper, Sec. III-A)."""
+"""Tests of iscc_gym.physics.dynamics against closed forms and scipy's DARE solver (paper, Sec. III-A)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from iscc_gym import SCENARIOS, Scenario
-from iscc_gym.dynamics import (
+from iscc_gym.physics.dynamics import (
     lqg_weights,
     lqr_gain,
     model_matrices,
@@ -186,7 +186,7 @@ def test_model_matrices_read_only():
 
 def test_axis_matrices_are_one_axis_of_the_system_matrices():
     """A1, B1 written once (dynamics.axis_matrices); A, B are their Kronecker products with I3."""
-    from iscc_gym.dynamics import axis_matrices, system_matrices
+    from iscc_gym.physics.dynamics import axis_matrices, system_matrices
 
     dt = 0.1
     a1, b1 = axis_matrices(dt)

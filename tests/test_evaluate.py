@@ -13,7 +13,7 @@ from iscc_gym.eval.evaluate import Entry, evaluate, format_table, mean_ci, run_e
 from scipy import stats
 
 import iscc_gym  # noqa: F401
-from iscc_gym.env import split_to_action
+from iscc_gym.envs.env import split_to_action
 
 
 def test_episode_metrics_equal_single_env_rollouts():
@@ -69,9 +69,9 @@ def test_bad_arguments():
 
 
 def test_eval_cli_writes_json_and_plots(tmp_path, capsys):
-    from iscc_gym.eval.__main__ import _split_specs, main
+    from iscc_gym.eval.__main__ import main, split_specs
 
-    assert _split_specs("sca,fixed:0.2,0.2,0.6,equal") == ["sca", "fixed:0.2,0.2,0.6", "equal"]
+    assert split_specs("sca,fixed:0.2,0.2,0.6,equal") == ["sca", "fixed:0.2,0.2,0.6", "equal"]
     path = tmp_path / "out.json"
     res = main(["--policies", "sca,equal,fixed:0.3,0.2,0.5", "--episodes", "2", "--seed-start", "50", "--workers", "1",
                 "--max-steps", "40", "--json", str(path), "--plots", str(tmp_path / "figs")])

@@ -1,4 +1,4 @@
-"""Tests of iscc_gym.fbl: dispersion, Q / Q^-1, the FBL rate (eq:rate_equation) and the control
+"""Tests of iscc_gym.physics.fbl: dispersion, Q / Q^-1, the FBL rate (eq:rate_equation) and the control
 packet-drop probability (eq:ctrl_bler).
 
 Oracles: the paper's formulas written out with math / numpy and scipy.stats.norm (sf, isf).
@@ -14,7 +14,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.stats import norm
 
-from iscc_gym import fbl
+from iscc_gym.physics import fbl
 from iscc_gym.scenario import SCENARIOS, Scenario
 
 S = Scenario()
@@ -229,7 +229,7 @@ def test_ctrl_bler_deadline_reading():
 
 def test_compiled_ctrl_bler_is_the_numpy_one_to_rounding():
     """fbl.ctrl_bler_compiled (the env's compiled BLER as a ufunc) against the numpy definition."""
-    from iscc_gym.fbl import ctrl_bler, ctrl_bler_compiled
+    from iscc_gym.physics.fbl import ctrl_bler, ctrl_bler_compiled
     from iscc_gym.scenario import make_scenario
 
     s = make_scenario("paper")

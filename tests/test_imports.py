@@ -1,91 +1,223 @@
-"""Imports run one way (issue 14): scenario -> physics -> loop -> env/vector -> agents -> train/eval.
+"""The architecture, enforced (issues 14 and 24): imports run one way and no module waits on itself.
 
-Every module's imports are read with ``ast`` (no import is executed): the core ``iscc_gym`` imports
-nothing of ``agents``, ``train``, ``eval``, torch or SB3; ``agents`` nothing of ``train`` or ``eval``;
-and ``train`` and ``eval``, siblings, nothing of each other (eval reaches training through the
-command line, :mod:`iscc_gym.eval.training`).
+Every module's imports are read with ``ast`` (no import is executed), at module level and inside
+functions alike; imports under ``if TYPE_CHECKING:`` (annotations only, never run) are skipped.
+
+- Layers of the core ``iscc_gym``: the base (``scenario``, ``scenario_checks``, ``trajectory``, ``units``,
+  ``files`` and the other top-level helpers) imports none of the sub-packages; ``physics`` nothing of
+  ``sim``, ``envs`` or ``analysis``; ``sim`` nothing of ``envs`` or ``analysis``; ``envs`` and ``analysis``
+  nothing of each other. The package's ``__init__`` (its public face) may import any of them.
+- The core imports nothing of ``agents``, ``train``, ``eval``, the experiment protocol
+  (``iscc_gym.protocol``), torch, SB3 or optuna; ``agents`` nothing of ``train`` or ``eval``; ``train`` and
+  ``eval``, siblings, nothing of each other (eval reaches training through the command line,
+  :mod:`iscc_gym.eval.training`).
+- No circle: the graph of imports between the project's modules (all four folders) has no cycle.
+- No private name (``_x``) is imported from another module.
 """
 
 import ast
+import importlib
 from pathlib import Path
 
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
-#: layer -> (folder, names it must not import)
+#: folder -> the package it installs as (pyproject's package-dir)
+FOLDERS = {ROOT / "iscc_gym": "iscc_gym", ROOT / "agents": "iscc_gym.agents", ROOT / "train": "iscc_gym.train",
+           ROOT / "eval": "iscc_gym.eval"}
+OUTSIDE_CORE = ("iscc_gym.agents", "iscc_gym.train", "iscc_gym.eval", "iscc_gym.protocol", "agents", "train", "eval",
+                "torch", "stable_baselines3", "sb3_contrib", "optuna")
+SUBPACKAGES = ("physics", "sim", "envs", "analysis")
+#: layer -> names its modules must not import
 RULES = {
-    "core": (ROOT / "iscc_gym", ("iscc_gym.agents", "iscc_gym.train", "iscc_gym.eval", "agents", "train", "eval",
-                                 "torch", "stable_baselines3", "optuna")),
-    "agents": (ROOT / "agents", ("iscc_gym.train", "iscc_gym.eval", "train", "eval")),
-    "train": (ROOT / "train", ("iscc_gym.eval", "eval")),
-    "eval": (ROOT / "eval", ("iscc_gym.train", "train")),
+    "base": tuple(f"iscc_gym.{p}" for p in SUBPACKAGES) + OUTSIDE_CORE,
+    "physics": ("iscc_gym.sim", "iscc_gym.envs", "iscc_gym.analysis") + OUTSIDE_CORE,
+    "sim": ("iscc_gym.envs", "iscc_gym.analysis") + OUTSIDE_CORE,
+    "envs": ("iscc_gym.analysis",) + OUTSIDE_CORE,
+    "analysis": ("iscc_gym.envs",) + OUTSIDE_CORE,
+    "face": OUTSIDE_CORE,
+    "protocol": tuple(f"iscc_gym.{p}" for p in SUBPACKAGES) + ("iscc_gym.agents", "iscc_gym.train", "iscc_gym.eval"),
+    "agents": ("iscc_gym.train", "iscc_gym.eval", "train", "eval"),
+    "train": ("iscc_gym.eval", "eval"),
+    "eval": ("iscc_gym.train", "train"),
 }
 
 
-def imported_modules(path: Path, package: str) -> set[str]:
-    """Absolute names of every module ``path`` imports (relative imports resolved within ``package``)."""
-    out = set()
-    for node in ast.walk(ast.parse(path.read_text())):
-        if isinstance(node, ast.Import):
-            out.update(a.name for a in node.names)
-        elif isinstance(node, ast.ImportFrom):
-            if node.level:
-                base = package.rsplit(".", node.level - 1)[0] if node.level > 1 else package
-                mod = f"{base}.{node.module}" if node.module else base
-                out.update([mod] + [f"{mod}.{a.name}" for a in node.names])
-            else:
-                out.add(node.module)
-                out.update(f"{node.module}.{a.name}" for a in node.names)
+def modules() -> dict[str, Path]:
+    """Every module of the project: its import name -> its file."""
+    out = {}
+    for folder, package in FOLDERS.items():
+        for path in sorted(folder.rglob("*.py")):
+            rel = path.relative_to(folder).with_suffix("").parts
+            if package == "iscc_gym" and rel[0] in ("agents", "train", "eval"):
+                continue  # an installed copy inside the package folder (never in a checkout)
+            parts = rel[:-1] if rel[-1] == "__init__" else rel
+            out[".".join((package, *parts))] = path
     return out
 
 
-def violations(layer: str) -> list[str]:
-    folder, banned = RULES[layer]
-    package = {"core": "iscc_gym"}.get(layer, f"iscc_gym.{layer}")
+def layer(name: str) -> str:
+    """The layer of module ``name``."""
+    parts = name.split(".")
+    if name == "iscc_gym":
+        return "face"
+    if parts[1] in ("agents", "train", "eval"):
+        return parts[1]
+    if parts[1] == "protocol":
+        return "protocol"
+    return parts[1] if parts[1] in SUBPACKAGES else "base"
+
+
+def imports(path: Path, name: str) -> list[tuple[str, list[str], bool]]:
+    """``(module, names, in_function)`` of every import of the module ``name`` at ``path`` (relative imports
+    resolved; ``if TYPE_CHECKING:`` blocks skipped)."""
+    package = name if path.name == "__init__.py" else name.rsplit(".", 1)[0]
+    out = []
+
+    def walk(node, inner):
+        for child in ast.iter_child_nodes(node):
+            if isinstance(child, ast.If) and "TYPE_CHECKING" in ast.unparse(child.test):
+                continue
+            fn = inner or isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda))
+            if isinstance(child, ast.Import):
+                out.extend((a.name, [], fn) for a in child.names)
+            elif isinstance(child, ast.ImportFrom):
+                if child.level:
+                    base = package.rsplit(".", child.level - 1)[0] if child.level > 1 else package
+                    mod = f"{base}.{child.module}" if child.module else base
+                else:
+                    mod = child.module
+                out.append((mod, [a.name for a in child.names], fn))
+            walk(child, fn)
+
+    walk(ast.parse(path.read_text()), False)
+    return out
+
+
+def targets(mod: str, names: list[str], known) -> set[str]:
+    """The project modules an import statement loads (``from pkg import submodule`` counts the submodule)."""
+    out = {f"{mod}.{n}" for n in names if f"{mod}.{n}" in known}
+    if len(out) < len(names) or not names:
+        while mod and mod not in known:
+            mod = mod.rpartition(".")[0]
+        if mod:
+            out.add(mod)
+    return out
+
+
+def violations() -> list[str]:
+    known = modules()
     bad = []
-    for path in sorted(folder.glob("*.py")):
-        for mod in imported_modules(path, package):
-            if any(mod == b or mod.startswith(b + ".") for b in banned):
-                bad.append(f"{path.name} imports {mod}")
+    for name, path in known.items():
+        banned = RULES[layer(name)]
+        for mod, names, _ in imports(path, name):
+            for full in [mod, *(f"{mod}.{n}" for n in names)]:
+                if any(full == b or full.startswith(b + ".") for b in banned):
+                    bad.append(f"{name} imports {full}")
+                    break
     return bad
 
 
-@pytest.mark.parametrize("layer", list(RULES))
-def test_no_import_runs_against_the_direction(layer):
-    assert violations(layer) == []
+def graph() -> dict[str, set[str]]:
+    """Module -> the project modules it imports (at module level or inside functions)."""
+    known = modules()
+    g = {}
+    for name, path in known.items():
+        g[name] = set()
+        for mod, names, _ in imports(path, name):
+            g[name] |= {t for t in targets(mod, names, known) if t != name and t != "iscc_gym"
+                        and not name.startswith(t + ".")}  # a package's own __init__ runs first anyway
+    return g
 
 
-def test_the_check_can_fail(tmp_path, monkeypatch):
-    """A planted eval -> train import is reported, relative and absolute (the check reads what it should)."""
-    (tmp_path / "bad.py").write_text("from iscc_gym.train.train import main\nfrom .. import train\nimport numpy\n")
-    monkeypatch.setitem(RULES, "eval", (tmp_path, RULES["eval"][1]))
-    assert set(violations("eval")) == {"bad.py imports iscc_gym.train.train", "bad.py imports iscc_gym.train",
-                                       "bad.py imports iscc_gym.train.train.main"}
+def circles(g: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected components of more than one module (Tarjan), each sorted."""
+    index, low, stack, on, out, counter = {}, {}, [], set(), [], [0]
+
+    def visit(v):
+        index[v] = low[v] = counter[0]
+        counter[0] += 1
+        stack.append(v)
+        on.add(v)
+        for w in g[v]:
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                out.append(sorted(comp))
+
+    for v in sorted(g):
+        if v not in index:
+            visit(v)
+    return out
+
+
+def test_every_module_has_a_layer_and_the_layers_exist():
+    names = modules()
+    assert {layer(n) for n in names} >= {"base", "physics", "sim", "envs", "analysis", "face", "agents", "train",
+                                        "eval"}
+    assert "iscc_gym.sim.kernel" in names and "iscc_gym.agents.sca" in names and "iscc_gym.eval.evaluate" in names
+
+
+def test_no_import_runs_against_the_direction():
+    assert violations() == []
+
+
+def test_no_import_circle():
+    assert circles(graph()) == []
+
+
+def test_no_private_name_is_imported_from_another_module():
+    known = modules()
+    bad = [f"{name}: from {mod} import {n}" for name, path in known.items() for mod, names, _ in imports(path, name)
+           if mod and mod.startswith("iscc_gym") for n in names if n.startswith("_") and n != "__version__"]
+    assert bad == []
+
+
+def test_the_checks_can_fail(tmp_path, monkeypatch):
+    """Planted imports against the direction, a planted circle and a private import are all reported."""
+    pkg = tmp_path / "iscc_gym"
+    for sub in ("physics", "sim", "envs"):
+        (pkg / sub).mkdir(parents=True)
+        (pkg / sub / "__init__.py").write_text("")
+    (pkg / "__init__.py").write_text("")
+    (pkg / "physics" / "chan.py").write_text("def f():\n    from iscc_gym.sim import slot\n")
+    (pkg / "sim" / "slot.py").write_text("from iscc_gym.physics.chan import _g\nfrom ..envs import face\n")
+    (pkg / "envs" / "face.py").write_text("import torch\nfrom typing import TYPE_CHECKING\nif TYPE_CHECKING:\n"
+                                          "    from iscc_gym.envs import other\n")
+    (pkg / "envs" / "other.py").write_text("from iscc_gym.envs.face import x\n")
+    monkeypatch.setattr(__import__(__name__), "FOLDERS", {pkg: "iscc_gym"})
+    assert set(violations()) == {"iscc_gym.physics.chan imports iscc_gym.sim",
+                                 "iscc_gym.sim.slot imports iscc_gym.envs", "iscc_gym.envs.face imports torch"}
+    assert circles(graph()) == [["iscc_gym.physics.chan", "iscc_gym.sim.slot"]]  # the TYPE_CHECKING one is not
+    with pytest.raises(AssertionError, match="_g"):
+        test_no_private_name_is_imported_from_another_module()
 
 
 def test_every_deferred_import_resolves():
     """Imports inside functions (figure drawing, optional heavy dependencies) run only when called; each
-    ``from iscc_gym... import name`` of the package must name something that exists (a moved helper
-    left behind fails here, not in a long command)."""
-    import importlib
-
+    ``from iscc_gym... import name`` of the project must name something that exists (a moved helper left
+    behind fails here, not in a long command)."""
     missing = []
-    for layer, (folder, _) in RULES.items():
-        package = {"core": "iscc_gym"}.get(layer, f"iscc_gym.{layer}")
-        for path in sorted(folder.glob("*.py")):
-            for node in ast.walk(ast.parse(path.read_text())):
-                if not isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
-                    continue
-                for sub in ast.walk(node):
-                    if isinstance(sub, ast.ImportFrom) and (sub.level or (sub.module or "").startswith("iscc_gym")):
-                        base = package if sub.level == 1 else (package.rsplit(".", sub.level - 1)[0]
-                                                               if sub.level else "")
-                        mod = ".".join(x for x in (base, sub.module) if x)
-                        target = importlib.import_module(mod)
-                        for a in sub.names:
-                            if not hasattr(target, a.name):
-                                try:
-                                    importlib.import_module(f"{mod}.{a.name}")
-                                except ImportError:
-                                    missing.append(f"{path.name}: from {mod} import {a.name}")
+    for name, path in modules().items():
+        for mod, names, in_function in imports(path, name):
+            if not in_function or not mod.startswith("iscc_gym"):
+                continue
+            target = importlib.import_module(mod)
+            for n in names:
+                if not hasattr(target, n):
+                    try:
+                        importlib.import_module(f"{mod}.{n}")
+                    except ImportError:
+                        missing.append(f"{name}: from {mod} import {n}")
     assert missing == []

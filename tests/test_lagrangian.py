@@ -117,8 +117,8 @@ def test_bad_limits_fail_before_training(tmp_path):
 
 
 def test_algo_ppo_lag_is_ppo_with_the_lagrangian():
+    from iscc_gym.train.cli import parse_args
     from iscc_gym.train.config import PPO_LAG_LIMITS
-    from iscc_gym.train.train import parse_args
 
     a = parse_args(["--algo", "ppo-lag"])
     assert a.algo == "ppo" and a.cost_limit == PPO_LAG_LIMITS == "rate=0.05,stability=0.0"
@@ -130,7 +130,7 @@ def test_algo_ppo_lag_is_ppo_with_the_lagrangian():
 def test_the_pareto_runs_train_at_the_comparisons_rate_and_ship_their_multipliers(tmp_path, monkeypatch):
     from iscc_gym.train import pareto as TP
 
-    from iscc_gym.scenario import PARETO_RATE_MIN_BPS as RATE_MIN_BPS
+    from iscc_gym.protocol import PARETO_RATE_MIN_BPS as RATE_MIN_BPS
 
     a = TP.run_args("ppo-lag/0.10")
     assert a.algo == "ppo-lag" and a.cost_limit.startswith("rate=0.1,") and a.env_overrides == {"rate_min_bps":

@@ -1,4 +1,4 @@
-"""Tests of iscc_gym.loop: the batched one-slot transition of the ISCC closed loop."""
+"""Tests of iscc_gym.sim.loop: the batched one-slot transition of the ISCC closed loop."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import scipy.linalg
 import scipy.stats
 
 from iscc_gym import SCENARIOS, Scenario, make_scenario
-from iscc_gym.loop import N_DRAWS, LoopState, init_state, stack_references, step
+from iscc_gym.sim.loop import N_DRAWS, LoopState, init_state, stack_references, step
 from iscc_gym.trajectory import sample_reference
 
 S = Scenario()
@@ -18,7 +18,7 @@ METRIC_KEYS = {"tracking_error_m", "estimation_error_m", "snr_db", "snr_large_sc
                "diverged"}
 STATE_FIELDS = ("x", "x_hat", "p", "shadow", "n", "ref")
 
-# model written out from eq:AB_matrices and Table I (independent of iscc_gym.dynamics)
+# model written out from eq:AB_matrices and Table I (independent of iscc_gym.physics.dynamics)
 _DT = 0.1
 _A = np.block([[np.eye(3), _DT * np.eye(3)], [np.zeros((3, 3)), np.eye(3)]])
 _B = np.vstack([0.5 * _DT**2 * np.eye(3), _DT * np.eye(3)])
@@ -357,7 +357,7 @@ def test_unbatched_loop_equals_batch_member(refs):
 def test_gnss_fix_every_k_slots_and_prediction_in_between():
     """With a GNSS fix every 3rd slot, the covariance between fixes follows the prediction alone,
     P <- A P A^T + Sigma_w (an independent recursion), and a fix shrinks it."""
-    from iscc_gym.dynamics import model_matrices as _mm
+    from iscc_gym.physics.dynamics import model_matrices as _mm
 
     s = make_scenario("paper", observation_source="gnss", gnss_update_period_s=0.3)
     mm = _mm(s)

@@ -9,10 +9,11 @@ from iscc_gym.agents import MarginPolicy, make_policy
 from iscc_gym.agents.margin import load_tuned, margin_split
 from iscc_gym.eval import tune
 
-from iscc_gym import SCENARIOS, loop
-from iscc_gym.env import OBS_NAMES, action_to_split
-from iscc_gym.stability import scenario_eps_star
-from iscc_gym.vector import ISCCVectorEnv
+from iscc_gym import SCENARIOS
+from iscc_gym.envs.env import OBS_NAMES, action_to_split
+from iscc_gym.envs.vector import ISCCVectorEnv
+from iscc_gym.physics.stability import scenario_eps_star
+from iscc_gym.sim import loop
 
 S = SCENARIOS["paper"]
 

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 import iscc_gym
-from iscc_gym.env import ISCCEnv
-from iscc_gym.multi import ISCCMultiEnv, drone_budgets, multi_split, parallel_env
+from iscc_gym.envs.env import ISCCEnv
+from iscc_gym.envs.multi import ISCCMultiEnv, drone_budgets, multi_split
 
 M = iscc_gym.SCENARIOS["paper"].max_tracking_error_m
 
@@ -165,9 +165,9 @@ def test_pettingzoo_parallel_api_and_seed_tests_pass_and_rewards_add_up():
     pytest.importorskip("pettingzoo")
     from pettingzoo.test import parallel_api_test, parallel_seed_test
 
-    parallel_api_test(parallel_env(n_drones=3), num_cycles=60)
-    parallel_seed_test(lambda: parallel_env(n_drones=3), num_cycles=60)
-    pz, team = parallel_env(n_drones=3), ISCCMultiEnv(n_drones=3)
+    parallel_api_test(iscc_gym.parallel_env(n_drones=3), num_cycles=60)
+    parallel_seed_test(lambda: iscc_gym.parallel_env(n_drones=3), num_cycles=60)
+    pz, team = iscc_gym.parallel_env(n_drones=3), ISCCMultiEnv(n_drones=3)
     obs, infos = pz.reset(seed=9)
     o, _ = team.reset(seed=9)
     assert np.array_equal(np.concatenate([obs[a] for a in pz.possible_agents]), o)

@@ -8,8 +8,8 @@ from iscc_gym.agents.multi import EqualShareSCA, JointSCA, MultiMarginPolicy, Sc
 from iscc_gym.agents.sca_slot import SCAPolicy
 
 import iscc_gym
-from iscc_gym.multi import ISCCMultiEnv, multi_split, shares_to_action
-from iscc_gym.sensing_share import crlb_trace
+from iscc_gym.analysis.sensing_share import crlb_trace
+from iscc_gym.envs.multi import ISCCMultiEnv, multi_split, shares_to_action
 
 
 def _observations(k, n_steps=40, seed=0):
@@ -52,7 +52,7 @@ def test_joint_sca_meets_the_bounds_and_equalises_the_marginal_crlb():
     np.testing.assert_allclose(a[..., 1], ctrl[fits], rtol=1e-12)
     np.testing.assert_allclose(a[..., 2], comm[fits], rtol=1e-12)
     # KKT: moving sensing between two drones never lowers the summed trace (finite differences)
-    from iscc_gym.sensing_share import SensingCoefficients
+    from iscc_gym.analysis.sensing_share import SensingCoefficients
 
     sub = SensingCoefficients(*(np.asarray(getattr(coef, f))[fits] if np.ndim(getattr(coef, f)) else getattr(coef, f)
                                 for f in ("info_range", "info_az", "info_cross", "info_el", "info_vr", "prior")))

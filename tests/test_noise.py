@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from iscc_gym import noise
+from iscc_gym.sim import noise
 
 SLOTS = 100_000  # 1.8 M normals per key
 

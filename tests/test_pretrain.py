@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from iscc_gym.agents import make_policy
 
-from iscc_gym.env import action_to_split
+from iscc_gym.envs.env import action_to_split
 
 
 def _ppo(n_envs=4):
@@ -32,7 +32,7 @@ def test_actor_imitates_the_scripted_policy_on_unseen_missions():
     assert res["samples"] == 2880 and res["critic_mse"] < res["return_var"]
     assert float(model.policy.log_std.detach().mean()) == -2.0
     # unseen missions: the clone's split is the rule's split
-    from iscc_gym.vector import ISCCVectorEnv
+    from iscc_gym.envs.vector import ISCCVectorEnv
 
     env = ISCCVectorEnv(num_envs=8)
     obs, _ = env.reset(seed=list(range(700_000, 700_008)))

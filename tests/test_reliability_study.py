@@ -18,9 +18,9 @@ import optuna
 import pytest
 import yaml
 from iscc_gym.train import Args, study_io
+from iscc_gym.train.cli import cli
 from iscc_gym.train.study import StudyArgs, open_study
 from iscc_gym.train.study_io import StudyConfigError, make_storage
-from iscc_gym.train.train import cli
 
 ROOT = Path(__file__).resolve().parents[1]
 #: A budget small enough that a study that is not refused ends in seconds.

@@ -1,12 +1,12 @@
-"""iscc_gym.render: the frames show the split the agent chose and the violations, and follow the episode."""
+"""iscc_gym.envs.render: the frames show the split the agent chose and the violations, and follow the episode."""
 
 import gymnasium as gym
 import numpy as np
 import pytest
 
 import iscc_gym
-from iscc_gym import render
-from iscc_gym.env import split_to_action
+from iscc_gym.envs import render
+from iscc_gym.envs.env import split_to_action
 
 SEN, CTRL, COMM, RATE = (np.array([int(render._COLORS[k][i:i + 2], 16) for i in (1, 3, 5)])
                          for k in ("sen", "ctrl", "comm", "rate"))

@@ -11,10 +11,11 @@ import yaml
 from iscc_gym.agents.sb3_policy import SB3Policy, write_manifest
 from iscc_gym.train import Args, main
 from iscc_gym.train import train as T
-from iscc_gym.train.config import EVAL_SEED_RANGES
+from iscc_gym.train.cli import console
 from iscc_gym.train.runs import RESUME_FILE, latest_checkpoint
-from iscc_gym.train.train import console
 from tiny_runs import tiny_args as _args
+
+from iscc_gym.protocol import EVAL_SEED_RANGES
 
 TINY_FLAGS = ["--total-timesteps", "64", "--n-envs", "2", "--set", "n_steps=32", "--set", "batch_size=64",
               "--set", "n_epochs=1", "--no-tensorboard", "--init-policy", "none"]
@@ -77,19 +78,29 @@ def test_sac_ranges(tmp_path):
 
 # --- 21. training seeds against the held-out evaluation seeds --------------------------------------------
 
-def test_the_evaluation_seed_ranges_are_evals():
-    from iscc_gym.eval.tune import EVAL_SEED_RANGES as EVALS
+def test_the_protocol_puts_every_default_where_it_belongs():
+    """Evaluation defaults inside the held-out ranges, training and tuning defaults outside (one protocol)."""
+    from iscc_gym.eval.__main__ import build_parser
 
-    assert EVAL_SEED_RANGES == EVALS
+    from iscc_gym import protocol as P
+
+    def held_out(seed):
+        return any(lo <= seed < hi for lo, hi in EVAL_SEED_RANGES)
+
+    assert held_out(build_parser().parse_args([]).seed_start) and held_out(P.CALLBACK_EVAL_SEED_START)
+    for start in (P.FADING_SEED_START, P.SENSITIVITY_SEED_START, P.PARETO_SEED_START, P.MULTI_SEED_START):
+        assert all(map(held_out, P.held_out_seeds(start, 1000, 99)))
+    assert not any(map(held_out, [*P.TUNE_SEEDS, P.INIT_SEED_START, P.CALIBRATION_SEED_START]))
 
 
 @pytest.mark.parametrize("kw, message", [
-    ({"seed": 10_000}, r"seed = 10000: the training envs' seeds 10000-10001 overlap the held-out evaluation seeds "
-                       r"10000-10999"),
-    ({"seed": 9_999}, r"seeds 9999-10000 overlap the held-out evaluation seeds 10000-10999"),
-    ({"seed": 1_500_000}, r"seeds 1500000-1500001 overlap the held-out evaluation seeds 1000000-1999999"),
+    ({"seed": 10_000}, r"seed = 10000: the training envs' seeds 10000-10001 overlap in the held-out evaluation "
+                       r"range \[10000, 11000\)"),
+    ({"seed": 9_999}, r"seeds 9999-10000 overlap in the held-out evaluation range \[10000, 11000\)"),
+    ({"seed": 1_500_000}, r"seeds 1500000-1500001 overlap in the held-out evaluation range \[1000000, 2000000\)"),
     ({"seed": 800, "init_policy": "margin", "init_envs": 4},
-     r"seed = 800: the warm start's seeds 1000000-1000003 overlap the held-out evaluation seeds 1000000-1999999"),
+     r"seed = 800: the warm start's seeds 1000000-1000003 overlap in the held-out evaluation range "
+     r"\[1000000, 2000000\)"),
 ])
 def test_training_seeds_inside_the_evaluation_seeds_are_refused(tmp_path, kw, message):
     with pytest.raises(ValueError, match=message):

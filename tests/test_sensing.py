@@ -1,4 +1,4 @@
-"""Tests of iscc_gym.sensing: radar link budget, the closed-form FIM (eq:FIM_tau -- eq:FIM_zero)
+"""Tests of iscc_gym.physics.sensing: radar link budget, the closed-form FIM (eq:FIM_tau -- eq:FIM_zero)
 against the FIM from its definition, the position Jacobian (eq:Jacobian), and the CRLB / PEB / VEB.
 
 Oracles: hand link budget from Table I formulas, central finite differences of the noise-free echo
@@ -15,9 +15,9 @@ import numpy as np
 import oracle_sensing as so
 import pytest
 
-from iscc_gym import channel as ch
-from iscc_gym import sensing as se
-from iscc_gym import signature as sig
+from iscc_gym.physics import channel as ch
+from iscc_gym.physics import sensing as se
+from iscc_gym.physics import signature as sig
 from iscc_gym.scenario import SCENARIOS, SPEED_OF_LIGHT_MPS, Scenario
 
 C = 299_792_458.0
@@ -428,7 +428,7 @@ def test_crlb_local_frame_equals_inverse_of_position_information(orientation):
 
 def test_whitened_observation_carries_the_same_information():
     """(W C)^T (W C) = C^T Sigma_v^{-1} C with Sigma_v = blkdiag(CRLB_p, CRLB_vr) from crlb()."""
-    from iscc_gym.kalman import isac_observation_matrix
+    from iscc_gym.physics.kalman import isac_observation_matrix
 
     s = Scenario()
     rng = np.random.default_rng(5)

@@ -1,7 +1,7 @@
 """Tests of eval.sensitivity: the constants that decide SCA's split and the conventions.
 
 Oracles: env rollouts (data rate carried at SCA's split, PEB scaling with the echo SNR), the closed
-form of the GNSS loop (iscc_gym.kalman_steady.gnss_steady_error_m) and the project's seed ranges."""
+form of the GNSS loop (iscc_gym.analysis.kalman_steady.gnss_steady_error_m) and the project's seed ranges."""
 
 from __future__ import annotations
 
@@ -13,8 +13,9 @@ from iscc_gym.agents.sca import sca_allocation
 from iscc_gym.eval import fading, sensitivity
 from iscc_gym.eval.tune import check_tuning_seeds
 
-from iscc_gym import SCENARIOS, analysis, averages
-from iscc_gym.kalman_steady import gnss_steady_error_m
+from iscc_gym import SCENARIOS, analysis
+from iscc_gym.analysis import averages
+from iscc_gym.analysis.kalman_steady import gnss_steady_error_m
 
 S = SCENARIOS["paper"]
 

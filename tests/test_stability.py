@@ -1,4 +1,4 @@
-"""Tests of iscc_gym.stability (paper Sec. III-B, III-C and IV-C.1) against independent oracles:
+"""Tests of iscc_gym.physics.stability (paper Sec. III-B, III-C and IV-C.1) against independent oracles:
 explicit linear-map constructions of M, scipy's DARE / Lyapunov solvers, python-control's dlqe,
 brute-force iteration of the recursions and a seeded Monte Carlo simulation."""
 
@@ -12,10 +12,10 @@ import scipy.stats
 from scipy.optimize import brentq
 
 from iscc_gym import SCENARIOS, Scenario
-from iscc_gym.dynamics import model_matrices
-from iscc_gym.fbl import ctrl_bler
-from iscc_gym.kalman import isac_observation_matrix
-from iscc_gym.stability import (
+from iscc_gym.physics.dynamics import model_matrices
+from iscc_gym.physics.fbl import ctrl_bler
+from iscc_gym.physics.kalman import isac_observation_matrix
+from iscc_gym.physics.stability import (
     alpha_ctrl_star,
     entropy_power,
     eps_star,

@@ -16,6 +16,8 @@ import optuna
 import pytest
 import yaml
 from iscc_gym.train import Args, load_hyperparams, main
+from iscc_gym.train.cli import cli
+from iscc_gym.train.config import resolve_args
 from iscc_gym.train.study import (
     PPO_SPACE,
     StudyArgs,
@@ -24,7 +26,6 @@ from iscc_gym.train.study import (
     make_sampler,
     sample_ppo_params,
 )
-from iscc_gym.train.train import cli, resolve_args
 
 ROOT = Path(__file__).resolve().parents[1]
 ENV_ID = "iscc_gym/ISCC-v0"

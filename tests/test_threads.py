@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 import iscc_gym
-from iscc_gym import kernel, threads
+from iscc_gym import threads
+from iscc_gym.sim import kernel
 
 
 def _rollout(n_envs, steps=12, seed=3):

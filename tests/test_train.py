@@ -85,8 +85,8 @@ def test_ppo_learns_bit_identically_on_the_batched_env_and_on_single_envs(tmp_pa
 def test_shipped_agent_loads_and_acts():
     import gymnasium as gym
     from iscc_gym.eval.__main__ import SHIPPED_AGENT
+    from iscc_gym.train.config import resolve_args
     from iscc_gym.train.ship import SHIP_ARGS
-    from iscc_gym.train.train import resolve_args
 
     import iscc_gym  # noqa: F401
 
@@ -116,7 +116,7 @@ def test_every_evaluation_plays_the_same_held_out_missions(tmp_path):
 
 
 def test_run_settings_come_from_the_yaml_unless_flags_set_them(tmp_path):
-    from iscc_gym.train.train import resolve_args
+    from iscc_gym.train.config import resolve_args
 
     hp = tmp_path / "hp.yml"
     hp.write_text("iscc_gym/ISCC-v0:\n  ppo:\n    policy: MlpPolicy\n    n_envs: 16\n    n_timesteps: 2.0e+5\n"
@@ -136,7 +136,7 @@ def test_set_reads_numbers_in_exponent_notation():
 
 
 def test_linear_schedule_as_rl_zoo3_writes_it(tmp_path):
-    from iscc_gym.train.train import linear_schedule
+    from iscc_gym.train.config import linear_schedule
 
     f = linear_schedule("lin_3e-4")
     assert f(1.0) == pytest.approx(3e-4) and f(0.5) == pytest.approx(1.5e-4) and f(0.0) == 0.0
@@ -150,16 +150,16 @@ def test_linear_schedule_as_rl_zoo3_writes_it(tmp_path):
 
 
 def test_td3_with_rl_zoo3_noise_keys(tmp_path):
-    from iscc_gym.train.train import _action_noise
+    from iscc_gym.train.config import action_noise
     from stable_baselines3.common.noise import VectorizedActionNoise
 
-    kw = _action_noise({"noise_type": "normal", "noise_std": 0.2, "batch_size": 64}, 3, 3)
+    kw = action_noise({"noise_type": "normal", "noise_std": 0.2, "batch_size": 64}, 3, 3)
     assert isinstance(kw["action_noise"], VectorizedActionNoise) and "noise_std" not in kw
     assert kw["action_noise"]().shape == (3, 3)
     with pytest.raises(ValueError, match="noise_type"):
-        _action_noise({"noise_type": "pink"}, 1, 3)
+        action_noise({"noise_type": "pink"}, 1, 3)
     with pytest.raises(ValueError, match="noise_type"):
-        _action_noise({"noise_std": 0.1}, 1, 3)
+        action_noise({"noise_std": 0.1}, 1, 3)
     summary = main(_args(tmp_path, algo="td3", total_timesteps=64, eval_freq=0, checkpoint_freq=0,
                          overrides={"learning_starts": 16, "batch_size": 16, "noise_type": "normal",
                                     "noise_std": 0.1}))

@@ -12,18 +12,10 @@ import pytest
 import yaml
 from iscc_gym.agents.sb3_policy import SB3Policy, read_manifest
 from iscc_gym.train import Args, main
-from iscc_gym.train.train import (
-    HYPERPARAMS,
-    _progress,
-    build_parser,
-    console,
-    format_policy_kwargs,
-    latest_checkpoint,
-    load_hyperparams,
-    parse_policy_kwargs,
-    resolve_args,
-    save_unit,
-)
+from iscc_gym.train.cli import build_parser, console
+from iscc_gym.train.config import HYPERPARAMS, format_policy_kwargs, load_hyperparams, parse_policy_kwargs, resolve_args
+from iscc_gym.train.runs import latest_checkpoint, save_unit
+from iscc_gym.train.train import progress_bar_on
 from tiny_runs import TINY
 from tiny_runs import tiny_args as _args
 
@@ -277,12 +269,12 @@ def test_info_keys_typo_is_a_clear_error():
 
 def test_progress_bar_on_a_terminal_unless_quiet(monkeypatch):
     monkeypatch.setattr(sys.stdout, "isatty", lambda: True, raising=False)
-    assert _progress(Args()) is True
-    assert _progress(Args(quiet=True)) is False
-    assert _progress(Args(progress_bar=False)) is False
+    assert progress_bar_on(Args()) is True
+    assert progress_bar_on(Args(quiet=True)) is False
+    assert progress_bar_on(Args(progress_bar=False)) is False
     monkeypatch.setattr(sys.stdout, "isatty", lambda: False, raising=False)
-    assert _progress(Args()) is False
-    assert _progress(Args(progress_bar=True)) is True
+    assert progress_bar_on(Args()) is False
+    assert progress_bar_on(Args(progress_bar=True)) is True
 
 
 def test_every_flag_has_help_and_the_help_warns_about_pickles():

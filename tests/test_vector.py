@@ -5,12 +5,12 @@ import numpy as np
 import pytest
 
 import iscc_gym  # noqa: F401  (registers the env)
-from iscc_gym import env as E
-from iscc_gym import kernel, loop
-from iscc_gym.env import split_to_action
+from iscc_gym.envs import env as E
+from iscc_gym.envs.env import split_to_action
+from iscc_gym.envs.vector import ISCCVectorEnv
 from iscc_gym.scenario import make_scenario
+from iscc_gym.sim import kernel, loop
 from iscc_gym.trajectory import sample_reference
-from iscc_gym.vector import ISCCVectorEnv
 
 UNSTABLE = split_to_action([0.98, 0.0, 0.02])  # no control share: every command lost
 
@@ -228,7 +228,7 @@ def test_positions_are_the_true_and_reference_positions_behind_the_tracking_erro
     """``positions()`` (the evaluator's traces) returns the state the tracking error is measured on."""
     import pytest
 
-    from iscc_gym.vector import ISCCVectorEnv
+    from iscc_gym.envs.vector import ISCCVectorEnv
 
     venv = ISCCVectorEnv(num_envs=3)
     with pytest.raises(RuntimeError, match="reset"):

@@ -7,7 +7,7 @@ import pytest
 from gymnasium.wrappers import ClipAction, RecordEpisodeStatistics, TimeLimit
 
 import iscc_gym
-from iscc_gym.wrappers import SafetyCostVectorWrapper, SafetyCostWrapper
+from iscc_gym.envs.wrappers import SafetyCostVectorWrapper, SafetyCostWrapper
 
 
 def _actions(n, shape, seed=0):

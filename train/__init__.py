@@ -1,5 +1,14 @@
-"""Training SB3 agents on the ISCC env: ``python -m train`` (see :mod:`train.train`)."""
+"""Training SB3 agents on the ISCC envs: ``python -m train`` (the repository's ``train/`` folder, installed as
+``iscc_gym.train``).
 
-from .train import Args, cli, console, load_hyperparams, main, parse_args
+``config`` (:class:`Args`, the hyperparameter file), ``train`` (the training loop, :func:`main`), ``cli`` (the
+command line above it), ``runs`` (run directories, checkpoints, resume), ``lagrangian`` (PPO-Lagrangian),
+``pretrain`` (behaviour-cloning warm start), ``study``/``study_io``/``multi_seed`` (Optuna studies and seeds),
+``ship`` (the shipped agents), ``multi`` and ``pareto`` (their training commands).
+"""
+
+from iscc_gym.train.cli import cli, console, parse_args
+from iscc_gym.train.config import Args, load_hyperparams
+from iscc_gym.train.train import main
 
 __all__ = ["Args", "main", "cli", "console", "parse_args", "load_hyperparams"]

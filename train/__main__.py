@@ -1,6 +1,6 @@
 import sys
 
-from iscc_gym.train.train import console
+from iscc_gym.train.cli import console
 
 if __name__ == "__main__":
     sys.exit(console(None, "python -m train"))

@@ -14,32 +14,24 @@ from typing import Any
 import numpy as np
 import yaml
 
+from iscc_gym import ENV_ID, MULTI_ENV_ID
+from iscc_gym.protocol import INIT_SEED_START, check_outside_evaluation
+
 HYPERPARAMS = Path(__file__).with_name("hyperparams.yml")
 ALGOS = ("ppo", "sac", "td3")
 VEC_ENVS = ("dummy", "subproc", "batched")
 #: The multi-drone env's id, and the ids the native batched env serves.
-MULTI_ENV_ID = "iscc_gym/ISCC-Multi-v0"
-ISCC_ENV_IDS = ("iscc_gym/ISCC-v0", MULTI_ENV_ID)
+ISCC_ENV_IDS = (ENV_ID, MULTI_ENV_ID)
 #: ``--algo ppo-lag``: PPO with the Lagrangian of train/lagrangian.py, at these limits unless
 #: ``--cost-limit`` gives others.
 PPO_LAG_LIMITS = "rate=0.05,stability=0.0"
-#: Seeds of the EvalCallback's held-out episodes start here (training seeds are small integers, the
-#: final comparison uses ``eval --seed-start``'s, 10_000 by default).
-EVAL_SEED_START = 1_000_000
-#: Seeds of the behaviour-cloning warm start's missions: INIT_SEED_START + 1000 * seed + i (training
-#: seeds, disjoint from every evaluation seed).
-INIT_SEED_START = 200_000
-#: The project's held-out evaluation seeds, [start, stop): ``eval --seed-start``'s missions and the
-#: EvalCallback's (:data:`EVAL_SEED_START`). The same ranges as ``eval.tune.EVAL_SEED_RANGES`` (train and
-#: eval never import each other; tests/test_resume_checks.py checks they agree). Training seeds must avoid them.
-EVAL_SEED_RANGES = ((10_000, 11_000), (1_000_000, 2_000_000))
 
 
 @dataclass
 class Args:
     """Everything a training run depends on (``python -m train --help`` lists them; :data:`FIELD_HELP`)."""
 
-    env_id: str = "iscc_gym/ISCC-v0"
+    env_id: str = ENV_ID
     algo: str = "ppo"  # ppo | sac | td3
     # None: the YAML entry's ``n_timesteps`` / ``n_envs`` (rl-zoo3's keys), else RUN_DEFAULTS
     total_timesteps: int | None = None
@@ -376,7 +368,7 @@ def check_hyperparams(algo: str, hp: dict) -> dict:
     return hp
 
 
-def _resolve_policy_kwargs(hp: dict) -> dict:
+def resolve_policy_kwargs(hp: dict) -> dict:
     import torch.nn as nn
 
     hp = dict(hp)
@@ -397,7 +389,7 @@ def _resolve_policy_kwargs(hp: dict) -> dict:
     return hp
 
 
-def _action_noise(kw: dict, n_envs: int, dim: int) -> dict:
+def action_noise(kw: dict, n_envs: int, dim: int) -> dict:
     """rl-zoo3's ``noise_type`` (``normal`` | ``ornstein-uhlenbeck``) and ``noise_std`` keys as SB3's
     ``action_noise`` (one independent noise process per env) for SAC/TD3.
     """
@@ -454,7 +446,7 @@ def expand_algo(args: Args) -> Args:
     return args
 
 
-def _check(args: Args) -> None:
+def check_args(args: Args) -> None:
     args = expand_algo(args)
     if args.algo not in ALGOS:
         raise ValueError(f"algo = {args.algo!r}; use one of {ALGOS}")
@@ -486,7 +478,7 @@ def _check(args: Args) -> None:
 
 def _seed_ranges(args: Args) -> list[tuple[str, int, int]]:
     """The seeds a resolved run trains on, as (what, first, last): the training envs' (``seed`` + i, SB3's
-    convention) and the warm start's (:data:`INIT_SEED_START` + 1000 ``seed`` + i).
+    convention) and the warm start's (:data:`iscc_gym.protocol.INIT_SEED_START` + 1000 ``seed`` + i).
     """
     ranges = [("the training envs' seeds", args.seed, args.seed + args.n_envs - 1)]
     if args.init_policy and str(args.init_policy).lower() != "none":
@@ -497,21 +489,18 @@ def _seed_ranges(args: Args) -> list[tuple[str, int, int]]:
 
 def check_resolved(args: Args, hyperparams: dict) -> None:
     """Checks of a run's resolved settings (:func:`resolve_args`), before any work: the run settings the
-    YAML may fill (``init_*``, as :func:`_check` does for the flags), PPO's rollout size, and training
-    seeds outside :data:`EVAL_SEED_RANGES` (the held-out missions stay unseen in training).
+    YAML may fill (``init_*``, as :func:`check_args` does for the flags), PPO's rollout size, and training
+    seeds outside :data:`iscc_gym.protocol.EVAL_SEED_RANGES` (the held-out missions stay unseen in training).
 
     Raises
     ------
     ValueError
         Naming the setting and its valid range (for seeds: both ranges).
     """
-    _check(args)
+    check_args(args)
     if args.algo == "ppo" and args.n_envs * int(hyperparams.get("n_steps", 2048)) < 2:
         raise ValueError(f"n_steps = {hyperparams.get('n_steps')} with n_envs = {args.n_envs}: PPO needs a rollout "
                          "of at least 2 steps (n_steps x n_envs >= 2)")
     for what, lo, hi in _seed_ranges(args):
-        for start, stop in EVAL_SEED_RANGES:
-            if lo < stop and hi >= start:
-                raise ValueError(f"seed = {args.seed}: {what} {lo}-{hi} overlap the held-out evaluation seeds "
-                                 f"{start}-{stop - 1}; train on another seed (the held-out missions must stay "
-                                 "unseen in training)")
+        check_outside_evaluation(lo, hi, f"seed = {args.seed}: {what}",
+                                 "train on another seed (the held-out missions must stay unseen in training)")

@@ -27,13 +27,12 @@ import argparse
 import sys
 from pathlib import Path
 
+from iscc_gym.agents.shipped import MULTI_DIR
 from iscc_gym.train.config import MULTI_ENV_ID, Args
 
 __all__ = ["MULTI_DIR", "K_VALUES", "MULTI_LAG_LIMITS", "run_args", "train_all", "cli"]
 
-ROOT = Path(__file__).resolve().parent.parent
 #: Where the multi-drone agents are shipped (``k<K>`` per number of drones).
-MULTI_DIR = ROOT / "agents" / "trained" / "multi"
 #: The numbers of drones trained by default.
 K_VALUES = (2, 4, 8)
 #: Outage limits of the constrained agents (``--constrained``; see the module).
@@ -50,7 +49,7 @@ def run_args(n_drones: int, seed: int = 0, total_timesteps: int | None = None, o
     """The training :class:`Args` of the multi-drone agent for ``n_drones`` drones (``constrained``: the
     Lagrangian PPO agent at :data:`MULTI_LAG_LIMITS`).
     """
-    from iscc_gym.multi import check_n_drones
+    from iscc_gym.envs.multi import check_n_drones
 
     k = check_n_drones(n_drones)
     return Args(env_id=MULTI_ENV_ID, env_overrides={"n_drones": k}, seed=seed, total_timesteps=total_timesteps,

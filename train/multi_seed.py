@@ -11,19 +11,19 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 import yaml
-from iscc_gym.train.train import (
-    EVAL_SEED_START,
+from iscc_gym.train.config import (
     Args,
-    _check,
-    _resolve_policy_kwargs,
+    check_args,
     check_hyperparams,
     check_resolved,
     expand_algo,
-    main,
     resolve_args,
+    resolve_policy_kwargs,
 )
+from iscc_gym.train.train import main
 
 from iscc_gym.files import write_atomic
+from iscc_gym.protocol import CALLBACK_EVAL_SEED_START
 
 if TYPE_CHECKING:  # pragma: no cover
     pass
@@ -50,7 +50,7 @@ def parse_seeds(text: str) -> list[int]:
 def evaluate_run(args: Args) -> tuple[float, float]:
     """Mean and std of the episode rewards of the model saved in ``args.out`` on the held-out seeds.
 
-    The episodes are those of the EvalCallback's first evaluation (seeds ``EVAL_SEED_START + i``,
+    The episodes are those of the EvalCallback's first evaluation (seeds ``CALLBACK_EVAL_SEED_START + i``,
     ``args.eval_episodes`` of them, ``args.eval_max_steps`` slots at most), deterministic actions, with
     the run's VecNormalize statistics (frozen).
 
@@ -89,9 +89,9 @@ def check_run_config(args: Args) -> tuple[Args, dict]:
     a bad value raises :class:`StudyConfigError` (one line naming it).
     """
     try:
-        _check(args)
+        check_args(args)
         resolved, hp = resolve_args(args)
-        check_hyperparams(args.algo, _resolve_policy_kwargs(hp))
+        check_hyperparams(args.algo, resolve_policy_kwargs(hp))
     except ValueError as e:
         raise StudyConfigError(str(e)) from None
     return resolved, hp
@@ -122,7 +122,7 @@ def run_seeds(args: Args, seeds: list[int]) -> dict:
     for seed in seeds:  # every seed's run checked before the first one trains (a held-out seed among them)
         try:
             res, hp_seed = resolve_args(dataclasses.replace(expand_algo(args), seed=seed))
-            check_resolved(res, check_hyperparams(res.algo, _resolve_policy_kwargs(hp_seed)))
+            check_resolved(res, check_hyperparams(res.algo, resolve_policy_kwargs(hp_seed)))
         except ValueError as e:
             raise StudyConfigError(f"--seeds {seed}: {e}") from None
     rows = []
@@ -136,7 +136,8 @@ def run_seeds(args: Args, seeds: list[int]) -> dict:
                      "wall_time_s": round(time.perf_counter() - t0, 3)})
     finals = [r["final_reward_mean"] for r in rows]
     result = {"env_id": args.env_id, "algo": args.algo, "n_timesteps": resolved.total_timesteps,
-              "n_envs": resolved.n_envs, "eval_episodes": args.eval_episodes, "eval_seed_start": EVAL_SEED_START,
+              "n_envs": resolved.n_envs, "eval_episodes": args.eval_episodes,
+              "eval_seed_start": CALLBACK_EVAL_SEED_START,
               "final_reward_mean": float(np.mean(finals)),
               "final_reward_std": float(np.std(finals, ddof=1)) if len(finals) > 1 else 0.0,
               "runs": rows, "hyperparams": hp}

@@ -1,7 +1,7 @@
 """``python -m train.pareto``: train the learned points of the Pareto fronts (issue 15 item 3).
 
 Six PPO runs on ``iscc_gym/ISCC-v0`` at the Pareto comparison's rate requirement
-(:data:`iscc_gym.scenario.PARETO_RATE_MIN_BPS`), each ``python -m train`` with the configuration of
+(:data:`iscc_gym.protocol.PARETO_RATE_MIN_BPS`), each ``python -m train`` with the configuration of
 ``train/hyperparams.yml`` (seed 0) plus the flags of :data:`RUNS`:
 
 * ``ppo/w<x>``: the fixed-weight reward with the rate-shortfall weight ``w_rate = x``;
@@ -24,15 +24,14 @@ import argparse
 import sys
 from pathlib import Path
 
+from iscc_gym.agents.shipped import PARETO_DIR
 from iscc_gym.train.config import Args
 
-from iscc_gym.scenario import PARETO_RATE_MIN_BPS
+from iscc_gym.protocol import PARETO_RATE_MIN_BPS
 
 __all__ = ["RUNS", "PARETO_DIR", "STABILITY_LIMIT", "run_args", "train_all", "cli"]
 
-ROOT = Path(__file__).resolve().parent.parent
 #: Where the trained Pareto points are shipped (one directory per run, named as in :data:`RUNS`).
-PARETO_DIR = ROOT / "agents" / "trained" / "pareto"
 #: The stability-violation limit of every PPO-Lagrangian run (fraction of slots).
 STABILITY_LIMIT = 0.01
 #: name -> (algo, env overrides beside the rate requirement, cost limit or None).

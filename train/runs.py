@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import yaml
-from iscc_gym.agents.sb3_policy import LAGRANGE_FILE, MANIFEST, _load_vecnormalize, read_manifest, write_manifest
+from iscc_gym.agents.sb3_policy import LAGRANGE_FILE, MANIFEST, read_manifest, read_vecnormalize, write_manifest
 
 from iscc_gym.files import atomic_target, write_atomic
 
@@ -216,7 +216,7 @@ def _flat_identity(ident: dict) -> dict:
     return {**ident, **hyperparams}
 
 
-def _prepare_out(args: Args, hyperparams: dict | None = None) -> tuple[Path | None, dict | None]:
+def prepare_out(args: Args, hyperparams: dict | None = None) -> tuple[Path | None, dict | None]:
     """Check ``args.out`` for the run: new or empty, or ``overwrite`` (its run files deleted), or
     ``resume`` from its newest complete checkpoint with the same :data:`IDENTITY`. Returns the
     checkpoint's directory and manifest (None, None without ``resume``).
@@ -274,7 +274,7 @@ def load_vecnormalize(path: str | os.PathLike, venv):
     """A checkpoint's VecNormalize statistics around ``venv`` (SB3's ``VecNormalize.load``), with a
     ``ValueError`` naming the file for one that is not a VecNormalize, or of another observation space.
     """
-    vn = _load_vecnormalize(Path(path))
+    vn = read_vecnormalize(Path(path))
     try:
         vn.set_venv(venv)
     except (ValueError, AssertionError, AttributeError) as e:
@@ -289,7 +289,7 @@ def save_evaluations(path: str | os.PathLike, timesteps, results, ep_lengths) ->
                  ep_lengths=np.asarray(ep_lengths, dtype=np.int64))
 
 
-def _read_history(out: Path, upto: int) -> tuple[dict, list[dict]]:
+def read_history(out: Path, upto: int) -> tuple[dict, list[dict]]:
     """What a resumed run continues when its checkpoint has no :data:`RESUME_FILE` (an older python -m
     train): the evaluations and learning-curve rows of ``out`` up to step ``upto`` (later ones belong to
     the continuation that was cut off, replayed now). A damaged file is a ``ValueError`` naming it.
@@ -406,7 +406,7 @@ def read_resume(ckpt: Path, manifest: dict) -> dict | None:
     return doc
 
 
-def _write_curve(out: Path, rows: list[dict], evals: list[tuple[int, float]], png: bool = True) -> None:
+def write_curve(out: Path, rows: list[dict], evals: list[tuple[int, float]], png: bool = True) -> None:
     """``learning_curve.csv`` (atomically; at every evaluation and checkpoint, and at the end) and, with
     ``png``, ``learning_curve.png``.
     """

@@ -16,12 +16,14 @@ from pathlib import Path
 
 import yaml
 from iscc_gym.agents.sb3_policy import LAGRANGE_FILE
-from iscc_gym.train.train import Args, main, resolve_args
+from iscc_gym.agents.shipped import PPO_AGENT
+from iscc_gym.train.config import Args, resolve_args
+from iscc_gym.train.train import main
 
 from iscc_gym.files import atomic_target
 
 ROOT = Path(__file__).resolve().parent.parent
-SHIP_DIR = ROOT / "agents" / "trained" / "ppo_iscc"
+SHIP_DIR = PPO_AGENT
 # overwrite: every ship trains afresh into runs/ship_ppo
 SHIP_ARGS = Args(seed=0, out="runs/ship_ppo", checkpoint_freq=0, tensorboard=False, overwrite=True)
 ARTIFACTS = ("model.zip", "vecnormalize.pkl", "manifest.yml", "config.yml", "summary.yml", "learning_curve.csv",

@@ -11,7 +11,7 @@ Usage::
 
 Each trial samples PPO hyperparameters (:func:`sample_ppo_params`), trains with
 :func:`iscc_gym.train.train.main` into ``OUT/trial_<n>`` and reports every held-out evaluation of the
-EvalCallback (mean episode reward on the seeds from :data:`train.train.EVAL_SEED_START`) to Optuna,
+EvalCallback (mean episode reward on the seeds from :data:`iscc_gym.protocol.CALLBACK_EVAL_SEED_START`) to Optuna,
 which may prune it. The objective, maximised, is the final model's mean reward on the same held-out
 episodes. The best trial is exported as a ``hyperparams.yml`` entry, ``OUT/best_hyperparams.yml``,
 which ``python -m train --hyperparams OUT/best_hyperparams.yml`` trains directly.
@@ -54,12 +54,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import yaml
-from iscc_gym.train.train import (
-    Args,
-    load_hyperparams,
-    main,
-    resolve_args,
-)
+from iscc_gym.train.config import Args, load_hyperparams, resolve_args
+from iscc_gym.train.train import main
 
 if TYPE_CHECKING:  # pragma: no cover
     import optuna
@@ -443,10 +439,10 @@ def optimize(args: Args, study: StudyArgs) -> dict:
     stops the worker.
     """
     import optuna
-    from iscc_gym.train.train import _progress
+    from iscc_gym.train.train import progress_bar_on
 
     s, shown = open_study(args, study)
-    bar = _progress(args)  # trials done / total (each trial's own bar is off)
+    bar = progress_bar_on(args)  # trials done / total (each trial's own bar is off)
     if args.quiet:
         optuna.logging.set_verbosity(optuna.logging.WARNING)
     with warnings.catch_warnings():

@@ -445,7 +445,7 @@ def best_entry(trial: optuna.trial.FrozenTrial, env_id: str, algo: str) -> dict:
         ``normalize`` (read by :func:`iscc_gym.train.train.resolve_args` and by rl-zoo3) and the
         algorithm's keyword arguments, ``policy_kwargs`` as rl-zoo3's ``dict(...)`` string.
     """
-    from iscc_gym.train.train import OWN_SECTION, format_policy_kwargs
+    from iscc_gym.train.config import OWN_SECTION, format_policy_kwargs
 
     attrs = trial.user_attrs
     hp = dict(attrs["hyperparams"])

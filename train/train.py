@@ -30,7 +30,6 @@ rl-zoo3 never reads, holds this command's own run settings (the warm start) and 
 
 from __future__ import annotations
 
-import argparse
 import copy
 import dataclasses
 import math
@@ -39,7 +38,6 @@ import sys
 import time
 import zipfile
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import yaml
@@ -47,42 +45,26 @@ from iscc_gym.agents.sb3_logging import stdout_logger
 from iscc_gym.agents.sb3_policy import LAGRANGE_FILE
 
 from iscc_gym.files import write_atomic
+from iscc_gym.protocol import CALLBACK_EVAL_SEED_START, INIT_SEED_START
 
 from .config import (
-    ALGOS,
-    EVAL_SEED_START,
-    FIELD_HELP,
-    HYPERPARAMS,
-    INIT_SEED_START,
     ISCC_ENV_IDS,
     MULTI_ENV_ID,
-    OWN_SECTION,
-    RUN_DEFAULTS,
-    RUN_KEYS,
-    VEC_ENVS,
     Args,
-    _action_noise,
-    _check,
-    _resolve_policy_kwargs,
+    action_noise,
+    check_args,
     check_hyperparams,
     check_resolved,
     expand_algo,
-    format_policy_kwargs,
-    linear_schedule,
-    load_hyperparams,
-    parse_policy_kwargs,
     resolve_args,
+    resolve_policy_kwargs,
 )
 from .runs import (
-    IDENTITY,
     RESUME_FILE,
-    RUN_FILES,
-    _prepare_out,
-    _read_history,
-    _write_curve,
     best_score,
-    latest_checkpoint,
     load_vecnormalize,
+    prepare_out,
+    read_history,
     read_resume,
     recover_unit,
     replace_unit,
@@ -90,20 +72,14 @@ from .runs import (
     run_identity,
     save_evaluations,
     save_unit,
+    write_curve,
 )
 
 #: Seconds between two progress lines of the training loop on stderr (without a progress bar).
 PROGRESS_EVERY_S = 10.0
 
-#: Re-exported: the configuration (train/config.py) and run directories (train/runs.py) were part of
-#: this module; their public names stay importable from here.
-__all__ = [
-    "ALGOS", "Args", "check_hyperparams", "EVAL_SEED_START", "FIELD_HELP", "format_policy_kwargs",
-    "HYPERPARAMS", "IDENTITY", "INIT_SEED_START", "latest_checkpoint", "linear_schedule",
-    "load_hyperparams", "OWN_SECTION", "parse_policy_kwargs", "resolve_args", "RUN_DEFAULTS", "RUN_FILES",
-    "run_identity", "RUN_KEYS", "save_evaluations", "save_unit", "VEC_ENVS", "main", "cli", "console",
-    "parse_args", "build_parser",
-]
+__all__ = ["main", "make_train_env", "make_eval_env", "batched_kwargs", "set_numba_threads", "progress_bar_on",
+           "PROGRESS_EVERY_S"]
 
 
 def make_train_env(args: Args):
@@ -126,18 +102,18 @@ def make_train_env(args: Args):
 
 def batched_kwargs(args: Args) -> dict:
     """The batched env's keyword arguments: the env overrides, and for the multi-drone env its
-    ``n_drones`` (default :data:`iscc_gym.multi.N_DRONES`).
+    ``n_drones`` (default :data:`iscc_gym.envs.multi.N_DRONES`).
     """
     kw = dict(args.env_overrides)
     if args.env_id == MULTI_ENV_ID:
-        from iscc_gym.multi import N_DRONES
+        from iscc_gym.envs.multi import N_DRONES
 
         kw.setdefault("n_drones", N_DRONES)
     return kw
 
 
 def make_eval_env(args: Args):
-    """Held-out evaluation episodes: seeds EVAL_SEED_START + i, one sub-env per episode."""
+    """Held-out evaluation episodes: seeds CALLBACK_EVAL_SEED_START + i, one sub-env per episode."""
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import DummyVecEnv, VecMonitor
 
@@ -147,10 +123,10 @@ def make_eval_env(args: Args):
         venv = ISCCBatchedVecEnv(args.eval_episodes, scenario=args.scenario, **batched_kwargs(args))
         if args.eval_max_steps < venv.venv.max_steps:
             venv.venv.max_steps = args.eval_max_steps
-        venv.seed(EVAL_SEED_START)
+        venv.seed(CALLBACK_EVAL_SEED_START)
         return VecMonitor(venv)
     venv = make_vec_env(args.env_id, n_envs=args.eval_episodes, vec_env_cls=DummyVecEnv)
-    venv.seed(EVAL_SEED_START)
+    venv.seed(CALLBACK_EVAL_SEED_START)
     return venv
 
 
@@ -202,7 +178,7 @@ def _behaviour_clone(model, venv, args: Args) -> dict:
 def _eval_callback(eval_env, args: Args, out: Path, identity: dict, resumed: dict, after=None,
                    callback_after_eval=None):
     """SB3's EvalCallback playing the same held-out missions at every evaluation (the eval env is
-    re-seeded with :data:`EVAL_SEED_START`: a VecEnv forgets its seeds after a reset, and ``best`` is
+    re-seeded with :data:`CALLBACK_EVAL_SEED_START`: a VecEnv forgets its seeds after a reset, and ``best`` is
     chosen on one fixed set of episodes), keeping the best model unless beaten, saved as a unit with its
     own VecNormalize statistics in ``out/best`` (written whole, then swapped in: :func:`replace_unit`).
 
@@ -236,7 +212,7 @@ def _eval_callback(eval_env, args: Args, out: Path, identity: dict, resumed: dic
             return self._evaluate() if self.num_timesteps >= self.next_due else True
 
         def _evaluate(self) -> bool:
-            self.eval_env.seed(EVAL_SEED_START)
+            self.eval_env.seed(CALLBACK_EVAL_SEED_START)
             vecnormalize = self.model.get_vec_normalize_env()
             if vecnormalize is not None and isinstance(self.eval_env, VecNormalize):
                 # the training VecNormalize's statistics, whatever wrappers sit below it (a constrained
@@ -335,7 +311,7 @@ def _checkpoint_callback(every_calls: int, save):
     return Checkpoints()
 
 
-def _progress(args: Args) -> bool:
+def progress_bar_on(args: Args) -> bool:
     """Whether to show SB3's progress bar: ``progress_bar``, else on a terminal unless ``quiet``
     (and only if tqdm and rich are installed).
     """
@@ -429,7 +405,7 @@ def _resume(args: Args, out: Path, ckpt: Path | None, manifest: dict | None, say
             res["lagrange"] = check_lagrange(state["lagrange"], f"{ckpt / RESUME_FILE}: lagrange", names)
     else:
         say(f"{ckpt} predates {RESUME_FILE}: its evaluations, learning curve and multipliers are read from {out}")
-        history, rows = _read_history(out, start)
+        history, rows = read_history(out, start)
         res.update(evaluations=history, curve=rows, wall_s=rows[-1]["wall_s"] if rows else 0.0)
         if names is not None:
             res["lagrange"] = load_lagrange(out, names)
@@ -472,15 +448,15 @@ def main(args: Args, callback_after_eval=None) -> dict:
 
     say = _printer(args)
     args = expand_algo(args)
-    _check(args)
+    check_args(args)
     if callback_after_eval is not None and args.eval_freq <= 0:
         raise ValueError(f"eval_freq = {args.eval_freq} with a callback_after_eval; use eval_freq >= 1")
     args, hp = resolve_args(args)
     if args.cost_limit:  # the multipliers alone price the costs, unless the run sets the weights
         args = dataclasses.replace(args, env_overrides={"w_rate": 0.0, "w_stab": 0.0, **args.env_overrides})
-    kw = check_hyperparams(args.algo, _resolve_policy_kwargs(hp))
+    kw = check_hyperparams(args.algo, resolve_policy_kwargs(hp))
     check_resolved(args, kw)
-    ckpt, manifest = _prepare_out(args, hp)
+    ckpt, manifest = prepare_out(args, hp)
     identity = run_identity(args, hp)
     out = Path(args.out)
     resumed = _resume(args, out, ckpt, manifest)
@@ -519,7 +495,7 @@ def main(args: Args, callback_after_eval=None) -> dict:
                 raise ValueError(f"{ckpt / 'replay_buffer.pkl'}: not a replay buffer python -m train can resume "
                                  f"({type(e).__name__}: {e})") from None
     else:
-        kw = _action_noise(kw, venv.num_envs, venv.action_space.shape[0])
+        kw = action_noise(kw, venv.num_envs, venv.action_space.shape[0])
         policy = kw.pop("policy", "MlpPolicy")
         model = algo_cls(policy, venv, seed=args.seed, device="cpu", verbose=args.verbose, tensorboard_log=tb, **kw)
         if args.init_policy and args.init_policy.lower() != "none":
@@ -559,11 +535,11 @@ def main(args: Args, callback_after_eval=None) -> dict:
         d = save_unit(ckpt_dir / f"step_{step}", m, vecnormalize, replay_buffer=off_policy,
                       texts={RESUME_FILE: state}, timesteps=step, run=identity)
         saved["step"] = step
-        _write_curve(out, curve.rows, means(), png=False)
+        write_curve(out, curve.rows, means(), png=False)
         say(f"checkpoint at step {step:,} -> {d}")
 
     def evaluated(cb) -> None:
-        _write_curve(out, curve.rows, means(), png=False)
+        write_curve(out, curve.rows, means(), png=False)
         at = f" at step {cb.best_timesteps:,}" if cb.best_timesteps is not None else ""
         say(f"evaluation at step {cb.evaluations_timesteps[-1]:,}: mean reward {cb.last_mean_reward:.2f} "
             f"(best {cb.best_mean_reward:.2f}{at})")
@@ -583,7 +559,7 @@ def main(args: Args, callback_after_eval=None) -> dict:
     per_env = max(1, args.n_envs)
     if args.checkpoint_freq > 0:  # after the evaluation of the same step: the checkpoint holds it
         callbacks.append(_checkpoint_callback(max(1, args.checkpoint_freq // per_env), checkpoint))
-    bar = _progress(args)
+    bar = progress_bar_on(args)
     if not args.quiet and not bar:
         callbacks.append(_steps_callback(say, args.total_timesteps))
     remaining = args.total_timesteps - start
@@ -597,7 +573,7 @@ def main(args: Args, callback_after_eval=None) -> dict:
         checkpoint(model)  # --resume with a larger --total-timesteps goes on from the end
     save_unit(out, model, vecnormalize, timesteps=int(model.num_timesteps), run=identity)
     evals = means()
-    _write_curve(out, curve.rows, evals)
+    write_curve(out, curve.rows, evals)
     venv.close()
     bc_wall = warm_start["wall_time_s"] if warm_start else 0.0
     summary = {"out": str(out), "timesteps": int(model.num_timesteps), "wall_time_s": wall + bc_wall,
@@ -611,108 +587,3 @@ def main(args: Args, callback_after_eval=None) -> dict:
     write_atomic(out / "summary.yml", yaml.safe_dump(summary, sort_keys=False))
     say(f"done: {summary['timesteps']:,} steps in {summary['wall_time_s']:.1f} s -> {out}")
     return summary
-
-
-PICKLE_WARNING = ("Model files (.zip) and vecnormalize.pkl are pickles: loading one executes code it holds. "
-                  "Load only files you trust (and --resume only runs of your own).")
-
-
-def build_parser(prog: str = "python -m train") -> argparse.ArgumentParser:
-    """The parser of ``python -m train``: every :class:`Args` field is a flag (help: :data:`FIELD_HELP`),
-    ``--set`` / ``--env-set`` override hyperparameters / Scenario fields, and :mod:`train.study` adds
-    ``--optimize``, ``--seeds``.
-    """
-    ap = argparse.ArgumentParser(
-        prog=prog, description=__doc__.split("\n")[0],
-        epilog="Writes into OUT: model.zip and vecnormalize.pkl (the final model and its statistics), best/ "
-               "(the best model on the held-out missions, with its own statistics), checkpoints/step_<N>/ "
-               "(for --resume), eval/evaluations.npz, learning_curve.csv/.png, config.yml, summary.yml, tb/. "
-               + PICKLE_WARNING)
-    defaults = Args()
-    for f in dataclasses.fields(Args):
-        if f.name in ("overrides", "env_overrides"):
-            continue
-        flag = "--" + f.name.replace("_", "-")
-        default = getattr(defaults, f.name)
-        help_ = FIELD_HELP[f.name]
-        if isinstance(default, bool) or f.name in ("normalize", "progress_bar"):
-            ap.add_argument(flag, action=argparse.BooleanOptionalAction, default=default, help=help_)
-        elif default is None:  # a run setting the YAML fills (RUN_KEYS), or numba's default
-            kind = {"init_policy": str, "init_log_std": float, "cost_limit": str}.get(f.name, int)
-            ap.add_argument(flag, type=kind, default=None, help=help_)
-        else:
-            ap.add_argument(flag, type=type(default), default=default, help=help_ + f" (default: {default})")
-    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                    help="override a hyperparameter of the YAML, e.g. --set n_steps=256 (value read as YAML)")
-    ap.add_argument("--env-set", action="append", default=[], metavar="FIELD=VALUE",
-                    help="override a Scenario field of the env, e.g. --env-set observation_source=gnss")
-    from iscc_gym.train.study import add_study_arguments
-
-    add_study_arguments(ap)
-    return ap
-
-
-def args_from_namespace(ap: argparse.ArgumentParser, ns: argparse.Namespace) -> Args:
-    """The :class:`Args` of flags parsed by :func:`build_parser` (``--set`` values parsed as YAML)."""
-
-    def pairs(items, flag):
-        out: dict[str, Any] = {}
-        for item in items:
-            if "=" not in item or not item.split("=", 1)[0]:
-                ap.error(f"{flag} {item!r}: use KEY=VALUE")
-            k, v = item.split("=", 1)
-            try:
-                out[k] = parse_value(v)
-            except yaml.YAMLError:
-                ap.error(f"{flag} {item!r}: the value is not valid YAML")
-        return out
-
-    kw = {f.name: getattr(ns, f.name) for f in dataclasses.fields(Args) if f.name not in ("overrides", "env_overrides")}
-    return expand_algo(Args(overrides=pairs(ns.set, "--set"), env_overrides=pairs(ns.env_set, "--env-set"), **kw))
-
-
-def parse_value(text: str):
-    """A ``--set`` / ``--env-set`` value: YAML, with numbers YAML 1.1 leaves as strings (``5e-5``,
-    ``1e6``) read as numbers.
-    """
-    value = yaml.safe_load(text)
-    if isinstance(value, str):
-        try:
-            return float(value)
-        except ValueError:
-            pass
-    return value
-
-
-def parse_args(argv: list[str] | None = None) -> Args:
-    """``Args`` from the command line (every field is a flag; ``--set key=value`` overrides a
-    hyperparameter, the value parsed as YAML).
-    """
-    ap = build_parser()
-    return args_from_namespace(ap, ap.parse_args(argv))
-
-
-def cli(argv: list[str] | None = None, prog: str = "python -m train") -> dict:
-    """``python -m train``: train once, or run a study (``--optimize``) or several seeds (``--seeds``);
-    returns the summary (for Python callers; the console commands end through :func:`console`).
-    """
-    ap = build_parser(prog)
-    ns = ap.parse_args(argv)
-    args = args_from_namespace(ap, ns)
-    if ns.optimize or ns.seeds is not None:
-        from iscc_gym.train.study import run_cli
-
-        return run_cli(ap, ns, args)
-    summary = main(args)
-    if not args.quiet:
-        print(f"trained {summary['timesteps']} steps in {summary['wall_time_s']:.1f} s -> {summary['out']}")
-    return summary
-
-
-def console(argv: list[str] | None = None, prog: str = "iscc-train") -> int:
-    """The ``iscc-train`` / ``python -m train`` entry point: exit code 0 on success, 2 with one line
-    for a user's mistake (:func:`iscc_gym.cli.run`).
-    """
-    from iscc_gym.cli import run
-
-    return run(lambda a: cli(a, prog=prog), argv, prog)

@@ -10,8 +10,8 @@ import numpy as np
 import scipy.linalg
 from numpy.typing import ArrayLike
 
-from .dynamics import axis_gain, axis_matrices
-from .scenario import Scenario
+from iscc_gym.physics.dynamics import axis_gain, axis_matrices
+from iscc_gym.scenario import Scenario
 
 __all__ = ["axis_kalman_steady_state", "gnss_steady_error_m"]
 

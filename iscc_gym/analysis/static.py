@@ -67,18 +67,18 @@ from numpy.polynomial.hermite_e import hermegauss
 from scipy.interpolate import CubicSpline
 from scipy.optimize import brentq
 
-from .allocation import AllocationMetrics, check_alpha
-from .averages import TrajectorySample, sample_positions
-from .channel import direction_trig, geometry, large_scale_snr, shadowing_std_db
-from .dynamics import axis_gain, axis_matrices, model_matrices
-from .fbl import comm_rate_bps, ctrl_bler, ctrl_rate_bps, min_shares, q_func, q_inv
-from .kalman_steady import axis_kalman_steady_state
-from .kernel import reward_from_costs
-from .quadrature import expected_norm, rician_power_nodes
-from .scenario import Scenario
-from .sensing_share import crlb_trace, local_crlb, sensing_coefficients
-from .stability import LossOperator, lqg_cost_floor, rate_cost_bits, riccati_s_d, scenario_eps_star
-from .units import db_to_lin
+from iscc_gym.analysis.allocation import AllocationMetrics, check_alpha
+from iscc_gym.analysis.averages import TrajectorySample, sample_positions
+from iscc_gym.analysis.kalman_steady import axis_kalman_steady_state
+from iscc_gym.analysis.quadrature import expected_norm, rician_power_nodes
+from iscc_gym.analysis.sensing_share import crlb_trace, local_crlb, sensing_coefficients
+from iscc_gym.physics.channel import direction_trig, geometry, large_scale_snr, shadowing_std_db
+from iscc_gym.physics.dynamics import axis_gain, axis_matrices, model_matrices
+from iscc_gym.physics.fbl import comm_rate_bps, ctrl_bler, ctrl_rate_bps, min_shares, q_func, q_inv
+from iscc_gym.physics.stability import LossOperator, lqg_cost_floor, rate_cost_bits, riccati_s_d, scenario_eps_star
+from iscc_gym.scenario import Scenario
+from iscc_gym.sim.kernel import reward_from_costs
+from iscc_gym.units import db_to_lin
 
 __all__ = ["TRUST_LOSS_FRACTION", "StaticModel", "static_model", "DEFAULT_SAMPLE"]
 

@@ -12,14 +12,14 @@ import numpy as np
 from numba import njit, vectorize
 from numpy.typing import ArrayLike
 
-from .channel import (
+from iscc_gym.physics.channel import (
     direction_trig,
     geometry,
     path_loss_db,
 )
-from .scenario import SPEED_OF_LIGHT_MPS, Scenario, per_scenario
-from .signature import SIGNATURE_PARAMS, signature_derivatives, signature_one, signature_params
-from .units import dbm_to_w
+from iscc_gym.physics.signature import SIGNATURE_PARAMS, signature_derivatives, signature_one, signature_params
+from iscc_gym.scenario import SPEED_OF_LIGHT_MPS, Scenario, per_scenario
+from iscc_gym.units import dbm_to_w
 
 __all__ = [
     "sensing_path_loss_db",
@@ -202,7 +202,7 @@ def whitened_observation_matrix(los_unit: ArrayLike, trig: tuple[ArrayLike, Arra
     :math:`\mathbf W\mathbf C_n`; rows: :math:`\mathbf g^T/\sqrt{m_r}`,
     :math:`\mathbf e_\theta^T/l_{11}`, :math:`(\mathbf e_\varphi - (l_{21}/l_{11})\mathbf e_\theta)^T/l_{22}`
     on the position, :math:`\mathbf g^T/\sqrt{\mathrm{CRLB}_{v_r}}` on the velocity.
-    Arguments as returned by :func:`crlb_local` and :func:`iscc_gym.channel.direction_trig`.
+    Arguments as returned by :func:`crlb_local` and :func:`iscc_gym.physics.channel.direction_trig`.
     """
     ct, st, cp, sp = trig
     l11 = np.sqrt(m_tt)
@@ -266,7 +266,7 @@ def veb(crlb_vr: ArrayLike):
     return np.sqrt(crlb_vr)
 
 
-# --- compiled scalar forms: one drone, composed by the slot kernel (iscc_gym.loop.step_one) ---------
+# --- compiled scalar forms: one drone, composed by the slot kernel (iscc_gym.sim.loop.step_one) ---------
 
 _LN10_OVER_10 = math.log(10.0) / 10.0
 
@@ -318,7 +318,7 @@ def crlb_local_one(c, a_sen, dist, ct, st, cp, sp, shadow_db, fading):
     :func:`crlb_from_info_one`.
 
     ``c``: a record with the fields of :data:`SENSING_PARAMS` (:func:`sensing_params`, or the slot's
-    :data:`iscc_gym.params.SLOT_PARAMS`, which holds them too).
+    :data:`iscc_gym.sim.params.SLOT_PARAMS`, which holds them too).
     """
     i_r, i_az, i_x, i_el, j_nu = _info_one(c, a_sen, dist, ct, st, cp, sp, shadow_db, fading)
     return crlb_from_info_one(i_r, i_az, i_x, i_el, j_nu, c.prior, c.lam_half_sq)

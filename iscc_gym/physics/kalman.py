@@ -27,7 +27,7 @@ def isac_observation_matrix(los_unit: ArrayLike):
     return c
 
 
-# --- compiled scalar forms: one drone, composed by the slot kernel (iscc_gym.loop.step_one) ---------
+# --- compiled scalar forms: one drone, composed by the slot kernel (iscc_gym.sim.loop.step_one) ---------
 
 @njit(cache=True, error_model="numpy", fastmath={"reassoc", "contract"})
 def kf_update_whitened_one(x, p, y, w, x_post, p_post, h):

@@ -1,7 +1,7 @@
 """One schema for a slot's inputs and outputs: metric and env columns, observation entries, noise draws.
 
 Everything that names or positions a number crossing the step boundary is defined here once and
-read by the compiled kernel (:mod:`iscc_gym.kernel`), the numpy transition (:mod:`iscc_gym.loop`),
+read by the compiled kernel (:mod:`iscc_gym.sim.kernel`), the numpy transition (:mod:`iscc_gym.sim.loop`),
 the single env, the vector env and the agents. Plain Python: the module imports nothing from the
 package, so every layer can use it (the integer positions are module constants numba freezes at
 compile time).
@@ -13,20 +13,20 @@ __all__ = ["METRIC_NAMES", "ENV_COLUMNS", "STEP_COLUMNS", "COL", "N_METRICS", "N
            "OBS", "N_OBS", "OBS_BOUND", "OBS_SCALING", "N_DRAWS", "DRAWS", "ERR_SCALE", "REF_VEL_SCALE",
            "REF_ACC_SCALE", "SNR_SCALE", "CTRL_SHARE_SCALE", "PEB_SCALE"]
 
-#: Columns of a slot's metrics (:func:`iscc_gym.loop.step`), in order.
+#: Columns of a slot's metrics (:func:`iscc_gym.sim.loop.step`), in order.
 METRIC_NAMES = ("tracking_error_m", "estimation_error_m", "snr_db", "snr_large_scale_db", "peb_m",
                 "veb_mps", "eps_ctrl", "packet_received", "rate_comm_bps", "rate_ctrl_bps", "diverged")
 #: Columns an env step adds after :data:`METRIC_NAMES`: the applied split, costs, reward, episode end (0/1).
 ENV_COLUMNS = ("alpha_sen", "alpha_ctrl", "alpha_comm", "cost_rate", "cost_stability", "reward",
                "terminated", "truncated")
-#: Columns of the per-loop output array of an env step (:func:`iscc_gym.env.env_step`).
+#: Columns of the per-loop output array of an env step (:func:`iscc_gym.envs.env.env_step`).
 STEP_COLUMNS = METRIC_NAMES + ENV_COLUMNS
 #: Position of each column of :data:`STEP_COLUMNS` by name.
 COL = {name: j for j, name in enumerate(STEP_COLUMNS)}
 N_METRICS = len(METRIC_NAMES)
 N_STEP_COLUMNS = len(STEP_COLUMNS)
 
-#: Names of the observation entries, in order (table in :class:`iscc_gym.env.ISCCEnv`).
+#: Names of the observation entries, in order (table in :class:`iscc_gym.envs.env.ISCCEnv`).
 OBS_NAMES = (
     "pos_err_x", "pos_err_y", "pos_err_z", "vel_err_x", "vel_err_y", "vel_err_z",
     "ref_vel_x", "ref_vel_y", "ref_vel_z", "ref_acc_x", "ref_acc_y", "ref_acc_z",
@@ -47,7 +47,7 @@ CTRL_SHARE_SCALE = 10.0  # control share at eps*
 PEB_SCALE = 0.05         # symlog scale of the last PEB, m
 #: How each entry is scaled from its physical value: ``("symlog", c)`` is sign(x) ln(1 + |x|/c),
 #: ``("linear", k)`` is k x; ``"range"`` divides by the coverage radius, ``"time_left"`` is
-#: 1 - n / n_slots (both scenario-dependent). :func:`iscc_gym.env.decode_observation` inverts them.
+#: 1 - n / n_slots (both scenario-dependent). :func:`iscc_gym.envs.env.decode_observation` inverts them.
 OBS_SCALING = {
     **{name: ("symlog", ERR_SCALE) for name in OBS_NAMES[0:6]},
     **{name: ("linear", REF_VEL_SCALE) for name in OBS_NAMES[6:9]},

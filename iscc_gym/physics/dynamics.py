@@ -7,7 +7,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import ArrayLike
 
-from .scenario import Scenario, per_scenario
+from iscc_gym.scenario import Scenario, per_scenario
 
 __all__ = ["axis_matrices", "axis_gain", "system_matrices", "process_noise_cov", "lqg_weights", "lqr_gain",
            "model_matrices", "lqg_command_one", "input_one", "propagate_one"]
@@ -136,7 +136,7 @@ def model_matrices(s: Scenario) -> ModelMatrices:
     return ModelMatrices(s)
 
 
-# --- compiled scalar forms: one drone, composed by the slot kernel (iscc_gym.loop.step_one) ---------
+# --- compiled scalar forms: one drone, composed by the slot kernel (iscc_gym.sim.loop.step_one) ---------
 # ``inline="always"``: numba inlines them into the caller's IR, so they compile with the caller's flags.
 
 @njit(cache=True, error_model="numpy", inline="always")

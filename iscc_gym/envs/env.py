@@ -13,10 +13,12 @@ import numpy as np
 from gymnasium import spaces
 from numpy.typing import ArrayLike
 
-from . import kernel, loop, threads
-from .render import Renderer
-from .scenario import Scenario, make_scenario
-from .schema import (
+from iscc_gym import threads
+from iscc_gym.envs.render import Renderer
+from iscc_gym.physics.stability import scenario_eps_star
+from iscc_gym.scenario import Scenario, make_scenario
+from iscc_gym.sim import kernel, loop
+from iscc_gym.sim.schema import (
     COL,
     N_DRAWS,
     OBS_BOUND,
@@ -24,15 +26,14 @@ from .schema import (
     OBS_SCALING,
     STEP_COLUMNS,
 )
-from .stability import scenario_eps_star
-from .task import (
+from iscc_gym.sim.task import (
     action_to_split,
     reward_and_costs,
     split_to_action,
 )
-from .trajectory import sample_reference
+from iscc_gym.trajectory import sample_reference
 
-__all__ = ["ISCCEnv", "action_to_split", "split_to_action", "observe", "reward_and_costs", "env_step",
+__all__ = ["ISCCEnv", "ENV_ID", "action_to_split", "split_to_action", "observe", "reward_and_costs", "env_step",
            "decode_observation", "OBS_NAMES", "OBS_BOUND",
            "STEP_COLUMNS", "check_seed", "check_keywords", "real_array", "reset_info_arrays", "SLOT_OUTCOME_KEYS"]
 
@@ -41,7 +42,7 @@ def observe(s: Scenario, state: loop.LoopState, last_received: ArrayLike, last_p
     """The observation of :class:`ISCCEnv` (table in its docstring), shape (B, 23), float32.
 
     A pure function of a batch of loop states and the last slot's outcome (arrays of shape (B,)),
-    so the single env and any vector env build it the same way (:func:`iscc_gym.kernel.observe_one`;
+    so the single env and any vector env build it the same way (:func:`iscc_gym.sim.kernel.observe_one`;
     an unbatched state gives shape (23,)).
     """
     if state.x.ndim == 1:
@@ -56,7 +57,7 @@ def observe(s: Scenario, state: loop.LoopState, last_received: ArrayLike, last_p
 
 def decode_observation(obs: ArrayLike, s: Scenario) -> dict:
     """Named physical values of observations (any leading batch shape), inverting the scalings of
-    :data:`iscc_gym.schema.OBS_SCALING` (the table of :class:`ISCCEnv`).
+    :data:`iscc_gym.sim.schema.OBS_SCALING` (the table of :class:`ISCCEnv`).
 
     Entries at the clip bound (+-``OBS_BOUND``) decode to the bound's value, not the true one.
 
@@ -121,12 +122,12 @@ def env_step(s: Scenario, state: loop.LoopState, actions: ArrayLike, normals: Ar
     actions : ndarray (B, 3), finite
     normals : ndarray (B, N_DRAWS), optional
         The slot's standard normals; default: each loop's episode stream
-        (:func:`iscc_gym.noise.slot_normals` of its key and slot, drawn inside the kernel).
+        (:func:`iscc_gym.sim.noise.slot_normals` of its key and slot, drawn inside the kernel).
     active : ndarray (B,) bool, optional
         Loops to step (default all); the others keep their state, slot index and zero outputs.
     budget : ndarray (B,), optional
         Each loop's share of the band, which scales its split (the multi-drone env,
-        :mod:`iscc_gym.multi`); default the whole band.
+        :mod:`iscc_gym.envs.multi`); default the whole band.
 
     Returns
     -------
@@ -252,6 +253,8 @@ def reset_info_arrays(state: loop.LoopState) -> dict:
     return info
 
 
+#: The registered id of this env.
+ENV_ID = "iscc_gym/ISCC-v0"
 #: The registered ``max_episode_steps`` of ``iscc_gym/ISCC-v0`` (the paper's mission: 500 s / 0.1 s).
 REGISTERED_MAX_EPISODE_STEPS = 5000
 
@@ -279,9 +282,9 @@ class ISCCEnv(gym.Env):
     shares: sensing sets the Cramér-Rao bound of the radar measurement, control sets the command's
     loss probability and so mean-square stability, and the data link must carry ``rate_min_bps``.
     Each step calls the pure batched transition :func:`env_step` once on a batch of one (the vector
-    env :class:`iscc_gym.vector.ISCCVectorEnv` calls the same function on N loops, so sub-env i
+    env :class:`iscc_gym.envs.vector.ISCCVectorEnv` calls the same function on N loops, so sub-env i
     reproduces this env seeded alike bit for bit). It evaluates the model of ``docs/model.md``
-    with a compiled kernel (:mod:`iscc_gym.kernel`, composed of the physics modules' scalar functions;
+    with a compiled kernel (:mod:`iscc_gym.sim.kernel`, composed of the physics modules' scalar functions;
     ``tests/oracle_loop.py`` holds the same step in numpy as the test oracle).
 
     ## Action Space
@@ -333,7 +336,7 @@ class ISCCEnv(gym.Env):
     (tracking error in m, the weights ``w_rate``, ``w_stab`` of the Scenario). The two violations are
     also reported as costs for constrained RL: ``info["cost_rate"]`` (normalised shortfall, in
     [0, 1]), ``info["cost_stability"]`` (0/1) and ``info["cost"]`` (their sum);
-    :class:`iscc_gym.wrappers.SafetyCostWrapper` returns Safety-Gymnasium's 6-tuple. Loss of track
+    :class:`iscc_gym.envs.wrappers.SafetyCostWrapper` returns Safety-Gymnasium's 6-tuple. Loss of track
     adds a one-off penalty of ``max_tracking_error_m`` per remaining slot (as if the error stayed at
     the bound for the rest of the mission), so ending an episode early never pays.
 
@@ -342,7 +345,7 @@ class ISCCEnv(gym.Env):
     ``reset`` draws a new reference trajectory (Poisson waypoints, cubic spline) and the drone's
     initial state near its start (``initial_pos_std_m``, ``initial_vel_std_mps``), all from the
     env's generator, and then the episode's noise key: every slot's fading, measurement, drop,
-    process and shadowing normals are :func:`iscc_gym.noise.slot_normals` (key, slot), so an
+    process and shadowing normals are :func:`iscc_gym.sim.noise.slot_normals` (key, slot), so an
     episode is fixed by the generator's state at reset.
 
     The reset ``info`` carries every key of a step's ``info``: ``tracking_error_m`` the initial
@@ -377,14 +380,14 @@ class ISCCEnv(gym.Env):
     (libraries such as TorchRL's ``GymEnv`` retry without an optional keyword on that wording).
     ``render_mode="rgb_array"`` renders the plan view and altitude of the reference and flown paths,
     and over the last 200 slots the split, the rate and stability violations, the tracking error and
-    the PEB (:mod:`iscc_gym.render`). ``render_mode="human"`` prints a status line to stdout (time,
+    the PEB (:mod:`iscc_gym.envs.render`). ``render_mode="human"`` prints a status line to stdout (time,
     tracking error, PEB, split, costs) at reset, once per simulated second and when the episode ends,
     and on each call of ``render()``: it needs no display (e.g. ``python -m rl_zoo3.enjoy``).
 
     ## Version History
 
     * v0: initial version. Each slot's normals come from a per-episode stream: a key drawn at
-      reset from ``np_random``, then :func:`iscc_gym.noise.slot_normals` (key, slot). (Before the
+      reset from ``np_random``, then :func:`iscc_gym.sim.noise.slot_normals` (key, slot). (Before the
       first release they were drawn from ``np_random`` itself, in blocks of 64 slots, so seeded
       episodes of earlier development versions differ.)
     * v0, issue 23 (no change to dynamics or rewards): the reset ``info`` carries a step's keys,
@@ -490,7 +493,7 @@ class ISCCEnv(gym.Env):
         return obs[0], reward, terminated == 1.0, truncated == 1.0, info
 
     def render(self):
-        """``rgb_array``: the frame (:mod:`iscc_gym.render`). ``human``: print the current slot's status
+        """``rgb_array``: the frame (:mod:`iscc_gym.envs.render`). ``human``: print the current slot's status
         line to stdout, once per slot (the env also prints it itself at reset, once per simulated second
         and at the episode's end, so it works headless, e.g. under ``python -m rl_zoo3.enjoy``, which
         calls ``render()`` after every step); returns None.

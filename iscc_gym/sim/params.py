@@ -12,12 +12,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from .channel import matched_gain, rician_constants, snr_constant
-from .dynamics import model_matrices
-from .fbl import LINK_PARAMS, link_constants, link_params, q_inv
-from .scenario import Scenario, per_scenario
-from .sensing import SENSING_PARAMS, sensing_params
-from .stability import scenario_eps_star
+from iscc_gym.physics.channel import matched_gain, rician_constants, snr_constant
+from iscc_gym.physics.dynamics import model_matrices
+from iscc_gym.physics.fbl import LINK_PARAMS, link_constants, link_params, q_inv
+from iscc_gym.physics.sensing import SENSING_PARAMS, sensing_params
+from iscc_gym.physics.stability import scenario_eps_star
+from iscc_gym.scenario import Scenario, per_scenario
 
 __all__ = ["SLOT_PARAMS", "slot_params", "MATS"]
 
@@ -36,7 +36,8 @@ _OWN_FIELDS = (
     "gnss_every",      # slots between GNSS fixes
 )
 #: The fields of the record (all float64; flags are 0.0/1.0): the slot's own, then those of
-#: :data:`iscc_gym.sensing.SENSING_PARAMS` and :data:`iscc_gym.fbl.LINK_PARAMS` (copied from their records).
+#: :data:`iscc_gym.physics.sensing.SENSING_PARAMS` and :data:`iscc_gym.physics.fbl.LINK_PARAMS` (copied from
+#: their records).
 SLOT_PARAMS = np.dtype([(name, np.float64) for name in _OWN_FIELDS]
                        + [(name, np.float64) for name in SENSING_PARAMS.names + LINK_PARAMS.names])
 

@@ -8,11 +8,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .channel import large_scale_snr
-from .fbl import comm_rate_bps
-from .scenario import Scenario
-from .sensing import crlb, peb, veb
-from .trajectory import sample_reference
+from iscc_gym.physics.channel import large_scale_snr
+from iscc_gym.physics.fbl import comm_rate_bps
+from iscc_gym.physics.sensing import crlb, peb, veb
+from iscc_gym.scenario import Scenario
+from iscc_gym.trajectory import sample_reference
 
 __all__ = ["TrajectorySample", "sample_positions", "mean_snr", "mean_comm_rate_bps", "mean_bounds"]
 

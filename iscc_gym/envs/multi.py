@@ -7,10 +7,10 @@ LQG loop, links, fading and noise streams), sharing one OFDM budget: the 3K shar
 does not depend on the share (the paper's footnote) and the subcarriers are orthogonal (no
 inter-drone interference), so each drone's CRLB, drop probability and rate follow from its own three
 shares exactly as in the single env: the compiled single-drone step runs on a batch of K loops, each
-with its split scaled by its share of the band (:func:`iscc_gym.env.env_step`'s ``budget``).
+with its split scaled by its share of the band (:func:`iscc_gym.envs.env.env_step`'s ``budget``).
 
 Everything here composes the single env's functions: the action map (:func:`multi_split`), the
-reward (:func:`multi_reward`, from :func:`iscc_gym.kernel.reward_from_costs`) and the reset (each
+reward (:func:`multi_reward`, from :func:`iscc_gym.sim.kernel.reward_from_costs`) and the reset (each
 drone a single env's reset with its own seed, :func:`reset_drones`). docs/model.md, section 5, states
 the modelling choices.
 """
@@ -25,16 +25,24 @@ from gymnasium import spaces
 from gymnasium.utils import seeding
 from numpy.typing import ArrayLike
 
-from . import kernel, loop
-from .env import check_keywords, check_seed, env_step, observe, real_array, reset_info_arrays, warn_time_limit
-from .scenario import Scenario, make_scenario
-from .schema import COL, OBS_BOUND, OBS_NAMES
-from .task import action_to_split
-from .trajectory import sample_reference
+from iscc_gym.envs.env import (
+    check_keywords,
+    check_seed,
+    env_step,
+    observe,
+    real_array,
+    reset_info_arrays,
+    warn_time_limit,
+)
+from iscc_gym.scenario import Scenario, make_scenario
+from iscc_gym.sim import kernel, loop
+from iscc_gym.sim.schema import COL, OBS_BOUND, OBS_NAMES
+from iscc_gym.sim.task import action_to_split, check_split, split_to_action
+from iscc_gym.trajectory import sample_reference
 
 __all__ = ["ISCCMultiEnv", "MULTI_ENV_ID", "N_DRONES", "MAX_DRONES", "check_n_drones", "drone_budgets",
            "multi_split", "shares_to_action", "drone_rewards", "multi_reward", "drone_scenario", "drone_seeds",
-           "reset_drones", "multi_step", "multi_info", "multi_reset_info", "parallel_env"]
+           "reset_drones", "multi_step", "multi_info", "multi_reset_info"]
 
 #: The registered id of the multi-drone env.
 MULTI_ENV_ID = "iscc_gym/ISCC-Multi-v0"
@@ -89,7 +97,7 @@ def drone_budgets(actions: ArrayLike, n_drones: int) -> np.ndarray:
         b_k = \textstyle\sum_f w_{k,f} \big/ \sum_{j,f} w_{j,f}
 
     (:math:`b_k = 1/K` where every :math:`w = 0`). With the drone's own split
-    :func:`iscc_gym.env.action_to_split` of its three actions, :math:`\alpha_{k,f} = b_k\,
+    :func:`iscc_gym.envs.env.action_to_split` of its three actions, :math:`\alpha_{k,f} = b_k\,
     w_{k,f}/\sum_f w_{k,f} = w_{k,f}/\sum_{j,f} w_{j,f}`: the single env's map onto the simplex, over
     3K shares.
     """
@@ -103,7 +111,7 @@ def drone_budgets(actions: ArrayLike, n_drones: int) -> np.ndarray:
 
 def multi_split(actions: ArrayLike, n_drones: int) -> np.ndarray:
     """The applied shares ``alpha[..., k, f]`` of actions (..., 3K): each drone's budget
-    (:func:`drone_budgets`) times its own split (:func:`iscc_gym.env.action_to_split`), as the
+    (:func:`drone_budgets`) times its own split (:func:`iscc_gym.envs.env.action_to_split`), as the
     compiled step applies them; they sum to 1 over (k, f).
     """
     k = check_n_drones(n_drones)
@@ -119,10 +127,8 @@ def shares_to_action(alpha: ArrayLike) -> np.ndarray:
     a = np.asarray(alpha, dtype=float)
     if a.ndim < 2 or a.shape[-1] != 3:
         raise ValueError(f"alpha must have shape (..., K, 3), got {a.shape}")
-    flat = a.reshape(a.shape[:-2] + (-1,))
-    if np.any(~np.isfinite(flat)) or np.any(flat < 0) or not np.allclose(flat.sum(-1), 1.0, atol=1e-9):
-        raise ValueError("alpha is not a split of the band: shares must be >= 0 and sum to 1 over drones and functions")
-    return (2.0 * flat / flat.max(axis=-1, keepdims=True) - 1.0).astype(np.float32)
+    flat = check_split(a.reshape(a.shape[:-2] + (-1,)), "alpha", " over drones and functions")
+    return split_to_action(flat)
 
 
 def drone_rewards(s: Scenario, err: ArrayLike, cost_rate: ArrayLike, cost_stability: ArrayLike,
@@ -133,7 +139,7 @@ def drone_rewards(s: Scenario, err: ArrayLike, cost_rate: ArrayLike, cost_stabil
         r_{k,n} = -\min(e_{k,n}, e_\max) - w_\mathrm{rate}\, c^\mathrm{rate}_{k,n}
         - w_\mathrm{stab}\, c^\mathrm{stab}_{k,n} - [\text{lost}_n]\, e_\max (N - n')
 
-    (:func:`iscc_gym.kernel.reward_from_costs` and :func:`iscc_gym.kernel.terminal_penalty`), where
+    (:func:`iscc_gym.sim.kernel.reward_from_costs` and :func:`iscc_gym.sim.kernel.terminal_penalty`), where
     ``err``, ``cost_rate`` and ``cost_stability`` are (..., K), ``terminated`` (...,) is True where
     **any** drone lost track (the mission ends for every drone, so every drone pays the penalty for the
     slots left) and ``n_next`` (...,) is the slot index after the step, :math:`n'`.
@@ -172,7 +178,7 @@ def drone_seeds(rng: np.random.Generator, n_drones: int) -> list[int]:
 
 def reset_drones(s: Scenario, seeds) -> loop.LoopState:
     """The initial state of K drones (a batch of K loops), drone k exactly the single env
-    (:class:`iscc_gym.env.ISCCEnv`) reset with ``seeds[k]``: its reference, initial state and noise key.
+    (:class:`iscc_gym.envs.env.ISCCEnv`) reset with ``seeds[k]``: its reference, initial state and noise key.
     """
     rngs = [seeding.np_random(int(sd))[0] for sd in seeds]
     refs = [sample_reference(s, r) for r in rngs]
@@ -185,7 +191,7 @@ def multi_step(s: Scenario, state: loop.LoopState, actions: np.ndarray, n_drones
     """One step of N multi-drone envs (N x K loops, drone k of env i at row i K + k).
 
     Returns ``(state, out, obs, reward, terminated, truncated)``: ``out`` (N, K, columns) the per-drone
-    step outputs (:data:`iscc_gym.schema.STEP_COLUMNS`), ``obs`` (N, 23 K) the drones' observations
+    step outputs (:data:`iscc_gym.sim.schema.STEP_COLUMNS`), ``obs`` (N, 23 K) the drones' observations
     concatenated, ``reward`` (N,) :func:`multi_reward`, ``terminated`` (N,) when any drone loses
     track, ``truncated`` (N,) at the mission's end. ``active`` (N,) bool: envs to step (the others
     keep their state, zero outputs).
@@ -225,7 +231,7 @@ def multi_reset_info(state: loop.LoopState, n_drones: int) -> dict:
     """The keys of :func:`multi_info` and ``slot`` at reset, for N envs of K drones (``state`` of N K loops):
     per-drone arrays (N, K) (``alpha`` (N, K, 3), equal shares 1/(3K)), ``cost`` 0 and
     ``mean_tracking_error_m`` (N,), ``slot`` (N,); the per-drone values of
-    :func:`iscc_gym.env.reset_info_arrays` (the initial tracking error, zero costs, NaN slot outcomes).
+    :func:`iscc_gym.envs.env.reset_info_arrays` (the initial tracking error, zero costs, NaN slot outcomes).
     """
     k = n_drones
     per = reset_info_arrays(state)
@@ -244,7 +250,7 @@ class ISCCMultiEnv(gym.Env):
 
     ## Description
 
-    K drones (``n_drones``, default 4), each the ISCC loop of :class:`iscc_gym.env.ISCCEnv` (its own
+    K drones (``n_drones``, default 4), each the ISCC loop of :class:`iscc_gym.envs.env.ISCCEnv` (its own
     reference, Kalman filter, LQG loop, links, fading, shadowing and noise), share one OFDM budget:
     every slot the agent gives each drone a sensing, a control and a data share, 3K shares summing to
     1. Drone k's CRLB, drop probability and rate follow from its own shares exactly as in the single
@@ -261,7 +267,7 @@ class ISCCMultiEnv(gym.Env):
     ## Observation Space
 
     ``Box(-10, 10, (23K,), float32)``: drone k's single-env observation (the table of
-    :class:`iscc_gym.env.ISCCEnv`) at entries 23k to 23k+22. Its ``alpha_ctrl_min`` and
+    :class:`iscc_gym.envs.env.ISCCEnv`) at entries 23k to 23k+22. Its ``alpha_ctrl_min`` and
     ``alpha_comm_min`` are shares of the whole band, as here (``alpha_comm_min`` for the drone's
     own rate requirement).
 
@@ -283,7 +289,7 @@ class ISCCMultiEnv(gym.Env):
     ## Starting State
 
     ``reset(seed=s)`` seeds the env's generator, draws one seed per drone from it
-    (``info["drone_seeds"]``) and resets drone k exactly as :class:`iscc_gym.env.ISCCEnv` reset with
+    (``info["drone_seeds"]``) and resets drone k exactly as :class:`iscc_gym.envs.env.ISCCEnv` reset with
     its seed: drones fly independent references from independent noise streams.
 
     ## Episode End
@@ -296,11 +302,11 @@ class ISCCMultiEnv(gym.Env):
 
     ``gymnasium.make("iscc_gym/ISCC-Multi-v0", n_drones=4, scenario="paper",
     rate_min_per_drone_bps=None, **overrides)``: ``scenario`` and ``overrides`` as in
-    :class:`iscc_gym.env.ISCCEnv`, shared by every drone; each drone's data link must carry
+    :class:`iscc_gym.envs.env.ISCCEnv`, shared by every drone; each drone's data link must carry
     ``rate_min_per_drone_bps``, by default the scenario's ``rate_min_bps`` / K (the base station's
     requirement split evenly; :func:`drone_scenario`). ``env.scenario`` is the per-drone scenario.
     ``gymnasium.make_vec(..., vectorization_mode="vector_entry_point")`` gives the native batched
-    env (:class:`iscc_gym.vector.ISCCVectorEnv` with ``n_drones``).
+    env (:class:`iscc_gym.envs.vector.ISCCVectorEnv` with ``n_drones``).
 
     ## Version History
 
@@ -370,13 +376,4 @@ class ISCCMultiEnv(gym.Env):
         info["action"] = a.astype(np.float32)
         info["slot"] = int(self._state.n[0])
         return obs[0], float(reward[0]), bool(term[0]), bool(trunc[0]), info
-
-
-def parallel_env(n_drones: int = N_DRONES, **kwargs):
-    """The PettingZoo ``ParallelEnv`` of the multi-drone env (:mod:`iscc_gym.multi_pz`; needs
-    ``pip install pettingzoo``, the ``multi`` extra).
-    """
-    from .multi_pz import ISCCParallelEnv
-
-    return ISCCParallelEnv(n_drones=n_drones, **kwargs)
 

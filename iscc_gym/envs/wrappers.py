@@ -53,7 +53,7 @@ class SafetyCostWrapper(gym.Wrapper):
     ``cost`` is ``info["cost"]``: the normalised data-rate shortfall plus the stability-violation
     indicator of the slot (both also in ``info`` separately). ``reset`` is unchanged. Wrapping a
     vector env (``gymnasium.make_vec(..., vectorization_mode="vector_entry_point")`` or
-    :class:`iscc_gym.vector.ISCCVectorEnv`) gives a :class:`SafetyCostVectorWrapper` (``cost`` of
+    :class:`iscc_gym.envs.vector.ISCCVectorEnv`) gives a :class:`SafetyCostVectorWrapper` (``cost`` of
     shape (num_envs,)). Inside another Gymnasium wrapper or as a sub-env of a vector env it passes
     the 5-tuple through (module docstring), so it works in any order with Gymnasium's wrappers and
     inside ``gymnasium.make_vec(..., vectorization_mode="sync"/"async", wrappers=[SafetyCostWrapper])``.
@@ -62,7 +62,7 @@ class SafetyCostWrapper(gym.Wrapper):
     Examples
     --------
     >>> import gymnasium as gym, iscc_gym
-    >>> from iscc_gym.wrappers import SafetyCostWrapper
+    >>> from iscc_gym.envs.wrappers import SafetyCostWrapper
     >>> env = SafetyCostWrapper(gym.wrappers.RecordEpisodeStatistics(gym.make("iscc_gym/ISCC-v0")))
     >>> obs, info = env.reset(seed=0)
     >>> obs, reward, cost, terminated, truncated, info = env.step(env.action_space.sample())

@@ -1,6 +1,6 @@
 """The CRLB as an explicit function of the sensing share alpha_sen (the SCA objective f_sen of
 Sec. IV-B and the analytic evaluator's measurement noise), from the closed-form FIM of
-:mod:`iscc_gym.sensing` at alpha_sen = 1.
+:mod:`iscc_gym.physics.sensing` at alpha_sen = 1.
 """
 
 from __future__ import annotations
@@ -11,8 +11,8 @@ import numpy as np
 from numba import guvectorize, njit
 from numpy.typing import ArrayLike
 
-from .scenario import Scenario
-from .sensing import crlb_from_info, crlb_from_info_one, position_info
+from iscc_gym.physics.sensing import crlb_from_info, crlb_from_info_one, position_info
+from iscc_gym.scenario import Scenario
 
 __all__ = ["SensingCoefficients", "sensing_coefficients", "local_crlb", "crlb_trace", "crlb_trace_one"]
 
@@ -25,7 +25,7 @@ class SensingCoefficients:
     range (delay) entry and as :math:`\alpha_\mathrm{sen}` in the angle and Doppler entries, so the
     CRLB at any share follows from these coefficients (:func:`local_crlb`). Frame: range direction
     :math:`\mathbf g`, azimuth direction :math:`\mathbf e_\theta`, elevation direction
-    :math:`\mathbf e_\varphi` (:func:`iscc_gym.sensing.local_frame`).
+    :math:`\mathbf e_\varphi` (:func:`iscc_gym.physics.sensing.local_frame`).
 
     Attributes
     ----------
@@ -50,8 +50,8 @@ class SensingCoefficients:
 def sensing_coefficients(s: Scenario, dist_m: ArrayLike, trig: tuple[ArrayLike, ArrayLike, ArrayLike, ArrayLike],
                          shadow_db: ArrayLike = 0.0, fading_gain: ArrayLike = 1.0) -> SensingCoefficients:
     """:class:`SensingCoefficients` at ranges ``dist_m`` and directions ``trig`` (the output of
-    :func:`iscc_gym.channel.direction_trig`), for the given shadowing (dB) and fading gain: the compiled
-    :func:`iscc_gym.sensing.position_info` at ``alpha_sen = 1``.
+    :func:`iscc_gym.physics.channel.direction_trig`), for the given shadowing (dB) and fading gain: the compiled
+    :func:`iscc_gym.physics.sensing.position_info` at ``alpha_sen = 1``.
     """
     info_range, info_az, info_cross, info_el, j_nu = position_info(s, 1.0, dist_m, trig, shadow_db, fading_gain)
     lam_half_sq = (0.5 * s.wavelength_m) ** 2
@@ -66,7 +66,7 @@ def sensing_coefficients(s: Scenario, dist_m: ArrayLike, trig: tuple[ArrayLike, 
 
 
 def local_crlb(coef: SensingCoefficients, alpha_sen: ArrayLike):
-    """Local-frame CRLB at sensing share ``alpha_sen`` (equal to :func:`iscc_gym.sensing.crlb_local`).
+    """Local-frame CRLB at sensing share ``alpha_sen`` (equal to :func:`iscc_gym.physics.sensing.crlb_local`).
 
     Returns
     -------
@@ -95,7 +95,7 @@ def crlb_trace(coef: SensingCoefficients, alpha_sen: ArrayLike):
 def crlb_trace_one(info_range, info_az, info_cross, info_el, prior, alpha_sen):
     r""":func:`crlb_trace` of one position (scalars of :class:`SensingCoefficients`): ``(trace, dtrace)``.
 
-    The CRLB is :func:`iscc_gym.sensing.crlb_from_info_one`; its derivative is
+    The CRLB is :func:`iscc_gym.physics.sensing.crlb_from_info_one`; its derivative is
     :math:`\partial\mathbf M/\partial\alpha = -\mathbf M\,(\partial\mathbf J/\partial\alpha)\,
     \mathbf M`, with
     :math:`\partial\mathbf J/\partial\alpha` the information at alpha_sen = 1 (3 alpha^2 of it in range).

@@ -12,7 +12,7 @@ of the stream seeded with the key; each 64-bit output makes one normal by the 25
 (Marsaglia & Tsang, *The ziggurat method for generating random variables*, JSS 2000) with NumPy's
 table layout. Slot streams cannot overlap (a slot uses about 18 of its 2^24 counters).
 
-The compiled scalar functions here are also called from inside :mod:`iscc_gym.kernel`, so the env
+The compiled scalar functions here are also called from inside :mod:`iscc_gym.sim.kernel`, so the env
 draws its noise where it uses it, on all cores.
 """
 
@@ -25,7 +25,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import ArrayLike
 
-from .schema import N_DRAWS  # the layout of a slot's draws: iscc_gym.schema.DRAWS
+from iscc_gym.sim.schema import N_DRAWS  # the layout of a slot's draws: iscc_gym.sim.schema.DRAWS
 
 __all__ = ["N_DRAWS", "draw_keys", "slot_normals", "standard_normals", "ZIGGURAT_R"]
 
@@ -149,7 +149,7 @@ def slot_normals(key: ArrayLike, n: ArrayLike, k: int = N_DRAWS) -> np.ndarray:
     """
     keys = np.asarray(key)
     if keys.dtype != np.uint64:
-        raise TypeError(f"key must be uint64 (from iscc_gym.noise.draw_keys), got dtype {keys.dtype}")
+        raise TypeError(f"key must be uint64 (from iscc_gym.sim.noise.draw_keys), got dtype {keys.dtype}")
     keys, slots = np.broadcast_arrays(keys, np.asarray(n, dtype=np.int64))
     if (slots < 0).any():
         raise ValueError("slot index n must be >= 0")

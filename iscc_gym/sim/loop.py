@@ -6,7 +6,7 @@ finite-blocklength delivery (Bernoulli drop) -> drone dynamics -> Kalman predict
 and the vector env both call it; nothing here keeps state between calls.
 
 Randomness: each slot uses exactly :data:`N_DRAWS` standard normals per drone. By default they are
-the episode's stream (:func:`iscc_gym.noise.slot_normals` of the key the state carries, drawn at
+the episode's stream (:func:`iscc_gym.sim.noise.slot_normals` of the key the state carries, drawn at
 :func:`init_state`), so the transition is a pure function of the state; or they are drawn from a
 Generator passed in (one shared, or one per drone: then drone i's draws depend only on its own
 Generator, so a batch reproduces single runs bit for bit).
@@ -22,7 +22,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import ArrayLike
 
-from .channel import (
+from iscc_gym.physics.channel import (
     beam_gain,
     beam_gain_one,
     direction_one,
@@ -34,13 +34,14 @@ from .channel import (
     shadowing_std_db,
     shadowing_step_one,
 )
-from .dynamics import input_one, lqg_command_one, model_matrices, propagate_one
-from .fbl import ctrl_bler_one, delivered_one, link_terms_one, min_shares, rate_one
-from .kalman import kf_predict_one, kf_update_whitened_one
-from .noise import draw_keys, slot_normals, standard_normals
-from .params import MATS, slot_params
-from .scenario import Scenario
-from .schema import (
+from iscc_gym.physics.dynamics import input_one, lqg_command_one, model_matrices, propagate_one
+from iscc_gym.physics.fbl import ctrl_bler_one, delivered_one, link_terms_one, min_shares, rate_one
+from iscc_gym.physics.kalman import kf_predict_one, kf_update_whitened_one
+from iscc_gym.physics.sensing import crlb_local_one, whitened_rows_one
+from iscc_gym.scenario import Scenario
+from iscc_gym.sim.noise import draw_keys, slot_normals, standard_normals
+from iscc_gym.sim.params import MATS, slot_params
+from iscc_gym.sim.schema import (
     COL,
     METRIC_NAMES,
     N_DRAWS,
@@ -53,8 +54,7 @@ from .schema import (
     Z_PROC,
     Z_SHADOW,
 )
-from .sensing import crlb_local_one, whitened_rows_one
-from .trajectory import Reference
+from iscc_gym.trajectory import Reference
 
 __all__ = ["LoopState", "N_DRAWS", "init_state", "step", "preview", "reference_at",
            "standard_normals", "stack_references", "reference_array", "slot_noise", "supported", "step_one",
@@ -81,7 +81,7 @@ class LoopState(NamedTuple):
     ref : (B, N+1, 9)
         Reference [position, velocity, acceleration] at every slot.
     key : (B,) uint64
-        The episode's noise key: slot n's normals are :func:`iscc_gym.noise.slot_normals` (key, n).
+        The episode's noise key: slot n's normals are :func:`iscc_gym.sim.noise.slot_normals` (key, n).
     """
 
     x: np.ndarray
@@ -153,7 +153,7 @@ def init_state(s: Scenario, refs: ArrayLike, rng: np.random.Generator) -> LoopSt
         (``rng`` one Generator or a sequence of B Generators).
     rng : Generator or sequence of Generators
         Per drone: 7 normals (initial state and shadowing), then the episode's noise key
-        (:func:`iscc_gym.noise.draw_keys`).
+        (:func:`iscc_gym.sim.noise.draw_keys`).
     """
     if isinstance(refs, Reference):
         ref = reference_array(refs)
@@ -218,7 +218,7 @@ def step(s: Scenario, state: LoopState, alpha: ArrayLike, rng: np.random.Generat
     state : LoopState
         At slot n + 1.
     metrics : dict of ndarray, shape () or (B,)
-        :data:`iscc_gym.schema.METRIC_NAMES`: ``tracking_error_m`` (||p_{n+1} - p_ref,n+1||),
+        :data:`iscc_gym.sim.schema.METRIC_NAMES`: ``tracking_error_m`` (||p_{n+1} - p_ref,n+1||),
         ``estimation_error_m`` (||p_hat_n - p_n||), ``snr_db`` (the slot's SNR with fading),
         ``snr_large_scale_db``, ``peb_m``, ``veb_mps``, ``eps_ctrl``, ``packet_received`` (bool),
         ``rate_comm_bps``, ``rate_ctrl_bps``, ``diverged`` (bool: tracking error above
@@ -261,11 +261,11 @@ def preview(s: Scenario, state: LoopState, eps_max: float) -> dict:
     """What the GBS can predict about slot n before allocating it, from its estimate x_hat_{n|n-1}.
 
     Returns a dict: ``dist_m`` and ``trig`` (range and (cos, sin) of azimuth and elevation of the
-    predicted position, see :func:`iscc_gym.channel.direction_trig`), ``snr_db`` (large-scale SNR
+    predicted position, see :func:`iscc_gym.physics.channel.direction_trig`), ``snr_db`` (large-scale SNR
     there: path loss, beam gain and the current shadowing; the slot's small-scale fading is not
     known yet), ``alpha_ctrl_min`` (control share at which eq:ctrl_bler gives ``eps_max`` at that
     SNR) and ``alpha_comm_min`` (data share carrying ``rate_min_bps``), see
-    :func:`iscc_gym.fbl.min_shares`.
+    :func:`iscc_gym.physics.fbl.min_shares`.
     """
     pos = state.x_hat[..., :3]
     rel = pos - model_matrices(s).gbs_pos
@@ -295,9 +295,9 @@ _A, _B, _K, _SIGMA_W, _DIAGS = MATS["a"], MATS["b"], MATS["k"], MATS["sigma_w"],
 @njit(cache=True, error_model="numpy", fastmath={"reassoc", "contract"})
 def step_one(c, mats, xi, x_hat, p, shadow, ni, ref, a_sen, a_ctrl, a_comm, zi,
              x_next, x_hat_next, p_next, mt, work):
-    """:func:`step_reference` for one drone (``c``, ``mats``: :func:`iscc_gym.params.slot_params`);
-    writes the next state and the metrics row ``mt`` (:data:`iscc_gym.schema.METRIC_NAMES`); returns
-    the next shadowing state. ``zi``: the slot's normals (:data:`iscc_gym.schema.DRAWS`).
+    """:func:`step_reference` for one drone (``c``, ``mats``: :func:`iscc_gym.sim.params.slot_params`);
+    writes the next state and the metrics row ``mt`` (:data:`iscc_gym.sim.schema.METRIC_NAMES`); returns
+    the next shadowing state. ``zi``: the slot's normals (:data:`iscc_gym.sim.schema.DRAWS`).
     """
     w4, w6, y, x_post, p_post, u, bu, pa, h = work
     px, py, pz = xi[0], xi[1], xi[2]

@@ -1,18 +1,18 @@
 """The env's step, compiled: action map, slot, reward and costs, next observation, as one loop over
-the batch (numba), composed of the compiled slot (:func:`iscc_gym.loop.step_one`) and the physics
+the batch (numba), composed of the compiled slot (:func:`iscc_gym.sim.loop.step_one`) and the physics
 modules' scalar forms.
 
 Every equation of the slot is written once, in the module that owns it (``channel.*_one``,
 ``fbl.*_one``, ``sensing.*_one``, ``kalman.*_one``, ``dynamics.*_one``), and composed by
-:func:`iscc_gym.loop.step_one`; this module adds the env's own pieces, also written once: the action
+:func:`iscc_gym.sim.loop.step_one`; this module adds the env's own pieces, also written once: the action
 map (:func:`split_one`), the reward and costs (:func:`reward_one`) and the observation
 (:func:`observe_one`). ``tests/test_kernel.py`` checks it against the numpy oracle
 (``tests/oracle_loop.py``, to ~1e-9 relative) on random states and whole episodes. Each slot draws
-its own normals from the loop's episode key (:mod:`iscc_gym.noise`), on whichever core steps the
+its own normals from the loop's episode key (:mod:`iscc_gym.sim.noise`), on whichever core steps the
 loop; drone i of a batch goes through the same machine code whatever the batch size, so a batch
 reproduces single runs bit for bit (the vector env relies on it).
 
-Every per-scenario constant is computed once in Python (:func:`iscc_gym.params.slot_params`) and
+Every per-scenario constant is computed once in Python (:func:`iscc_gym.sim.params.slot_params`) and
 passed as one typed record.
 """
 
@@ -23,12 +23,12 @@ import math
 import numpy as np
 from numba import njit, prange, vectorize
 
-from .channel import beam_gain_one, direction_one, link_snr_one, shadowing_db_one
-from .fbl import link_terms_one, min_comm_share_one, min_ctrl_share_one
-from .loop import new_outputs, step_one, supported, work_space
-from .noise import fill_slot_normals
-from .params import slot_params
-from .schema import (
+from iscc_gym.physics.channel import beam_gain_one, direction_one, link_snr_one, shadowing_db_one
+from iscc_gym.physics.fbl import link_terms_one, min_comm_share_one, min_ctrl_share_one
+from iscc_gym.sim.loop import new_outputs, step_one, supported, work_space
+from iscc_gym.sim.noise import fill_slot_normals
+from iscc_gym.sim.params import slot_params
+from iscc_gym.sim.schema import (
     COL,
     CTRL_SHARE_SCALE,
     ENV_COLUMNS,
@@ -66,15 +66,15 @@ _O_CTRL, _O_COMM, _O_RX, _O_PEB, _O_TIME = (OBS[k] for k in ("alpha_ctrl_min", "
 
 @njit(cache=True, error_model="numpy", inline="always")
 def _symlog(x, scale):
-    """sign(x) ln(1 + |x| / scale) (the observation's scaling, :data:`iscc_gym.schema.OBS_SCALING`)."""
+    """sign(x) ln(1 + |x| / scale) (the observation's scaling, :data:`iscc_gym.sim.schema.OBS_SCALING`)."""
     s = 1.0 if x > 0 else (-1.0 if x < 0 else 0.0)
     return s * math.log1p(abs(x) * (1.0 / scale))
 
 
 @njit(cache=True, error_model="numpy")
 def observe_one(c, x_hat, p, shadow, n, ref, last_received, last_peb, out):
-    """The observation of one loop (table of :class:`iscc_gym.env.ISCCEnv`, scalings
-    :data:`iscc_gym.schema.OBS_SCALING`; what :func:`iscc_gym.loop.preview` predicts), written into
+    """The observation of one loop (table of :class:`iscc_gym.envs.env.ISCCEnv`, scalings
+    :data:`iscc_gym.sim.schema.OBS_SCALING`; what :func:`iscc_gym.sim.loop.preview` predicts), written into
     ``out`` (23); returns False where an entry could not be evaluated (NaN, written as 0) or the
     estimate is not finite.
     """
@@ -123,7 +123,7 @@ def observe_batch(cp, x_hat, p, shadow, n, ref, last_received, last_peb, obs):
 
 @njit(cache=True, error_model="numpy", inline="always")
 def split_one(a0, a1, a2):
-    """:func:`iscc_gym.env.action_to_split` of one action."""
+    """:func:`iscc_gym.envs.env.action_to_split` of one action."""
     w0 = (min(max(a0, -1.0), 1.0) + 1.0) * 0.5
     w1 = (min(max(a1, -1.0), 1.0) + 1.0) * 0.5
     w2 = (min(max(a2, -1.0), 1.0) + 1.0) * 0.5
@@ -136,7 +136,7 @@ def split_one(a0, a1, a2):
 @njit(cache=True, error_model="numpy")
 def split_batch(action, alpha):
     """:func:`split_one` over the rows of ``action`` (n, 3) into ``alpha`` (n, 3) (the numpy API
-    :func:`iscc_gym.task.action_to_split`).
+    :func:`iscc_gym.sim.task.action_to_split`).
     """
     for i in range(action.shape[0]):
         alpha[i, 0], alpha[i, 1], alpha[i, 2] = split_one(action[i, 0], action[i, 1], action[i, 2])
@@ -144,7 +144,7 @@ def split_batch(action, alpha):
 
 @njit(cache=True, error_model="numpy", inline="always")
 def reward_from_costs_one(max_err, w_rate, w_stab, err, cost_rate, cost_stab):
-    """The reward of a slot from its tracking error and costs (:class:`iscc_gym.env.ISCCEnv`, Rewards):
+    """The reward of a slot from its tracking error and costs (:class:`iscc_gym.envs.env.ISCCEnv`, Rewards):
     ``-min(err, max_err) - w_rate cost_rate - w_stab cost_stab`` (also of expected costs: the
     analytic evaluator's expected reward).
     """
@@ -173,7 +173,7 @@ def terminal_penalty(max_err, n_slots, n_next):
 
 @njit(cache=True, error_model="numpy", inline="always")
 def reward_one(c, err, rate, eps, terminated, n_next):
-    """The slot's ``(cost_rate, cost_stability, reward)`` (:class:`iscc_gym.env.ISCCEnv`, Rewards): a
+    """The slot's ``(cost_rate, cost_stability, reward)`` (:class:`iscc_gym.envs.env.ISCCEnv`, Rewards): a
     rate or loss probability that is NaN counts as a violation; an episode that terminates pays
     ``max_tracking_error_m`` for each remaining slot.
     """
@@ -194,7 +194,7 @@ def reward_one(c, err, rate, eps, terminated, n_next):
 
 @njit(cache=True, error_model="numpy")
 def reward_batch(cp, err, rate, eps, terminated, n_next, cost_rate, cost_stab, reward):
-    """:func:`reward_one` over flat arrays (the numpy API :func:`iscc_gym.env.reward_and_costs`)."""
+    """:func:`reward_one` over flat arrays (the numpy API :func:`iscc_gym.envs.env.reward_and_costs`)."""
     c = cp[0]
     for i in range(err.shape[0]):
         cost_rate[i], cost_stab[i], reward[i] = reward_one(c, err[i], rate[i], eps[i], terminated[i], n_next[i])
@@ -216,7 +216,7 @@ def _env_rows(cp, mats, x, x_hat, p, shadow, n, ref, key, action, budget, z, act
             obs[i] = 0.0
             continue
         a0, a1, a2 = split_one(action[i, 0], action[i, 1], action[i, 2])
-        if not whole:  # the loop's share of the band (iscc_gym.multi): its split scaled by it
+        if not whole:  # the loop's share of the band (iscc_gym.envs.multi): its split scaled by it
             b = budget[i]
             a0, a1, a2 = a0 * b, a1 * b, a2 * b
         mt = out[i]
@@ -242,10 +242,10 @@ def _env_rows(cp, mats, x, x_hat, p, shadow, n, ref, key, action, budget, z, act
 def env_step_batch(c, mats, x, x_hat, p, shadow, n, ref, key, action, budget, z, active,
                    x_next, x_hat_next, p_next, shadow_next, out, obs):
     """One env step of a batch: action -> split (:func:`split_one`), slot transition
-    (:func:`iscc_gym.loop.step_one`), reward and costs (:func:`reward_one`), next observation (:func:`observe_one`),
+    (:func:`iscc_gym.sim.loop.step_one`), reward and costs (:func:`reward_one`), next observation (:func:`observe_one`),
     written into the outputs: next x, x_hat, p, shadow, ``out`` (B, N_ENV_COLUMNS) and ``obs``
     (B, 23) float32. ``budget`` (B,) scales loop i's split to its share of the band (the multi-drone
-    env, :mod:`iscc_gym.multi`), or has no rows: the whole band (the single env). ``z`` holds the
+    env, :mod:`iscc_gym.envs.multi`), or has no rows: the whole band (the single env). ``z`` holds the
     slot's normals (B, N_DRAWS), or has no rows: then each loop draws its own from its episode key
     (noise.slot_normals(key[i], n[i])). Loops with ``active[i]`` False are left as they are (state
     copied, zero outputs).

@@ -11,8 +11,8 @@ import numpy as np
 from numba import njit
 from numpy.typing import ArrayLike
 
-from .scenario import Scenario, per_scenario
-from .units import db_to_lin, dbm_to_w
+from iscc_gym.scenario import Scenario, per_scenario
+from iscc_gym.units import db_to_lin, dbm_to_w
 
 __all__ = [
     "geometry",
@@ -306,7 +306,7 @@ def snr_constant(s: Scenario) -> float:
     return p_w / noise_power_w(s) * 10.0 ** (-0.1 * fixed_db)
 
 
-# --- compiled scalar forms: one drone, composed by the slot kernel (iscc_gym.loop.step_one) ---------
+# --- compiled scalar forms: one drone, composed by the slot kernel (iscc_gym.sim.loop.step_one) ---------
 # ``inline="always"``: numba inlines them into the caller's IR, so they compile with the caller's flags.
 
 _LN10_OVER_10 = math.log(10.0) / 10.0
@@ -408,7 +408,7 @@ def broadside_sums_one(kd, n_x, n_y, ux, uy, tx, ty, qx, qy):
 def beam_gain_one(c, ct, st, cp, sp):
     r""":func:`beam_gain` of one direction: ``c.beam_g`` (= N) for the matched beamformer, else the
     broadside gain :math:`|\mathbf a^H\mathbf w|^2` (:func:`broadside_sums_one`). ``c``: a record with
-    ``broadside``, ``beam_g``, ``orient``, ``kd``, ``n_x``, ``n_y`` (:data:`iscc_gym.params.SLOT_PARAMS`).
+    ``broadside``, ``beam_g``, ``orient``, ``kd``, ``n_x``, ``n_y`` (:data:`iscc_gym.sim.params.SLOT_PARAMS`).
     """
     if c.broadside == 0.0:
         return c.beam_g

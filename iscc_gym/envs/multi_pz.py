@@ -1,15 +1,16 @@
 r"""PettingZoo view of the multi-drone env: one agent per drone proposing its demand.
 
-``iscc_gym.multi.parallel_env(n_drones=K)`` (needs ``pip install pettingzoo``, the ``multi`` extra).
+``iscc_gym.parallel_env(n_drones=K)`` or this module's :func:`parallel_env` (needs ``pip install pettingzoo``,
+the ``multi`` extra).
 
 Agents ``drone_0`` ... ``drone_{K-1}``. Each agent's action is ``Box(-1, 1, (3,))``: its proposed
 sensing, control and data weights. **The GBS's normalisation rule**: it maps the K proposals onto the
-shared budget exactly as the centralised env maps its 3K-vector (:func:`iscc_gym.multi.multi_split`):
+shared budget exactly as the centralised env maps its 3K-vector (:func:`iscc_gym.envs.multi.multi_split`):
 :math:`w_{k,f} = (a_{k,f} + 1)/2`, :math:`\alpha_{k,f} = w_{k,f} / \sum_{j,f} w_{j,f}`, so a drone's
 band grows with its total demand against everyone else's (proportional sharing). Each agent observes
 its own drone (the single env's 23 entries). Rewards are per drone, its single-env reward over K,
 :math:`(-\min(e_k, e_\max) - w_\mathrm{rate} c^\mathrm{rate}_k - w_\mathrm{stab} c^\mathrm{stab}_k)/K`
-(minus the loss-of-track penalty shared out 1/K per drone; :func:`iscc_gym.multi.drone_rewards`), so
+(minus the loss-of-track penalty shared out 1/K per drone; :func:`iscc_gym.envs.multi.drone_rewards`), so
 the agents' rewards sum to the centralised env's team reward, the mean over drones.
 Every agent terminates when any drone loses track and truncates at the mission's end. Infos carry the
 drone's costs (``cost_rate``, ``cost_stability``, ``cost``), tracking error, applied shares, the slot
@@ -26,15 +27,15 @@ import numpy as np
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
-from .env import real_array
-from .multi import N_DRONES, ISCCMultiEnv, drone_rewards
-from .schema import OBS_BOUND, OBS_NAMES
+from iscc_gym.envs.env import real_array
+from iscc_gym.envs.multi import N_DRONES, ISCCMultiEnv, drone_rewards
+from iscc_gym.sim.schema import OBS_BOUND, OBS_NAMES
 
 __all__ = ["ISCCParallelEnv"]
 
 
 class ISCCParallelEnv(ParallelEnv):
-    """One agent per drone of :class:`iscc_gym.multi.ISCCMultiEnv` (module docstring: the rule)."""
+    """One agent per drone of :class:`iscc_gym.envs.multi.ISCCMultiEnv` (module docstring: the rule)."""
 
     metadata = {"render_modes": [], "name": "iscc_multi_v0", "is_parallelizable": True}
 
@@ -109,3 +110,9 @@ class ISCCParallelEnv(ParallelEnv):
     def close(self):
         self._env.close()
 
+
+def parallel_env(n_drones: int = N_DRONES, **kwargs) -> ISCCParallelEnv:
+    """The PettingZoo ``ParallelEnv`` of the multi-drone env (PettingZoo's convention: a module's
+    ``parallel_env``); ``kwargs`` as :class:`ISCCParallelEnv` (``scenario``, ``render_mode``, Scenario fields).
+    """
+    return ISCCParallelEnv(n_drones=n_drones, **kwargs)

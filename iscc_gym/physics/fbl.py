@@ -9,7 +9,7 @@ from numba import guvectorize, njit, vectorize
 from numpy.typing import ArrayLike
 from scipy.special import erfc, ndtri
 
-from .scenario import Scenario, per_scenario
+from iscc_gym.scenario import Scenario, per_scenario
 
 __all__ = ["dispersion", "q_func", "q_inv", "link_terms", "fbl_rate_bps", "comm_rate_bps",
            "ctrl_rate_bps", "ctrl_bler", "ctrl_bler_and_slope", "ctrl_goodput_bits", "slot_link", "min_shares",
@@ -167,7 +167,7 @@ def ctrl_goodput_bits(s: Scenario, alpha_ctrl: ArrayLike, snr: ArrayLike, ignore
     return (1.0 - eps) * a * per_share, (1.0 - eps) * per_share - deps * a * per_share
 
 
-# --- compiled scalar forms: one drone, composed by the slot kernel (iscc_gym.loop.step_one) ---------
+# --- compiled scalar forms: one drone, composed by the slot kernel (iscc_gym.sim.loop.step_one) ---------
 # ``inline="always"``: numba inlines them into the caller's IR, so they compile with the caller's flags.
 
 _INV_SQRT2_F = 0.7071067811865476

@@ -9,9 +9,9 @@ import scipy.linalg
 from numpy.typing import ArrayLike
 from scipy.optimize import brentq
 
-from .dynamics import model_matrices
-from .fbl import ctrl_bler
-from .scenario import Scenario, per_scenario
+from iscc_gym.physics.dynamics import model_matrices
+from iscc_gym.physics.fbl import ctrl_bler
+from iscc_gym.scenario import Scenario, per_scenario
 
 __all__ = [
     "LossOperator",

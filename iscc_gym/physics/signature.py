@@ -1,5 +1,5 @@
 """The two-way spatial signature of the UPA and its angle derivatives: the array side of the sensing
-Fisher information (:mod:`iscc_gym.sensing`), for the matched and the broadside beamformer.
+Fisher information (:mod:`iscc_gym.physics.sensing`), for the matched and the broadside beamformer.
 """
 
 from __future__ import annotations
@@ -8,8 +8,8 @@ import numpy as np
 from numba import njit
 from numpy.typing import ArrayLike
 
-from .channel import array_response, broadside_sums_one, upa_terms_one
-from .scenario import Scenario, per_scenario
+from iscc_gym.physics.channel import array_response, broadside_sums_one, upa_terms_one
+from iscc_gym.scenario import Scenario, per_scenario
 
 __all__ = ["signature_derivatives", "index_moments", "signature_terms", "signature_one", "SIGNATURE_PARAMS",
            "signature_params"]
@@ -28,7 +28,7 @@ def signature_derivatives(s: Scenario, azimuth_rad: ArrayLike, elevation_rad: Ar
     communication and sensing links (``docs/model.md``).
 
     ``w=None`` (the scenario's beamformer) is the closed form :func:`signature_terms`; an explicit
-    ``w`` sums over the elements of :func:`iscc_gym.channel.array_response`.
+    ``w`` sums over the elements of :func:`iscc_gym.physics.channel.array_response`.
 
     Returns
     -------
@@ -81,7 +81,7 @@ def signature_terms(s: Scenario, ct: ArrayLike, st: ArrayLike, cp: ArrayLike, sp
 
     with :math:`k = 2\pi d_\lambda/\lambda` and the sums over the centred element grid
     (:math:`\sum ij = 0`, :func:`index_moments`). The broadside beamformer's sums are
-    :func:`iscc_gym.channel.broadside_sums_one`.
+    :func:`iscc_gym.physics.channel.broadside_sums_one`.
 
     Returns ``(eta_sq, d_tt, d_pp, d_tp)`` as :func:`signature_derivatives`.
     """
@@ -119,8 +119,8 @@ def signature_params(s: Scenario):
 @njit(cache=True, error_model="numpy", inline="always")
 def signature_one(c, ct, st, cp, sp):
     """:func:`signature_terms` of one direction, ``(eta_sq, d_tt, d_pp, d_tp)``: the matched beamformer
-    from :func:`index_moments`, or the broadside beamformer by :func:`iscc_gym.channel.broadside_sums_one`
-    (``c``: a record with the fields of :data:`SIGNATURE_PARAMS`, e.g. :data:`iscc_gym.sensing.SENSING_PARAMS`).
+    from :func:`index_moments`, or the broadside beamformer by :func:`iscc_gym.physics.channel.broadside_sums_one`
+    (``c``: a record with the fields of :data:`SIGNATURE_PARAMS`, e.g. :data:`iscc_gym.physics.sensing.SENSING_PARAMS`).
     """
     if c.broadside == 0.0:  # the matched beamformer (index_moments)
         _, _, tx, ty, qx, qy = upa_terms_one(c.orient, ct, st, cp, sp)

@@ -9,6 +9,8 @@ from dataclasses import dataclass, fields
 import numpy as np
 from numpy.typing import ArrayLike
 
+from iscc_gym.sim.task import check_split
+
 __all__ = ["AllocationMetrics", "check_alpha"]
 
 
@@ -96,7 +98,5 @@ def check_alpha(alpha: ArrayLike):
     a = np.asarray(alpha, dtype=float)
     if a.ndim not in (1, 2) or a.shape[-1] != 3:
         raise ValueError(f"alpha must have shape (3,) or (n, 3), got {a.shape}")
-    if not np.all(np.isfinite(a)) or np.any(a < -1e-12) or not np.allclose(a.sum(-1), 1.0, atol=1e-6):
-        raise ValueError("alpha must hold finite, non-negative shares (alpha_sen, alpha_ctrl, alpha_comm) "
-                         "summing to 1")
+    check_split(a)
     return np.maximum(a, 0.0).reshape(-1, 3)

@@ -14,8 +14,7 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from . import loop
-from .env import (
+from iscc_gym.envs.env import (
     REGISTERED_MAX_EPISODE_STEPS,
     check_keywords,
     check_seed,
@@ -25,7 +24,7 @@ from .env import (
     reset_info_arrays,
     warn_time_limit,
 )
-from .multi import (
+from iscc_gym.envs.multi import (
     DRONE_INFO_KEYS,
     N_DRONES,
     check_n_drones,
@@ -35,23 +34,24 @@ from .multi import (
     multi_step,
     reset_drones,
 )
-from .scenario import Scenario, make_scenario
-from .schema import COL as _COL
-from .schema import OBS_BOUND, OBS_NAMES
-from .trajectory import sample_reference
+from iscc_gym.scenario import Scenario, make_scenario
+from iscc_gym.sim import loop
+from iscc_gym.sim.schema import COL as _COL
+from iscc_gym.sim.schema import OBS_BOUND, OBS_NAMES
+from iscc_gym.trajectory import sample_reference
 
 __all__ = ["ISCCVectorEnv", "ISCCMultiVectorEnv", "check_memory", "reset_bytes", "available_memory_bytes"]
 
-#: info keys of a step, from the columns of :func:`iscc_gym.env.env_step` (``alpha`` and ``cost`` added).
+#: info keys of a step, from the columns of :func:`iscc_gym.envs.env.env_step` (``alpha`` and ``cost`` added).
 INFO_KEYS = ("tracking_error_m", "cost_rate", "cost_stability", "cost", "snr_db", "snr_large_scale_db",
              "peb_m", "veb_mps", "eps_ctrl", "packet_received", "rate_comm_bps", "rate_ctrl_bps",
              "estimation_error_m", "alpha", "slot")
 
 
 class ISCCVectorEnv(VectorEnv):
-    """``num_envs`` independent ISCC loops (:class:`iscc_gym.env.ISCCEnv`) stepped as one batch.
+    """``num_envs`` independent ISCC loops (:class:`iscc_gym.envs.env.ISCCEnv`) stepped as one batch.
 
-    Every sub-env runs exactly the single env's pipeline (:func:`iscc_gym.env.env_step` on a batch),
+    Every sub-env runs exactly the single env's pipeline (:func:`iscc_gym.envs.env.env_step` on a batch),
     so sub-env i reset with seed s_i reproduces ``ISCCEnv`` reset with seed s_i bit for bit:
     observations, rewards, terminations and info, over whole episodes.
 
@@ -62,7 +62,7 @@ class ISCCVectorEnv(VectorEnv):
     Arguments
     ---------
     num_envs : int
-    scenario : str or Scenario, and ``**overrides``: as :class:`iscc_gym.env.ISCCEnv`
+    scenario : str or Scenario, and ``**overrides``: as :class:`iscc_gym.envs.env.ISCCEnv`
     autoreset_mode : ``AutoresetMode.NEXT_STEP`` (default, Gymnasium's) or ``AutoresetMode.SAME_STEP``
         (or their values ``"NextStep"``, ``"SameStep"``, or names ``"NEXT_STEP"``, ``"SAME_STEP"``).
         NextStep: the step after an episode ends resets that sub-env (reward 0, not done).
@@ -79,7 +79,7 @@ class ISCCVectorEnv(VectorEnv):
         (2.5, ``'10'``, NaN, True) is a ``TypeError`` naming it.
 
     n_drones : int, optional
-        K drones per sub-env: each sub-env is the multi-drone env :class:`iscc_gym.multi.ISCCMultiEnv`
+        K drones per sub-env: each sub-env is the multi-drone env :class:`iscc_gym.envs.multi.ISCCMultiEnv`
         (``gymnasium.make_vec("iscc_gym/ISCC-Multi-v0", num_envs=N, n_drones=K,
         vectorization_mode="vector_entry_point")``): actions ``(num_envs, 3K)``, observations
         ``(num_envs, 23K)``, per-drone info arrays ``(num_envs, K)`` (``alpha`` ``(num_envs, K, 3)``),
@@ -87,12 +87,12 @@ class ISCCVectorEnv(VectorEnv):
         for bit. None (default): the single-drone env.
     rate_min_per_drone_bps : float, optional
         With ``n_drones``: each drone's rate requirement (default the scenario's ``rate_min_bps`` / K;
-        :func:`iscc_gym.multi.drone_scenario`).
+        :func:`iscc_gym.envs.multi.drone_scenario`).
 
     ``reset(seed=s)`` seeds sub-env i with ``s + i``; ``reset(seed=[s_0, ...])`` with ``s_i``;
     ``reset(options={"reset_mask": mask})`` resets only the masked sub-envs. The reset ``info`` carries
     the keys of a step's info (the single env's reset values: initial tracking error, zero costs, NaN
-    slot outcomes; :func:`iscc_gym.env.reset_info_arrays`), masked to the sub-envs reset. Complex
+    slot outcomes; :func:`iscc_gym.envs.env.reset_info_arrays`), masked to the sub-envs reset. Complex
     actions raise ``TypeError``, NaN/inf or a wrong shape ``ValueError``.
     """
 
@@ -222,7 +222,7 @@ class ISCCVectorEnv(VectorEnv):
         return pos.reshape(-1, self._k, 3), ref.reshape(-1, self._k, 3)
 
     def _reset_info(self, mask: np.ndarray) -> dict:
-        """A step's info keys at reset (:func:`iscc_gym.env.reset_info_arrays`), masked to the sub-envs reset."""
+        """A step's info keys at reset (:func:`iscc_gym.envs.env.reset_info_arrays`), masked to the sub-envs reset."""
         if self.n_drones is None:
             info = {key: val for key, val in reset_info_arrays(self._state).items() if key in INFO_KEYS}
         else:
@@ -301,7 +301,7 @@ class ISCCVectorEnv(VectorEnv):
 
 class ISCCMultiVectorEnv(ISCCVectorEnv):
     """The vector entry point of ``iscc_gym/ISCC-Multi-v0``: :class:`ISCCVectorEnv` with ``n_drones``
-    (default :data:`iscc_gym.multi.N_DRONES`) drones per sub-env.
+    (default :data:`iscc_gym.envs.multi.N_DRONES`) drones per sub-env.
     """
 
     def __init__(self, num_envs: int = 1, n_drones: int = N_DRONES, **kwargs: Any):

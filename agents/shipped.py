@@ -1,0 +1,29 @@
+"""Where the shipped agents and tuning records live (package data of ``iscc_gym.agents``), written once.
+
+``agents/trained/ppo_iscc`` (:data:`PPO_AGENT`, ``python -m train.ship``), ``agents/trained/multi/k<K>``
+(:func:`multi_agent_dir`, ``python -m train.multi``), ``agents/trained/pareto/<family>/<label>``
+(:data:`PARETO_DIR`, ``python -m train.pareto``) and ``agents/tuned/<name>.yml`` (:data:`TUNED_DIR`,
+``python -m eval.tune``).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+__all__ = ["TRAINED_DIR", "PPO_AGENT", "MULTI_DIR", "PARETO_DIR", "TUNED_DIR", "multi_agent_dir"]
+
+#: The folder of the trained agents.
+TRAINED_DIR = Path(__file__).resolve().parent / "trained"
+#: The trained PPO agent of ``iscc_gym/ISCC-v0`` (``python -m eval``'s ``ppo``).
+PPO_AGENT = TRAINED_DIR / "ppo_iscc"
+#: The multi-drone agents, one folder per drone count (``k4``, ``k4_lag``, ...).
+MULTI_DIR = TRAINED_DIR / "multi"
+#: The Pareto study's learned operating points, ``<family>/<label>``.
+PARETO_DIR = TRAINED_DIR / "pareto"
+#: The scripted baselines' tuning records.
+TUNED_DIR = Path(__file__).resolve().parent / "tuned"
+
+
+def multi_agent_dir(n_drones: int) -> Path:
+    """Where ``python -m train.multi`` ships the agent for ``n_drones`` drones."""
+    return MULTI_DIR / f"k{int(n_drones)}"

@@ -1,0 +1,119 @@
+"""``python -m train`` / ``iscc-train``: the command line above :func:`iscc_gym.train.train.main`.
+
+Every :class:`~iscc_gym.train.config.Args` field is a flag; ``--set`` / ``--env-set`` override hyperparameters /
+Scenario fields; ``--optimize`` and ``--seeds`` run a study or several seeds (:mod:`iscc_gym.train.study`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+from typing import Any
+
+import yaml
+from iscc_gym.train import train as loop
+from iscc_gym.train.config import FIELD_HELP, Args, expand_algo
+from iscc_gym.train.study import add_study_arguments, run_cli
+
+from iscc_gym.cli import run
+
+__all__ = ["build_parser", "args_from_namespace", "parse_value", "parse_args", "cli", "console", "PICKLE_WARNING"]
+
+
+PICKLE_WARNING = ("Model files (.zip) and vecnormalize.pkl are pickles: loading one executes code it holds. "
+                  "Load only files you trust (and --resume only runs of your own).")
+
+
+def build_parser(prog: str = "python -m train") -> argparse.ArgumentParser:
+    """The parser of ``python -m train``: every :class:`Args` field is a flag (help: :data:`FIELD_HELP`),
+    ``--set`` / ``--env-set`` override hyperparameters / Scenario fields, and :mod:`train.study` adds
+    ``--optimize``, ``--seeds``.
+    """
+    ap = argparse.ArgumentParser(
+        prog=prog, description=loop.__doc__.split("\n")[0],
+        epilog="Writes into OUT: model.zip and vecnormalize.pkl (the final model and its statistics), best/ "
+               "(the best model on the held-out missions, with its own statistics), checkpoints/step_<N>/ "
+               "(for --resume), eval/evaluations.npz, learning_curve.csv/.png, config.yml, summary.yml, tb/. "
+               + PICKLE_WARNING)
+    defaults = Args()
+    for f in dataclasses.fields(Args):
+        if f.name in ("overrides", "env_overrides"):
+            continue
+        flag = "--" + f.name.replace("_", "-")
+        default = getattr(defaults, f.name)
+        help_ = FIELD_HELP[f.name]
+        if isinstance(default, bool) or f.name in ("normalize", "progress_bar"):
+            ap.add_argument(flag, action=argparse.BooleanOptionalAction, default=default, help=help_)
+        elif default is None:  # a run setting the YAML fills (RUN_KEYS), or numba's default
+            kind = {"init_policy": str, "init_log_std": float, "cost_limit": str}.get(f.name, int)
+            ap.add_argument(flag, type=kind, default=None, help=help_)
+        else:
+            ap.add_argument(flag, type=type(default), default=default, help=help_ + f" (default: {default})")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="override a hyperparameter of the YAML, e.g. --set n_steps=256 (value read as YAML)")
+    ap.add_argument("--env-set", action="append", default=[], metavar="FIELD=VALUE",
+                    help="override a Scenario field of the env, e.g. --env-set observation_source=gnss")
+    add_study_arguments(ap)
+    return ap
+
+
+def args_from_namespace(ap: argparse.ArgumentParser, ns: argparse.Namespace) -> Args:
+    """The :class:`Args` of flags parsed by :func:`build_parser` (``--set`` values parsed as YAML)."""
+
+    def pairs(items, flag):
+        out: dict[str, Any] = {}
+        for item in items:
+            if "=" not in item or not item.split("=", 1)[0]:
+                ap.error(f"{flag} {item!r}: use KEY=VALUE")
+            k, v = item.split("=", 1)
+            try:
+                out[k] = parse_value(v)
+            except yaml.YAMLError:
+                ap.error(f"{flag} {item!r}: the value is not valid YAML")
+        return out
+
+    kw = {f.name: getattr(ns, f.name) for f in dataclasses.fields(Args) if f.name not in ("overrides", "env_overrides")}
+    return expand_algo(Args(overrides=pairs(ns.set, "--set"), env_overrides=pairs(ns.env_set, "--env-set"), **kw))
+
+
+def parse_value(text: str):
+    """A ``--set`` / ``--env-set`` value: YAML, with numbers YAML 1.1 leaves as strings (``5e-5``,
+    ``1e6``) read as numbers.
+    """
+    value = yaml.safe_load(text)
+    if isinstance(value, str):
+        try:
+            return float(value)
+        except ValueError:
+            pass
+    return value
+
+
+def parse_args(argv: list[str] | None = None) -> Args:
+    """``Args`` from the command line (every field is a flag; ``--set key=value`` overrides a
+    hyperparameter, the value parsed as YAML).
+    """
+    ap = build_parser()
+    return args_from_namespace(ap, ap.parse_args(argv))
+
+
+def cli(argv: list[str] | None = None, prog: str = "python -m train") -> dict:
+    """``python -m train``: train once, or run a study (``--optimize``) or several seeds (``--seeds``);
+    returns the summary (for Python callers; the console commands end through :func:`console`).
+    """
+    ap = build_parser(prog)
+    ns = ap.parse_args(argv)
+    args = args_from_namespace(ap, ns)
+    if ns.optimize or ns.seeds is not None:
+        return run_cli(ap, ns, args)
+    summary = loop.main(args)
+    if not args.quiet:
+        print(f"trained {summary['timesteps']} steps in {summary['wall_time_s']:.1f} s -> {summary['out']}")
+    return summary
+
+
+def console(argv: list[str] | None = None, prog: str = "iscc-train") -> int:
+    """The ``iscc-train`` / ``python -m train`` entry point: exit code 0 on success, 2 with one line
+    for a user's mistake (:func:`iscc_gym.cli.run`).
+    """
+    return run(lambda a: cli(a, prog=prog), argv, prog)

@@ -2,8 +2,8 @@
 
 Every policy answers SB3's ``predict(obs, state=None, episode_start=None, deterministic=True) ->
 (action, state)``, so evaluation code treats a scripted policy and a trained SB3 model alike. The
-action is the env's action in [-1, 1]^3 (:func:`iscc_gym.envs.env.split_to_action` of the split); the env
-maps it back onto the simplex with :func:`iscc_gym.envs.env.action_to_split`.
+action is the env's action in [-1, 1]^3 (:func:`iscc_gym.sim.task.split_to_action` of the split); the env
+maps it back onto the simplex with :func:`iscc_gym.sim.task.action_to_split`.
 """
 
 from __future__ import annotations
@@ -12,8 +12,8 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from iscc_gym.envs.env import OBS_NAMES, split_to_action
-from iscc_gym.sim.task import check_split
+from iscc_gym.sim.schema import OBS_NAMES
+from iscc_gym.sim.task import check_split, split_to_action
 
 __all__ = ["Policy", "SplitPolicy", "FixedSplitPolicy", "EqualSplitPolicy", "validate_split", "as_obs_batch"]
 
@@ -76,7 +76,7 @@ class SplitPolicy:
         Parameters
         ----------
         obs : array_like, shape (23,) or (n, 23)
-            Env observation(s) (``iscc_gym.envs.env.OBS_NAMES``).
+            Env observation(s) (``iscc_gym.sim.schema.OBS_NAMES``).
         state : optional
             Recurrent state returned by the previous call (``None`` to start afresh).
         episode_start : array_like of bool, shape (n,), optional

@@ -33,9 +33,9 @@ from __future__ import annotations
 import numpy as np
 
 from iscc_gym.analysis.sensing_share import crlb_trace
-from iscc_gym.envs.env import decode_observation
-from iscc_gym.envs.multi import multi_split, shares_to_action
 from iscc_gym.scenario import Scenario
+from iscc_gym.sim.fleet import multi_split, shares_to_action
+from iscc_gym.sim.functional import decode_observation
 from iscc_gym.sim.schema import N_OBS
 
 from .margin import load_tuned, predicted_needs

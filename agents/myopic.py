@@ -27,12 +27,12 @@ from scipy.special import chndtr
 from iscc_gym.analysis.kalman_steady import axis_kalman_steady_state
 from iscc_gym.analysis.quadrature import expected_norm, rician_power_nodes
 from iscc_gym.analysis.sensing_share import SensingCoefficients, local_crlb, sensing_coefficients
-from iscc_gym.envs.env import decode_observation
 from iscc_gym.physics.channel import beam_gain, link_snr, matched_gain
 from iscc_gym.physics.dynamics import axis_gain, axis_matrices
 from iscc_gym.physics.fbl import min_shares, slot_link
 from iscc_gym.physics.stability import scenario_eps_star, stability_matrix
 from iscc_gym.scenario import Scenario, make_scenario
+from iscc_gym.sim.functional import decode_observation
 from iscc_gym.sim.kernel import reward_from_costs
 from iscc_gym.sim.task import check_split
 from iscc_gym.units import db_to_lin
@@ -181,7 +181,7 @@ class SlotContext:
     ----------
     snr : (n,)
         Predicted large-scale SNR :math:`\bar\gamma_n` (linear), from ``snr_db`` of
-        :func:`iscc_gym.envs.env.decode_observation`.
+        :func:`iscc_gym.sim.functional.decode_observation`.
     coef : SensingCoefficients
         Position-domain Fisher information at :math:`\alpha_\mathrm{sen} = 1` at the predicted range
         and direction (``range``, ``sin_elevation``, ``cos_azimuth``, ``sin_azimuth``) with the slot's
@@ -216,7 +216,7 @@ class MyopicPolicy(SplitPolicy):
 
     over :math:`\Delta = \{\alpha_\mathrm{sen} \ge` ``sensing_floor``,
     :math:`\alpha_\mathrm{ctrl} \ge` ``ctrl_floor``, :math:`\alpha_\mathrm{comm} \ge 0`, sum 1\},
-    the env's reward (:func:`iscc_gym.envs.env.reward_and_costs`) in expectation over the slot's
+    the env's reward (:func:`iscc_gym.sim.task.reward_and_costs`) in expectation over the slot's
     small-scale fading :math:`g = |g_C|^2` (Rician, drawn after the allocation), where
 
     * :math:`\bar\gamma_n` is ``snr_db`` (the predicted large-scale SNR); the rate

@@ -273,7 +273,7 @@ class SB3Policy:
 def _obs_shape(env_id: str):
     """The observation shape of ``env_id`` (the ISCC env's without building one), or None if unknown."""
     if env_id == ENV_ID:
-        from iscc_gym.envs.env import OBS_NAMES
+        from iscc_gym.sim.schema import OBS_NAMES
 
         return (len(OBS_NAMES),)
     return None

@@ -20,8 +20,9 @@ from typing import Any
 import numpy as np
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv
 
-from iscc_gym.envs.vector import INFO_KEYS, ISCCVectorEnv
+from iscc_gym.envs.vector import ISCCVectorEnv
 from iscc_gym.scenario import Scenario
+from iscc_gym.sim.functional import INFO_KEYS
 
 __all__ = ["ISCCBatchedVecEnv"]
 

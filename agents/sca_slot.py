@@ -11,11 +11,11 @@ import numpy as np
 from iscc_gym.analysis import StaticModel, static_model
 from iscc_gym.analysis.quadrature import rician_power_nodes
 from iscc_gym.analysis.sensing_share import crlb_trace_one, sensing_coefficients
-from iscc_gym.envs.env import decode_observation
 from iscc_gym.physics.channel import beam_gain, link_snr, matched_gain
 from iscc_gym.physics.fbl import comm_rate_bps, ctrl_bler, ctrl_goodput_bits
 from iscc_gym.physics.stability import scenario_eps_star
 from iscc_gym.scenario import Scenario
+from iscc_gym.sim.functional import decode_observation
 from iscc_gym.units import db_to_lin
 
 from .base import SplitPolicy, validate_split
@@ -24,7 +24,7 @@ from .tuned_records import load_tuned
 
 __all__ = ["SCAPolicy", "per_slot_loss_design_fraction"]
 
-#: The decoded observation entries the per-slot problem reads (:func:`iscc_gym.envs.env.decode_observation`).
+#: The decoded observation entries the per-slot problem reads (:func:`iscc_gym.sim.functional.decode_observation`).
 _READ = ("snr_db", "range_m", "sin_elevation", "cos_azimuth", "sin_azimuth")
 
 
@@ -106,9 +106,9 @@ class SCAPolicy(SplitPolicy):
     (:func:`sca_allocation`), played every slot (the paper's design). ``mode="per_slot"``: Algorithm 1
     re-solved every slot for that slot's predicted link and geometry.
 
-    What ``per_slot`` reads from the observation (``iscc_gym.envs.env.OBS_NAMES``), all predicted by the
+    What ``per_slot`` reads from the observation (``iscc_gym.sim.schema.OBS_NAMES``), all predicted by the
     GBS from its estimate :math:`\hat{\mathbf x}_{n|n-1}` before the slot's fading is drawn, decoded
-    by :func:`iscc_gym.envs.env.decode_observation`:
+    by :func:`iscc_gym.sim.functional.decode_observation`:
 
     * ``snr_db``: the slot's large-scale SNR :math:`\bar\gamma_n` (path loss, beam gain,
       shadowing). The stability threshold is the smallest share whose loss rate eq:ctrl_bler,

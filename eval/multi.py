@@ -36,10 +36,10 @@ from iscc_gym.eval.options import (
 )
 
 from iscc_gym.docs import RESULTS_PATH, docs_path, write_section
-from iscc_gym.envs.multi import N_DRONES, check_n_drones, drone_scenario
 from iscc_gym.protocol import MULTI_SEED_START as SEED_START
 from iscc_gym.protocol import held_out_seeds
 from iscc_gym.scenario import make_scenario
+from iscc_gym.sim.fleet import N_DRONES, check_n_drones, drone_scenario
 
 __all__ = ["SEED_START", "DEFAULT_POLICIES", "agent_dir", "compare", "scan_table", "main"]
 

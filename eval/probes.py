@@ -38,7 +38,7 @@ from iscc_gym.eval.options import (
 )
 from iscc_gym.eval.tune import TUNE_SEED_START, check_tuning_seeds
 
-from iscc_gym.envs.env import OBS_NAMES
+from iscc_gym.sim.schema import OBS_NAMES
 
 _TIME_LEFT = OBS_NAMES.index("time_left")
 _RECEIVED = OBS_NAMES.index("last_packet_received")

@@ -16,9 +16,10 @@ The repository's ``agents/``, ``train/`` and ``eval/`` folders install as ``iscc
 import gymnasium as _gym
 
 from iscc_gym import compile_note as _compile_note  # noqa: F401 (a note on stderr when the kernels are first built)
-from iscc_gym.envs.env import ENV_ID, REGISTERED_MAX_EPISODE_STEPS, ISCCEnv, action_to_split, split_to_action
+from iscc_gym.envs.env import ENV_ID, REGISTERED_MAX_EPISODE_STEPS, ISCCEnv
 from iscc_gym.envs.multi import MULTI_ENV_ID
 from iscc_gym.scenario import SCENARIOS, Scenario, make_scenario
+from iscc_gym.sim.task import action_to_split, split_to_action
 
 __all__ = ["Scenario", "SCENARIOS", "make_scenario", "ISCCEnv", "action_to_split", "split_to_action",
            "ENV_ID", "MULTI_ENV_ID", "parallel_env"]

@@ -2,7 +2,7 @@
 the action map.
 
 The library computes each once (:func:`iscc_gym.sim.kernel.reward_one`, :func:`iscc_gym.sim.kernel.split_one`,
-also behind :func:`iscc_gym.envs.env.reward_and_costs` and :func:`iscc_gym.envs.env.action_to_split`); these
+also behind :func:`iscc_gym.sim.task.reward_and_costs` and :func:`iscc_gym.sim.task.action_to_split`); these
 independent paths check them.
 """
 

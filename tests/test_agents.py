@@ -25,7 +25,8 @@ from iscc_gym.agents.sca import MIN_SHARE, static_problem
 
 import iscc_gym  # noqa: F401  (registers the env)
 from iscc_gym import SCENARIOS, analysis
-from iscc_gym.envs.env import OBS_NAMES, action_to_split, split_to_action
+from iscc_gym.sim.schema import OBS_NAMES
+from iscc_gym.sim.task import action_to_split, split_to_action
 
 S = SCENARIOS["paper"]
 

@@ -925,9 +925,9 @@ def test_random_action_sequences(seed, acts, scenario):
 
 def test_decode_observation_inverts_the_scalings():
     """decode_observation gives the physical values the observation was built from (issue 14)."""
-    from iscc_gym.envs.env import decode_observation
     from iscc_gym.physics.stability import scenario_eps_star
     from iscc_gym.sim import loop
+    from iscc_gym.sim.functional import decode_observation
 
     env = gym.make(iscc_gym.ENV_ID)
     obs, _ = env.reset(seed=3)
@@ -955,7 +955,7 @@ def test_reward_and_costs_match_the_numpy_oracle(overrides):
     """The reward written once (kernel.reward_one) against its formula in numpy, NaN and ends included."""
     import oracle_env
 
-    from iscc_gym.envs.env import reward_and_costs
+    from iscc_gym.sim.task import reward_and_costs
 
     s = iscc_gym.make_scenario("paper", **overrides)
     rng = np.random.default_rng(4)

@@ -13,7 +13,7 @@ from iscc_gym.eval.evaluate import Entry, evaluate, format_table, mean_ci, run_e
 from scipy import stats
 
 import iscc_gym  # noqa: F401
-from iscc_gym.envs.env import split_to_action
+from iscc_gym.sim.task import split_to_action
 
 
 def test_episode_metrics_equal_single_env_rollouts():

@@ -4,9 +4,10 @@ import numpy as np
 import oracle_loop
 import pytest
 
-from iscc_gym.envs import env as E
 from iscc_gym.scenario import make_scenario
+from iscc_gym.sim import functional as E
 from iscc_gym.sim import kernel, loop, noise
+from iscc_gym.sim.schema import OBS_BOUND, STEP_COLUMNS
 from iscc_gym.trajectory import sample_reference
 
 VARIANTS = [
@@ -45,7 +46,7 @@ def test_env_step_kernel_matches_numpy_reference(name, overrides):
     c, mats = kernel.kernel_constants(s)
     for t in range(150):
         z = loop.standard_normals(rngs, b)
-        x, x_hat, p, shadow, out, obs = outputs = kernel.new_outputs(b, len(E.STEP_COLUMNS))
+        x, x_hat, p, shadow, out, obs = outputs = kernel.new_outputs(b, len(STEP_COLUMNS))
         kernel.env_step_batch(c, mats, state.x, state.x_hat, state.p, state.shadow, state.n, state.ref, state.key,
                               acts[t], np.empty(0), z, np.ones(b, dtype=bool), *outputs)
         ref_state, ref_out, ref_obs = oracle_loop.env_step_reference(s, state, acts[t], z)
@@ -140,7 +141,7 @@ def test_observation_kernel_matches_reference_on_extreme_states():
     last_rx, last_peb = np.array([0.0, 1.0, 1.0]), np.array([1e9, 0.0, 0.01])
     obs = E.observe(s, state, last_rx, last_peb)
     ref = oracle_loop.observe_reference(s, state, last_rx, last_peb)
-    assert np.all(np.isfinite(obs)) and np.all(np.abs(obs) <= E.OBS_BOUND)
+    assert np.all(np.isfinite(obs)) and np.all(np.abs(obs) <= OBS_BOUND)
     np.testing.assert_allclose(obs, ref, rtol=1e-6, atol=1e-6)
 
 
@@ -157,11 +158,11 @@ def test_kernel_draws_the_episode_stream_of_each_key():
     c, mats = kernel.kernel_constants(s)
     args = (c, mats, state.x, state.x_hat, state.p, state.shadow, state.n, state.ref, state.key, acts,
             np.empty(0))
-    given = kernel.new_outputs(b, len(E.STEP_COLUMNS))
+    given = kernel.new_outputs(b, len(STEP_COLUMNS))
     kernel.env_step_batch(*args, noise.slot_normals(state.key, state.n), active, *given)
-    drawn = kernel.new_outputs(b, len(E.STEP_COLUMNS))
+    drawn = kernel.new_outputs(b, len(STEP_COLUMNS))
     kernel.env_step_batch(*args, np.empty((0, noise.N_DRAWS)), active, *drawn)
-    par = kernel.new_outputs(b, len(E.STEP_COLUMNS))
+    par = kernel.new_outputs(b, len(STEP_COLUMNS))
     kernel.env_step_batch_parallel(*args, np.empty((0, noise.N_DRAWS)), active, *par, 16)
     for g, d, q in zip(given, drawn, par, strict=True):
         assert np.array_equal(g, d) and np.array_equal(g, q)
@@ -218,8 +219,8 @@ def test_kernel_matches_reference_where_the_model_cannot_evaluate_the_state():
     with np.errstate(all="ignore"):
         _, ref_out, ref_obs = oracle_loop.env_step_reference(s, state, acts, z)
         _, out, obs = E.env_step(s, state, acts, z)
-    col = {name: j for j, name in enumerate(E.STEP_COLUMNS)}
-    assert np.all(np.isfinite(obs)) and np.all(np.abs(obs) <= E.OBS_BOUND)
+    col = {name: j for j, name in enumerate(STEP_COLUMNS)}
+    assert np.all(np.isfinite(obs)) and np.all(np.abs(obs) <= OBS_BOUND)
     assert np.all(np.isfinite(out[:, col["reward"]]))
     assert list(out[:, col["terminated"]]) == [1.0, 1.0, 0.0]
     np.testing.assert_array_equal(out[:, col["terminated"]], ref_out[:, col["terminated"]])

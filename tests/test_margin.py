@@ -10,10 +10,11 @@ from iscc_gym.agents.margin import load_tuned, margin_split
 from iscc_gym.eval import tune
 
 from iscc_gym import SCENARIOS
-from iscc_gym.envs.env import OBS_NAMES, action_to_split
 from iscc_gym.envs.vector import ISCCVectorEnv
 from iscc_gym.physics.stability import scenario_eps_star
 from iscc_gym.sim import loop
+from iscc_gym.sim.schema import OBS_NAMES
+from iscc_gym.sim.task import action_to_split
 
 S = SCENARIOS["paper"]
 

@@ -8,7 +8,8 @@ import pytest
 
 import iscc_gym
 from iscc_gym.envs.env import ISCCEnv
-from iscc_gym.envs.multi import ISCCMultiEnv, drone_budgets, multi_split
+from iscc_gym.envs.multi import ISCCMultiEnv
+from iscc_gym.sim.fleet import drone_budgets, multi_split
 
 M = iscc_gym.SCENARIOS["paper"].max_tracking_error_m
 

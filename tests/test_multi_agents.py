@@ -9,7 +9,8 @@ from iscc_gym.agents.sca_slot import SCAPolicy
 
 import iscc_gym
 from iscc_gym.analysis.sensing_share import crlb_trace
-from iscc_gym.envs.multi import ISCCMultiEnv, multi_split, shares_to_action
+from iscc_gym.envs.multi import ISCCMultiEnv
+from iscc_gym.sim.fleet import multi_split, shares_to_action
 
 
 def _observations(k, n_steps=40, seed=0):

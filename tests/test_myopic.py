@@ -17,12 +17,13 @@ from iscc_gym.analysis.averages import TrajectorySample
 from iscc_gym.analysis.kalman_steady import axis_kalman_steady_state
 from iscc_gym.analysis.quadrature import expected_norm
 from iscc_gym.analysis.sensing_share import local_crlb
-from iscc_gym.envs.env import OBS_NAMES, action_to_split, split_to_action
 from iscc_gym.envs.vector import ISCCVectorEnv
 from iscc_gym.physics.channel import geometry, link_snr, matched_gain, rician_power_gain
 from iscc_gym.physics.dynamics import model_matrices, system_matrices
 from iscc_gym.physics.fbl import min_shares, slot_link
 from iscc_gym.physics.stability import scenario_eps_star, steady_state_covariance
+from iscc_gym.sim.schema import OBS_NAMES
+from iscc_gym.sim.task import action_to_split, split_to_action
 
 S = SCENARIOS["paper"]
 EPS_STAR = scenario_eps_star(S)

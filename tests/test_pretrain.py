@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from iscc_gym.agents import make_policy
 
-from iscc_gym.envs.env import action_to_split
+from iscc_gym.sim.task import action_to_split
 
 
 def _ppo(n_envs=4):

@@ -4,8 +4,8 @@ import numpy as np
 from iscc_gym.agents import MarginPolicy
 from iscc_gym.eval.probes import MarginVariant, markdown
 
-from iscc_gym.envs.env import action_to_split
 from iscc_gym.envs.vector import ISCCVectorEnv
+from iscc_gym.sim.task import action_to_split
 
 
 def _obs(n=6, steps=7):

@@ -6,7 +6,7 @@ import pytest
 
 import iscc_gym
 from iscc_gym.envs import render
-from iscc_gym.envs.env import split_to_action
+from iscc_gym.sim.task import split_to_action
 
 SEN, CTRL, COMM, RATE = (np.array([int(render._COLORS[k][i:i + 2], 16) for i in (1, 3, 5)])
                          for k in ("sen", "ctrl", "comm", "rate"))

@@ -5,11 +5,12 @@ import numpy as np
 import pytest
 
 import iscc_gym  # noqa: F401  (registers the env)
-from iscc_gym.envs import env as E
-from iscc_gym.envs.env import split_to_action
 from iscc_gym.envs.vector import ISCCVectorEnv
 from iscc_gym.scenario import make_scenario
+from iscc_gym.sim import functional as E
 from iscc_gym.sim import kernel, loop
+from iscc_gym.sim.schema import OBS_BOUND, STEP_COLUMNS
+from iscc_gym.sim.task import split_to_action
 from iscc_gym.trajectory import sample_reference
 
 UNSTABLE = split_to_action([0.98, 0.0, 0.02])  # no control share: every command lost
@@ -153,10 +154,10 @@ def test_parallel_kernel_equals_serial_kernel_bit_for_bit():
     args = (c, mats, state.x, state.x_hat, state.p, state.shadow, state.n, state.ref, state.key,
             rng.uniform(-1, 1, (b, 3)), rng.uniform(0, 1, b), rng.standard_normal((b, loop.N_DRAWS)),
             rng.random(b) < 0.9)
-    serial = kernel.new_outputs(b, len(E.STEP_COLUMNS))
+    serial = kernel.new_outputs(b, len(STEP_COLUMNS))
     kernel.env_step_batch(*args, *serial)
     for chunk in (16, 37, kernel.parallel_chunk(b)):
-        parallel = kernel.new_outputs(b, len(E.STEP_COLUMNS))
+        parallel = kernel.new_outputs(b, len(STEP_COLUMNS))
         kernel.env_step_batch_parallel(*args, *parallel, chunk)
         for a, b_ in zip(serial, parallel, strict=True):
             assert np.array_equal(a, b_)
@@ -171,7 +172,7 @@ def test_a_sub_env_the_model_cannot_evaluate_ends_alone_with_finite_values():
     shadow[1] = -1.0
     venv._state = st._replace(x=x, x_hat=x_hat, shadow=shadow)
     obs, reward, terminated, truncated, _ = venv.step(np.zeros((3, 3), np.float32))
-    assert np.all(np.isfinite(obs)) and np.all(np.abs(obs) <= E.OBS_BOUND)
+    assert np.all(np.isfinite(obs)) and np.all(np.abs(obs) <= OBS_BOUND)
     assert np.all(np.isfinite(reward))
     assert list(terminated) == [False, True, False] and not truncated.any()
     obs, reward, terminated, truncated, _ = venv.step(np.zeros((3, 3), np.float32))  # NextStep: 1 resets

@@ -49,7 +49,7 @@ def run_args(n_drones: int, seed: int = 0, total_timesteps: int | None = None, o
     """The training :class:`Args` of the multi-drone agent for ``n_drones`` drones (``constrained``: the
     Lagrangian PPO agent at :data:`MULTI_LAG_LIMITS`).
     """
-    from iscc_gym.envs.multi import check_n_drones
+    from iscc_gym.sim.fleet import check_n_drones
 
     k = check_n_drones(n_drones)
     return Args(env_id=MULTI_ENV_ID, env_overrides={"n_drones": k}, seed=seed, total_timesteps=total_timesteps,

@@ -106,7 +106,7 @@ def batched_kwargs(args: Args) -> dict:
     """
     kw = dict(args.env_overrides)
     if args.env_id == MULTI_ENV_ID:
-        from iscc_gym.envs.multi import N_DRONES
+        from iscc_gym.sim.fleet import N_DRONES
 
         kw.setdefault("n_drones", N_DRONES)
     return kw

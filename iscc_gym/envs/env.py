@@ -4,170 +4,26 @@ from __future__ import annotations
 
 import difflib
 import math
-import operator
 from typing import Any
 
 import gymnasium as gym
-import numba
 import numpy as np
 from gymnasium import spaces
 from numpy.typing import ArrayLike
 
-from iscc_gym import threads
 from iscc_gym.envs.render import Renderer
 from iscc_gym.physics.stability import scenario_eps_star
 from iscc_gym.scenario import Scenario, make_scenario
-from iscc_gym.sim import kernel, loop
-from iscc_gym.sim.schema import (
-    COL,
-    N_DRAWS,
-    OBS_BOUND,
-    OBS_NAMES,
-    OBS_SCALING,
-    STEP_COLUMNS,
-)
-from iscc_gym.sim.task import (
-    action_to_split,
-    reward_and_costs,
-    split_to_action,
-)
+from iscc_gym.sim import loop
+from iscc_gym.sim.functional import env_step, observe, reset_info_arrays, step_info
+from iscc_gym.sim.schema import COL, OBS_BOUND, OBS_NAMES
 from iscc_gym.trajectory import sample_reference
 
-__all__ = ["ISCCEnv", "ENV_ID", "action_to_split", "split_to_action", "observe", "reward_and_costs", "env_step",
-           "decode_observation", "OBS_NAMES", "OBS_BOUND",
-           "STEP_COLUMNS", "check_seed", "check_keywords", "real_array", "reset_info_arrays", "SLOT_OUTCOME_KEYS"]
+__all__ = ["ISCCEnv", "ENV_ID", "REGISTERED_MAX_EPISODE_STEPS", "check_seed", "check_keywords", "real_array",
+           "warn_time_limit"]
 
-
-def observe(s: Scenario, state: loop.LoopState, last_received: ArrayLike, last_peb_m: ArrayLike):
-    """The observation of :class:`ISCCEnv` (table in its docstring), shape (B, 23), float32.
-
-    A pure function of a batch of loop states and the last slot's outcome (arrays of shape (B,)),
-    so the single env and any vector env build it the same way (:func:`iscc_gym.sim.kernel.observe_one`;
-    an unbatched state gives shape (23,)).
-    """
-    if state.x.ndim == 1:
-        return observe(s, loop.LoopState(*(f[None] for f in state)), last_received, last_peb_m)[0]
-    nb = state.x.shape[0]
-    obs = np.empty((nb, len(OBS_NAMES)), np.float32)
-    kernel.observe_batch(kernel.kernel_constants(s)[0], state.x_hat, state.p, state.shadow, state.n, state.ref,
-                         np.broadcast_to(np.asarray(last_received, dtype=float), (nb,)),
-                         np.broadcast_to(np.asarray(last_peb_m, dtype=float), (nb,)), obs)
-    return obs
-
-
-def decode_observation(obs: ArrayLike, s: Scenario) -> dict:
-    """Named physical values of observations (any leading batch shape), inverting the scalings of
-    :data:`iscc_gym.sim.schema.OBS_SCALING` (the table of :class:`ISCCEnv`).
-
-    Entries at the clip bound (+-``OBS_BOUND``) decode to the bound's value, not the true one.
-
-    Returns
-    -------
-    dict of ndarray
-        ``pos_err_m``, ``vel_err_mps`` (predicted estimate minus reference), ``ref_vel_mps``,
-        ``ref_acc_mps2`` (shape (..., 3)); ``est_pos_std_m``, ``snr_db`` (predicted large-scale SNR),
-        ``range_m``, ``sin_elevation``, ``cos_azimuth``, ``sin_azimuth``, ``alpha_ctrl_min``,
-        ``alpha_comm_min``, ``last_packet_received`` (bool), ``last_peb_m``, ``slot`` (the slot index
-        n, float) (shape (...)).
-    """
-    o = np.asarray(obs, dtype=float)
-    if o.shape[-1] != len(OBS_NAMES):
-        raise ValueError(f"obs must have {len(OBS_NAMES)} entries along the last axis, got shape {o.shape}")
-    val = {}
-    for j, name in enumerate(OBS_NAMES):
-        kind, k = OBS_SCALING[name]
-        y = o[..., j]
-        if kind == "symlog":
-            val[name] = np.sign(y) * k * np.expm1(np.abs(y))
-        elif kind == "linear":
-            val[name] = y / k
-        elif kind == "range":
-            val[name] = y * s.coverage_radius_m
-        else:  # time_left = 1 - n / n_slots
-            val[name] = (1.0 - y) * s.n_slots
-
-    def vec(prefix):
-        return np.stack([val[prefix + ax] for ax in "xyz"], -1)
-
-    return {"pos_err_m": vec("pos_err_"), "vel_err_mps": vec("vel_err_"), "ref_vel_mps": vec("ref_vel_"),
-            "ref_acc_mps2": vec("ref_acc_"), "est_pos_std_m": val["est_pos_std"], "snr_db": val["snr_db"],
-            "range_m": val["range"], "sin_elevation": val["sin_elevation"], "cos_azimuth": val["cos_azimuth"],
-            "sin_azimuth": val["sin_azimuth"], "alpha_ctrl_min": val["alpha_ctrl_min"],
-            "alpha_comm_min": val["alpha_comm_min"], "last_packet_received": val["last_packet_received"] > 0.5,
-            "last_peb_m": val["last_peb"], "slot": val["time_left"]}
-
-
-#: Smaller batches are always stepped serially; larger ones on all cores only when the parallel kernel
-#: is switched on (:mod:`iscc_gym.threads`; the same results bit for bit).
-PARALLEL_MIN_BATCH = threads.PARALLEL_MIN_BATCH
-
-
-#: The columns :meth:`ISCCEnv.step` reads, in the order it unpacks them (one C call per step).
-_STEP_FIELDS = ("tracking_error_m", "estimation_error_m", "snr_db", "snr_large_scale_db", "peb_m", "veb_mps",
-                "eps_ctrl", "packet_received", "rate_comm_bps", "rate_ctrl_bps", "alpha_sen", "alpha_ctrl",
-                "alpha_comm", "cost_rate", "cost_stability", "reward", "terminated", "truncated")
-_read_step = operator.itemgetter(*(COL[name] for name in _STEP_FIELDS))
-
-
-def env_step(s: Scenario, state: loop.LoopState, actions: ArrayLike, normals: ArrayLike = None,
-             active: ArrayLike = None, budget: ArrayLike = None):
-    """One env step of a batch of loops: action map, slot transition, reward, costs, next observation.
-
-    The single env (a batch of one) and the vector env both call it, so drone i of a batch
-    reproduces the single env seeded alike bit for bit.
-
-    Parameters
-    ----------
-    state : LoopState (batched, B loops)
-    actions : ndarray (B, 3), finite
-    normals : ndarray (B, N_DRAWS), optional
-        The slot's standard normals; default: each loop's episode stream
-        (:func:`iscc_gym.sim.noise.slot_normals` of its key and slot, drawn inside the kernel).
-    active : ndarray (B,) bool, optional
-        Loops to step (default all); the others keep their state, slot index and zero outputs.
-    budget : ndarray (B,), optional
-        Each loop's share of the band, which scales its split (the multi-drone env,
-        :mod:`iscc_gym.envs.multi`); default the whole band.
-
-    Returns
-    -------
-    state : LoopState
-    out : ndarray (B, len(STEP_COLUMNS))
-        :data:`STEP_COLUMNS`: the loop metrics, the applied split, ``cost_rate``,
-        ``cost_stability``, ``reward``, ``terminated`` and ``truncated`` (0/1).
-    obs : ndarray (B, 23) float32
-    """
-    nb = state.x.shape[0]
-    all_active = active is None
-    if all_active:
-        active = _all_active(nb)
-    c, mats = kernel.kernel_constants(s)
-    x, x_hat, p, shadow, out, obs = outputs = kernel.new_outputs(nb, len(STEP_COLUMNS))
-    z = _NO_NORMALS if normals is None else normals
-    b = _WHOLE_BAND if budget is None else budget
-    args = (c, mats, state.x, state.x_hat, state.p, state.shadow, state.n, state.ref, state.key, actions, b, z, active)
-    # numba.get_num_threads() costs ~0.5 us: asked only for a batch the parallel kernel could take
-    if nb >= PARALLEL_MIN_BATCH and threads.use_parallel(nb, numba.get_num_threads()):
-        kernel.env_step_batch_parallel(*args, *outputs, kernel.parallel_chunk(nb))
-    else:
-        kernel.env_step_batch(*args, *outputs)
-    n = state.n + 1 if all_active else state.n + active
-    return state._replace(x=x, x_hat=x_hat, p=p, shadow=shadow, n=n), out, obs
-
-
-_ALL_ACTIVE: dict[int, np.ndarray] = {}
-_NO_NORMALS = np.empty((0, N_DRAWS))  # the kernel's "draw from the keys" signal
-_WHOLE_BAND = np.empty(0)  # the kernel's "every loop has the whole band" signal
-
-
-def _all_active(nb: int) -> np.ndarray:
-    """A read-only all-True mask of length nb (cached: built once per batch size)."""
-    mask = _ALL_ACTIVE.get(nb)
-    if mask is None:
-        mask = np.ones(nb, dtype=bool)
-        mask.setflags(write=False)
-        _ALL_ACTIVE[nb] = mask
-    return mask
+#: The columns of a step's output that end it: reward, terminated, truncated.
+_END = [COL["reward"], COL["terminated"], COL["truncated"]]
 
 
 def check_seed(seed: ArrayLike, name: str = "seed"):
@@ -224,33 +80,6 @@ def real_array(x: ArrayLike, name: str = "action") -> np.ndarray:
         raise TypeError(f"{name} has complex dtype {a.dtype}; pass real numbers in [-1, 1] (np.real(...) if the "
                         "imaginary parts are meant to be dropped)")
     return a.astype(np.float64, copy=False)
-
-
-#: Info keys of a step whose values are outcomes of a slot (its fading, measurement and links): NaN in the
-#: info of ``reset``, before any slot has run (:func:`reset_info_arrays`).
-SLOT_OUTCOME_KEYS = ("snr_db", "snr_large_scale_db", "peb_m", "veb_mps", "eps_ctrl", "rate_comm_bps", "rate_ctrl_bps",
-                     "estimation_error_m")
-
-
-def reset_info_arrays(state: loop.LoopState) -> dict:
-    """The values of a step's info keys at reset, per loop of a batch (arrays of shape (B,), ``alpha``
-    (B, 3)), so ``reset`` and ``step`` infos carry the same keys (libraries such as TorchRL build their
-    specs from the reset info).
-
-    ``tracking_error_m``: the initial state's true error ||p_0 - p_ref,0||; ``cost_rate``,
-    ``cost_stability``, ``cost``: 0 (no slot, no violation); ``packet_received``: True and ``alpha``:
-    equal thirds (as the observation's entry 20 at reset); ``slot``: 0; the slot outcomes of
-    :data:`SLOT_OUTCOME_KEYS` (SNRs, PEB, VEB, loss probability, rates, estimation error): NaN.
-    """
-    nb = state.x.shape[0]
-    zeros = np.zeros(nb)
-    info = {"tracking_error_m": np.linalg.norm(state.x[:, :3] - state.ref[np.arange(nb), state.n, :3], axis=1),
-            "cost_rate": zeros, "cost_stability": zeros.copy(), "cost": zeros.copy()}
-    info.update({key: np.full(nb, np.nan) for key in SLOT_OUTCOME_KEYS})
-    info["packet_received"] = np.ones(nb, dtype=bool)
-    info["alpha"] = np.full((nb, 3), 1.0 / 3.0)
-    info["slot"] = state.n.copy()
-    return info
 
 
 #: The registered id of this env.
@@ -461,31 +290,15 @@ class ISCCEnv(gym.Env):
         if self._state.n[0] >= s.n_slots:
             raise RuntimeError("the mission is over (truncated); call reset() before step()")
         self._state, out, obs = env_step(s, self._state, a[None])
-        (err, est, snr_db, snr_ls_db, peb, veb, eps, received, rate, rate_ctrl, al_sen, al_ctrl, al_comm,
-         cost_rate, cost_stab, reward, terminated, truncated) = _read_step(out[0].tolist())  # _STEP_FIELDS
-        self._ended = terminated == 1.0
-        self._last_received, self._last_peb = received == 1.0, peb
         n = int(self._state.n[0])
+        info = step_info(out[0], n)
+        info["action"] = a.astype(np.float32)
+        reward, terminated, truncated = (float(v) for v in out[0, _END])
+        self._ended = terminated == 1.0
+        self._last_received, self._last_peb = info["packet_received"], info["peb_m"]
         if self._renderer is not None:
-            self._renderer.record(self._state.x[0], err, peb, (al_sen, al_ctrl, al_comm), cost_rate, cost_stab)
-        info = {
-            "tracking_error_m": err,
-            "cost_rate": cost_rate,
-            "cost_stability": cost_stab,
-            "cost": cost_rate + cost_stab,
-            "snr_db": snr_db,
-            "snr_large_scale_db": snr_ls_db,
-            "peb_m": peb,
-            "veb_mps": veb,
-            "eps_ctrl": eps,
-            "packet_received": self._last_received,
-            "rate_comm_bps": rate,
-            "rate_ctrl_bps": rate_ctrl,
-            "estimation_error_m": est,
-            "alpha": np.array((al_sen, al_ctrl, al_comm)),
-            "action": a.astype(np.float32),
-            "slot": n,
-        }
+            self._renderer.record(self._state.x[0], info["tracking_error_m"], info["peb_m"], tuple(info["alpha"]),
+                                  info["cost_rate"], info["cost_stability"])
         if self.render_mode == "human":
             self._last_info = info
             if n % self._human_every == 0 or terminated == 1.0 or truncated == 1.0:

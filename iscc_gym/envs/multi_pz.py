@@ -13,10 +13,11 @@ its own drone (the single env's 23 entries). Rewards are per drone, its single-e
 (minus the loss-of-track penalty shared out 1/K per drone; :func:`iscc_gym.envs.multi.drone_rewards`), so
 the agents' rewards sum to the centralised env's team reward, the mean over drones.
 Every agent terminates when any drone loses track and truncates at the mission's end. Infos carry the
-drone's costs (``cost_rate``, ``cost_stability``, ``cost``), tracking error, applied shares, the slot
-and the drone's seed (``drone_seed``), with the same keys at reset as at every step (TorchRL's
-``PettingZooWrapper`` builds its specs from the reset infos): at reset the initial tracking error,
-zero costs and equal shares 1/(3K). Actions must be real: complex numbers raise ``TypeError``.
+single env's keys for the agent's drone (costs ``cost_rate``, ``cost_stability``, ``cost``, tracking error, SNRs,
+PEB, rates, ``packet_received``, its shares ``alpha``, the slot) and the drone's seed (``drone_seed``), with the
+same keys at reset as at every step (TorchRL's ``PettingZooWrapper`` builds its specs from the reset infos): at
+reset the initial tracking error, zero costs, equal shares 1/(3K) and NaN slot outcomes. Actions must be real:
+complex numbers raise ``TypeError``.
 """
 
 from __future__ import annotations
@@ -28,7 +29,9 @@ from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
 from iscc_gym.envs.env import real_array
-from iscc_gym.envs.multi import N_DRONES, ISCCMultiEnv, drone_rewards
+from iscc_gym.envs.multi import ISCCMultiEnv
+from iscc_gym.sim.fleet import N_DRONES, drone_rewards
+from iscc_gym.sim.functional import INFO_COLUMNS
 from iscc_gym.sim.schema import OBS_BOUND, OBS_NAMES
 
 __all__ = ["ISCCParallelEnv"]
@@ -65,17 +68,24 @@ class ISCCParallelEnv(ParallelEnv):
         obs, info = self._env.reset(seed=seed, options=options)
         self.agents = list(self.possible_agents)
         self._seeds = list(info["drone_seeds"])
-        k = len(self.possible_agents)
-        infos = self._infos(self.agents, info["tracking_error_m"], info["cost_rate"], info["cost_stability"],
-                            np.full((k, 3), 1.0 / (3 * k)), 0)
-        return self._split(obs), infos
+        return self._split(obs), self._infos(self.agents, info)
 
-    def _infos(self, agents, err, c_rate, c_stab, alpha, slot) -> dict:
-        """Each agent's info, the same keys at reset and at every step."""
-        return {a: {"tracking_error_m": float(err[i]), "cost_rate": float(c_rate[i]),
-                    "cost_stability": float(c_stab[i]), "cost": float(c_rate[i] + c_stab[i]),
-                    "alpha": np.array(alpha[i], dtype=np.float64), "slot": int(slot), "drone_seed": self._seeds[i]}
-                for i, a in enumerate(agents)}
+    def _infos(self, agents, team: dict) -> dict:
+        """Each agent's info from the team env's (:func:`iscc_gym.sim.functional.step_info`, per drone): its
+        drone's entries of :data:`~iscc_gym.sim.functional.INFO_COLUMNS`, ``packet_received``, ``cost`` (its rate
+        plus stability cost), ``alpha`` (its shares), ``slot`` and ``drone_seed``; the same keys at reset and at
+        every step.
+        """
+        out = {}
+        for i, a in enumerate(agents):
+            info = {key: float(team[key][i]) for key in INFO_COLUMNS}
+            info["packet_received"] = bool(team["packet_received"][i])
+            info["cost"] = info["cost_rate"] + info["cost_stability"]
+            info["alpha"] = np.array(team["alpha"][i], dtype=np.float64)
+            info["slot"] = int(team["slot"])
+            info["drone_seed"] = self._seeds[i]
+            out[a] = info
+        return out
 
     def step(self, actions):
         if not self.agents:
@@ -100,7 +110,7 @@ class ISCCParallelEnv(ParallelEnv):
         out_err, c_rate, c_stab = info["tracking_error_m"], info["cost_rate"], info["cost_stability"]
         per = drone_rewards(s, out_err, c_rate, c_stab, term, info["slot"]) / k
         agents = self.agents
-        infos = self._infos(agents, out_err, c_rate, c_stab, info["alpha"], info["slot"])
+        infos = self._infos(agents, info)
         result = (self._split(obs), {a: float(per[i]) for i, a in enumerate(agents)},
                   {a: bool(term) for a in agents}, {a: bool(trunc) for a in agents}, infos)
         if term or trunc:

@@ -14,18 +14,10 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from iscc_gym.envs.env import (
-    REGISTERED_MAX_EPISODE_STEPS,
-    check_keywords,
-    check_seed,
-    env_step,
-    observe,
-    real_array,
-    reset_info_arrays,
-    warn_time_limit,
-)
-from iscc_gym.envs.multi import (
-    DRONE_INFO_KEYS,
+from iscc_gym.envs.env import REGISTERED_MAX_EPISODE_STEPS, check_keywords, check_seed, real_array, warn_time_limit
+from iscc_gym.scenario import Scenario, make_scenario
+from iscc_gym.sim import loop
+from iscc_gym.sim.fleet import (
     N_DRONES,
     check_n_drones,
     drone_scenario,
@@ -34,24 +26,19 @@ from iscc_gym.envs.multi import (
     multi_step,
     reset_drones,
 )
-from iscc_gym.scenario import Scenario, make_scenario
-from iscc_gym.sim import loop
+from iscc_gym.sim.functional import env_step, observe, reset_info_arrays, step_info
 from iscc_gym.sim.schema import COL as _COL
 from iscc_gym.sim.schema import OBS_BOUND, OBS_NAMES
 from iscc_gym.trajectory import sample_reference
 
 __all__ = ["ISCCVectorEnv", "ISCCMultiVectorEnv", "check_memory", "reset_bytes", "available_memory_bytes"]
 
-#: info keys of a step, from the columns of :func:`iscc_gym.envs.env.env_step` (``alpha`` and ``cost`` added).
-INFO_KEYS = ("tracking_error_m", "cost_rate", "cost_stability", "cost", "snr_db", "snr_large_scale_db",
-             "peb_m", "veb_mps", "eps_ctrl", "packet_received", "rate_comm_bps", "rate_ctrl_bps",
-             "estimation_error_m", "alpha", "slot")
 
 
 class ISCCVectorEnv(VectorEnv):
     """``num_envs`` independent ISCC loops (:class:`iscc_gym.envs.env.ISCCEnv`) stepped as one batch.
 
-    Every sub-env runs exactly the single env's pipeline (:func:`iscc_gym.envs.env.env_step` on a batch),
+    Every sub-env runs exactly the single env's pipeline (:func:`iscc_gym.sim.functional.env_step` on a batch),
     so sub-env i reset with seed s_i reproduces ``ISCCEnv`` reset with seed s_i bit for bit:
     observations, rewards, terminations and info, over whole episodes.
 
@@ -92,7 +79,7 @@ class ISCCVectorEnv(VectorEnv):
     ``reset(seed=s)`` seeds sub-env i with ``s + i``; ``reset(seed=[s_0, ...])`` with ``s_i``;
     ``reset(options={"reset_mask": mask})`` resets only the masked sub-envs. The reset ``info`` carries
     the keys of a step's info (the single env's reset values: initial tracking error, zero costs, NaN
-    slot outcomes; :func:`iscc_gym.envs.env.reset_info_arrays`), masked to the sub-envs reset. Complex
+    slot outcomes; :func:`iscc_gym.sim.functional.reset_info_arrays`), masked to the sub-envs reset. Complex
     actions raise ``TypeError``, NaN/inf or a wrong shape ``ValueError``.
     """
 
@@ -183,7 +170,7 @@ class ISCCVectorEnv(VectorEnv):
         slots = self._slots()
         terminated = term_ & valid
         truncated = (trunc_ | (slots >= self.max_steps)) & valid & ~terminated
-        info = _info(out, slots, valid) if self.n_drones is None else _multi_info(out, slots, valid)
+        info = _masked(step_info(out, slots, fleet=self.n_drones is not None), valid)
         done = terminated | truncated
         if self.autoreset_mode == AutoresetMode.SAME_STEP and done.any():
             idx = np.flatnonzero(done)
@@ -222,9 +209,11 @@ class ISCCVectorEnv(VectorEnv):
         return pos.reshape(-1, self._k, 3), ref.reshape(-1, self._k, 3)
 
     def _reset_info(self, mask: np.ndarray) -> dict:
-        """A step's info keys at reset (:func:`iscc_gym.envs.env.reset_info_arrays`), masked to the sub-envs reset."""
+        """A step's info keys at reset (:func:`iscc_gym.sim.functional.reset_info_arrays`), masked to the sub-envs
+        reset.
+        """
         if self.n_drones is None:
-            info = {key: val for key, val in reset_info_arrays(self._state).items() if key in INFO_KEYS}
+            info = reset_info_arrays(self._state)
         else:
             info = multi_reset_info(self._state, self._k)
         for key in list(info):
@@ -373,35 +362,8 @@ def check_memory(s: Scenario, num_envs: int) -> None:
             f"num_envs = {fit} on this machine, or a shorter mission (mission_duration_s)")
 
 
-def _info(out: np.ndarray, n: np.ndarray, valid: np.ndarray) -> dict:
-    """Vector info: views into this step's fresh ``out`` array, one ``_key`` mask per key."""
-    info: dict[str, Any] = {}
-    for key in INFO_KEYS:
-        if key == "cost":
-            val = out[:, _COL["cost_rate"]] + out[:, _COL["cost_stability"]]
-        elif key == "alpha":
-            val = out[:, _COL["alpha_sen"]:_COL["alpha_comm"] + 1]
-        elif key == "packet_received":
-            val = out[:, _COL["packet_received"]] == 1.0
-        elif key == "slot":
-            val = n.copy()
-        else:
-            val = out[:, _COL[key]]
-        info[key] = val
-        info["_" + key] = valid
-    return info
-
-
-def _multi_info(out: np.ndarray, slots: np.ndarray, valid: np.ndarray) -> dict:
-    """Vector info of multi-drone sub-envs from their outputs (N, K, columns): per-drone arrays (N, K)
-    (``alpha`` (N, K, 3)), ``cost`` and ``mean_tracking_error_m`` (N,), ``slot``; masks as :func:`_info`.
-    """
-    info: dict[str, Any] = {key: out[..., _COL[key]] for key in DRONE_INFO_KEYS}
-    info["packet_received"] = out[..., _COL["packet_received"]] == 1.0
-    info["alpha"] = out[..., _COL["alpha_sen"]:_COL["alpha_comm"] + 1]
-    info["cost"] = (out[..., _COL["cost_rate"]] + out[..., _COL["cost_stability"]]).sum(-1)
-    info["mean_tracking_error_m"] = out[..., _COL["tracking_error_m"]].mean(-1)
-    info["slot"] = slots
+def _masked(info: dict, valid: np.ndarray) -> dict:
+    """Gymnasium's vector info: each key's ``_key`` mask of the sub-envs it is valid for."""
     for key in list(info):
         info["_" + key] = valid
     return info

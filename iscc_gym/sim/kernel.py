@@ -123,7 +123,7 @@ def observe_batch(cp, x_hat, p, shadow, n, ref, last_received, last_peb, obs):
 
 @njit(cache=True, error_model="numpy", inline="always")
 def split_one(a0, a1, a2):
-    """:func:`iscc_gym.envs.env.action_to_split` of one action."""
+    """:func:`iscc_gym.sim.task.action_to_split` of one action."""
     w0 = (min(max(a0, -1.0), 1.0) + 1.0) * 0.5
     w1 = (min(max(a1, -1.0), 1.0) + 1.0) * 0.5
     w2 = (min(max(a2, -1.0), 1.0) + 1.0) * 0.5
@@ -194,7 +194,7 @@ def reward_one(c, err, rate, eps, terminated, n_next):
 
 @njit(cache=True, error_model="numpy")
 def reward_batch(cp, err, rate, eps, terminated, n_next, cost_rate, cost_stab, reward):
-    """:func:`reward_one` over flat arrays (the numpy API :func:`iscc_gym.envs.env.reward_and_costs`)."""
+    """:func:`reward_one` over flat arrays (the numpy API :func:`iscc_gym.sim.task.reward_and_costs`)."""
     c = cp[0]
     for i in range(err.shape[0]):
         cost_rate[i], cost_stab[i], reward[i] = reward_one(c, err[i], rate[i], eps[i], terminated[i], n_next[i])

@@ -19,7 +19,7 @@ METRIC_NAMES = ("tracking_error_m", "estimation_error_m", "snr_db", "snr_large_s
 #: Columns an env step adds after :data:`METRIC_NAMES`: the applied split, costs, reward, episode end (0/1).
 ENV_COLUMNS = ("alpha_sen", "alpha_ctrl", "alpha_comm", "cost_rate", "cost_stability", "reward",
                "terminated", "truncated")
-#: Columns of the per-loop output array of an env step (:func:`iscc_gym.envs.env.env_step`).
+#: Columns of the per-loop output array of an env step (:func:`iscc_gym.sim.functional.env_step`).
 STEP_COLUMNS = METRIC_NAMES + ENV_COLUMNS
 #: Position of each column of :data:`STEP_COLUMNS` by name.
 COL = {name: j for j, name in enumerate(STEP_COLUMNS)}
@@ -47,7 +47,7 @@ CTRL_SHARE_SCALE = 10.0  # control share at eps*
 PEB_SCALE = 0.05         # symlog scale of the last PEB, m
 #: How each entry is scaled from its physical value: ``("symlog", c)`` is sign(x) ln(1 + |x|/c),
 #: ``("linear", k)`` is k x; ``"range"`` divides by the coverage radius, ``"time_left"`` is
-#: 1 - n / n_slots (both scenario-dependent). :func:`iscc_gym.envs.env.decode_observation` inverts them.
+#: 1 - n / n_slots (both scenario-dependent). :func:`iscc_gym.sim.functional.decode_observation` inverts them.
 OBS_SCALING = {
     **{name: ("symlog", ERR_SCALE) for name in OBS_NAMES[0:6]},
     **{name: ("linear", REF_VEL_SCALE) for name in OBS_NAMES[6:9]},

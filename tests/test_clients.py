@@ -181,12 +181,18 @@ def test_torchrl_pettingzoo_wrapper_on_the_multi_drone_view():
 # --- Tianshou ------------------------------------------------------------------------------------
 
 
-def test_tianshou_vector_env_and_collector():
+def test_tianshou_vector_env_and_collector(monkeypatch):
     pytest.importorskip("tianshou")
-    from tianshou.algorithm.algorithm_base import RandomActionPolicy
+    from tianshou.algorithm.algorithm_base import Policy, RandomActionPolicy
     from tianshou.data import Collector, VectorReplayBuffer
+    from tianshou.data.buffer.manager import ReplayBufferManager
     from tianshou.env import DummyVectorEnv  # SubprocVectorEnv alike (slower to start: each worker imports)
 
+    # Tianshou compiles its numba helpers (returns, buffer indices; uncached) ahead of time in every process on
+    # building a policy or a vector buffer, 7-16 s; the warm-ups are skipped here: a helper collection calls
+    # still compiles on its first call
+    monkeypatch.setattr(Policy, "_compile", staticmethod(lambda: None))
+    monkeypatch.setattr(ReplayBufferManager, "_compile", lambda self: None)
     envs = DummyVectorEnv([lambda: gym.make(PREFIXED_ID, max_episode_steps=10)] * 2)
     try:
         envs.seed(0)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import difflib
 import math
+import operator
 from typing import Any
 
 import gymnasium as gym
@@ -22,8 +23,8 @@ from iscc_gym.trajectory import sample_reference
 __all__ = ["ISCCEnv", "ENV_ID", "REGISTERED_MAX_EPISODE_STEPS", "check_seed", "check_keywords", "real_array",
            "warn_time_limit"]
 
-#: The columns of a step's output that end it: reward, terminated, truncated.
-_END = [COL["reward"], COL["terminated"], COL["truncated"]]
+#: Reward, terminated and truncated from a step's output row.
+_read_end = operator.itemgetter(COL["reward"], COL["terminated"], COL["truncated"])
 
 
 def check_seed(seed: ArrayLike, name: str = "seed"):
@@ -291,9 +292,10 @@ class ISCCEnv(gym.Env):
             raise RuntimeError("the mission is over (truncated); call reset() before step()")
         self._state, out, obs = env_step(s, self._state, a[None])
         n = int(self._state.n[0])
-        info = step_info(out[0], n)
+        row = out[0].tolist()
+        info = step_info(row, n)
         info["action"] = a.astype(np.float32)
-        reward, terminated, truncated = (float(v) for v in out[0, _END])
+        reward, terminated, truncated = _read_end(row)
         self._ended = terminated == 1.0
         self._last_received, self._last_peb = info["packet_received"], info["peb_m"]
         if self._renderer is not None:

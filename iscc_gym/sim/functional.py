@@ -9,6 +9,7 @@ single env, the vector env, the multi-drone env and its PettingZoo view.
 
 from __future__ import annotations
 
+import operator
 from typing import Any
 
 import numba
@@ -189,18 +190,20 @@ INFO_COLUMNS = ("tracking_error_m", "cost_rate", "cost_stability", "snr_db", "sn
 #: env adds ``action``; the multi-drone env sums ``cost`` over its drones and adds ``mean_tracking_error_m``.
 INFO_KEYS = (*INFO_COLUMNS, "cost", "packet_received", "alpha", "slot")
 _INFO_COLUMNS = tuple((key, COL[key]) for key in INFO_COLUMNS)
+_read_columns = operator.itemgetter(*(COL[key] for key in INFO_COLUMNS))
 _RECEIVED = COL["packet_received"]
 _ALPHA = slice(COL["alpha_sen"], COL["alpha_comm"] + 1)
 
 
-def step_info(out: np.ndarray, slot: Any, fleet: bool = False) -> dict:
+def step_info(out: np.ndarray | list, slot: Any, fleet: bool = False) -> dict:
     """What a step reports (:data:`INFO_KEYS`), built from its output rows: the one builder of every face.
 
     Parameters
     ----------
-    out : ndarray (..., len(STEP_COLUMNS))
-        :func:`env_step`'s rows: one loop's row (C,) gives Python floats and bools (the single env); a batch
-        (B, C) or (N, K, C) gives arrays, views into ``out`` (the vector envs; ``out`` is new at every step).
+    out : ndarray (..., len(STEP_COLUMNS)) or list
+        :func:`env_step`'s rows: one loop's row as a list (``out[0].tolist()``, the single env) gives Python
+        floats and bools; a batch (B, C) or (N, K, C) gives arrays, views into ``out`` (the vector envs; ``out``
+        is new at every step).
     slot : int or ndarray
         The slot index after the step (the env's or each sub-env's).
     fleet : bool
@@ -211,11 +214,10 @@ def step_info(out: np.ndarray, slot: Any, fleet: bool = False) -> dict:
     -------
     dict
     """
-    if out.ndim == 1:
-        row = out.tolist()
-        info: dict[str, Any] = {key: row[j] for key, j in _INFO_COLUMNS}
-        info["packet_received"] = row[_RECEIVED] == 1.0
-        info["alpha"] = np.array(row[_ALPHA])
+    if isinstance(out, list):
+        info: dict[str, Any] = dict(zip(INFO_COLUMNS, _read_columns(out), strict=True))
+        info["packet_received"] = out[_RECEIVED] == 1.0
+        info["alpha"] = np.array(out[_ALPHA])
     else:
         info = {key: out[..., j] for key, j in _INFO_COLUMNS}
         info["packet_received"] = out[..., _RECEIVED] == 1.0

@@ -245,7 +245,7 @@ def run_console(main, argv: list[str] | None, prog: str) -> int:
 
 def claims_parser(prog: str, description: str, *, missions: int, quick_missions: int, seed_base: str,
                   figures_default: str) -> Parser:
-    """The parser of a measurement command that states claims (``eval.fading``, ``eval.sensitivity``):
+    """The parser of a measurement command that states claims (``eval.paper.fading``, ``eval.paper.sensitivity``):
     ``--quick``, ``--seed``, ``--json``, ``--figures``, ``--no-figures``.
     """
     p = Parser(prog=prog, description=description)

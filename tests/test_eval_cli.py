@@ -9,8 +9,9 @@ from pathlib import Path
 
 import pytest
 from iscc_gym.eval import __main__ as cli
-from iscc_gym.eval import bench, evaluator_check, probes, reproduce, seeds, tune
+from iscc_gym.eval import bench, probes, seeds, tune
 from iscc_gym.eval.options import parse_seeds, show_progress
+from iscc_gym.eval.paper import evaluator_check, reproduce
 from iscc_gym.eval.policies import SHIPPED_AGENT, check_specs, resolve_specs
 
 from iscc_gym import docs
@@ -232,6 +233,7 @@ def test_python_m_eval_prints_progress_lines_without_a_terminal(capsys):
     assert "[evaluating]" not in capsys.readouterr().err
 
 
+@pytest.mark.filterwarnings("ignore:'iscc_gym.eval.__main__' found in sys.modules")  # imported above as cli
 def test_python_m_eval_exits_2_with_one_line_on_a_mistake(monkeypatch, capsys):
     """Run as the interpreter runs ``python -m eval`` (``runpy``, in process: a new interpreter spends 10-20 s
     on imports; ``test_evaluate`` launches ``python -m eval`` from the checkout as a real command)."""

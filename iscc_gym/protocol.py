@@ -35,7 +35,7 @@ INIT_SEED_START = 200_000
 TUNE_SEED_START = 500_000
 #: Default tuning seeds.
 TUNE_SEEDS = tuple(range(TUNE_SEED_START, TUNE_SEED_START + 40))
-#: The reproduction's calibration missions (``eval.reproduce``): training seeds.
+#: The reproduction's calibration missions (``eval.paper.reproduce``): training seeds.
 CALIBRATION_SEED_START = 600_000
 #: The held-out missions of the studies, ``start + 1000 * run_seed + i`` inside the upper evaluation range.
 FADING_SEED_START = 1_100_000

@@ -23,9 +23,9 @@ import numpy as np
 from iscc_gym.sim.schema import OBS, OBS_SCALING
 
 from .base import SplitPolicy
-from .tuned_records import TUNED_DIR, load_tuned, save_tuned
+from .tuned_records import load_tuned
 
-__all__ = ["MarginPolicy", "margin_split", "predicted_needs", "load_tuned", "save_tuned", "TUNED_DIR"]
+__all__ = ["MarginPolicy", "margin_split", "predicted_needs"]
 
 
 def predicted_needs(obs) -> tuple[np.ndarray, np.ndarray]:

@@ -38,9 +38,10 @@ from iscc_gym.sim.fleet import multi_split, shares_to_action
 from iscc_gym.sim.functional import decode_observation
 from iscc_gym.sim.schema import N_OBS
 
-from .margin import load_tuned, predicted_needs
+from .margin import predicted_needs
 from .sca import MIN_SHARE
 from .sca_slot import SCAPolicy
+from .tuned_records import load_tuned
 
 __all__ = ["MultiSharePolicy", "EqualShareSCA", "JointSCA", "MultiMarginPolicy", "ScaledSensing", "fit_demands",
            "make_multi_policy", "MULTI_POLICY_SPECS", "STARVED_SCALE"]

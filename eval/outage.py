@@ -47,7 +47,8 @@ def build(family: str, knob: float, scenario: Scenario):
 
         return SCAPolicy(scenario.replace(rate_min_bps=scenario.rate_min_bps * float(knob)))
     if family == "margin":
-        from iscc_gym.agents.margin import MarginPolicy, load_tuned
+        from iscc_gym.agents.margin import MarginPolicy
+        from iscc_gym.agents.tuned_records import load_tuned
 
         p = load_tuned("margin")["params"]
         return MarginPolicy(p["m_ctrl"], float(knob), sensing_floor=p["sensing_floor"])

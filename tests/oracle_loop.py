@@ -26,7 +26,7 @@ from iscc_gym.physics.sensing import whitened_observation_matrix
 from iscc_gym.physics.stability import scenario_eps_star
 from iscc_gym.scenario import Scenario
 from iscc_gym.sim import loop
-from iscc_gym.sim.loop import LoopState, _at, _check_step, _norm, slot_noise
+from iscc_gym.sim.loop import LoopState, check_step, reference_rows, slot_noise, vector_norm
 from iscc_gym.sim.schema import (
     COL,
     CTRL_SHARE_SCALE,
@@ -84,17 +84,17 @@ def step_reference(s: Scenario, state: LoopState, alpha, rng=None, z=None):
     mm = model_matrices(s)
     alpha = np.asarray(alpha, dtype=float)
     x = state.x
-    _check_step(s, state, alpha)
+    check_step(s, state, alpha)
     n = state.n
     if z is None:
         z = slot_noise(state, rng)
-    ref_n = _at(state.ref, n)
+    ref_n = reference_rows(state.ref, n)
     pos = x[..., :3]
     a_sen, a_ctrl, a_comm = alpha[..., 0], alpha[..., 1], alpha[..., 2]
 
     # --- channel: geometry, large-scale SNR (path loss, beam gain, shadowing), this slot's fading
     rel = pos - mm.gbs_pos
-    dist = _norm(rel)
+    dist = vector_norm(rel)
     los = rel / dist[..., None]
     trig = direction_trig(los)
     shadow_db = shadowing_std_db(s, pos[..., 2]) * state.shadow
@@ -133,13 +133,13 @@ def step_reference(s: Scenario, state: LoopState, alpha, rng=None, z=None):
     bu = (mm.b @ u_applied[..., None])[..., 0]
     x_next = (mm.a @ x[..., None])[..., 0] + bu + mm.chol_w * z[..., _PROC]
     x_hat_next, p_next = kf_predict(x_post, p_post, mm.a, bu, mm.sigma_w)
-    shadow_next = shadowing_step(s, state.shadow, _norm(x_next[..., :3] - pos), z[..., _SHAD])
+    shadow_next = shadowing_step(s, state.shadow, vector_norm(x_next[..., :3] - pos), z[..., _SHAD])
 
     n_next = n + 1
-    err = _norm(x_next[..., :3] - _at(state.ref, n_next)[..., :3])
+    err = vector_norm(x_next[..., :3] - reference_rows(state.ref, n_next)[..., :3])
     metrics = {
         "tracking_error_m": err,
-        "estimation_error_m": _norm(x_post[..., :3] - pos),
+        "estimation_error_m": vector_norm(x_post[..., :3] - pos),
         "snr_db": 10.0 * np.log10(snr),
         "snr_large_scale_db": 10.0 * np.log10(snr_ls),
         "peb_m": np.sqrt(m_r + m_tt + m_pp),

@@ -225,19 +225,3 @@ def test_ctrl_bler_deadline_reading():
     e_cal = float(fbl.ctrl_bler(S, 0.0403, 10.0))
     assert e_lit == pytest.approx(_ctrl_bler(lit, 0.0403, 10.0), rel=1e-9, abs=1e-300)
     assert e_lit < e_cal
-
-
-def test_compiled_ctrl_bler_is_the_numpy_one_to_rounding():
-    """fbl.ctrl_bler_compiled (the env's compiled BLER as a ufunc) against the numpy definition."""
-    from iscc_gym.physics.fbl import ctrl_bler, ctrl_bler_compiled
-    from iscc_gym.scenario import make_scenario
-
-    s = make_scenario("paper")
-    rng = np.random.default_rng(0)
-    snr = 10 ** rng.uniform(-2, 4, (50, 40))
-    alpha = rng.uniform(0, 1, (50, 40))
-    alpha[0, :5] = 0.0
-    got, want = ctrl_bler_compiled(s, alpha, snr), ctrl_bler(s, alpha, snr)
-    assert got.shape == want.shape
-    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-300)
-    assert ctrl_bler_compiled(s, 0.2, 100.0) == pytest.approx(float(ctrl_bler(s, 0.2, 100.0)), rel=1e-12)

@@ -316,12 +316,12 @@ def test_step_rejects_bad_alpha_shape(refs):
 
 def test_step_rejects_past_last_slot(refs):
     state = init_state(S, refs, np.random.default_rng(0))
-    last = state.replace(n=np.full(3, S.n_slots - 1))
+    last = state._replace(n=np.full(3, S.n_slots - 1))
     end, _ = step(S, last, _alpha(3), np.random.default_rng(0))  # the last slot is fine
     assert np.all(end.n == S.n_slots)
     with pytest.raises(ValueError):
         step(S, end, _alpha(3), np.random.default_rng(0))
-    mixed = state.replace(n=np.array([0, S.n_slots, 3]))
+    mixed = state._replace(n=np.array([0, S.n_slots, 3]))
     with pytest.raises(ValueError):
         step(S, mixed, _alpha(3), np.random.default_rng(0))
 

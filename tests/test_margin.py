@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 import yaml
 from iscc_gym.agents import MarginPolicy, make_policy
-from iscc_gym.agents.margin import load_tuned, margin_split
+from iscc_gym.agents.margin import margin_split
+from iscc_gym.agents.tuned_records import load_tuned
 from iscc_gym.eval import tune
 
 from iscc_gym import SCENARIOS

@@ -9,6 +9,7 @@ from iscc_gym.envs.vector import ISCCVectorEnv
 from iscc_gym.scenario import make_scenario
 from iscc_gym.sim import functional as E
 from iscc_gym.sim import kernel, loop
+from iscc_gym.sim.params import slot_params
 from iscc_gym.sim.schema import OBS_BOUND, STEP_COLUMNS
 from iscc_gym.sim.task import split_to_action
 from iscc_gym.trajectory import sample_reference
@@ -150,7 +151,7 @@ def test_parallel_kernel_equals_serial_kernel_bit_for_bit():
     ref = loop.reference_array(sample_reference(s, rng))
     refs = np.ascontiguousarray(np.broadcast_to(ref, (b,) + ref.shape))
     state = loop.init_state(s, refs, rng)
-    c, mats = kernel.kernel_constants(s)
+    c, mats = slot_params(s)
     args = (c, mats, state.x, state.x_hat, state.p, state.shadow, state.n, state.ref, state.key,
             rng.uniform(-1, 1, (b, 3)), rng.uniform(0, 1, b), rng.standard_normal((b, loop.N_DRAWS)),
             rng.random(b) < 0.9)

@@ -16,7 +16,7 @@ __all__ = ["dispersion", "q_func", "q_inv", "link_terms", "fbl_rate_bps", "comm_
            "link_constants",
            "link_terms_one", "ctrl_bler_arg_one", "ctrl_bler_one", "ctrl_bler_slope_one", "rate_one", "delivered_one",
            "min_ctrl_share_one", "min_comm_share_one",
-           "LINK_PARAMS", "link_params", "ctrl_bler_ufunc", "ctrl_bler_compiled"]
+           "LINK_PARAMS", "link_params", "ctrl_bler_ufunc"]
 
 _INV_SQRT2 = 1.0 / np.sqrt(2.0)
 
@@ -255,11 +255,6 @@ def ctrl_bler_ufunc(alpha_ctrl, snr, sqrt_l, bits_per_hz):
     """
     cap, sqrt_v = link_terms_one(snr)
     return ctrl_bler_one(cap, sqrt_v, sqrt_l, bits_per_hz, alpha_ctrl)
-
-
-def ctrl_bler_compiled(s: Scenario, alpha_ctrl: ArrayLike, snr: ArrayLike):
-    """:func:`ctrl_bler` (kept name: both are the compiled :func:`ctrl_bler_one` over arrays)."""
-    return ctrl_bler(s, alpha_ctrl, snr)
 
 
 @guvectorize(["void(float64, float64[:], float64[:])"], "()->(),()", cache=True)

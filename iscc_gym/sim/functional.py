@@ -19,6 +19,7 @@ from numpy.typing import ArrayLike
 from iscc_gym import threads
 from iscc_gym.scenario import Scenario
 from iscc_gym.sim import kernel, loop
+from iscc_gym.sim.params import slot_params
 from iscc_gym.sim.schema import COL, N_DRAWS, OBS_NAMES, OBS_SCALING, STEP_COLUMNS
 
 __all__ = ["env_step", "observe", "decode_observation", "step_info", "reset_info_arrays", "INFO_COLUMNS", "INFO_KEYS",
@@ -36,7 +37,7 @@ def observe(s: Scenario, state: loop.LoopState, last_received: ArrayLike, last_p
         return observe(s, loop.LoopState(*(f[None] for f in state)), last_received, last_peb_m)[0]
     nb = state.x.shape[0]
     obs = np.empty((nb, len(OBS_NAMES)), np.float32)
-    kernel.observe_batch(kernel.kernel_constants(s)[0], state.x_hat, state.p, state.shadow, state.n, state.ref,
+    kernel.observe_batch(slot_params(s)[0], state.x_hat, state.p, state.shadow, state.n, state.ref,
                          np.broadcast_to(np.asarray(last_received, dtype=float), (nb,)),
                          np.broadcast_to(np.asarray(last_peb_m, dtype=float), (nb,)), obs)
     return obs
@@ -121,7 +122,7 @@ def env_step(s: Scenario, state: loop.LoopState, actions: ArrayLike, normals: Ar
     all_active = active is None
     if all_active:
         active = _all_active(nb)
-    c, mats = kernel.kernel_constants(s)
+    c, mats = slot_params(s)
     x, x_hat, p, shadow, out, obs = outputs = kernel.new_outputs(nb, len(STEP_COLUMNS))
     z = _NO_NORMALS if normals is None else normals
     b = _WHOLE_BAND if budget is None else budget

@@ -25,9 +25,8 @@ from numba import njit, prange, vectorize
 
 from iscc_gym.physics.channel import beam_gain_one, direction_one, link_snr_one, shadowing_db_one
 from iscc_gym.physics.fbl import link_terms_one, min_comm_share_one, min_ctrl_share_one
-from iscc_gym.sim.loop import new_outputs, step_one, supported, work_space
+from iscc_gym.sim.loop import new_outputs, step_one, work_space
 from iscc_gym.sim.noise import fill_slot_normals
-from iscc_gym.sim.params import slot_params
 from iscc_gym.sim.schema import (
     COL,
     CTRL_SHARE_SCALE,
@@ -45,12 +44,10 @@ from iscc_gym.sim.schema import (
     SNR_SCALE,
 )
 
-__all__ = ["supported", "kernel_constants", "env_step_batch", "env_step_batch_parallel", "observe_batch",
+__all__ = ["env_step_batch", "env_step_batch_parallel", "observe_batch",
            "observe_one", "reward_one", "reward_batch", "split_one", "split_batch", "parallel_chunk", "new_outputs",
            "METRIC_NAMES", "ENV_COLUMNS"]
 
-#: The scenario's compiled constants ``(c, mats)`` (the name the env and tests use).
-kernel_constants = slot_params
 N_ENV_COLUMNS = N_STEP_COLUMNS
 
 _ERR, _PEB, _EPS, _RX, _RATE_COMM, _DIVERGED = (COL[k] for k in ("tracking_error_m", "peb_m", "eps_ctrl",

@@ -57,7 +57,8 @@ from iscc_gym.sim.schema import (
 from iscc_gym.trajectory import Reference
 
 __all__ = ["LoopState", "N_DRAWS", "init_state", "step", "preview", "reference_at",
-           "standard_normals", "stack_references", "reference_array", "slot_noise", "supported", "step_one",
+           "standard_normals", "stack_references", "reference_array", "slot_noise", "step_one", "reference_rows",
+           "vector_norm", "check_step",
            "step_batch", "new_outputs"]
 
 
@@ -91,10 +92,6 @@ class LoopState(NamedTuple):
     n: np.ndarray
     ref: np.ndarray
     key: np.ndarray
-
-    def replace(self, **changes) -> LoopState:
-        """A copy with the given fields replaced (the state is immutable)."""
-        return self._replace(**changes)
 
     def rows(self, idx) -> LoopState:
         """The loops ``idx`` of a batch (copies)."""
@@ -175,7 +172,7 @@ def init_state(s: Scenario, refs: ArrayLike, rng: np.random.Generator) -> LoopSt
                      shadow=np.array(z[..., 6]), n=np.zeros(shape, dtype=np.int64), ref=ref, key=key)
 
 
-def _at(ref, n):
+def reference_rows(ref, n):
     """Rows ``n`` of the reference: ref[n] unbatched, ref[b, n_b] batched."""
     if n.ndim == 0:
         return ref[n]
@@ -184,19 +181,12 @@ def _at(ref, n):
 
 def reference_at(state: LoopState):
     """The reference row [p, v, a] of each loop's current slot, shape (9,) or (B, 9)."""
-    return _at(state.ref, state.n)
+    return reference_rows(state.ref, state.n)
 
 
-def _norm(v):
+def vector_norm(v):
     """Euclidean norm over the last axis of (..., 3) vectors (a stacked product: bit-stable)."""
     return np.sqrt((v[..., None, :] @ v[..., :, None])[..., 0, 0])
-
-
-def supported(s: Scenario) -> bool:
-    """Whether the compiled slot (:func:`step_one`) covers this scenario (every beamformer of
-    ``Scenario.beamforming``: the matched one in closed form, broadside by sums over the array).
-    """
-    return s.beamforming in ("matched", "broadside")
 
 
 def step(s: Scenario, state: LoopState, alpha: ArrayLike, rng: np.random.Generator = None):
@@ -233,7 +223,7 @@ def step(s: Scenario, state: LoopState, alpha: ArrayLike, rng: np.random.Generat
     alpha = np.asarray(alpha, dtype=float)
     x = state.x
     batch = None if x.ndim == 1 else x.shape[0]
-    _check_step(s, state, alpha)
+    check_step(s, state, alpha)
     z = slot_noise(state, rng)
     nb = 1 if batch is None else batch
     x_n, xh_n, p_n, sh_n, met, _ = new_outputs(nb, N_METRICS)
@@ -250,7 +240,7 @@ def step(s: Scenario, state: LoopState, alpha: ArrayLike, rng: np.random.Generat
     return state._replace(x=x_n, x_hat=xh_n, p=p_n, shadow=sh_n, n=state.n + 1), metrics
 
 
-def _check_step(s: Scenario, state: LoopState, alpha: np.ndarray) -> None:
+def check_step(s: Scenario, state: LoopState, alpha: np.ndarray) -> None:
     if alpha.shape != state.x.shape[:-1] + (3,):
         raise ValueError(f"alpha must have shape {state.x.shape[:-1] + (3,)}, got {alpha.shape}")
     if state.n.max() >= s.n_slots:
@@ -269,7 +259,7 @@ def preview(s: Scenario, state: LoopState, eps_max: float) -> dict:
     """
     pos = state.x_hat[..., :3]
     rel = pos - model_matrices(s).gbs_pos
-    dist = _norm(rel)
+    dist = vector_norm(rel)
     los = rel / dist[..., None]
     trig = direction_trig(los)
     snr = link_snr(s, dist, shadowing_std_db(s, pos[..., 2]) * state.shadow, beam_gain(s, trig))

@@ -13,6 +13,7 @@ from numpy.typing import ArrayLike
 
 from iscc_gym.scenario import Scenario
 from iscc_gym.sim import kernel
+from iscc_gym.sim.params import slot_params
 
 __all__ = ["action_to_split", "split_to_action", "check_split", "SPLIT_TOLERANCE", "reward_and_costs"]
 
@@ -83,7 +84,7 @@ def reward_and_costs(s: Scenario, metrics: dict, n_next: ArrayLike, evaluable: A
     err, rate, eps, term, n1 = np.broadcast_arrays(*(np.asarray(metrics[k], dtype=float) for k in (
         "tracking_error_m", "rate_comm_bps", "eps_ctrl")), terminated, np.asarray(n_next, dtype=np.int64))
     cost_rate, cost_stab, reward = (np.empty(err.shape) for _ in range(3))
-    kernel.reward_batch(kernel.kernel_constants(s)[0], err.ravel(), rate.ravel(), eps.ravel(), term.ravel(),
+    kernel.reward_batch(slot_params(s)[0], err.ravel(), rate.ravel(), eps.ravel(), term.ravel(),
                         n1.ravel(), cost_rate.reshape(-1), cost_stab.reshape(-1), reward.reshape(-1))
     terminated = term.copy()
     truncated = ~terminated & (n1 >= s.n_slots)

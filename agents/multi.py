@@ -1,7 +1,7 @@
 r"""Scripted baselines of the multi-drone env (``iscc_gym/ISCC-Multi-v0``, :mod:`iscc_gym.envs.multi`).
 
 Each maps a batch of observations (n, 23K) to the 3K shares of every env and plays them with
-:func:`iscc_gym.envs.multi.shares_to_action` (SB3's ``predict``, like the single-drone policies):
+:func:`iscc_gym.sim.fleet.shares_to_action` (SB3's ``predict``, like the single-drone policies):
 
 * ``equal-sca`` (:class:`EqualShareSCA`): every drone gets 1/K of the band and, inside it, the paper's
   per-slot Algorithm 1 solution for that drone (:class:`iscc_gym.agents.sca_slot.SCAPolicy`,
@@ -204,7 +204,7 @@ class ScaledSensing(MultiSharePolicy):
     The difference goes to (``scale`` < 1) or comes from (``scale`` > 1, at most the whole data share)
     the same drone's data share, so its control share and its band are the base policy's. ``base``: any
     policy with SB3's ``predict`` on the env with ``n_drones`` drones (a scripted baseline or a trained
-    agent); its actions are read as shares with :func:`iscc_gym.envs.multi.multi_split`.
+    agent); its actions are read as shares with :func:`iscc_gym.sim.fleet.multi_split`.
     """
 
     def __init__(self, base, n_drones: int, scale: float):
@@ -236,7 +236,7 @@ class _EqualShares(MultiSharePolicy):
 
 def make_multi_policy(spec: str, scenario: Scenario, n_drones: int):
     """A multi-drone baseline from its spec (:data:`MULTI_POLICY_SPECS`), for the per-drone ``scenario``
-    (the env's ``scenario``, :func:`iscc_gym.envs.multi.drone_scenario`).
+    (the env's ``scenario``, :func:`iscc_gym.sim.fleet.drone_scenario`).
     """
     key = str(spec).strip().lower()
     if key == "equal-sca":

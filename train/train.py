@@ -102,7 +102,7 @@ def make_train_env(args: Args):
 
 def batched_kwargs(args: Args) -> dict:
     """The batched env's keyword arguments: the env overrides, and for the multi-drone env its
-    ``n_drones`` (default :data:`iscc_gym.envs.multi.N_DRONES`).
+    ``n_drones`` (default :data:`iscc_gym.sim.fleet.N_DRONES`).
     """
     kw = dict(args.env_overrides)
     if args.env_id == MULTI_ENV_ID:

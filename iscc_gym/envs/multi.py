@@ -49,7 +49,7 @@ class ISCCMultiEnv(gym.Env):
 
     ``Box(-1, 1, (3K,), float32)``: entries 3k, 3k+1, 3k+2 are drone k's sensing, control and data
     weights. Mapped onto the 3K-simplex: :math:`w = (a + 1)/2`, :math:`\alpha_{k,f} = w_{k,f} /
-    \sum w` (equal shares 1/(3K) if every w = 0; :func:`multi_split`). ``info["alpha"]`` (K, 3) holds
+    \sum w` (equal shares 1/(3K) if every w = 0; :func:`iscc_gym.sim.fleet.multi_split`). ``info["alpha"]`` (K, 3) holds
     the applied shares. NaN/inf or a wrong shape raise ``ValueError`` and leave the env unchanged.
 
     ## Observation Space
@@ -67,7 +67,7 @@ class ISCCMultiEnv(gym.Env):
 
     the mean over drones of each drone's single-env reward: its tracking error (clipped at
     ``max_tracking_error_m``) and its rate and stability penalties (the single env's costs;
-    :func:`multi_reward`, :func:`drone_rewards`). Error and penalties are both per-drone means, so a
+    :func:`iscc_gym.sim.fleet.multi_reward`, :func:`iscc_gym.sim.fleet.drone_rewards`). Error and penalties are both per-drone means, so a
     drone's tracking weighs against its costs as in the single env at every K (summing the penalties
     over an averaged error would make the penalties K times heavier, and losing the radar pay).
     Per-drone costs are in ``info["cost_rate"]``, ``info["cost_stability"]`` (K,); ``info["cost"]`` is
@@ -92,7 +92,7 @@ class ISCCMultiEnv(gym.Env):
     rate_min_per_drone_bps=None, **overrides)``: ``scenario`` and ``overrides`` as in
     :class:`iscc_gym.envs.env.ISCCEnv`, shared by every drone; each drone's data link must carry
     ``rate_min_per_drone_bps``, by default the scenario's ``rate_min_bps`` / K (the base station's
-    requirement split evenly; :func:`drone_scenario`). ``env.scenario`` is the per-drone scenario.
+    requirement split evenly; :func:`iscc_gym.sim.fleet.drone_scenario`). ``env.scenario`` is the per-drone scenario.
     ``gymnasium.make_vec(..., vectorization_mode="vector_entry_point")`` gives the native batched
     env (:class:`iscc_gym.envs.vector.ISCCVectorEnv` with ``n_drones``).
 

@@ -5,12 +5,12 @@ the ``multi`` extra).
 
 Agents ``drone_0`` ... ``drone_{K-1}``. Each agent's action is ``Box(-1, 1, (3,))``: its proposed
 sensing, control and data weights. **The GBS's normalisation rule**: it maps the K proposals onto the
-shared budget exactly as the centralised env maps its 3K-vector (:func:`iscc_gym.envs.multi.multi_split`):
+shared budget exactly as the centralised env maps its 3K-vector (:func:`iscc_gym.sim.fleet.multi_split`):
 :math:`w_{k,f} = (a_{k,f} + 1)/2`, :math:`\alpha_{k,f} = w_{k,f} / \sum_{j,f} w_{j,f}`, so a drone's
 band grows with its total demand against everyone else's (proportional sharing). Each agent observes
 its own drone (the single env's 23 entries). Rewards are per drone, its single-env reward over K,
 :math:`(-\min(e_k, e_\max) - w_\mathrm{rate} c^\mathrm{rate}_k - w_\mathrm{stab} c^\mathrm{stab}_k)/K`
-(minus the loss-of-track penalty shared out 1/K per drone; :func:`iscc_gym.envs.multi.drone_rewards`), so
+(minus the loss-of-track penalty shared out 1/K per drone; :func:`iscc_gym.sim.fleet.drone_rewards`), so
 the agents' rewards sum to the centralised env's team reward, the mean over drones.
 Every agent terminates when any drone loses track and truncates at the mission's end. Infos carry the
 single env's keys for the agent's drone (costs ``cost_rate``, ``cost_stability``, ``cost``, tracking error, SNRs,

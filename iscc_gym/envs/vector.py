@@ -74,7 +74,7 @@ class ISCCVectorEnv(VectorEnv):
         for bit. None (default): the single-drone env.
     rate_min_per_drone_bps : float, optional
         With ``n_drones``: each drone's rate requirement (default the scenario's ``rate_min_bps`` / K;
-        :func:`iscc_gym.envs.multi.drone_scenario`).
+        :func:`iscc_gym.sim.fleet.drone_scenario`).
 
     ``reset(seed=s)`` seeds sub-env i with ``s + i``; ``reset(seed=[s_0, ...])`` with ``s_i``;
     ``reset(options={"reset_mask": mask})`` resets only the masked sub-envs. The reset ``info`` carries
@@ -290,7 +290,7 @@ class ISCCVectorEnv(VectorEnv):
 
 class ISCCMultiVectorEnv(ISCCVectorEnv):
     """The vector entry point of ``iscc_gym/ISCC-Multi-v0``: :class:`ISCCVectorEnv` with ``n_drones``
-    (default :data:`iscc_gym.envs.multi.N_DRONES`) drones per sub-env.
+    (default :data:`iscc_gym.sim.fleet.N_DRONES`) drones per sub-env.
     """
 
     def __init__(self, num_envs: int = 1, n_drones: int = N_DRONES, **kwargs: Any):

@@ -68,8 +68,9 @@ class ISCCMultiEnv(gym.Env):
     the mean over drones of each drone's single-env reward: its tracking error (clipped at
     ``max_tracking_error_m``) and its rate and stability penalties (the single env's costs;
     :func:`iscc_gym.sim.fleet.multi_reward`, :func:`iscc_gym.sim.fleet.drone_rewards`). Error and penalties
-    are both per-drone means, so a drone's tracking weighs against its costs as in the single env at every K (summing the penalties
-    over an averaged error would make the penalties K times heavier, and losing the radar pay).
+    are both per-drone means, so a drone's tracking weighs against its costs as in the single env at every K
+    (summing the penalties over an averaged error would make the penalties K times heavier, and losing the radar
+    pay).
     Per-drone costs are in ``info["cost_rate"]``, ``info["cost_stability"]`` (K,); ``info["cost"]`` is
     their total, for safe-RL libraries. Loss of track adds the single env's penalty,
     ``max_tracking_error_m`` per remaining slot. With K = 1 reward and costs are the single env's.

@@ -233,7 +233,7 @@ def min_comm_share_one(cap, sqrt_v, rate_bps, bandwidth_hz, k_comm):
 #: The link constants of a scenario the compiled forms read (float64 fields of one record).
 LINK_PARAMS = np.dtype([(name, np.float64) for name in (
     "k_comm", "k_ctrl", "bits_per_hz", "sqrt_l",  # link_constants
-    "bw",  # bandwidth B, Hz
+    "bandwidth_hz",  # bandwidth B, Hz
 )])
 
 
@@ -243,7 +243,7 @@ def link_params(s: Scenario):
     c = np.zeros(1, LINK_PARAMS)
     r = c[0]
     r["k_comm"], r["k_ctrl"], r["bits_per_hz"], r["sqrt_l"] = link_constants(s)
-    r["bw"] = s.bandwidth_hz
+    r["bandwidth_hz"] = s.bandwidth_hz
     c.setflags(write=False)
     return c
 

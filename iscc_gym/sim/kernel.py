@@ -75,19 +75,19 @@ def observe_one(c, x_hat, p, shadow, n, ref, last_received, last_peb, out):
     ``out`` (23); returns False where an entry could not be evaluated (NaN, written as 0) or the
     estimate is not finite.
     """
-    dist, gx, gy, gz, ct, st, cp, sp = direction_one(c.h_gbs, x_hat[0], x_hat[1], x_hat[2])
+    dist, gx, gy, gz, ct, st, cp, sp = direction_one(c.gbs_height_m, x_hat[0], x_hat[1], x_hat[2])
     shadow_db = shadowing_db_one(c.sf_a, c.sf_b, x_hat[2], shadow)
     snr = link_snr_one(c.snr_k, beam_gain_one(c, ct, st, cp, sp), dist, shadow_db)
     cap, sqrt_v = link_terms_one(snr)
     ctrl_min = min_ctrl_share_one(cap, sqrt_v, c.bits_per_hz, c.q_back)
-    comm_min = min_comm_share_one(cap, sqrt_v, c.rate_min, c.bw, c.k_comm)
+    comm_min = min_comm_share_one(cap, sqrt_v, c.rate_min_bps, c.bandwidth_hz, c.k_comm)
     for j in range(6):
         out[_O_POS + j] = _symlog(x_hat[j] - ref[n, j], ERR_SCALE)
     for j in range(6):
         out[_O_REF + j] = ref[n, 3 + j] * (REF_VEL_SCALE if j < 3 else REF_ACC_SCALE)
     out[_O_STD] = _symlog(math.sqrt(p[0, 0] + p[1, 1] + p[2, 2]), ERR_SCALE)
     out[_O_SNR] = 10.0 * math.log10(snr) * SNR_SCALE
-    out[_O_RANGE] = dist * (1.0 / c.coverage_r)
+    out[_O_RANGE] = dist * (1.0 / c.coverage_radius_m)
     out[_O_SIN_EL] = sp
     out[_O_COS_AZ] = ct
     out[_O_SIN_AZ] = st
@@ -174,8 +174,8 @@ def reward_one(c, err, rate, eps, terminated, n_next):
     rate or loss probability that is NaN counts as a violation; an episode that terminates pays
     ``max_tracking_error_m`` for each remaining slot.
     """
-    max_err = c.max_err
-    rate_min = c.rate_min
+    max_err = c.max_tracking_error_m
+    rate_min = c.rate_min_bps
     if rate_min <= 0.0:
         cost_rate = 0.0
     elif rate != rate:

@@ -292,7 +292,7 @@ def step_one(c, mats, xi, x_hat, p, shadow, ni, ref, a_sen, a_ctrl, a_comm, zi,
     w4, w6, y, x_post, p_post, u, bu, pa, h = work
     px, py, pz = xi[0], xi[1], xi[2]
     # channel: geometry, large-scale SNR, fading
-    dist, gx, gy, gz, ct, st, cp, sp = direction_one(c.h_gbs, px, py, pz)
+    dist, gx, gy, gz, ct, st, cp, sp = direction_one(c.gbs_height_m, px, py, pz)
     shadow_db = shadowing_db_one(c.sf_a, c.sf_b, pz, shadow)
     snr_ls = link_snr_one(c.snr_k, beam_gain_one(c, ct, st, cp, sp), dist, shadow_db)
     snr = rician_gain_one(c.ric_los, c.ric_scat, zi[Z_FADE_COMM], zi[Z_FADE_COMM + 1]) * snr_ls
@@ -320,8 +320,8 @@ def step_one(c, mats, xi, x_hat, p, shadow, ni, ref, a_sen, a_ctrl, a_comm, zi,
     # control command and its FBL delivery
     cap, sqrt_v = link_terms_one(snr)
     eps = ctrl_bler_one(cap, sqrt_v, c.sqrt_l, c.bits_per_hz, a_ctrl)
-    rate_ctrl = rate_one(a_ctrl, c.bw, cap, sqrt_v, c.k_ctrl)
-    rate_comm = rate_one(a_comm, c.bw, cap, sqrt_v, c.k_comm)
+    rate_ctrl = rate_one(a_ctrl, c.bandwidth_hz, cap, sqrt_v, c.k_ctrl)
+    rate_comm = rate_one(a_comm, c.bandwidth_hz, cap, sqrt_v, c.k_comm)
     if c.open_loop == 1.0:  # the reference acceleration stored on board
         received = True
         for j in range(3):
@@ -354,7 +354,7 @@ def step_one(c, mats, xi, x_hat, p, shadow, ni, ref, a_sen, a_ctrl, a_comm, zi,
     mt[_RX] = 1.0 if received else 0.0
     mt[_RATE_COMM] = rate_comm
     mt[_RATE_CTRL] = rate_ctrl
-    mt[_DIVERGED] = 0.0 if err <= c.max_err else 1.0
+    mt[_DIVERGED] = 0.0 if err <= c.max_tracking_error_m else 1.0
     return shadow_next
 
 

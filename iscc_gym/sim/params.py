@@ -23,12 +23,12 @@ __all__ = ["SLOT_PARAMS", "slot_params", "MATS"]
 
 #: The slot's own fields (the rest come from the physics modules' records).
 _OWN_FIELDS = (
-    "h_gbs",           # GBS antenna height, m
+    "gbs_height_m",    # GBS antenna height, m
     "sf_a", "sf_b",    # shadowing std a exp(-b h), dB and 1/m
     "neg_inv_decorr",  # -1 / shadowing decorrelation distance, 1/m
     "ric_los", "ric_scat",  # channel.rician_constants
     "snr_k", "beam_g",      # channel.snr_constant, channel.matched_gain
-    "max_err", "rate_min", "coverage_r", "n_slots",
+    "max_tracking_error_m", "rate_min_bps", "coverage_radius_m", "n_slots",
     "gnss", "open_loop", "feedforward",  # flags
     "eps_star",        # stability.scenario_eps_star
     "q_back",          # Q^-1(eps*) / sqrt(L_ctrl): control-share bound of the observation (fbl.min_shares)
@@ -57,13 +57,13 @@ def slot_params(s: Scenario):
     for part in (sensing_params(s)[0], link_params(s)[0]):
         for name in part.dtype.names:
             r[name] = part[name]
-    r["h_gbs"] = s.gbs_height_m
+    r["gbs_height_m"] = s.gbs_height_m
     r["sf_a"], r["sf_b"] = s.shadowing_a_db, s.shadowing_b_per_m
     r["neg_inv_decorr"] = -1.0 / s.shadowing_decorrelation_m
     r["ric_los"], r["ric_scat"] = rician_constants(s)
     r["snr_k"], r["beam_g"] = snr_constant(s), matched_gain(s)
-    r["max_err"], r["rate_min"] = s.max_tracking_error_m, s.rate_min_bps
-    r["coverage_r"], r["n_slots"] = s.coverage_radius_m, s.n_slots
+    r["max_tracking_error_m"], r["rate_min_bps"] = s.max_tracking_error_m, s.rate_min_bps
+    r["coverage_radius_m"], r["n_slots"] = s.coverage_radius_m, s.n_slots
     r["gnss"] = float(s.observation_source == "gnss")
     r["open_loop"] = float(s.control_mode == "open_loop")
     r["feedforward"] = float(s.reference_feedforward)

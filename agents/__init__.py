@@ -1,4 +1,6 @@
-"""Policies for ``iscc_gym/ISCC-v0`` behind one SB3-style protocol.
+"""Policies for ``iscc_gym/ISCC-v0`` behind one SB3-style protocol (the repository's ``agents/`` folder, installed
+as ``iscc_gym.agents`` by ``pyproject.toml``'s ``package-dir``; it imports the core ``iscc_gym``, never ``train`` or
+``eval``).
 
 Every policy has ``predict(obs, state=None, episode_start=None, deterministic=True) -> (action,
 state)`` with the env's action in [-1, 1]^3, so evaluation code treats scripted policies and trained

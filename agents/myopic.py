@@ -26,8 +26,8 @@ from scipy.special import chndtr
 
 from iscc_gym.analysis.kalman_steady import axis_kalman_steady_state
 from iscc_gym.analysis.quadrature import expected_norm, rician_power_nodes
-from iscc_gym.analysis.sensing_share import SensingCoefficients, local_crlb, sensing_coefficients
-from iscc_gym.physics.channel import beam_gain, link_snr, matched_gain
+from iscc_gym.analysis.sensing_share import SensingCoefficients, local_crlb
+from iscc_gym.physics.channel import matched_gain
 from iscc_gym.physics.dynamics import axis_gain, axis_matrices
 from iscc_gym.physics.fbl import min_shares, slot_link
 from iscc_gym.physics.stability import scenario_eps_star, stability_matrix
@@ -38,6 +38,7 @@ from iscc_gym.sim.task import check_split
 from iscc_gym.units import db_to_lin
 
 from .base import SplitPolicy, as_obs_batch
+from .geometry import predicted_sensing
 
 __all__ = ["MyopicPolicy", "LocalTrackingModel", "rician_power_cdf"]
 
@@ -319,17 +320,11 @@ class MyopicPolicy(SplitPolicy):
             raise ValueError("obs contains NaN or inf; pass the env's (finite) observations")
         d = decode_observation(o, s)
         snr_db = d["snr_db"]
-        dist = np.maximum(d["range_m"], 1.0)
-        sin_el = np.clip(d["sin_elevation"], -1.0, 1.0)
-        norm = np.hypot(d["cos_azimuth"], d["sin_azimuth"])
-        norm = np.where(norm > 0.0, norm, 1.0)
-        trig = (d["cos_azimuth"] / norm, d["sin_azimuth"] / norm, np.sqrt(np.maximum(0.0, 1.0 - sin_el * sin_el)),
-                sin_el)
-        gain = self._gain if self._gain is not None else beam_gain(s, trig)
-        shadow_db = 10.0 * np.log10(link_snr(s, dist, 0.0, gain)) - snr_db
+        coef = predicted_sensing(s, snr_db, d["range_m"], d["sin_elevation"], d["cos_azimuth"], d["sin_azimuth"],
+                                 self._gain)
         snr = db_to_lin(snr_db)
         rate = slot_link(s, 0.0, 1.0, snr[:, None] * self.fade)[2] / max(s.rate_min_bps, 1e-300)
-        return SlotContext(snr=snr, coef=sensing_coefficients(s, dist, trig, shadow_db), rate_per_share=rate)
+        return SlotContext(snr=snr, coef=coef, rate_per_share=rate)
 
     def ctrl_terms(self, ctx: SlotContext, alpha_ctrl):
         r"""Fading-averaged loss rate :math:`\bar\varepsilon` and :math:`P(\varepsilon_\mathrm{ctrl} >

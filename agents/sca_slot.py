@@ -10,8 +10,8 @@ import numpy as np
 
 from iscc_gym.analysis import StaticModel, static_model
 from iscc_gym.analysis.quadrature import rician_power_nodes
-from iscc_gym.analysis.sensing_share import crlb_trace_one, sensing_coefficients
-from iscc_gym.physics.channel import beam_gain, link_snr, matched_gain
+from iscc_gym.analysis.sensing_share import crlb_trace_one
+from iscc_gym.physics.channel import matched_gain
 from iscc_gym.physics.fbl import comm_rate_bps, ctrl_bler, ctrl_goodput_bits
 from iscc_gym.physics.stability import scenario_eps_star
 from iscc_gym.scenario import Scenario
@@ -19,6 +19,7 @@ from iscc_gym.sim.functional import decode_observation
 from iscc_gym.units import db_to_lin
 
 from .base import SplitPolicy, validate_split
+from .geometry import predicted_sensing
 from .sca import LOSS_MODELS, MODES, SOLVERS, SCAProblem, SCAResult, check_choice, sca_allocation, solve_sca
 from .tuned_records import load_tuned
 
@@ -198,16 +199,9 @@ class SCAPolicy(SplitPolicy):
         :class:`iscc_gym.analysis.sensing_share.SensingCoefficients` of :math:`f_\mathrm{sen}`, the stability
         threshold and the data share (see the class docstring).
         """
-        s = self.scenario
-        dist = np.maximum(range_m, 1.0)
-        sin_el = np.clip(sin_el, -1.0, 1.0)
-        norm = np.hypot(cos_az, sin_az)
-        norm = np.where(norm > 0.0, norm, 1.0)
-        trig = (cos_az / norm, sin_az / norm, np.sqrt(np.maximum(0.0, 1.0 - sin_el * sin_el)), sin_el)
-        gain = self._gain if self._gain is not None else beam_gain(s, trig)
-        shadow_db = 10.0 * np.log10(link_snr(s, dist, 0.0, gain)) - snr_db
+        coef = predicted_sensing(self.scenario, snr_db, range_m, sin_el, cos_az, sin_az, self._gain)
         ctrl_min, comm_min = self._tables.lookup(snr_db)
-        return sensing_coefficients(s, dist, trig, shadow_db), ctrl_min, comm_min
+        return coef, ctrl_min, comm_min
 
     def _slot_problem(self, snr_db, range_m, sin_el, cos_az, sin_az) -> SCAProblem:
         s = self.scenario

@@ -3,12 +3,14 @@
 Trials train 256 env steps on 4 envs (n_steps 32) and evaluate 2 held-out episodes of 50 slots.
 """
 
+import importlib
 import os
+import signal
 import socket
-import subprocess
 import sys
 import threading
 import time
+import traceback
 from pathlib import Path
 
 import numpy as np
@@ -16,7 +18,7 @@ import optuna
 import pytest
 import yaml
 from iscc_gym.train import Args, load_hyperparams, main
-from iscc_gym.train.cli import cli
+from iscc_gym.train.cli import cli, console
 from iscc_gym.train.config import resolve_args
 from iscc_gym.train.study import (
     PPO_SPACE,
@@ -34,25 +36,70 @@ TINY = ["--init-policy", "none", "--n-envs", "4", "--set", "n_steps=32", "--set"
         "--eval-episodes", "2", "--eval-max-steps", "50", "--no-tensorboard", "--n-evaluations", "2"]
 
 
-def _env() -> dict:
-    env = dict(os.environ)
-    env.update(OMP_NUM_THREADS="1", MKL_NUM_THREADS="1", NUMBA_NUM_THREADS="1",
-               PYTHONPATH=str(ROOT) + os.pathsep + env.get("PYTHONPATH", ""))
-    return env
+def _worker(argv: list[str], out: Path, err: Path) -> int:
+    """Fork a worker running ``python -m train argv`` as the console runs it (everything already imported: a new
+    interpreter spends 4-8 s importing torch, SB3 and Optuna), its stdout and stderr in ``out`` and ``err``;
+    returns its pid. The child never returns into pytest."""
+    pid = os.fork()
+    if pid == 0:  # pragma: no cover - the child
+        code = 1
+        try:
+            with open(out, "w") as fo, open(err, "w") as fe:
+                os.dup2(fo.fileno(), 1)
+                os.dup2(fe.fileno(), 2)
+                sys.stdout, sys.stderr = open(1, "w", closefd=False), open(2, "w", closefd=False)
+                try:
+                    code = console(argv, "python -m train")
+                except BaseException:
+                    traceback.print_exc()
+                finally:
+                    sys.stdout.flush()
+                    sys.stderr.flush()
+        finally:
+            os._exit(code)
+    return pid
+
+
+def _wait(pids: list[int], timeout: float) -> list[int]:
+    """The exit codes of the children ``pids`` (minus the signal that killed one); any still running after
+    ``timeout`` s is killed and the test fails (nothing hangs)."""
+    codes = {}
+    deadline = time.monotonic() + timeout
+    while len(codes) < len(pids) and time.monotonic() < deadline:
+        for pid in pids:
+            if pid not in codes:
+                done, status = os.waitpid(pid, os.WNOHANG)
+                if done:
+                    codes[pid] = os.waitstatus_to_exitcode(status)
+        time.sleep(0.02)
+    for pid in set(pids) - set(codes):
+        os.kill(pid, signal.SIGKILL)
+        os.waitpid(pid, 0)
+    assert len(codes) == len(pids), f"a worker ran longer than {timeout} s"
+    return [codes[pid] for pid in pids]
+
+
+#: What a study worker imports on its way (torch's compiler front end, loaded by the first optimiser; SB3;
+#: TensorBoard's writer; Optuna's SQL storage): 7.6 s of a 10 s worker, imported once before the workers fork.
+WORKER_IMPORTS = ("torch._dynamo", "stable_baselines3", "torch.utils.tensorboard", "sqlalchemy", "alembic.migration")
 
 
 @pytest.fixture(scope="module")
 def shared_study(tmp_path_factory):
-    """Two worker processes started together on one SQLite storage, one trial each, one run directory."""
+    """Two worker processes started together on one SQLite storage, one trial each, one run directory (forks of
+    the test process, each in its own process as separate workers are)."""
+    for name in WORKER_IMPORTS:
+        importlib.import_module(name)
     root = tmp_path_factory.mktemp("shared")
     storage = f"sqlite:///{root / 'shared.db'}"
-    cmd = [sys.executable, "-m", "train", "--optimize", "--n-trials", "1", "--storage", storage,
-           "--study-name", "shared", "--out", str(root / "run"), *TINY]
-    procs = [subprocess.Popen(cmd, cwd=ROOT, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-             for _ in range(2)]
-    outputs = [p.communicate(timeout=180) for p in procs]
-    for p, (out, err) in zip(procs, outputs, strict=True):
-        assert p.returncode == 0, f"worker failed:\n{out}\n{err}"
+    argv = ["--optimize", "--n-trials", "1", "--storage", storage, "--study-name", "shared", "--out",
+            str(root / "run"), *TINY]
+    logs = [(root / f"worker{i}.out", root / f"worker{i}.err") for i in range(2)]
+    pids = [_worker(argv, *log) for log in logs]
+    codes = _wait(pids, timeout=180)
+    outputs = [(o.read_text(), e.read_text()) for o, e in logs]
+    for code, (out, err) in zip(codes, outputs, strict=True):
+        assert code == 0, f"worker failed ({code}):\n{out}\n{err}"
     study = optuna.load_study(study_name="shared", storage=storage)
     return root, study, outputs
 

@@ -206,6 +206,29 @@ def test_console_exits_0_on_success_and_on_a_non_tty_shows_no_progress_bar(tmp_p
     assert "not empty" in capsys.readouterr().err
 
 
+def test_torch_threads_hold_when_numbas_pool_starts_in_a_fork(tmp_path, monkeypatch):
+    """In a forked process (the study workers of tests/test_study.py) numba's first start of its OpenMP pool sets
+    torch's thread count to numba's (measured: torch 1 -> 2 on 2 cores), so --torch-threads set before the numba
+    threads was lost (PPO's updates 5-10x slower beside a busy process). Emulated here in process: the numba
+    setting also sets torch's count, as that first start does; the run must end on --torch-threads."""
+    import torch
+    from iscc_gym.train import train as loop
+
+    def numba_then_its_pool(n):
+        original(n)
+        torch.set_num_threads(2)  # what the pool's first start in a fork does to torch
+
+    original = loop.set_numba_threads
+    monkeypatch.setattr(loop, "set_numba_threads", numba_then_its_pool)
+    before = torch.get_num_threads()
+    try:
+        main(_args(tmp_path / "r", total_timesteps=64, eval_freq=0, checkpoint_freq=0, torch_threads=1,
+                   overrides={**TINY, "n_steps": 32}))
+        assert torch.get_num_threads() == 1
+    finally:
+        torch.set_num_threads(before)
+
+
 def test_python_m_train_exits_0(tmp_path, monkeypatch, capfd):
     """The module entry point returns 0 (it used to exit 1, printing the summary dict to stderr). Its
     ``__main__`` (train/__main__.py, which ``python -m train`` runs in the checkout) is run here in process as

@@ -463,8 +463,10 @@ def main(args: Args, callback_after_eval=None) -> dict:
     say((f"resuming {out} from {ckpt} (step {int(manifest['timesteps']):,})" if ckpt is not None else
          f"setting up {args.algo} on {args.env_id} into {out}")
         + f": {args.total_timesteps:,} steps on {args.n_envs} envs ({args.vec_env})")
-    torch.set_num_threads(args.torch_threads)
     set_numba_threads(args.numba_threads)
+    # after numba's: launching numba's OpenMP pool (first in a process, again in a fork) sets OpenMP's thread
+    # count, which torch shares; the other order left torch on numba's threads (2 instead of 1 in a forked worker)
+    torch.set_num_threads(args.torch_threads)
     out.mkdir(parents=True, exist_ok=True)
     algo_cls = {"ppo": PPO, "sac": SAC, "td3": TD3}[args.algo]
     off_policy = args.algo in ("sac", "td3")

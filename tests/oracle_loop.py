@@ -8,9 +8,10 @@ against them (issue 14: the library computes each equation once, the numpy path 
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import ArrayLike
 from oracle_env import action_to_split, reward_and_costs
 from oracle_kalman import kf_predict, kf_update
-from oracle_sensing import crlb_local
+from oracle_sensing import crlb_local, whitened_observation_matrix
 
 from iscc_gym.physics.channel import (
     beam_gain,
@@ -18,11 +19,9 @@ from iscc_gym.physics.channel import (
     link_snr,
     rician_power_gain,
     shadowing_std_db,
-    shadowing_step,
 )
 from iscc_gym.physics.dynamics import model_matrices
-from iscc_gym.physics.fbl import q_func, slot_link
-from iscc_gym.physics.sensing import whitened_observation_matrix
+from iscc_gym.physics.fbl import min_shares, q_func, slot_link
 from iscc_gym.physics.stability import scenario_eps_star
 from iscc_gym.scenario import Scenario
 from iscc_gym.sim import loop
@@ -170,7 +169,7 @@ def observe_reference(s: Scenario, state: loop.LoopState, last_received, last_pe
 def _observe_and_check(s: Scenario, state: loop.LoopState, last_received, last_peb_m):
     """``(obs, evaluable)``: :func:`observe_reference`, and where the observation could be evaluated
     (no NaN entry, a finite estimate); where not, the episode ends (:func:`reward_and_costs`)."""
-    pv = loop.preview(s, state, scenario_eps_star(s))
+    pv = preview(s, state, scenario_eps_star(s))
     ref = loop.reference_at(state)
     cos_az, sin_az, _, sin_el = pv["trig"]
     p = state.p
@@ -209,3 +208,46 @@ def env_step_reference(s: Scenario, state: loop.LoopState, actions, z):
     cols += [alpha[:, 0], alpha[:, 1], alpha[:, 2]] + [np.asarray(v, dtype=float) for v in costs]
     out = np.stack(cols, axis=-1)
     return new, out, obs
+
+
+def preview(s: Scenario, state: LoopState, eps_max: float) -> dict:
+    """What the GBS can predict about slot n before allocating it, from its estimate x_hat_{n|n-1}.
+
+    Returns a dict: ``dist_m`` and ``trig`` (range and (cos, sin) of azimuth and elevation of the
+    predicted position, see :func:`iscc_gym.physics.channel.direction_trig`), ``snr_db`` (large-scale SNR
+    there: path loss, beam gain and the current shadowing; the slot's small-scale fading is not
+    known yet), ``alpha_ctrl_min`` (control share at which eq:ctrl_bler gives ``eps_max`` at that
+    SNR) and ``alpha_comm_min`` (data share carrying ``rate_min_bps``), see
+    :func:`iscc_gym.physics.fbl.min_shares`.
+    """
+    pos = state.x_hat[..., :3]
+    rel = pos - model_matrices(s).gbs_pos
+    dist = vector_norm(rel)
+    los = rel / dist[..., None]
+    trig = direction_trig(los)
+    snr = link_snr(s, dist, shadowing_std_db(s, pos[..., 2]) * state.shadow, beam_gain(s, trig))
+    ctrl_min, comm_min = min_shares(s, snr, eps_max, s.rate_min_bps)
+    return {"dist_m": dist, "trig": trig, "snr_db": 10.0 * np.log10(snr),
+            "alpha_ctrl_min": ctrl_min, "alpha_comm_min": comm_min}
+
+
+def shadowing_step(s: Scenario, shadow_norm: ArrayLike, moved_m: ArrayLike, z: ArrayLike):
+    r"""Advance the unit-variance shadowing process by a travelled distance (Gudmundson AR(1)).
+
+    .. math:: s_{n+1} = \rho s_n + \sqrt{1-\rho^2}\, z_n,\quad \rho = e^{-d_n / d_\mathrm{corr}}
+
+    The shadowing in dB is :math:`\varepsilon_n = \sigma_\mathrm{SF}(h_n)\, s_n`
+    (:func:`shadowing_std_db`). The paper gives :math:`\varepsilon\sim\mathcal N(0,\sigma_{SF}^2)`
+    but not its correlation; see ``docs/model.md``.
+
+    Parameters
+    ----------
+    shadow_norm : ndarray, shape (...)
+        Current unit-variance shadowing state.
+    moved_m : ndarray, shape (...)
+        Distance travelled since the last slot in m.
+    z : ndarray, shape (...)
+        Standard normal innovation.
+    """
+    rho = np.exp(moved_m * (-1.0 / s.shadowing_decorrelation_m))
+    return rho * shadow_norm + np.sqrt(1.0 - rho * rho) * z

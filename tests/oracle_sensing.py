@@ -8,6 +8,7 @@ closed forms against them.
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from iscc_gym.physics.channel import array_response, geometry
 from iscc_gym.scenario import SPEED_OF_LIGHT_MPS, Scenario
@@ -133,3 +134,35 @@ def crlb_local(s: Scenario, alpha_sen, dist_m, trig, shadow_db, fading_gain=1.0)
     lam_half_sq = (0.5 * s.wavelength_m) ** 2
     m_r = 1.0 / ((2.0 / SPEED_OF_LIGHT_MPS) ** 2 * j_tau + prior)
     return m_r, inv[..., 0, 0], inv[..., 0, 1], inv[..., 1, 1], lam_half_sq / (j_nu + lam_half_sq * prior)
+
+
+def whitened_observation_matrix(los_unit: ArrayLike, trig: tuple[ArrayLike, ArrayLike, ArrayLike, ArrayLike],
+                                m_r: ArrayLike, m_tt: ArrayLike, m_tp: ArrayLike, m_pp: ArrayLike,
+                                crlb_vr: ArrayLike):
+    r"""Observation matrix of the whitened ISAC measurement, shape (..., 4, 6).
+
+    With :math:`\Sigma_\upsilon = \mathrm{blkdiag}(\mathbf U\mathbf M\mathbf U^T, \mathrm{CRLB}_{v_r})`,
+    :math:`\mathbf M = \mathbf L\mathbf L^T` (Cholesky, closed form) and
+    :math:`\mathbf W = \mathrm{blkdiag}(\mathbf L^{-1}\mathbf U^T, \mathrm{CRLB}_{v_r}^{-1/2})`,
+    the measurement :math:`\mathbf W\mathbf y_n = \mathbf W\mathbf C_n\mathbf x_n +
+    \mathbf z_n`, :math:`\mathbf z_n\sim\mathcal N(\mathbf 0, \mathbf I_4)`, carries the same
+    information as eq:observation_model (the Kalman posterior is unchanged). Returns
+    :math:`\mathbf W\mathbf C_n`; rows: :math:`\mathbf g^T/\sqrt{m_r}`,
+    :math:`\mathbf e_\theta^T/l_{11}`, :math:`(\mathbf e_\varphi - (l_{21}/l_{11})\mathbf e_\theta)^T/l_{22}`
+    on the position, :math:`\mathbf g^T/\sqrt{\mathrm{CRLB}_{v_r}}` on the velocity.
+    Arguments as returned by :func:`crlb_local` and :func:`iscc_gym.physics.channel.direction_trig`.
+    """
+    ct, st, cp, sp = trig
+    l11 = np.sqrt(m_tt)
+    l21 = m_tp / l11
+    inv_l22 = 1.0 / np.sqrt(m_pp - l21 * l21)
+    k = l21 / l11
+    w = np.zeros(np.shape(m_r) + (4, 6))
+    w[..., 0, :3] = los_unit * (1.0 / np.sqrt(m_r))[..., None]
+    w[..., 1, 0] = -st / l11
+    w[..., 1, 1] = ct / l11
+    w[..., 2, 0] = (-sp * ct + k * st) * inv_l22
+    w[..., 2, 1] = (-sp * st - k * ct) * inv_l22
+    w[..., 2, 2] = cp * inv_l22
+    w[..., 3, 3:] = los_unit * (1.0 / np.sqrt(crlb_vr))[..., None]
+    return w

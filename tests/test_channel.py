@@ -11,6 +11,7 @@ import math
 
 import numpy as np
 import pytest
+from oracle_loop import shadowing_step
 from scipy import stats
 
 from iscc_gym.physics import channel as ch
@@ -125,12 +126,16 @@ def test_shadowing_step_limits():
     s_prev = np.array([1.5, -0.3, 0.0])
     z = np.array([0.2, -1.1, 0.7])
     # no movement: the state is unchanged; huge movement: the state is the fresh innovation
-    np.testing.assert_allclose(ch.shadowing_step(S, s_prev, 0.0, z), s_prev, atol=1e-15)
-    np.testing.assert_allclose(ch.shadowing_step(S, s_prev, 1e6, z), z, atol=1e-15)
+    np.testing.assert_allclose(shadowing_step(S, s_prev, 0.0, z), s_prev, atol=1e-15)
+    np.testing.assert_allclose(shadowing_step(S, s_prev, 1e6, z), z, atol=1e-15)
     # one decorrelation distance: rho = 1/e
     rho = math.exp(-1.0)
-    np.testing.assert_allclose(ch.shadowing_step(S, s_prev, S.shadowing_decorrelation_m, z),
+    np.testing.assert_allclose(shadowing_step(S, s_prev, S.shadowing_decorrelation_m, z),
                                rho * s_prev + math.sqrt(1 - rho * rho) * z, rtol=1e-13)
+    # the env's compiled step is this AR(1) (the numpy form above is the test oracle)
+    for x, d, zz in zip([1.5, -0.3, 0.0, 2.0], [0.0, 10.0, 37.0, 1e6], [0.2, -1.1, 0.7, -0.4], strict=True):
+        got = ch.shadowing_step_one(-1.0 / S.shadowing_decorrelation_m, x, d, zz)
+        assert got == pytest.approx(float(shadowing_step(S, x, d, zz)), rel=1e-14, abs=1e-15)
 
 
 @pytest.mark.parametrize("moved", [5.0, 37.0, 80.0])
@@ -138,7 +143,7 @@ def test_shadowing_step_monte_carlo(moved):
     n = 200_000
     rng = np.random.default_rng(12345)
     s0 = rng.standard_normal(n)  # stationary N(0, 1) state
-    s1 = ch.shadowing_step(S, s0, np.full(n, moved), rng.standard_normal(n))
+    s1 = shadowing_step(S, s0, np.full(n, moved), rng.standard_normal(n))
     rho = math.exp(-moved / S.shadowing_decorrelation_m)  # Gudmundson AR(1) correlation
     # std error of a sample variance of N(0,1): sqrt(2/n) = 0.0032 -> 0.015 is > 4.5 sigma
     assert np.var(s1) == pytest.approx(1.0, abs=0.015)
@@ -152,7 +157,7 @@ def test_shadowing_chain_stays_stationary():
     rng = np.random.default_rng(7)
     x = np.zeros(50_000)
     for _ in range(60):
-        x = ch.shadowing_step(S, x, 10.0, rng.standard_normal(x.size))
+        x = shadowing_step(S, x, 10.0, rng.standard_normal(x.size))
     assert np.var(x) == pytest.approx(1.0, abs=0.03)
 
 

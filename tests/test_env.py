@@ -23,6 +23,7 @@ from gymnasium.utils.env_checker import check_env as gym_check_env
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
+from oracle_loop import preview
 
 import iscc_gym
 from iscc_gym import ENV_ID, SCENARIOS, Scenario, action_to_split, split_to_action
@@ -937,7 +938,7 @@ def test_decode_observation_inverts_the_scalings():
     s, state = inner.scenario, inner._state
     d = decode_observation(obs, s)
     ref = loop.reference_at(state)[0]
-    pv = loop.preview(s, state, scenario_eps_star(s))
+    pv = preview(s, state, scenario_eps_star(s))
     np.testing.assert_allclose(d["pos_err_m"], state.x_hat[0, :3] - ref[:3], rtol=1e-5, atol=1e-6)
     np.testing.assert_allclose(d["ref_vel_mps"], ref[3:6], rtol=1e-5, atol=1e-6)
     np.testing.assert_allclose(d["range_m"], pv["dist_m"][0], rtol=1e-5)

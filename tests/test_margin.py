@@ -9,11 +9,11 @@ from iscc_gym.agents import MarginPolicy, make_policy
 from iscc_gym.agents.margin import margin_split
 from iscc_gym.agents.tuned_records import load_tuned
 from iscc_gym.eval import tune
+from oracle_loop import preview
 
 from iscc_gym import SCENARIOS
 from iscc_gym.envs.vector import ISCCVectorEnv
 from iscc_gym.physics.stability import scenario_eps_star
-from iscc_gym.sim import loop
 from iscc_gym.sim.schema import OBS_NAMES
 from iscc_gym.sim.task import action_to_split
 
@@ -46,7 +46,7 @@ def test_policy_reads_the_predicted_needs_from_the_env():
     """The shares applied by the env are the multiples of the needs the GBS predicted (loop.preview)."""
     env = ISCCVectorEnv(num_envs=3, scenario=S)
     obs, _ = env.reset(seed=[7, 8, 9])
-    pv = loop.preview(S, env._state, scenario_eps_star(S))
+    pv = preview(S, env._state, scenario_eps_star(S))
     pol = MarginPolicy(3.0, 1.1, 0.0)
     action, _ = pol.predict(obs)
     alpha = action_to_split(action)

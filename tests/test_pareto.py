@@ -20,7 +20,9 @@ def test_dominance_and_the_front():
     assert P.learned_family("ppo-lag/0.05") == ("ppo-lag", "0.05") and P.learned_family("ppo") == ("ppo", "ppo")
 
 
-def test_operating_points_are_chosen_on_training_seeds_then_played_held_out(tmp_path, capsys):
+def test_operating_points_are_chosen_on_training_seeds_then_played_held_out(tmp_path, capsys, monkeypatch):
+    # two of static SCA's six knob points (each builds the analytic model of its own rate requirement, ~0.9 s)
+    monkeypatch.setitem(P.KNOBS, "sca", (1.0, 3.5))
     res = P.main(["--episodes", "2", "--max-steps", "60", "--families", "sca", "--learned",
                   "ppo/shipped=agents/trained/ppo_iscc", "--targets", "0.95", "--train-episodes", "2",
                   "--iterations", "1", "--figure", str(tmp_path / "p.png")])

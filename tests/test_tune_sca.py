@@ -38,14 +38,14 @@ def test_tune_picks_the_best_point_and_writes_a_record(tmp_path):
     """A tiny run: the record's fraction is the best of the grid and the bounded search, each grid
     reward is the policy played alone on the same seeds, and the record is written atomically."""
     seeds = [500_201, 500_202]
-    rec = tune.tune_sca_per_slot(seeds, grid=(0.01, 0.1), refine=True, log=lambda *_: None, max_steps=400)
+    rec = tune.tune_sca_per_slot(seeds, grid=(0.01, 0.1), refine=True, log=lambda *_: None, max_steps=100)
     rows = rec["grid"] + rec["refinement"]
     assert len(rec["refinement"]) >= 1
     assert all(0.01 <= x <= 0.1 for x, _ in rec["refinement"])  # searched between the grid's neighbours
     best = max(rows, key=lambda row: row[1])
     assert rec["params"]["loss_design_fraction"] == pytest.approx(best[0], abs=1e-5)
     alone = run_episodes(SCAPolicy(make_scenario("paper"), mode="per_slot", loss_design_fraction=0.1), seeds,
-                         "paper", max_steps=400)["episodes"]["reward"].mean()
+                         "paper", max_steps=100)["episodes"]["reward"].mean()
     assert dict(map(tuple, rec["grid"]))[0.1] == pytest.approx(alone, abs=1e-3)
     out = tmp_path / "sca.yml"
     tune.save_tuned("sca-per-slot", rec, out)

@@ -1,11 +1,21 @@
 """The benchmark command in quick mode: every figure present, positive, with its reference."""
 
 import json
+from concurrent.futures import ThreadPoolExecutor
 
+import pytest
 from iscc_gym.eval import bench
 
 
-def test_bench_quick_reports_every_figure(tmp_path, capsys):
+@pytest.fixture(scope="module")
+def ppo_figure():
+    """The PPO figure of the train configuration (a training subprocess, ~10 s, one core), started in a thread at
+    the module's start so that it runs beside the quick bench (in this process) on the second core: its future."""
+    with ThreadPoolExecutor(1) as pool:
+        yield pool.submit(bench.ppo_shipped_steps_per_second, 256, 1, settings=((1, 1),))
+
+
+def test_bench_quick_reports_every_figure(tmp_path, capsys, ppo_figure):
     path = tmp_path / "bench.json"
     res = bench.main(["--quick", "--steps", "50", "--repeats", "1", "--skip-ppo", "--json", str(path)])
     assert json.loads(path.read_text()) == json.loads(json.dumps(res))
@@ -26,17 +36,15 @@ def test_bench_quick_reports_every_figure(tmp_path, capsys):
 
 
 def test_bench_write_docs_needs_the_full_run():
-    import pytest
-
     with pytest.raises(ValueError, match="--full"):
         bench.main(["--write-docs"])
 
 
-def test_ppo_figure_of_the_train_configuration():
+def test_ppo_figure_of_the_train_configuration(ppo_figure):
     """The PPO figure trains python -m train's own configuration (the YAML's env count) per thread setting."""
     from iscc_gym.train.config import Args, resolve_args
 
-    res = bench.ppo_shipped_steps_per_second(256, 1, settings=((1, 1),))
+    res = ppo_figure.result(timeout=600)
     assert res["n_envs"] == resolve_args(Args())[0].n_envs
     v = res["settings"]["numba1_torch1"]
     assert v["median_env_steps_per_s"] > 0 and (v["numba_threads"], v["torch_threads"]) == (1, 1)

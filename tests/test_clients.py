@@ -36,17 +36,11 @@ def _keep_the_multiprocessing_start_method():
     multiprocessing.set_start_method(before, force=True)
 
 
-def _pz(n_drones=2):
-    return iscc_gym.parallel_env(n_drones=n_drones)
-
-
-# --- our side: what the clients rely on ------------------------------------------------------------
-
-
-def test_env_id_with_module_prefix_needs_no_import():
-    """A CleanRL-style script calls ``gym.make(args.env_id)`` and never imports iscc_gym. Gymnasium 1.x has
-    no plugin entry points (1.0 removed them), so the bare id is unknown in a fresh interpreter; the
-    ``iscc_gym:`` prefix makes Gymnasium import the registering module itself."""
+@pytest.fixture(scope="module", autouse=True)
+def prefixed_id_launch():
+    """A new interpreter that never imports iscc_gym itself makes the env by its prefixed id (a CleanRL-style
+    script), started at the module's start so that its imports (~4 s, one core) run beside the tests in this
+    process; :func:`test_env_id_with_module_prefix_needs_no_import`, last, reads it: its Popen."""
     code = ("import sys, gymnasium as gym\n"
             "try:\n    gym.make('iscc_gym/ISCC-v0')\n"
             "except gym.error.Error as e:\n    print('bare id:', type(e).__name__)\n"
@@ -54,10 +48,18 @@ def test_env_id_with_module_prefix_needs_no_import():
             f"env = gym.make({PREFIXED_ID!r}, max_episode_steps=3)\nenv.reset(seed=0)\n"
             "venv = gym.make_vec(" + repr(PREFIXED_ID) + ", num_envs=2)\n"
             "print(type(env.unwrapped).__name__, type(venv).__name__)\n")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
-                         env={**os.environ, "ISCC_GYM_QUIET": "1"})
-    assert out.returncode == 0, out.stderr
-    assert out.stdout.split("\n")[:2] == ["bare id: NamespaceNotFound", "ISCCEnv ISCCVectorEnv"]
+    with subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                          env={**os.environ, "ISCC_GYM_QUIET": "1"}) as proc:
+        yield proc
+        if proc.poll() is None:
+            proc.kill()
+
+
+def _pz(n_drones=2):
+    return iscc_gym.parallel_env(n_drones=n_drones)
+
+
+# --- our side: what the clients rely on ------------------------------------------------------------
 
 
 def test_pettingzoo_view_reset_infos_carry_the_step_keys():
@@ -225,6 +227,15 @@ def test_supersuit_sb3_ppo_on_the_pettingzoo_view():
     action, _ = model.predict(venv.reset(), deterministic=True)
     assert action.shape == (4, 3)
     venv.close()
+
+
+def test_env_id_with_module_prefix_needs_no_import(prefixed_id_launch):
+    """A CleanRL-style script calls ``gym.make(args.env_id)`` and never imports iscc_gym. Gymnasium 1.x has
+    no plugin entry points (1.0 removed them), so the bare id is unknown in a fresh interpreter; the
+    ``iscc_gym:`` prefix makes Gymnasium import the registering module itself (:func:`prefixed_id_launch`)."""
+    out, err = prefixed_id_launch.communicate(timeout=300)
+    assert prefixed_id_launch.returncode == 0, err
+    assert out.split("\n")[:2] == ["bare id: NamespaceNotFound", "ISCCEnv ISCCVectorEnv"]
 
 
 # --- heavy clients: skipped unless installed (README: how they were run) ---------------------------

@@ -146,11 +146,13 @@ _WHOLE_BAND = np.empty(0)  # the kernel's "every loop has the whole band" signal
 
 
 def _all_active(nb: int) -> np.ndarray:
-    """A read-only all-True mask of length nb (cached: built once per batch size)."""
+    """An all-True mask of length nb (cached: built once per batch size). Writable like the masks the vector
+    env passes at an autoreset, so the compiled step has one signature (a read-only array is another type to
+    numba: a second compile of the kernel, ~4 s on a fresh install); nothing writes it.
+    """
     mask = _ALL_ACTIVE.get(nb)
     if mask is None:
         mask = np.ones(nb, dtype=bool)
-        mask.setflags(write=False)
         _ALL_ACTIVE[nb] = mask
     return mask
 

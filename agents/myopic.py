@@ -11,7 +11,7 @@ quadrature (:func:`iscc_gym.analysis.quadrature.rician_power_nodes`), the CRLB
 steady state (:func:`iscc_gym.analysis.kalman_steady.axis_kalman_steady_state`), the second-moment recursion under
 packet loss (:func:`iscc_gym.physics.stability.stability_matrix`) and the mean error norm
 (:func:`iscc_gym.analysis.quadrature.expected_norm`). Two helpers the library does not have live here:
-:func:`rician_power_cdf` (the CDF of :func:`iscc_gym.physics.channel.rician_power_gain`) and
+:func:`rician_power_cdf` (the CDF of :func:`iscc_gym.physics.channel.rician_gain_one`) and
 :class:`LocalTrackingModel` (the steady-state tracking error of ``iscc_gym.analysis`` at one
 geometry, for any sensing share and loss rate).
 """
@@ -45,7 +45,7 @@ __all__ = ["MyopicPolicy", "LocalTrackingModel", "rician_power_cdf"]
 
 def rician_power_cdf(s: Scenario, x):
     r"""CDF :math:`P(|g|^2 \le x)` of the unit-mean Rician power gain of
-    :func:`iscc_gym.physics.channel.rician_power_gain`.
+    :func:`iscc_gym.physics.channel.rician_gain_one`.
 
     :math:`|g|^2 = \sigma^2\chi'^2_2(2K)` with :math:`\sigma^2 = 1/(2(K+1))` and K = ``rician_k_db``
     (linear), the distribution whose quantiles :func:`iscc_gym.analysis.quadrature.rician_power_nodes` takes.

@@ -17,7 +17,7 @@ from iscc_gym.physics.channel import (
     beam_gain,
     direction_trig,
     link_snr,
-    rician_power_gain,
+    rician_constants,
     shadowing_std_db,
 )
 from iscc_gym.physics.dynamics import model_matrices
@@ -251,3 +251,20 @@ def shadowing_step(s: Scenario, shadow_norm: ArrayLike, moved_m: ArrayLike, z: A
     """
     rho = np.exp(moved_m * (-1.0 / s.shadowing_decorrelation_m))
     return rho * shadow_norm + np.sqrt(1.0 - rho * rho) * z
+
+
+def rician_power_gain(s: Scenario, z_re: ArrayLike, z_im: ArrayLike):
+    r"""Small-scale power gain :math:`|g|^2` of a unit-mean-power Rician coefficient.
+
+    .. math::
+        g = \sqrt{\tfrac{K}{K+1}} + \sqrt{\tfrac{1}{2(K+1)}}\,(z_\mathrm{re} + j z_\mathrm{im}),
+        \quad \mathbb{E}|g|^2 = 1
+
+    i.e. :math:`g \sim \mathcal{CN}(\mu, \sigma^2)` with :math:`|\mu|^2/\sigma^2 = K`
+    (``rician_k_db``), the paper's :math:`g_{C,m,k}` and :math:`g_{S,m,k}`, one draw per slot.
+    ``z_re`` and ``z_im`` are standard normal draws.
+    """
+    los, scat = rician_constants(s)
+    re = los + scat * z_re
+    im = scat * z_im
+    return re * re + im * im

@@ -12,12 +12,13 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import scipy.linalg
+from oracle_loop import rician_power_gain
 
 import iscc_gym  # noqa: F401  (registers the env)
 from iscc_gym import SCENARIOS, analysis
 from iscc_gym.analysis import averages, quadrature, sensing_share
 from iscc_gym.physics import fbl
-from iscc_gym.physics.channel import geometry, rician_power_gain
+from iscc_gym.physics.channel import geometry
 from iscc_gym.physics.dynamics import model_matrices
 from iscc_gym.physics.fbl import ctrl_bler, slot_link
 from iscc_gym.physics.kalman import isac_observation_matrix

@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 import pytest
-from oracle_loop import shadowing_step
+from oracle_loop import rician_power_gain, shadowing_step
 from scipy import stats
 
 from iscc_gym.physics import channel as ch
@@ -170,12 +170,16 @@ def test_rician_power_gain_monte_carlo(k_db):
     k = 10.0 ** (k_db / 10.0)
     n = 200_000
     rng = np.random.default_rng(2024)
-    p = ch.rician_power_gain(s, rng.standard_normal(n), rng.standard_normal(n))
+    p = rician_power_gain(s, rng.standard_normal(n), rng.standard_normal(n))
     assert np.all(p >= 0.0)
     # unit mean power; std of |g|^2 is sqrt(1+2K)/(K+1) <= 0.87, std error <= 0.002
     assert np.mean(p) == pytest.approx(1.0, abs=0.01)
     # the LoS component alone (zero scattering draw) is |mu|^2 = K/(K+1)
-    mu_sq = ch.rician_power_gain(s, 0.0, 0.0)
+    # the env's compiled draw is this formula (the numpy form is the test oracle)
+    los, scat = ch.rician_constants(s)
+    for zr, zi in ((0.0, 0.0), (1.3, -0.4), (-2.0, 0.7)):
+        assert ch.rician_gain_one(los, scat, zr, zi) == float(rician_power_gain(s, zr, zi))
+    mu_sq = rician_power_gain(s, 0.0, 0.0)
     assert mu_sq == pytest.approx(k / (k + 1.0), rel=1e-13)
     # K-factor = |E g|^2 / Var g, with Var g = E|g|^2 - |E g|^2
     var_g = np.mean(p) - mu_sq

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from iscc_gym.agents import make_policy
 from iscc_gym.agents.myopic import LocalTrackingModel, MyopicPolicy, rician_power_cdf
+from oracle_loop import rician_power_gain
 from scipy.stats import ncx2
 
 import iscc_gym  # noqa: F401  (registers the env)
@@ -18,7 +19,7 @@ from iscc_gym.analysis.kalman_steady import axis_kalman_steady_state
 from iscc_gym.analysis.quadrature import expected_norm
 from iscc_gym.analysis.sensing_share import local_crlb
 from iscc_gym.envs.vector import ISCCVectorEnv
-from iscc_gym.physics.channel import geometry, link_snr, matched_gain, rician_power_gain
+from iscc_gym.physics.channel import geometry, link_snr, matched_gain
 from iscc_gym.physics.dynamics import model_matrices, system_matrices
 from iscc_gym.physics.fbl import min_shares, slot_link
 from iscc_gym.physics.stability import scenario_eps_star, steady_state_covariance

@@ -52,7 +52,7 @@ def expected_norm(var_m2: ArrayLike):
 def rician_power_nodes(k_lin: float):
     r"""Quadrature nodes and weights of the unit-mean Rician power gain :math:`|g|^2`.
 
-    :math:`|g|^2 = \sigma^2\chi'^2_2(2K)` with :math:`\sigma^2 = 1/(2(K+1))` (``channel.rician_power_gain``);
+    :math:`|g|^2 = \sigma^2\chi'^2_2(2K)` with :math:`\sigma^2 = 1/(2(K+1))` (``channel.rician_gain_one``);
     the nodes are the quantiles at the midpoints of 30 probability bins refined in the lower tail
     (deep fades drive the loss rate), the weights the bins' probabilities.
 

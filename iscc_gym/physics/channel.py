@@ -23,7 +23,6 @@ __all__ = [
     "link_snr",
     "path_loss_db",
     "shadowing_std_db",
-    "rician_power_gain",
     "direction_cosines",
     "array_response",
     "beamformer",
@@ -90,26 +89,9 @@ def shadowing_std_db(s: Scenario, altitude_m: ArrayLike):
     return s.shadowing_a_db * np.exp(-s.shadowing_b_per_m * altitude_m)
 
 
-def rician_power_gain(s: Scenario, z_re: ArrayLike, z_im: ArrayLike):
-    r"""Small-scale power gain :math:`|g|^2` of a unit-mean-power Rician coefficient.
-
-    .. math::
-        g = \sqrt{\tfrac{K}{K+1}} + \sqrt{\tfrac{1}{2(K+1)}}\,(z_\mathrm{re} + j z_\mathrm{im}),
-        \quad \mathbb{E}|g|^2 = 1
-
-    i.e. :math:`g \sim \mathcal{CN}(\mu, \sigma^2)` with :math:`|\mu|^2/\sigma^2 = K`
-    (``rician_k_db``), the paper's :math:`g_{C,m,k}` and :math:`g_{S,m,k}`, one draw per slot.
-    ``z_re`` and ``z_im`` are standard normal draws.
-    """
-    los, scat = rician_constants(s)
-    re = los + scat * z_re
-    im = scat * z_im
-    return re * re + im * im
-
-
 @per_scenario
 def rician_constants(s: Scenario):
-    r"""``(los, scat)``: :math:`\sqrt{K/(K+1)}` and :math:`\sqrt{1/(2(K+1))}` of :func:`rician_power_gain`."""
+    r"""``(los, scat)``: :math:`\sqrt{K/(K+1)}` and :math:`\sqrt{1/(2(K+1))}` of :func:`rician_gain_one`."""
     k = float(db_to_lin(s.rician_k_db))
     return float(np.sqrt(k / (k + 1.0))), float(np.sqrt(0.5 / (k + 1.0)))
 
@@ -319,7 +301,7 @@ def link_snr_one(snr_k, gain, dist_m, shadow_db):
 
 @njit(cache=True, error_model="numpy", inline="always")
 def rician_gain_one(los, scat, z_re, z_im):
-    """:func:`rician_power_gain` of one draw (``los``, ``scat`` from :func:`rician_constants`)."""
+    """:func:`rician_gain_one` of one draw (``los``, ``scat`` from :func:`rician_constants`)."""
     re = los + scat * z_re
     im = scat * z_im
     return re * re + im * im

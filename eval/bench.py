@@ -35,6 +35,7 @@ import numpy as np
 from iscc_gym.eval.options import Parser, Stages, check_writable_file, positive_int, run_console
 
 import iscc_gym
+from iscc_gym import threads
 from iscc_gym.docs import README_PATH, RESULTS_PATH, docs_path, publish, save_json
 
 
@@ -110,8 +111,6 @@ def vector_under_load(sizes=(64, 1024), n_steps: int = 3000, repeats: int = 3) -
     """
     import subprocess
 
-    from iscc_gym import threads
-
     out: dict = {}
     mode0 = threads.get_parallel()
     names = {True: "parallel", False: "serial"}
@@ -180,6 +179,8 @@ def ppo_shipped_steps_per_second(total_steps: int, repeats: int, settings=THREAD
 
     from iscc_gym.eval.training import run_training
 
+    # the default mode as the figure is asked for (read before training: another figure may switch it meanwhile)
+    numba_default = os.cpu_count() if threads.get_parallel() else 1
     out = {}
     config = None
     with tempfile.TemporaryDirectory() as tmp:
@@ -200,9 +201,6 @@ def ppo_shipped_steps_per_second(total_steps: int, repeats: int, settings=THREAD
                 "median_env_steps_per_s": statistics.median(rates), "runs": rates, "numba_threads": numba_threads,
                 "torch_threads": torch_threads}
     hp = (config or {}).get("hyperparams", {})
-    from iscc_gym import threads
-
-    numba_default = os.cpu_count() if threads.get_parallel() else 1
     return {"settings": out, "n_envs": (config or {}).get("args", {}).get("n_envs"), "total_steps": total_steps,
             "hyperparams": {k: hp[k] for k in ("n_steps", "batch_size", "n_epochs") if k in hp},
             "default": f"numba{numba_default}_torch1"}

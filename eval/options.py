@@ -243,7 +243,7 @@ def run_console(main, argv: list[str] | None, prog: str) -> int:
     return run(functools.partial(main, prog=prog), argv, prog)
 
 
-def claims_parser(prog: str, description: str, *, missions: int, quick_missions: int, seed_base: str,
+def claims_parser(prog: str, description: str, *, missions: int, quick_missions: int, seed_base: int,
                   figures_default: str) -> Parser:
     """The parser of a measurement command that states claims (``eval.paper.fading``, ``eval.paper.sensitivity``):
     ``--quick``, ``--seed``, ``--json``, ``--figures``, ``--no-figures``.
@@ -252,7 +252,7 @@ def claims_parser(prog: str, description: str, *, missions: int, quick_missions:
     p.add_argument("--quick", action="store_true",
                    help=f"{quick_missions} missions per point on a coarser grid (smoke run; default {missions})")
     p.add_argument("--seed", type=nonneg_int, default=0,
-                   help=f"run seed: missions {seed_base} + 1000 x SEED + i (held-out evaluation seeds; default 0)")
+                   help=f"run seed: missions {seed_base:,} + 1000 x SEED + i (held-out evaluation seeds; default 0)")
     p.add_argument("--json", metavar="PATH", default=None, help="write the results (with the claims) as JSON")
     p.add_argument("--figures", metavar="DIR", default=figures_default,
                    help=f"directory of the PNG figures (default {figures_default})")

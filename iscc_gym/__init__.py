@@ -19,6 +19,7 @@ from iscc_gym import compile_note as _compile_note  # noqa: F401 (a note on stde
 from iscc_gym.envs.env import ENV_ID, REGISTERED_MAX_EPISODE_STEPS, ISCCEnv
 from iscc_gym.envs.multi import MULTI_ENV_ID
 from iscc_gym.scenario import SCENARIOS, Scenario, make_scenario
+from iscc_gym.sim.fleet import N_DRONES
 from iscc_gym.sim.task import action_to_split, split_to_action
 
 __all__ = ["Scenario", "SCENARIOS", "make_scenario", "ISCCEnv", "action_to_split", "split_to_action",
@@ -36,7 +37,7 @@ if MULTI_ENV_ID not in _gym.registry:
 __version__ = "0.1.0"
 
 
-def parallel_env(n_drones: int = 4, **kwargs):
+def parallel_env(n_drones: int = N_DRONES, **kwargs):
     """The PettingZoo ``ParallelEnv`` of the multi-drone env, one agent per drone
     (:func:`iscc_gym.envs.multi_pz.parallel_env`; needs ``pip install pettingzoo``, imported on first use).
     """

@@ -392,7 +392,7 @@ def build_parser(prog: str = "python -m eval.paper.fading"):
     from iscc_gym.eval.options import claims_parser
 
     return claims_parser(prog, __doc__.splitlines()[0], missions=MISSIONS, quick_missions=QUICK_MISSIONS,
-                         seed_base="1,100,000", figures_default="runs/fading/figures")
+                         seed_base=SEED_START, figures_default="runs/fading/figures")
 
 
 def main(argv: list[str] | None = None, prog: str = "python -m eval.paper.fading") -> dict:

@@ -311,7 +311,7 @@ def build_parser(prog: str = "python -m eval.paper.sensitivity"):
     from iscc_gym.eval.options import claims_parser
 
     return claims_parser(prog, __doc__.splitlines()[0], missions=MISSIONS, quick_missions=QUICK_MISSIONS,
-                         seed_base="1,200,000", figures_default="runs/sensitivity/figures")
+                         seed_base=SEED_START, figures_default="runs/sensitivity/figures")
 
 
 def main(argv: list[str] | None = None, prog: str = "python -m eval.paper.sensitivity") -> dict:

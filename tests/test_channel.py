@@ -359,3 +359,39 @@ def test_large_scale_snr_literal_preset_value():
 
 def test_noise_power_w():
     assert ch.noise_power_w(S) == pytest.approx(1e-18 * 1e7, rel=1e-12)  # -150 dBm/Hz * 10 MHz
+
+
+# --------------------------------------------------------------------------------------------------
+# the numpy API is the array form of the compiled scalar functions
+# --------------------------------------------------------------------------------------------------
+def test_direction_trig_angles_and_zenith():
+    rng = np.random.default_rng(3)
+    g = rng.normal(size=(2, 5, 3))
+    g /= np.linalg.norm(g, axis=-1, keepdims=True)
+    ct, st, cp, sp = ch.direction_trig(g)
+    assert ct.shape == st.shape == cp.shape == sp.shape == (2, 5)
+    az = np.arctan2(g[..., 1], g[..., 0])  # oracle: the angles, then their cosines and sines
+    el = np.arcsin(g[..., 2])
+    for got, want in ((ct, np.cos(az)), (st, np.sin(az)), (cp, np.cos(el)), (sp, np.sin(el))):
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-14)
+    assert ch.direction_trig([0.0, 0.0, 1.0]) == (1.0, 0.0, 0.0, 1.0)  # zenith: azimuth taken as 0
+    assert all(np.ndim(v) == 0 for v in ch.direction_trig(g[0, 0]))
+
+
+def test_array_forms_equal_the_compiled_scalars_bit_for_bit():
+    rng = np.random.default_rng(4)
+    dist = rng.uniform(50.0, 900.0, 7)
+    shadow = rng.normal(0.0, 4.0, 7)
+    gain = rng.uniform(0.5, 8.0, 7)
+    snr = ch.link_snr(S, dist, shadow, gain)
+    k = ch.snr_constant(S)
+    assert snr.tolist() == [ch.link_snr_one(k, g, d, e) for g, d, e in zip(gain, dist, shadow, strict=True)]
+    g = rng.normal(size=(7, 3))
+    g /= np.linalg.norm(g, axis=-1, keepdims=True)
+    trig = np.stack(ch.direction_trig(g), -1)
+    assert trig.tolist() == [list(ch.trig_one(*row)) for row in g]
+    for orientation in ORIENTATIONS:
+        s = S.replace(array_orientation=orientation)
+        (ux, uy), (tx, ty), (qx, qy) = ch.direction_cosines_trig(s, *trig.T)
+        want = [list(ch.upa_terms_one(ch.ORIENTATIONS[orientation], *row)) for row in trig]
+        assert np.stack([ux, uy, tx, ty, qx, qy], -1).tolist() == want

@@ -8,7 +8,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from numba import guvectorize, njit, vectorize
 from numpy.typing import ArrayLike
 
 from iscc_gym.scenario import Scenario, per_scenario
@@ -31,6 +31,8 @@ __all__ = [
     "large_scale_snr",
     "rician_constants",
     "snr_constant",
+    "ORIENTATIONS",
+    "trig_one",
     "direction_one",
     "shadowing_db_one",
     "link_snr_one",
@@ -110,14 +112,11 @@ def direction_trig(los_unit: ArrayLike):
         \cos\varphi = \sqrt{g_x^2 + g_y^2},\ \sin\varphi = g_z,\
         \cos\theta = g_x/\cos\varphi,\ \sin\theta = g_y/\cos\varphi
 
-    (azimuth 0 at the zenith, where it is undefined). Returns ``(cos_az, sin_az, cos_el, sin_el)``.
+    (azimuth 0 at the zenith, where it is undefined). Returns ``(cos_az, sin_az, cos_el, sin_el)``;
+    the array form of the compiled :func:`trig_one`.
     """
     g = np.asarray(los_unit, dtype=float)
-    gx, gy, gz = g[..., 0], g[..., 1], g[..., 2]
-    cp = np.sqrt(gx * gx + gy * gy)
-    zenith = cp < 1e-12  # azimuth undefined: take theta = 0
-    inv = 1.0 / np.maximum(cp, 1e-12)
-    return gx * inv + zenith, gy * inv, cp, gz
+    return tuple(v[()] for v in _trig_ufunc(g[..., 0], g[..., 1], g[..., 2]))
 
 
 def direction_cosines(s: Scenario, azimuth_rad: ArrayLike, elevation_rad: ArrayLike):
@@ -142,13 +141,11 @@ def direction_cosines(s: Scenario, azimuth_rad: ArrayLike, elevation_rad: ArrayL
 
 
 def direction_cosines_trig(s: Scenario, ct: ArrayLike, st: ArrayLike, cp: ArrayLike, sp: ArrayLike):
-    """:func:`direction_cosines` from the angles' cosines and sines; returns three (x, y) tuples."""
-    if s.array_orientation == "horizontal":
-        return (cp * ct, cp * st), (-cp * st, cp * ct), (-sp * ct, -sp * st)
-    zero = np.zeros_like(st * sp)
-    if s.array_orientation == "printed":
-        return (st * cp, st * sp), (ct * cp, ct * sp), (-st * sp, st * cp)
-    return (cp * st, sp + zero), (cp * ct, zero), (-sp * st, cp + zero)  # vertical
+    """:func:`direction_cosines` from the angles' cosines and sines; returns three (x, y) tuples (the
+    array form of the compiled :func:`upa_terms_one`).
+    """
+    ux, uy, tx, ty, qx, qy = (v[()] for v in _upa_ufunc(ORIENTATIONS[s.array_orientation], ct, st, cp, sp))
+    return (ux, uy), (tx, ty), (qx, qy)
 
 
 def array_response(s: Scenario, azimuth_rad: ArrayLike, elevation_rad: ArrayLike):
@@ -247,9 +244,10 @@ def link_snr(s: Scenario, dist_m: ArrayLike, shadow_db: ArrayLike, gain: ArrayLi
     r""":func:`large_scale_snr` from the range, the shadowing and the beamforming gain.
 
     The dB budget :math:`P - \mathcal L(l) - \varepsilon + \Delta - N_0B` in linear form,
-    :math:`\kappa\, G\, l^{-2.2}\, 10^{-\varepsilon/10}`, with the constant :math:`\kappa` cached.
+    :math:`\kappa\, G\, l^{-2.2}\, 10^{-\varepsilon/10}`, with the constant :math:`\kappa` cached;
+    the array form of the compiled :func:`link_snr_one`.
     """
-    return snr_constant(s) * gain * dist_m ** -2.2 * 10.0 ** (-0.1 * shadow_db)
+    return _link_snr_ufunc(snr_constant(s), gain, dist_m, shadow_db)[()]
 
 
 @per_scenario
@@ -272,6 +270,15 @@ _LN10_OVER_10 = math.log(10.0) / 10.0
 
 
 @njit(cache=True, error_model="numpy", inline="always")
+def trig_one(gx, gy, gz):
+    """:func:`direction_trig` of one unit LoS vector, ``(cos_az, sin_az, cos_el, sin_el)``."""
+    cp = math.sqrt(gx * gx + gy * gy)
+    zenith = 1.0 if cp < 1e-12 else 0.0  # azimuth undefined: take theta = 0
+    inv = 1.0 / max(cp, 1e-12)
+    return gx * inv + zenith, gy * inv, cp, gz
+
+
+@njit(cache=True, error_model="numpy", inline="always")
 def direction_one(h_gbs, px, py, pz):
     """:func:`geometry` and :func:`direction_trig` of one position: ``(dist, gx, gy, gz, cos_az, sin_az,
     cos_el, sin_el)`` (range in m, LoS unit vector, cosines and sines of azimuth and elevation).
@@ -279,10 +286,8 @@ def direction_one(h_gbs, px, py, pz):
     rx, ry, rz = px, py, pz - h_gbs
     dist = math.sqrt(rx * rx + ry * ry + rz * rz)
     gx, gy, gz = rx / dist, ry / dist, rz / dist
-    cp = math.sqrt(gx * gx + gy * gy)
-    zenith = 1.0 if cp < 1e-12 else 0.0
-    inv = 1.0 / max(cp, 1e-12)
-    return dist, gx, gy, gz, gx * inv + zenith, gy * inv, cp, gz
+    ct, st, cp, sp = trig_one(gx, gy, gz)
+    return dist, gx, gy, gz, ct, st, cp, sp
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -317,7 +322,7 @@ def shadowing_step_one(neg_inv_decorr, shadow_norm, moved_m, z):
 @njit(cache=True, error_model="numpy", inline="always")
 def upa_terms_one(orient, ct, st, cp, sp):
     """:func:`direction_cosines_trig` of one direction, ``(ux, uy, dux_dth, duy_dth, dux_dph, duy_dph)``;
-    ``orient`` 0 horizontal, 1 printed, 2 vertical (``Scenario.array_orientation``).
+    ``orient`` from :data:`ORIENTATIONS` (``Scenario.array_orientation``).
     """
     if orient == 0.0:
         return cp * ct, cp * st, -cp * st, cp * ct, -sp * ct, -sp * st
@@ -374,3 +379,26 @@ def beam_gain_one(c, ct, st, cp, sp):
     ux, uy, tx, ty, qx, qy = upa_terms_one(c.orient, ct, st, cp, sp)
     t = broadside_sums_one(c.kd, int(c.n_x), int(c.n_y), ux, uy, tx, ty, qx, qy)[0]
     return t * t
+
+
+# --- array forms of the compiled scalar functions (the numpy API above calls these) ---------------------
+
+#: ``Scenario.array_orientation`` as the code :func:`upa_terms_one` reads.
+ORIENTATIONS = {"horizontal": 0.0, "printed": 1.0, "vertical": 2.0}
+
+
+@vectorize(["float64(float64, float64, float64, float64)"], cache=True)
+def _link_snr_ufunc(snr_k, gain, dist_m, shadow_db):
+    return link_snr_one(snr_k, gain, dist_m, shadow_db)
+
+
+@guvectorize(["void(float64, float64, float64, float64[:], float64[:], float64[:], float64[:])"],
+             "(),(),()->(),(),(),()", cache=True)
+def _trig_ufunc(gx, gy, gz, ct, st, cp, sp):
+    ct[0], st[0], cp[0], sp[0] = trig_one(gx, gy, gz)
+
+
+@guvectorize(["void(float64, float64, float64, float64, float64, float64[:], float64[:], float64[:], float64[:], "
+              "float64[:], float64[:])"], "(),(),(),(),()->(),(),(),(),(),()", cache=True)
+def _upa_ufunc(orient, ct, st, cp, sp, ux, uy, tx, ty, qx, qy):
+    ux[0], uy[0], tx[0], ty[0], qx[0], qy[0] = upa_terms_one(orient, ct, st, cp, sp)

@@ -8,7 +8,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import ArrayLike
 
-from iscc_gym.physics.channel import array_response, broadside_sums_one, upa_terms_one
+from iscc_gym.physics.channel import ORIENTATIONS, array_response, broadside_sums_one, upa_terms_one
 from iscc_gym.scenario import Scenario, per_scenario
 
 __all__ = ["signature_derivatives", "index_moments", "signature_terms", "signature_one", "SIGNATURE_PARAMS",
@@ -98,7 +98,6 @@ SIGNATURE_PARAMS = np.dtype([(name, np.float64) for name in (
     "kd", "n_x", "n_y",                  # 2 pi d / lambda, UPA size
     "sxx", "syy", "eta_sq",              # index_moments
 )])
-_ORIENTATIONS = {"horizontal": 0.0, "printed": 1.0, "vertical": 2.0}
 
 
 @per_scenario
@@ -106,7 +105,7 @@ def signature_params(s: Scenario):
     """The :data:`SIGNATURE_PARAMS` record of a scenario, a read-only structured array of shape (1,)."""
     c = np.zeros(1, SIGNATURE_PARAMS)
     r = c[0]
-    r["orient"] = _ORIENTATIONS[s.array_orientation]
+    r["orient"] = ORIENTATIONS[s.array_orientation]
     r["broadside"] = float(s.beamforming == "broadside")
     r["kd"], r["n_x"], r["n_y"] = 2.0 * np.pi * s.antenna_spacing_wavelengths, s.n_x, s.n_y
     r["sxx"], r["syy"], r["eta_sq"] = index_moments(s)

@@ -25,11 +25,11 @@ import numpy as np
 from scipy.special import chndtr
 
 from iscc_gym.analysis.kalman_steady import axis_kalman_steady_state
-from iscc_gym.analysis.quadrature import expected_norm, rician_power_nodes
+from iscc_gym.analysis.quadrature import expected_norm, mean_ctrl_loss, rician_nodes
 from iscc_gym.analysis.sensing_share import SensingCoefficients, local_crlb
 from iscc_gym.physics.channel import matched_gain
 from iscc_gym.physics.dynamics import axis_gain, axis_matrices
-from iscc_gym.physics.fbl import min_shares, slot_link
+from iscc_gym.physics.fbl import comm_rate_bps, min_shares
 from iscc_gym.physics.stability import scenario_eps_star, stability_matrix
 from iscc_gym.scenario import Scenario, make_scenario
 from iscc_gym.sim.functional import decode_observation
@@ -300,7 +300,7 @@ class MyopicPolicy(SplitPolicy):
             raise ValueError(f"refine_points = {refine_points!r} is invalid: must be odd (the incumbent is the centre)")
         self.refine_factor = _number("refine_factor", refine_factor, 1.0, math.inf, "> 1")
         self.eps_star = scenario_eps_star(s)
-        self.fade, self.fade_w = rician_power_nodes(float(db_to_lin(s.rician_k_db)))
+        self.fade, self.fade_w = rician_nodes(s)
         # gamma*(alpha): the SNR at which alpha_ctrl gives eps* (inverse of min_ctrl_share, decreasing)
         log_snr = np.linspace(-6.0, 16.0, 4401) * math.log(10.0)
         a_star = min_shares(s, np.exp(log_snr), self.eps_star, 0.0)[0]
@@ -323,7 +323,7 @@ class MyopicPolicy(SplitPolicy):
         coef = predicted_sensing(s, snr_db, d["range_m"], d["sin_elevation"], d["cos_azimuth"], d["sin_azimuth"],
                                  self._gain)
         snr = db_to_lin(snr_db)
-        rate = slot_link(s, 0.0, 1.0, snr[:, None] * self.fade)[2] / max(s.rate_min_bps, 1e-300)
+        rate = comm_rate_bps(s, 1.0, snr[:, None] * self.fade) / max(s.rate_min_bps, 1e-300)
         return SlotContext(snr=snr, coef=coef, rate_per_share=rate)
 
     def ctrl_terms(self, ctx: SlotContext, alpha_ctrl):
@@ -332,7 +332,7 @@ class MyopicPolicy(SplitPolicy):
         """
         c = np.asarray(alpha_ctrl, dtype=float)
         snr = _expand(ctx.snr, c.ndim)
-        eps_bar = slot_link(self.scenario, c[..., None], 0.0, snr[..., None] * self.fade)[0] @ self.fade_w
+        eps_bar = mean_ctrl_loss(self.scenario, c, snr)
         log_snr = np.interp(np.log(np.maximum(c, 1e-300)), self._log_alpha_star, self._log_snr_star)
         p_viol = rician_power_cdf(self.scenario, np.exp(log_snr) / snr)
         return eps_bar, np.where(c > 0.0, p_viol, 1.0)

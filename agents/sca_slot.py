@@ -9,10 +9,10 @@ import math
 import numpy as np
 
 from iscc_gym.analysis import StaticModel, static_model
-from iscc_gym.analysis.quadrature import rician_power_nodes
+from iscc_gym.analysis.quadrature import mean_ctrl_loss, rician_nodes
 from iscc_gym.analysis.sensing_share import crlb_trace_one
 from iscc_gym.physics.channel import matched_gain
-from iscc_gym.physics.fbl import comm_rate_bps, ctrl_bler, ctrl_goodput_bits
+from iscc_gym.physics.fbl import comm_rate_bps, ctrl_goodput_bits
 from iscc_gym.physics.stability import scenario_eps_star
 from iscc_gym.scenario import Scenario
 from iscc_gym.sim.functional import decode_observation
@@ -40,9 +40,9 @@ class _SlotTables:
     SNR_DB_GRID = np.linspace(-30.0, 70.0, 1001)
 
     def __init__(self, s: Scenario, eps_design: float, ignore_loss: bool):
-        self.fade, self.fade_w = rician_power_nodes(float(db_to_lin(s.rician_k_db)))
-        snr = db_to_lin(self.SNR_DB_GRID)[:, None] * self.fade[None, :]
-        rate = comm_rate_bps(s, 1.0, snr) @ self.fade_w
+        self.fade, self.fade_w = rician_nodes(s)
+        snr_ls = db_to_lin(self.SNR_DB_GRID)
+        rate = comm_rate_bps(s, 1.0, snr_ls[:, None] * self.fade[None, :]) @ self.fade_w
         self.comm_min = s.rate_min_bps / np.maximum(rate, 1e-300)
         if ignore_loss:
             self.ctrl_min = np.zeros_like(self.comm_min)
@@ -52,15 +52,11 @@ class _SlotTables:
             hi = np.zeros(len(self.SNR_DB_GRID))
             for _ in range(60):
                 mid = 0.5 * (lo + hi)
-                ok = self._loss(s, np.exp(mid), snr) <= eps_design
+                ok = mean_ctrl_loss(s, np.exp(mid), snr_ls) <= eps_design
                 hi = np.where(ok, mid, hi)
                 lo = np.where(ok, lo, mid)
-            reach = self._loss(s, np.ones(1), snr) <= eps_design
+            reach = mean_ctrl_loss(s, 1.0, snr_ls) <= eps_design
             self.ctrl_min = np.where(reach, np.exp(hi) * (1.0 + 1e-9), np.inf)
-
-    def _loss(self, s, alpha, snr):
-        """Fading-averaged eq:ctrl_bler at shares ``alpha`` (n,) for the SNR grid ``snr`` (n, nodes)."""
-        return ctrl_bler(s, alpha[:, None], snr) @ self.fade_w
 
     def lookup(self, snr_db):
         """``(ctrl_min, comm_min)`` at large-scale SNRs ``snr_db`` (arrays, or floats for a float):

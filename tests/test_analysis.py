@@ -117,6 +117,25 @@ def test_expected_norm_against_closed_form_and_monte_carlo():
         assert quadrature.expected_norm(np.array(lam)) == pytest.approx(mc, rel=4e-3)
 
 
+@pytest.mark.parametrize("alpha, snr_db", [(0.05, 10.0), (0.1, 6.0), (0.3, 3.0), (0.03, 20.0)])
+def test_mean_ctrl_loss_against_scipy_integral_over_the_rician_density(alpha, snr_db):
+    """eq:ctrl_bler averaged over |g|^2 = sigma^2 chi'^2_2(2K) by scipy.integrate.quad (the oracle)."""
+    from scipy import integrate, stats
+
+    k = 10.0 ** (S.rician_k_db / 10.0)
+    sigma2 = 0.5 / (k + 1.0)
+    snr = 10.0 ** (snr_db / 10.0)
+    pdf = stats.ncx2(2, 2.0 * k, scale=sigma2).pdf
+    want = integrate.quad(lambda x: float(ctrl_bler(S, alpha, snr * x)) * pdf(x), 0.0, 30.0, limit=200,
+                          points=[0.5, 1.0, 2.0])[0]
+    got = quadrature.mean_ctrl_loss(S, alpha, snr)
+    assert 1e-6 < want < 0.9  # a point where the average matters
+    assert got == pytest.approx(want, rel=0.04, abs=1e-6)  # the 30-node rule: 2.6 % off at (0.3, 3 dB)
+    # broadcast over shares and SNRs, each entry the scalar average
+    grid = quadrature.mean_ctrl_loss(S, np.array([[alpha], [2 * alpha]]), np.array([snr, 2 * snr]))
+    assert grid.shape == (2, 2) and grid[0, 0] == pytest.approx(got, rel=1e-12)
+
+
 def test_loss_table_matches_direct_quadrature(model):
     a = np.array([0.03, 0.047, 0.081, 0.13, 0.4])
     direct = np.array([ctrl_bler(S, x, model._node_snr) @ model._node_w for x in a])

@@ -1,5 +1,6 @@
-"""Quadrature rules of the analytic evaluator: the expected norm of a Gaussian vector in R^3 and
-the nodes of the Rician power gain.
+"""Quadrature rules of the analytic evaluator: the expected norm of a Gaussian vector in R^3, the
+nodes of the Rician power gain, and the fading-averaged loss rate built on them (the one form the
+static model, ``myopic`` and per-slot SCA share).
 """
 
 from __future__ import annotations
@@ -12,7 +13,11 @@ from numpy.polynomial.legendre import leggauss
 from numpy.typing import ArrayLike
 from scipy.stats import ncx2
 
-__all__ = ["expected_norm", "rician_power_nodes"]
+from iscc_gym.physics.fbl import ctrl_bler
+from iscc_gym.scenario import Scenario, per_scenario
+from iscc_gym.units import db_to_lin
+
+__all__ = ["expected_norm", "rician_power_nodes", "rician_nodes", "mean_ctrl_loss"]
 
 
 @functools.lru_cache(maxsize=4)
@@ -70,3 +75,40 @@ def rician_power_nodes(k_lin: float):
     mid = 0.5 * (edges[:-1] + edges[1:])
     sigma2 = 0.5 / (k_lin + 1.0)
     return sigma2 * ncx2.ppf(mid, 2, 2.0 * k_lin), np.diff(edges)
+
+
+@per_scenario
+def rician_nodes(s: Scenario):
+    """:func:`rician_power_nodes` of the scenario's K factor (``rician_k_db``), read-only, cached."""
+    gain, weight = rician_power_nodes(float(db_to_lin(s.rician_k_db)))
+    gain.setflags(write=False)
+    weight.setflags(write=False)
+    return gain, weight
+
+
+def mean_ctrl_loss(s: Scenario, alpha_ctrl: ArrayLike, snr: ArrayLike, nodes=None):
+    r"""The control loss rate eq:ctrl_bler averaged over the slot's unknown gain, by quadrature.
+
+    .. math::
+        \bar\varepsilon(\alpha, \bar\gamma) = \sum_k w_k\,
+        \varepsilon_\mathrm{ctrl}(\alpha, \bar\gamma\, g_k)
+
+    over gain nodes :math:`(g_k, w_k)`.
+
+    Parameters
+    ----------
+    alpha_ctrl, snr : array_like, broadcastable
+        Control share and large-scale SNR (linear, without the gain of the nodes).
+    nodes : (gain, weight), optional
+        Gain nodes of shape ``(..., m)`` (broadcast with ``snr[..., None]``) and weights ``(m,)``; the
+        Rician fading of :func:`rician_nodes` if omitted (the static model passes shadowing times
+        fading nodes per position).
+
+    Returns
+    -------
+    ndarray
+        The broadcast shape of ``alpha_ctrl`` and ``snr``.
+    """
+    gain, weight = rician_nodes(s) if nodes is None else nodes
+    snr_nodes = np.asarray(snr, dtype=float)[..., None] * gain
+    return ctrl_bler(s, np.asarray(alpha_ctrl, dtype=float)[..., None], snr_nodes) @ weight

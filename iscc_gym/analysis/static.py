@@ -70,7 +70,7 @@ from scipy.optimize import brentq
 from iscc_gym.analysis.allocation import AllocationMetrics, check_alpha
 from iscc_gym.analysis.averages import TrajectorySample, sample_positions
 from iscc_gym.analysis.kalman_steady import axis_kalman_steady_state
-from iscc_gym.analysis.quadrature import expected_norm, rician_power_nodes
+from iscc_gym.analysis.quadrature import expected_norm, mean_ctrl_loss, rician_nodes
 from iscc_gym.analysis.sensing_share import crlb_trace, local_crlb, sensing_coefficients
 from iscc_gym.physics.channel import direction_trig, geometry, large_scale_snr, shadowing_std_db
 from iscc_gym.physics.dynamics import axis_gain, axis_matrices, model_matrices
@@ -78,7 +78,6 @@ from iscc_gym.physics.fbl import comm_rate_bps, ctrl_bler, ctrl_rate_bps, min_sh
 from iscc_gym.physics.stability import LossOperator, lqg_cost_floor, rate_cost_bits, riccati_s_d, scenario_eps_star
 from iscc_gym.scenario import Scenario
 from iscc_gym.sim.kernel import reward_from_costs
-from iscc_gym.units import db_to_lin
 
 __all__ = ["TRUST_LOSS_FRACTION", "StaticModel", "static_model", "DEFAULT_SAMPLE"]
 
@@ -148,10 +147,11 @@ class StaticModel:
         # --- SNR at quadrature nodes of the slot's unknowns: shadowing x Rician fading
         xs, ws = hermegauss(n_shadow_nodes)
         ws = ws / ws.sum()
-        fade, wf = rician_power_nodes(float(db_to_lin(s.rician_k_db)))
+        fade, wf = rician_nodes(s)
         sh_db = shadowing_std_db(s, pos[:, 2])[:, None] * xs[None, :]  # (P, n_sh)
         gain = (10.0 ** (-0.1 * sh_db))[:, :, None] * fade[None, None, :]  # (P, n_sh, n_f)
-        self._node_snr = (self.snr_large_scale[:, None, None] * gain).reshape(len(pos), -1)
+        self._node_gain = gain.reshape(len(pos), -1)
+        self._node_snr = self.snr_large_scale[:, None] * self._node_gain
         self._node_w = np.outer(ws, wf).ravel()  # per position, sums to 1
         comm_per_share = comm_rate_bps(s, 1.0, self._node_snr)  # (P, nodes)
         w_all = np.broadcast_to(self._node_w, comm_per_share.shape).ravel() / len(pos)
@@ -184,7 +184,8 @@ class StaticModel:
         table = np.empty((len(self._alpha_grid), self.n_positions))
         chunk = max(1, 2_000_000 // max(self._node_snr.size, 1))
         for i in range(0, len(self._alpha_grid), chunk):
-            table[i:i + chunk] = ctrl_bler(s, self._alpha_grid[i:i + chunk, None, None], self._node_snr) @ self._node_w
+            table[i:i + chunk] = mean_ctrl_loss(s, self._alpha_grid[i:i + chunk, None], self.snr_large_scale,
+                                                (self._node_gain, self._node_w))
         self._eps_table = q_inv(np.clip(table, 1e-300, 1.0 - 1e-16))  # probit scale
 
     def eps_ctrl_local(self, alpha_ctrl):

@@ -15,6 +15,9 @@ SB3 models alike:
 * :class:`MarginPolicy`: per slot, fixed multiples of the predicted control and data needs (tuned by
   ``python -m eval.tune margin``);
 * :class:`MyopicPolicy`: per slot, the split maximising the expected one-slot reward (model-based);
+* on the urban task (issue 25): :class:`DriftPlusPenaltyPolicy` (``dpp``, Lyapunov drift-plus-penalty on the
+  data queue) and :class:`LookaheadPolicy` (``mpc``, receding-horizon planning over the preview; ``oracle``, the
+  same on the truth's preview);
 * :func:`make_policy`: a policy from a short spec string.
 """
 
@@ -25,11 +28,14 @@ import functools
 from iscc_gym.scenario import Scenario, make_scenario
 
 from .base import EqualSplitPolicy, FixedSplitPolicy, Policy, SplitPolicy, validate_split
+from .dpp import DriftPlusPenaltyPolicy
 from .margin import MarginPolicy
+from .mpc import LookaheadPolicy
 from .myopic import MyopicPolicy
 from .sca import SCAResult, sca_allocation, solve_sca
 from .sca_slot import SCAPolicy
 from .search import SearchResult, evolutionary_search, grid_search
+from .tuned_records import load_tuned, record_name, task_of
 
 __all__ = [
     "Policy",
@@ -39,6 +45,8 @@ __all__ = [
     "SCAPolicy",
     "MarginPolicy",
     "MyopicPolicy",
+    "DriftPlusPenaltyPolicy",
+    "LookaheadPolicy",
     "SCAResult",
     "sca_allocation",
     "solve_sca",
@@ -51,7 +59,9 @@ __all__ = [
 
 #: The specs :func:`make_policy` understands.
 POLICY_SPECS = ("sca", "sca-per-slot", "sca-ignore-loss", "equal", "fixed:A_SEN,A_CTRL,A_COMM", "grid",
-                "evolutionary", "margin", "margin:M_CTRL,M_COMM", "myopic")
+                "evolutionary", "margin", "margin:M_CTRL,M_COMM", "myopic", "dpp", "dpp:V", "mpc", "oracle")
+#: The specs of the urban task's queue planners (they need a scenario with a data queue and a preview).
+URBAN_SPECS = ("dpp", "mpc", "oracle")
 
 
 def make_policy(spec: str, scenario: Scenario | str = "paper", seed: int = 0):
@@ -66,7 +76,11 @@ def make_policy(spec: str, scenario: Scenario | str = "paper", seed: int = 0):
         searches are deterministic, so their policies are cached per scenario (and seed).
         ``"margin"`` (the rule with the multiples tuned by ``python -m eval.tune margin``),
         ``"margin:4,1.3"`` (given m_ctrl, m_comm), ``"myopic"`` (:class:`MyopicPolicy`, cached per
-        scenario: its tables are built once).
+        scenario: its tables are built once). On the urban task (a scenario with a queue or blockage:
+        :func:`iscc_gym.agents.tuned_records.task_of`) ``margin``, ``myopic``, ``dpp`` and ``mpc`` read the
+        records ``<spec>-urban`` tuned there (``python -m eval.tune <spec> --scenario urban``); ``"dpp:2"``
+        (given V), ``"oracle"`` (``mpc`` on the truth's preview: its ``scenario_overrides`` make the
+        evaluation show it the realised channel ahead on the same missions).
     scenario : Scenario or str
         The scenario (or preset name) the model-based policies design for.
     seed : int
@@ -90,8 +104,9 @@ def make_policy(spec: str, scenario: Scenario | str = "paper", seed: int = 0):
         except ValueError:
             raise ValueError(f"spec {spec!r}: 'fixed:' takes three numbers, e.g. 'fixed:0.2,0.2,0.6'") from None
         return FixedSplitPolicy(validate_split(split, f"spec {spec!r}"), name=key)
+    task = task_of(s)
     if key == "margin":
-        return MarginPolicy.tuned()
+        return MarginPolicy.tuned(record_name("margin", task))
     if key.startswith("margin:"):
         parts = key[len("margin:"):].split(",")
         try:
@@ -101,6 +116,24 @@ def make_policy(spec: str, scenario: Scenario | str = "paper", seed: int = 0):
         return MarginPolicy(m_ctrl, m_comm, name=key)
     if key == "myopic":
         return _myopic(s)
+    if key in URBAN_SPECS and task != "urban":
+        raise ValueError(f"spec {spec!r} plans over the urban task's data queue and preview; use it with the "
+                         "'urban' scenario (iscc_gym/ISCC-Urban-v0)")
+    if key == "dpp":
+        return DriftPlusPenaltyPolicy(s, **load_tuned(record_name("dpp", task))["params"])
+    if key.startswith("dpp:"):
+        try:
+            v = float(key[len("dpp:"):])
+        except ValueError:
+            raise ValueError(f"spec {spec!r}: 'dpp:' takes one number V > 0, e.g. 'dpp:2'") from None
+        return DriftPlusPenaltyPolicy(s, v=v)
+    if key == "mpc":
+        return LookaheadPolicy(s, **load_tuned(record_name("mpc", task))["params"])
+    if key == "oracle":
+        oracle = LookaheadPolicy(s.replace(preview_source="truth"), name="oracle",
+                                 **load_tuned(record_name("mpc", task))["params"])
+        oracle.scenario_overrides = {"preview_source": "truth"}
+        return oracle
     if key == "sca":
         return SCAPolicy(s, mode="static")
     if key == "sca-per-slot":
@@ -123,5 +156,8 @@ def _searched(s: Scenario, method: str, seed: int) -> FixedSplitPolicy:
 
 @functools.lru_cache(maxsize=4)
 def _myopic(s: Scenario) -> MyopicPolicy:
-    """The myopic policy of a scenario (stateless; its tables are built once, so cached)."""
-    return MyopicPolicy(s)
+    """The myopic policy of a scenario (stateless; its tables are built once, so cached); on the urban task its
+    data weight is the one tuned there (the queue's greedy price, ``myopic-urban``).
+    """
+    task = task_of(s)
+    return MyopicPolicy(s) if task == "paper" else MyopicPolicy(s, **load_tuned(record_name("myopic", task))["params"])

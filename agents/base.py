@@ -45,8 +45,11 @@ def validate_split(split, name: str = "split") -> np.ndarray:
     return a / a.sum()
 
 
-def as_obs_batch(obs) -> tuple[np.ndarray, bool]:
-    """``(batch (n, 23), was_single)`` from one observation (23,) or a batch (n, 23).
+def as_obs_batch(obs, size: int | None = None) -> tuple[np.ndarray, bool]:
+    """``(batch (n, size), was_single)`` from one observation (size,) or a batch (n, size).
+
+    ``size``: the scenario's observation length (:func:`iscc_gym.sim.schema.obs_size`); None accepts any length
+    from the paper's 23 on (a rule that reads only the first 23 entries, which every task shares).
 
     Raises
     ------
@@ -54,11 +57,14 @@ def as_obs_batch(obs) -> tuple[np.ndarray, bool]:
         Any other shape.
     """
     o = np.asarray(obs, dtype=float)
-    if o.ndim == 1 and o.shape[0] == N_OBS:
+    ok = (lambda m: m >= N_OBS) if size is None else (lambda m: m == size)
+    if o.ndim == 1 and ok(o.shape[0]):
         return o[None], True
-    if o.ndim == 2 and o.shape[1] == N_OBS:
+    if o.ndim == 2 and ok(o.shape[1]):
         return o, False
-    raise ValueError(f"obs must have shape ({N_OBS},) or (n, {N_OBS}), got {o.shape}")
+    want = f"{N_OBS} or more" if size is None else str(size)
+    raise ValueError(f"obs must have shape (m,) or (n, m) with m = {want} entries (this scenario's observation), "
+                     f"got {o.shape}")
 
 
 class SplitPolicy:
@@ -91,7 +97,7 @@ class SplitPolicy:
         state
             Recurrent state for the next call.
         """
-        batch, single = as_obs_batch(obs)
+        batch, single = as_obs_batch(obs, getattr(self, "obs_size", None))
         split, state = self.split_batch(batch, state, episode_start)
         action = split_to_action(split)
         return (action[0] if single else action), state

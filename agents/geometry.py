@@ -13,6 +13,7 @@ from numpy.typing import ArrayLike
 
 from iscc_gym.analysis.sensing_share import SensingCoefficients, sensing_coefficients
 from iscc_gym.physics.channel import beam_gain, link_snr
+from iscc_gym.physics.sensing import echo_amplitude_sq, sensing_noise_var_w
 from iscc_gym.scenario import Scenario
 
 __all__ = ["predicted_geometry", "predicted_sensing"]
@@ -50,8 +51,17 @@ def predicted_geometry(s: Scenario, snr_db: ArrayLike, range_m: ArrayLike, sin_e
 
 
 def predicted_sensing(s: Scenario, snr_db: ArrayLike, range_m: ArrayLike, sin_el: ArrayLike, cos_az: ArrayLike,
-                      sin_az: ArrayLike, gain: ArrayLike | None = None) -> SensingCoefficients:
+                      sin_az: ArrayLike, gain: ArrayLike | None = None,
+                      echo_snr_db: ArrayLike | None = None) -> SensingCoefficients:
     """The coefficients of the slot's CRLB as a function of the sensing share
     (:func:`iscc_gym.analysis.sensing_share.sensing_coefficients`) at :func:`predicted_geometry`.
+
+    ``echo_snr_db`` (the urban task's measured echo SNR, :func:`iscc_gym.sim.functional.decode_observation`):
+    the echo's loss is what it implies (:func:`iscc_gym.physics.sensing.echo_amplitude_sq` without loss, minus it),
+    which carries a blocked line of sight's two-way excess; without it, the link's shadowing stands for the echo's.
     """
-    return sensing_coefficients(s, *predicted_geometry(s, snr_db, range_m, sin_el, cos_az, sin_az, gain))
+    dist, trig, shadow_db = predicted_geometry(s, snr_db, range_m, sin_el, cos_az, sin_az, gain)
+    if echo_snr_db is not None:
+        free = echo_amplitude_sq(s, dist, 0.0, 1.0) / sensing_noise_var_w(s)
+        shadow_db = 10.0 * np.log10(free) - echo_snr_db
+    return sensing_coefficients(s, dist, trig, shadow_db)

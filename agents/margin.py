@@ -82,9 +82,11 @@ class MarginPolicy(SplitPolicy):
         self.name = name
 
     @classmethod
-    def tuned(cls, path: str | Path | None = None) -> MarginPolicy:
-        """The policy with the multiples stored by ``python -m eval.tune margin``."""
-        t = load_tuned("margin", path)
+    def tuned(cls, record: str = "margin", path: str | Path | None = None) -> MarginPolicy:
+        """The policy with the multiples stored by ``python -m eval.tune margin`` (``record`` ``margin-urban``:
+        tuned on the urban task).
+        """
+        t = load_tuned(record, path)
         p = t["params"]
         return cls(p["m_ctrl"], p["m_comm"], p["sensing_floor"])
 

@@ -34,13 +34,14 @@ from iscc_gym.physics.stability import scenario_eps_star, stability_matrix
 from iscc_gym.scenario import Scenario, make_scenario
 from iscc_gym.sim.functional import decode_observation
 from iscc_gym.sim.kernel import reward_from_costs
+from iscc_gym.sim.schema import obs_size
 from iscc_gym.sim.task import check_split
 from iscc_gym.units import db_to_lin
 
 from .base import SplitPolicy, as_obs_batch
 from .geometry import predicted_sensing
 
-__all__ = ["MyopicPolicy", "LocalTrackingModel", "rician_power_cdf"]
+__all__ = ["MyopicPolicy", "LocalTrackingModel", "rician_power_cdf", "SlotContext", "lead_axes"]
 
 
 def rician_power_cdf(s: Scenario, x):
@@ -189,15 +190,22 @@ class SlotContext:
         shadowing (recovered from the SNR and the range).
     rate_per_share : (n, J)
         Data rate per unit share over ``rate_min_bps`` at the fading nodes
-        (:func:`iscc_gym.analysis.quadrature.rician_power_nodes`); unused if ``rate_min_bps`` is 0.
+        (:func:`iscc_gym.analysis.quadrature.rician_power_nodes`); unused if ``rate_min_bps`` is 0. With a data
+        queue: the bits a unit share carries in the slot over a slot's mean arrivals A.
+    need : (n,) or None
+        With a queue: the backlog and a slot's mean arrivals, over A (what serving the queue greedily clears).
+    backlog : (n,) or None
+        With a queue: the backlog over A.
     """
 
     snr: np.ndarray
     coef: SensingCoefficients
     rate_per_share: np.ndarray
+    need: np.ndarray | None = None
+    backlog: np.ndarray | None = None
 
 
-def _expand(x, ndim):
+def lead_axes(x, ndim):
     """(n,) -> (n, 1, ..., 1) with ``ndim`` axes."""
     return np.reshape(x, np.shape(x)[:1] + (1,) * (ndim - 1))
 
@@ -309,20 +317,34 @@ class MyopicPolicy(SplitPolicy):
         self._log_snr_star = log_snr[ok][::-1]
         self.tracking = LocalTrackingModel(s)
         self._gain = matched_gain(s) if s.beamforming == "matched" else None
+        self.obs_size = obs_size(s)
         self.name = "myopic"
 
     # --- the model ------------------------------------------------------------------------------
     def slot_context(self, obs) -> SlotContext:
         """Decode a batch of observations (n, 23) (see :class:`SlotContext`)."""
         s = self.scenario
-        o, _ = as_obs_batch(obs)
+        o, _ = as_obs_batch(obs, self.obs_size)
         if not np.all(np.isfinite(o)):
             raise ValueError("obs contains NaN or inf; pass the env's (finite) observations")
         d = decode_observation(o, s)
-        snr_db = d["snr_db"]
-        coef = predicted_sensing(s, snr_db, d["range_m"], d["sin_elevation"], d["cos_azimuth"], d["sin_azimuth"],
-                                 self._gain)
+        return self.context(d["snr_db"], d["range_m"], d["sin_elevation"], d["cos_azimuth"], d["sin_azimuth"],
+                            d.get("echo_snr_db"), d.get("backlog_bits"))
+
+    def context(self, snr_db, range_m, sin_el, cos_az, sin_az, echo_snr_db=None, backlog_bits=None) -> SlotContext:
+        """:class:`SlotContext` of slots given by their decoded entries (arrays (n,)): the predicted large-scale
+        SNR and geometry, with blockage the echo's SNR, with a queue the backlog in bits (what
+        :meth:`slot_context` reads from observations; a planner passes the slots it looks ahead to).
+        """
+        s = self.scenario
+        snr_db = np.asarray(snr_db, dtype=float)
+        coef = predicted_sensing(s, snr_db, range_m, sin_el, cos_az, sin_az, self._gain, echo_snr_db)
         snr = db_to_lin(snr_db)
+        if s.queue_slots > 0:  # the queue, served greedily: clear the backlog and the slot's mean arrivals
+            mean_bits = s.queue_arrival_bps * s.dt_s
+            rate = comm_rate_bps(s, 1.0, snr[:, None] * self.fade) * (s.dt_s / mean_bits)
+            backlog = np.asarray(backlog_bits, dtype=float) / mean_bits
+            return SlotContext(snr=snr, coef=coef, rate_per_share=rate, need=backlog + 1.0, backlog=backlog)
         rate = comm_rate_bps(s, 1.0, snr[:, None] * self.fade) / max(s.rate_min_bps, 1e-300)
         return SlotContext(snr=snr, coef=coef, rate_per_share=rate)
 
@@ -331,7 +353,7 @@ class MyopicPolicy(SplitPolicy):
         \varepsilon^\star)` of control shares ``alpha_ctrl`` (n, ...), each of that shape.
         """
         c = np.asarray(alpha_ctrl, dtype=float)
-        snr = _expand(ctx.snr, c.ndim)
+        snr = lead_axes(ctx.snr, c.ndim)
         eps_bar = mean_ctrl_loss(self.scenario, c, snr)
         log_snr = np.interp(np.log(np.maximum(c, 1e-300)), self._log_alpha_star, self._log_snr_star)
         p_viol = rician_power_cdf(self.scenario, np.exp(log_snr) / snr)
@@ -339,20 +361,25 @@ class MyopicPolicy(SplitPolicy):
 
     def rate_shortfall(self, ctx: SlotContext, alpha_comm):
         r""":math:`\mathbb E_g (R_\min - \mathcal R_\mathrm{comm})^+/R_\min` of data shares
-        ``alpha_comm`` (n, ...), of that shape.
+        ``alpha_comm`` (n, ...), of that shape. With a queue, served greedily:
+        :math:`\mathbb E_g (B + A - \mathcal R_\mathrm{comm}\Delta t)^+/A` (backlog B, a slot's mean arrivals A),
+        the bits the slot would leave waiting, priced as if dropped.
         """
         d = np.asarray(alpha_comm, dtype=float)
+        rate = ctx.rate_per_share.reshape(ctx.rate_per_share.shape[:1] + (1,) * (d.ndim - 1) + (-1,))
+        if ctx.need is not None:  # the queue: what the slot leaves of the backlog and its mean arrivals
+            need = lead_axes(ctx.need, d.ndim + 1)
+            return np.maximum(need - d[..., None] * rate, 0.0) @ self.fade_w
         if self.scenario.rate_min_bps <= 0.0:  # no rate requirement: the env charges nothing
             return np.zeros(np.broadcast_shapes(d.shape, ctx.snr.shape + (1,) * (d.ndim - 1)))
-        rate = ctx.rate_per_share.reshape(ctx.rate_per_share.shape[:1] + (1,) * (d.ndim - 1) + (-1,))
         return np.maximum(1.0 - d[..., None] * rate, 0.0) @ self.fade_w
 
     def _coef(self, ctx: SlotContext, ndim: int) -> SensingCoefficients:
-        return replace(ctx.coef, **{f.name: _expand(getattr(ctx.coef, f.name), ndim)
+        return replace(ctx.coef, **{f.name: lead_axes(getattr(ctx.coef, f.name), ndim)
                                     for f in fields(ctx.coef) if f.name != "prior"})
 
-    def _objective(self, ctx, c, d):
-        """Objective of shares c, d (broadcastable, leading n) and its terms."""
+    def objective(self, ctx, c, d):
+        """The objective of control shares ``c`` and data shares ``d`` (broadcastable, leading n) and its terms."""
         sen = 1.0 - c - d
         eps_bar, p_viol = self.ctrl_terms(ctx, c)
         lam = self.tracking.axis_variances(self._coef(ctx, np.ndim(sen)), np.maximum(sen, 0.0),
@@ -392,7 +419,7 @@ class MyopicPolicy(SplitPolicy):
         if a.ndim != 3 or a.shape[0] != n or a.shape[2] != 3:
             raise ValueError(f"split must have shape (m, 3) or ({n}, m, 3), got {np.shape(split)}")
         check_split(a, "split")
-        value, terms = self._objective(ctx, a[..., 1], a[..., 2])
+        value, terms = self.objective(ctx, a[..., 1], a[..., 2])
         return {"reward": value, **terms}
 
     def expected_reward(self, obs, split) -> np.ndarray:
@@ -413,7 +440,7 @@ class MyopicPolicy(SplitPolicy):
         u_grid = np.linspace(0.0, 1.0, self.n_coarse)
         c = np.broadcast_to(c_grid[None, :, None], (n, self.n_coarse, 1))
         d = (top - c) * u_grid  # (n, C, U): every point feasible
-        value, _ = self._objective(ctx, c, d)
+        value, _ = self.objective(ctx, c, d)
         best = value.reshape(n, -1).argmax(1)
         ic, iu = np.unravel_index(best, value.shape[1:])
         c0, d0 = c_grid[ic], d[rows, ic, iu]
@@ -425,7 +452,7 @@ class MyopicPolicy(SplitPolicy):
             d_step /= self.refine_factor
             cc, dd = self._feasible(c0[:, None, None] * np.exp(log_step * k)[None, :, None],
                                     d0[:, None, None] + d_step * k[None, None, :])
-            value, _ = self._objective(ctx, cc, dd)
+            value, _ = self.objective(ctx, cc, dd)
             best = value.reshape(n, -1).argmax(1)
             ic, id_ = np.unravel_index(best, value.shape[1:])
             c0, d0 = cc[rows, ic, 0], dd[rows, ic, id_]

@@ -16,6 +16,7 @@ from iscc_gym.physics.fbl import comm_rate_bps, ctrl_goodput_bits
 from iscc_gym.physics.stability import scenario_eps_star
 from iscc_gym.scenario import Scenario
 from iscc_gym.sim.functional import decode_observation
+from iscc_gym.sim.schema import obs_size
 from iscc_gym.units import db_to_lin
 
 from .base import SplitPolicy, validate_split
@@ -162,6 +163,7 @@ class SCAPolicy(SplitPolicy):
         if not isinstance(scenario, Scenario):
             raise ValueError(f"scenario must be a Scenario, got {type(scenario).__name__}")
         self.scenario = scenario
+        self.obs_size = obs_size(scenario)
         self.mode = mode
         self.ignore_loss = bool(ignore_loss)
         self.loss_model = loss_model

@@ -12,7 +12,20 @@ from iscc_gym.agents.shipped import TUNED_DIR
 
 from iscc_gym.files import write_atomic
 
-__all__ = ["TUNED_DIR", "load_tuned", "save_tuned"]
+__all__ = ["TUNED_DIR", "load_tuned", "save_tuned", "task_of", "record_name"]
+
+
+def task_of(s) -> str:
+    """The task a scenario poses, which decides the tuning record its baselines read.
+
+    ``"urban"`` with blocked line of sight or a data queue (issue 25), else ``"paper"``.
+    """
+    return "urban" if (s.blockage != "none" or s.queue_slots > 0) else "paper"
+
+
+def record_name(policy: str, task: str) -> str:
+    """The tuning record of ``policy`` on ``task``: ``<policy>`` on the paper's, ``<policy>-<task>`` on another."""
+    return policy if task == "paper" else f"{policy}-{task}"
 
 
 
@@ -22,13 +35,15 @@ def load_tuned(name: str, path: str | Path | None = None) -> dict:
     Raises
     ------
     FileNotFoundError
-        No record: run ``python -m eval.tune <name>``.
+        No record: run ``python -m eval.tune <name>`` (``<policy> --scenario <task>`` for ``<policy>-<task>``).
     """
     import yaml
 
     p = Path(path) if path is not None else TUNED_DIR / f"{name}.yml"
     if not p.exists():
-        raise FileNotFoundError(f"no tuned parameters for {name!r} at {p}; run `python -m eval.tune {name}`")
+        policy = name[:-len("-urban")] if name.endswith("-urban") else name
+        cmd = f"python -m eval.tune {policy}" + (" --scenario urban" if policy != name else "")
+        raise FileNotFoundError(f"no tuned parameters for {name!r} at {p}; run `{cmd}`")
     with open(p) as f:
         record = yaml.safe_load(f)
     if not isinstance(record, dict) or "params" not in record:

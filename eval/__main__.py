@@ -6,6 +6,7 @@ Examples::
     python -m eval --policies ppo,sca,equal         # ppo: the shipped agent
     python -m eval --policies ppo=runs/ppo,sca,equal --episodes 50 --json out.json --plots figs/
     python -m eval --train-steps 300000             # train a fresh PPO agent first, then compare
+    python -m eval --env iscc_gym/ISCC-Urban-v0     # the urban task: myopic, margin, dpp, mpc, oracle
 
 Policies are ``NAME=PATH`` (a run directory of ``python -m train`` or a model ``.zip``; a bare ``ppo`` is
 the shipped agent) or a spec of :func:`agents.make_policy` (``sca``, ``sca-per-slot``, ``sca-ignore-loss``,
@@ -54,12 +55,15 @@ from iscc_gym.eval.policies import (  # noqa: F401
 )
 from iscc_gym.eval.training import run_training
 
-from iscc_gym import ENV_ID, MULTI_ENV_ID
+from iscc_gym import ENV_ID, MULTI_ENV_ID, URBAN_ENV_ID
 from iscc_gym.cli import run
-from iscc_gym.docs import README_PATH, RESULTS_PATH, docs_path, publish, save_json
+from iscc_gym.docs import README_PATH, RESULTS_PATH, docs_path, publish, save_json, write_section
 from iscc_gym.protocol import EVAL_SEED_START
 
 DEFAULT_POLICIES = "ppo,sca,sca-per-slot,margin,myopic,equal"
+#: The default comparison on the urban task (``--env iscc_gym/ISCC-Urban-v0``): the per-slot rules, the queue's
+#: drift-plus-penalty, the look-ahead planner and its oracle bound.
+URBAN_POLICIES = "myopic,margin,dpp,mpc,oracle"
 PROG = "python -m eval"
 
 
@@ -121,23 +125,27 @@ def save_plots(res: dict, out_dir: str | Path, dt_s: float = 0.1) -> list[str]:
 def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
     ap = Parser(prog=prog, description=__doc__.split("\n")[0], epilog=PICKLE_WARNING)
     ap.add_argument("--env", default=ENV_ID, metavar="ID",
-                    help="env id (default: iscc_gym/ISCC-v0); iscc_gym/ISCC-Multi-v0 runs python -m eval.multi with "
-                         "the other flags (--n-drones K, --k-scan, ...: python -m eval.multi --help)")
-    ap.add_argument("--policies", default=DEFAULT_POLICIES, metavar="LIST",
+                    help=f"env id (default: iscc_gym/ISCC-v0); {URBAN_ENV_ID}: the urban task (scenario 'urban', "
+                         f"policies {URBAN_POLICIES}, reference myopic); iscc_gym/ISCC-Multi-v0 runs python -m "
+                         "eval.multi with the other flags (--n-drones K, --k-scan, ...: python -m eval.multi --help)")
+    ap.add_argument("--policies", default=None, metavar="LIST",
                     help="comma-separated policies: NAME=PATH (a trained agent: a run directory of python -m train "
                          "or a model .zip; loads that directory's vecnormalize.pkl too, both pickles: only files "
                          "you trust), 'ppo' (the shipped agent), or a scripted spec: sca, sca-per-slot, "
                          "sca-ignore-loss, equal, fixed:A_SEN,A_CTRL,A_COMM, grid, evolutionary, margin, "
-                         f"margin:M_CTRL,M_COMM, myopic (default: {DEFAULT_POLICIES})")
+                         f"margin:M_CTRL,M_COMM, myopic, and on the urban task dpp, dpp:V, mpc, oracle (default: "
+                         f"{DEFAULT_POLICIES}; on the urban task {URBAN_POLICIES})")
     ap.add_argument("--episodes", type=positive_int, default=20, metavar="N",
                     help="held-out episodes (missions) per policy (default: 20)")
     ap.add_argument("--seed-start", type=nonneg_int, default=EVAL_SEED_START, metavar="SEED",
                     help="seed of the first episode; the others follow (default: 10000)")
     ap.add_argument("--seeds", metavar="LIST",
                     help="explicit comma-separated distinct seeds, instead of --episodes/--seed-start")
-    ap.add_argument("--scenario", default="paper", help="scenario preset (default: paper)")
+    ap.add_argument("--scenario", default=None,
+                    help="scenario preset (default: paper; urban with --env iscc_gym/ISCC-Urban-v0)")
     ap.add_argument("--reference", metavar="NAME",
-                    help="policy the paired differences are taken against (default: sca, if evaluated)")
+                    help="policy the paired differences are taken against (default: sca, if evaluated; myopic on "
+                         "the urban task)")
     ap.add_argument("--focus", metavar="NAME",
                     help="policy whose paired differences to every other policy are reported too (default: ppo, "
                          "if evaluated)")
@@ -184,8 +192,13 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> dict:
 
         return multi_main(rest, prog=f"{prog} --env {MULTI_ENV_ID}")
     args = build_parser(prog).parse_args(argv)
-    if args.env != ENV_ID:
-        raise ValueError(f"--env {args.env!r}: use {ENV_ID} or {MULTI_ENV_ID}")
+    if args.env not in (ENV_ID, URBAN_ENV_ID):
+        raise ValueError(f"--env {args.env!r}: use {ENV_ID}, {URBAN_ENV_ID} or {MULTI_ENV_ID}")
+    urban = args.env == URBAN_ENV_ID
+    if args.scenario is None:
+        args.scenario = "urban" if urban else "paper"
+    if args.policies is None:
+        args.policies = URBAN_POLICIES if urban else DEFAULT_POLICIES
     from iscc_gym import make_scenario
 
     try:
@@ -199,7 +212,7 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> dict:
         items = [it for it in items if policy_name(it) != "ppo"]
         items.insert(0, f"ppo={args.train_out}")
     names = [policy_name(it) for it in items]
-    reference = _pick(args.reference, "sca", names, "--reference")
+    reference = _pick(args.reference, "myopic" if urban else "sca", names, "--reference")
     focus = _pick(args.focus, "ppo", names, "--focus")
     check_specs([it for it in items if not (args.train_steps > 0 and policy_name(it) == "ppo")], args.scenario)
     # every output is checked before the (long) run
@@ -251,7 +264,12 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> dict:
         res.pop("traces")
     if args.write_docs:
         cmd = docs_command("python -m eval", argv)
-        publish("comparison", "Learned vs scripted allocation", markdown_table(res, cmd))
+        if urban:
+            write_section(docs_path(RESULTS_PATH), "urban-comparison",
+                          "## The urban task: look-ahead against per-slot policies\n\n" + markdown_table(res, cmd))
+            print(f"wrote {docs_path(RESULTS_PATH)}")
+        else:
+            publish("comparison", "Learned vs scripted allocation", markdown_table(res, cmd))
     if args.json:
         save_json(args.json, res)
     return res

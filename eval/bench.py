@@ -14,6 +14,7 @@ Every figure is the median over ``repeats`` runs, with its reference measured in
 * vector env env-steps/s at 1, 64 and 1024 envs (``gymnasium.make_vec``, native batched env);
 * the multi-drone vector env's drone-slots/s at 1024 envs x 4 drones, against the single-drone
   vector env at 1024 envs (cost per drone-slot);
+* the urban task's vector env at 1024 envs against the paper's (goal: at least half its env-steps/s);
 * PPO training env-steps/s end to end (SB3 defaults, 4 envs, ``torch.set_num_threads(1)``) on
   DummyVecEnv, SubprocVecEnv and the batched env; reference: the same PPO on Pendulum-v1 with
   DummyVecEnv;
@@ -60,13 +61,14 @@ def env_steps_per_second(env_id: str, n_steps: int, repeats: int, seed: int = 0,
 
 
 def vector_steps_per_second(num_envs: int, n_steps: int, repeats: int, seed: int = 0, warmup: int = 1,
-                            n_drones: int | None = None) -> dict:
+                            n_drones: int | None = None, env_id: str = iscc_gym.ENV_ID) -> dict:
     """Median env-steps/s of the native vector env (``n_steps`` batched steps per run, after ``warmup``
     untimed steps: compiled kernels loaded, the ``auto`` kernel choice made); with ``n_drones``, of the
-    multi-drone env (``iscc_gym/ISCC-Multi-v0``), also as drone-slots/s.
+    multi-drone env (``iscc_gym/ISCC-Multi-v0``), also as drone-slots/s; ``env_id`` the single-drone env's id
+    (``iscc_gym/ISCC-Urban-v0``: the urban task).
     """
     if n_drones is None:
-        venv = gym.make_vec(iscc_gym.ENV_ID, num_envs=num_envs, vectorization_mode="vector_entry_point")
+        venv = gym.make_vec(env_id, num_envs=num_envs, vectorization_mode="vector_entry_point")
     else:
         venv = gym.make_vec(iscc_gym.MULTI_ENV_ID, num_envs=num_envs, vectorization_mode="vector_entry_point",
                             n_drones=n_drones)
@@ -85,6 +87,23 @@ def vector_steps_per_second(num_envs: int, n_steps: int, repeats: int, seed: int
     med = statistics.median(rates)
     return {"median_env_steps_per_s": med, "runs": rates, "n_steps": n_steps, "num_envs": num_envs,
             "n_drones": n_drones, "median_drone_slots_per_s": med * (n_drones or 1)}
+
+
+def urban_speed(num_envs: int = 1024, n_steps: int = 300, repeats: int = 3) -> dict:
+    """The urban task's vector env (``iscc_gym/ISCC-Urban-v0``) against the paper's at ``num_envs``, measured alike
+    in this process: ``ratio`` of env-steps/s (goal >= 0.5). A run's ``n_steps`` stay inside the 1,200-slot
+    missions, so the reset's cost (the channel along the path) is reported apart: ``reset_ms_per_env``, one vector
+    reset of all ``num_envs`` over their number.
+    """
+    urban = vector_steps_per_second(num_envs, n_steps, repeats, warmup=4, env_id=iscc_gym.URBAN_ENV_ID)
+    paper = vector_steps_per_second(num_envs, n_steps, repeats, warmup=4)
+    venv = gym.make_vec(iscc_gym.URBAN_ENV_ID, num_envs=num_envs, vectorization_mode="vector_entry_point")
+    t0 = time.perf_counter()
+    venv.reset(seed=1)
+    reset_s = time.perf_counter() - t0
+    venv.close()
+    return {"urban": urban, "paper": paper, "reset_ms_per_env": 1e3 * reset_s / num_envs,
+            "ratio": urban["median_env_steps_per_s"] / paper["median_env_steps_per_s"]}
 
 
 def multi_drone_cost(num_envs: int = 1024, n_drones: int = 4, n_steps: int = 300, repeats: int = 3) -> dict:
@@ -276,7 +295,8 @@ def run(n_steps: int = 5000, repeats: int = 5, quick: bool = False, ppo: bool = 
     vec_steps = 5 if quick else 200
     under_load = full or quick
     ppo = ppo and (full or quick)
-    stages = ["single env", "vector env", "multi-drone", *(["kernel modes under load"] if under_load else []),
+    stages = ["single env", "vector env", "multi-drone", "urban task",
+              *(["kernel modes under load"] if under_load else []),
               "render", "static SCA evaluation", "solvers", *(["PPO training"] if ppo else [])]
     t0 = time.perf_counter()
     with Stages(len(stages), "python -m eval.bench", enabled=not quiet) as st:
@@ -297,6 +317,8 @@ def run(n_steps: int = 5000, repeats: int = 5, quick: bool = False, ppo: bool = 
         st.next("multi-drone")
         res["multi_drone"] = multi_drone_cost(16 if quick else 1024, 4, 20 if quick else 300,
                                               1 if quick else repeats)
+        st.next("urban task")
+        res["urban"] = urban_speed(16 if quick else 1024, 20 if quick else 300, 1 if quick else repeats)
         if under_load:
             st.next("kernel modes under load")
             res["vector_under_load"] = (vector_under_load(sizes=(64,), n_steps=20, repeats=1) if quick
@@ -338,6 +360,12 @@ def format_report(res: dict) -> str:
                      f"{m['median_drone_slots_per_s']:,.0f} drone-slots/s; single-drone env at {m['num_envs']} envs "
                      f"{md['single']['median_env_steps_per_s']:,.0f}; cost per drone-slot {md['cost_ratio']:.2f} x "
                      "the single env's (goal <= 1.5)")
+    if "urban" in res:
+        u = res["urban"]
+        lines.append(f"Urban task's vector env ({u['urban']['num_envs']} envs): "
+                     f"{u['urban']['median_env_steps_per_s']:,.0f} env-steps/s, {u['ratio']:.2f} x the paper env's "
+                     f"{u['paper']['median_env_steps_per_s']:,.0f} (goal >= 0.5); a reset "
+                     f"{u['reset_ms_per_env']:.1f} ms per sub-env")
     if "vector_under_load" in res:
         lines.append("Native vector env per kernel mode (iscc_gym.threads), quiet and beside a busy process, "
                      "env-steps/s:")
@@ -396,6 +424,12 @@ def markdown(res: dict) -> str:
                     f"{m['median_drone_slots_per_s']:,.0f} (cost per drone-slot {md['cost_ratio']:.2f} x) | "
                     f"single-drone env, {m['num_envs']} envs: {md['single']['median_env_steps_per_s']:,.0f} | "
                     "cost <= 1.5 x |")
+    if "urban" in res:
+        u = res["urban"]
+        rows.append(f"| urban task's vector env, {u['urban']['num_envs']} envs, env-steps/s | "
+                    f"{u['urban']['median_env_steps_per_s']:,.0f} ({u['ratio']:.2f} x; a reset "
+                    f"{u['reset_ms_per_env']:.1f} ms per sub-env) | paper env, {u['paper']['num_envs']} envs: "
+                    f"{u['paper']['median_env_steps_per_s']:,.0f} | >= 0.5 x |")
     if "vector_under_load" in res:
         labels = {"parallel": "parallel from 64 envs (the old default)", "serial": "serial (the default)"}
         for load, modes in res["vector_under_load"].items():

@@ -34,7 +34,7 @@ EPISODE_METRICS = {
     "reward": "episode reward (sum)",
     "tracking_error_m": "mean tracking error (m)",
     "mse_m2": "mean squared tracking error (m^2; the RMS error is its square root)",
-    "rate_violation": "fraction of slots with data rate below R_min",
+    "rate_violation": "fraction of slots with data rate below R_min (with a queue: slots that drop bits)",
     "stability_violation": "fraction of slots with eps_ctrl above eps*",
     "violation": "fraction of slots with either violation",
     "cost": "episode cost (sum of cost_rate + cost_stability)",
@@ -47,6 +47,7 @@ EPISODE_METRICS = {
     "alpha_sen": "mean sensing share",
     "alpha_ctrl": "mean control share",
     "alpha_comm": "mean data share",
+    "dropped_mbit": "data dropped at its deadline (Mbit, sum; 0 without a queue)",
 }
 
 _FRACTION = (0.0, 1.0)
@@ -57,7 +58,7 @@ METRIC_RANGES = {
     "tracking_error_m": _NONNEG, "mse_m2": _NONNEG, "rate_violation": _FRACTION, "stability_violation": _FRACTION,
     "violation": _FRACTION, "cost": _NONNEG, "peb_m": _NONNEG, "rate_comm_mbps": _NONNEG, "eps_ctrl": _FRACTION,
     "packet_loss": _FRACTION, "terminated": _FRACTION, "length": _NONNEG, "alpha_sen": _FRACTION,
-    "alpha_ctrl": _FRACTION, "alpha_comm": _FRACTION,
+    "alpha_ctrl": _FRACTION, "alpha_comm": _FRACTION, "dropped_mbit": _NONNEG,
 }
 
 #: How often (in slots) :func:`run_episodes` reports progress.
@@ -78,6 +79,10 @@ def horizon_slots(scenario: str | Scenario = "paper", max_steps: int | None = No
     return s.n_slots if max_steps is None else min(int(max_steps), s.n_slots)
 
 
+#: The Scenario fields a policy's ``scenario_overrides`` may set (the oracle's view of the same missions).
+SHOWN_OVERRIDES = frozenset({"preview_source"})
+
+
 def run_episodes(policy, seeds: Sequence[int], scenario: str | Scenario = "paper", max_steps: int | None = None,
                  record: int = 0, progress: Callable[[int], None] | None = None, n_drones: int | None = None,
                  **overrides) -> dict:
@@ -87,7 +92,9 @@ def run_episodes(policy, seeds: Sequence[int], scenario: str | Scenario = "paper
 
     ``progress(n)``, if given, is called every :data:`PROGRESS_EVERY` slots with the slots played since
     its last call; the calls add up to :func:`horizon_slots` (the rest is reported when every episode
-    ended early).
+    ended early). A policy's ``scenario_overrides`` attribute (the ``oracle``'s ``preview_source="truth"``)
+    is applied to the scenario: only fields of :data:`SHOWN_OVERRIDES`, which change what the env shows, not
+    the missions or their draws (common random numbers hold).
     """
     seeds = [int(s) for s in seeds]
     if not seeds:
@@ -95,7 +102,11 @@ def run_episodes(policy, seeds: Sequence[int], scenario: str | Scenario = "paper
     if max_steps is not None and int(max_steps) < 1:
         raise ValueError(f"max_steps = {max_steps}: play at least one slot (or None: the whole mission)")
     rate_drone = overrides.pop("rate_min_per_drone_bps", None)
-    s = make_scenario(scenario, **overrides)
+    shown = dict(getattr(policy, "scenario_overrides", None) or {})
+    if set(shown) - SHOWN_OVERRIDES:
+        raise ValueError(f"a policy's scenario_overrides may change only what the env shows "
+                         f"({sorted(SHOWN_OVERRIDES)}), never the missions; got {sorted(shown)}")
+    s = make_scenario(scenario, **{**overrides, **shown})
     k = len(seeds)
     venv = ISCCVectorEnv(num_envs=k, scenario=s, n_drones=n_drones, rate_min_per_drone_bps=rate_drone)
     drones = (lambda x: np.mean(x, axis=-1)) if n_drones else (lambda x: x)
@@ -106,7 +117,8 @@ def run_episodes(policy, seeds: Sequence[int], scenario: str | Scenario = "paper
     alive = np.ones(k, dtype=bool)
     sums = {key: np.zeros(k) for key in ("reward", "tracking_error_m", "mse_m2", "rate_violation",
                                          "stability_violation", "violation", "cost", "peb_m", "rate_comm_mbps",
-                                         "eps_ctrl", "packet_loss", "alpha_sen", "alpha_ctrl", "alpha_comm")}
+                                         "eps_ctrl", "packet_loss", "alpha_sen", "alpha_ctrl", "alpha_comm",
+                                         "dropped_mbit")}
     length = np.zeros(k)
     terminated_any = np.zeros(k, dtype=bool)
     traces: dict[str, list] = {"alpha": [], "tracking_error_m": [], "pos": [], "ref_pos": []}
@@ -132,6 +144,7 @@ def run_episodes(policy, seeds: Sequence[int], scenario: str | Scenario = "paper
         sums["rate_comm_mbps"] += a * drones(info["rate_comm_bps"]) * 1e-6
         sums["eps_ctrl"] += a * drones(info["eps_ctrl"])
         sums["packet_loss"] += a * drones(~info["packet_received"])
+        sums["dropped_mbit"] += a * drones(info["bits_dropped"]) * 1e-6
         alpha = info["alpha"].sum(axis=-2) if n_drones else info["alpha"]
         for j, name in enumerate(("alpha_sen", "alpha_ctrl", "alpha_comm")):
             sums[name] += a * alpha[:, j]
@@ -149,7 +162,8 @@ def run_episodes(policy, seeds: Sequence[int], scenario: str | Scenario = "paper
     wall = time.perf_counter() - t0
     if progress is not None and horizon > reported:
         progress(horizon - reported)
-    out = {key: (val if key in ("reward", "cost") else val / np.maximum(length, 1)) for key, val in sums.items()}
+    out = {key: (val if key in ("reward", "cost", "dropped_mbit") else val / np.maximum(length, 1))
+           for key, val in sums.items()}
     out["terminated"] = terminated_any.astype(float)
     out["length"] = length
     res = {"episodes": out, "seeds": seeds, "wall_time_s": wall, "slots": int(length.sum())}

@@ -1,4 +1,4 @@
-"""``python -m eval.tune {margin,sca-per-slot}``: tune a scripted baseline on training seeds, store the result.
+"""``python -m eval.tune {margin,sca-per-slot,myopic,dpp,mpc}``: tune a scripted baseline on training seeds, store it.
 
 Tuning seeds (default :data:`TUNE_SEEDS`, 500,000 onwards) are disjoint from every evaluation seed
 of the project (the comparison's 10,000-10,999, training's held-out 1,000,000 onwards, RL training's
@@ -15,9 +15,15 @@ for, as a fraction of eps*): a grid (:data:`SCA_FRACTION_GRID`) on the tuning se
 scalar search (``scipy.optimize.minimize_scalar``) between the best grid point's neighbours. The
 record goes to ``agents/tuned/sca-per-slot.yml``, which ``SCAPolicy(mode="per_slot")`` reads.
 
+On the urban task (``--scenario urban``; records ``<policy>-urban.yml``, which ``make_policy`` reads for a
+scenario with a queue or blockage): ``margin`` as above; ``myopic`` its data weight (the queue's greedy price),
+``dpp`` its V, ``mpc`` its deadline margin and terminal weight, each a grid (:data:`SCALAR_GRIDS`) on the tuning
+seeds, every point on the same missions.
+
 Examples::
 
     python -m eval.tune margin                       # 40 missions from seed 500000
+    python -m eval.tune mpc --scenario urban --episodes 16
     python -m eval.tune margin --episodes 10 --out /tmp/margin.yml
     python -m eval.tune sca-per-slot
 """
@@ -28,10 +34,11 @@ import sys
 import time
 
 import numpy as np
+from iscc_gym.agents import DriftPlusPenaltyPolicy, LookaheadPolicy, MyopicPolicy
 from iscc_gym.agents.base import SplitPolicy
 from iscc_gym.agents.margin import margin_split, predicted_needs
 from iscc_gym.agents.sca_slot import PER_SLOT_RECORD, SCAPolicy
-from iscc_gym.agents.tuned_records import save_tuned
+from iscc_gym.agents.tuned_records import record_name, save_tuned, task_of
 from iscc_gym.eval.evaluate import run_episodes
 from iscc_gym.eval.options import (
     Parser,
@@ -107,6 +114,58 @@ def margin_rewards(points, seeds, scenario="paper", progress=None) -> np.ndarray
         if progress is not None:
             progress(1)
     return np.concatenate(out)
+
+
+#: The urban task's model-based baselines: their parameters' grids for ``python -m eval.tune <policy> --scenario urban``
+#: (every combination played on the tuning seeds).
+SCALAR_GRIDS = {"myopic": {"rate_weight": (0.1, 0.3, 0.6, 1.0, 2.0, 4.0)},
+                "dpp": {"v": (0.3, 1.0, 3.0, 10.0, 30.0, 100.0, 300.0)},
+                "mpc": {"deadline_margin": (0.0, 2.0, 4.0, 6.0), "terminal_weight": (0.0, 1.0)}}
+
+
+def _grid_policy(policy: str, scenario, params: dict):
+    if policy == "myopic":
+        return MyopicPolicy(scenario, **params)
+    if policy == "dpp":
+        return DriftPlusPenaltyPolicy(scenario, **params)
+    return LookaheadPolicy(scenario, **params)
+
+
+def tune_scalar(policy: str, seeds=TUNE_SEEDS, scenario: str = "urban", log=print, progress=None,
+                max_steps: int | None = None, grid: dict | None = None) -> dict:
+    """The parameters of ``policy`` on the grid of :data:`SCALAR_GRIDS` (every combination), every point on the same
+    tuning seeds; returns the tuning record. ``progress(1)`` after each point; ``max_steps`` cuts the missions.
+    """
+    seeds = check_tuning_seeds(seeds)
+    grid = SCALAR_GRIDS[policy] if grid is None else grid
+    names = list(grid)
+    points = [dict(zip(names, (float(v) for v in combo), strict=True))
+              for combo in np.stack(np.meshgrid(*grid.values(), indexing="ij"), -1).reshape(-1, len(names))]
+    s = make_scenario(scenario)
+    if task_of(s) != "urban":
+        raise ValueError(f"--scenario {scenario!r}: {policy} is tuned on the urban task (--scenario urban)")
+    t0 = time.perf_counter()
+    rewards = []
+    for params in points:
+        run = run_episodes(_grid_policy(policy, s, params), list(seeds), s, max_steps=max_steps)
+        rewards.append(float(run["episodes"]["reward"].mean()))
+        if progress is not None:
+            progress(1)
+    best = int(np.argmax(rewards))
+    log(f"grid: {len(points)} points x {len(seeds)} missions in {time.perf_counter() - t0:.1f} s; best "
+        + ", ".join(f"{k} = {v:g}" for k, v in points[best].items()) + f": {rewards[best]:.1f}")
+    return {
+        "policy": policy,
+        "params": points[best],
+        "objective": "mean episode reward on the tuning seeds (common random numbers)",
+        "objective_value": round(rewards[best], 3),
+        "scenario": scenario,
+        "seeds": _seed_text(seeds),
+        "n_seeds": len(seeds),
+        "columns": [*names, "reward"],
+        "grid": [[*p.values(), round(r, 3)] for p, r in zip(points, rewards, strict=True)],
+        "wall_time_s": round(time.perf_counter() - t0, 1),
+    }
 
 
 #: Most Nelder-Mead evaluations of :func:`tune_margin`.
@@ -229,12 +288,16 @@ def _fmt(x) -> str:
 
 def build_parser(prog: str = "python -m eval.tune") -> Parser:
     ap = Parser(prog=prog, description=__doc__.split("\n")[0])
-    ap.add_argument("policy", choices=["margin", PER_SLOT_RECORD], help="the baseline to tune")
+    ap.add_argument("policy", choices=["margin", PER_SLOT_RECORD, *SCALAR_GRIDS],
+                    help="the baseline to tune (myopic, dpp, mpc: on the urban task, --scenario urban)")
     ap.add_argument("--episodes", type=positive_int, default=len(TUNE_SEEDS), metavar="N",
                     help=f"tuning missions (default: {len(TUNE_SEEDS)})")
     ap.add_argument("--seed-start", type=nonneg_int, default=TUNE_SEED_START, metavar="SEED",
                     help=f"first tuning seed, outside the evaluation seeds (default: {TUNE_SEED_START})")
-    ap.add_argument("--scenario", default="paper", help="scenario preset (default: paper)")
+    ap.add_argument("--scenario", default="paper", help="scenario preset (default: paper; urban: the urban task, "
+                                                        "records <policy>-urban.yml)")
+    ap.add_argument("--max-steps", type=positive_int, default=None, metavar="N",
+                    help="slots per tuning mission for myopic, dpp and mpc (default: the whole mission; tests)")
     ap.add_argument("--no-refine", action="store_true",
                     help="grid only (no Nelder-Mead for margin, no bounded search for sca-per-slot)")
     ap.add_argument("--out", metavar="PATH",
@@ -251,7 +314,13 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.tune") -> di
     if args.out:
         check_writable_file(args.out, "--out")
     show = show_progress(args.quiet)
-    if args.policy == "margin":
+    task = task_of(make_scenario(args.scenario))
+    if args.policy in SCALAR_GRIDS:
+        total = int(np.prod([len(v) for v in SCALAR_GRIDS[args.policy].values()]))
+
+        def tune(seeds, scenario, refine, log, progress):
+            return tune_scalar(args.policy, seeds, scenario, log, progress, max_steps=args.max_steps)
+    elif args.policy == "margin":
         total = n_batches(int(np.prod([len(v) for v in MARGIN_GRID.values()])), len(seeds))
         total += 0 if args.no_refine else MAX_REFINE
         tune = tune_margin
@@ -263,7 +332,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.tune") -> di
                       log=bar.write if show else print, progress=bar.update if show else None)
     record["command"] = " ".join(["python -m eval.tune", *[a for a in (argv if argv is not None else sys.argv[1:])
                                                           if a != "--quiet"]])
-    path = save_tuned(args.policy, record, args.out)
+    path = save_tuned(record_name(args.policy, task), record, args.out)
     print(f"wrote {path}: {record['params']}")
     return record
 

@@ -6,7 +6,7 @@ A mission is a seed of ``env.reset(seed=...)``. The rules every command follows,
   at :data:`EVAL_SEED_START`; the training run's EvalCallback plays :data:`CALLBACK_EVAL_SEED_START` + i;
   each study of ``eval`` draws its missions from its own start inside the upper range (:func:`held_out_seeds`):
   :data:`FADING_SEED_START`, :data:`SENSITIVITY_SEED_START`, :data:`PARETO_SEED_START`,
-  :data:`MULTI_SEED_START`.
+  :data:`MULTI_SEED_START`, :data:`URBAN_SEED_START`.
 - **Training and tuning seeds** stay outside those ranges (checked: :func:`check_outside_evaluation`): PPO
   trains on small integers, the warm start's missions start at :data:`INIT_SEED_START`, the scripted
   baselines are tuned on :data:`TUNE_SEEDS`, the reproduction calibrates on :data:`CALIBRATION_SEED_START` + i.
@@ -21,7 +21,7 @@ import numpy as np
 
 __all__ = ["EVAL_SEED_RANGES", "EVAL_SEED_START", "CALLBACK_EVAL_SEED_START", "INIT_SEED_START", "TUNE_SEED_START",
            "TUNE_SEEDS", "CALIBRATION_SEED_START", "FADING_SEED_START", "SENSITIVITY_SEED_START", "PARETO_SEED_START",
-           "MULTI_SEED_START", "PARETO_RATE_MIN_BPS", "held_out_seeds", "check_outside_evaluation"]
+           "MULTI_SEED_START", "URBAN_SEED_START", "PARETO_RATE_MIN_BPS", "held_out_seeds", "check_outside_evaluation"]
 
 #: The held-out evaluation seeds, each range [start, stop). Training and tuning seeds must avoid them.
 EVAL_SEED_RANGES = ((10_000, 11_000), (1_000_000, 2_000_000))
@@ -42,6 +42,7 @@ FADING_SEED_START = 1_100_000
 SENSITIVITY_SEED_START = 1_200_000
 PARETO_SEED_START = 1_300_000
 MULTI_SEED_START = 1_400_000
+URBAN_SEED_START = 1_500_000
 #: The Pareto study's data-rate requirement R_min (bit/s): the learned operating points (``train.pareto``) are
 #: trained and compared (``eval.pareto``) at this value; at the ``paper`` preset's 20 Mbps no split meets a 5 % or
 #: 10 % rate-outage target (docs/model.md 4.6).

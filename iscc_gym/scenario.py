@@ -16,6 +16,12 @@ Two presets live in :data:`SCENARIOS`:
 ``"literal"``
     Table I and the equations exactly as printed: process noise read as variances, total-power SNR,
     the printed array response and angle Fisher information, and a control deadline of one slot.
+
+and the task of issue 25:
+
+``"urban"``
+    A low-altitude flight in UMa-AV: blocked line of sight along the path, a channel-knowledge map, a
+    downlink data queue with a deadline, and a preview of the path ahead (:data:`URBAN_OVERRIDES`).
 """
 
 from __future__ import annotations
@@ -27,7 +33,7 @@ from typing import Any, TypeVar
 
 from iscc_gym.scenario_checks import validate
 
-__all__ = ["Scenario", "SCENARIOS", "make_scenario", "per_scenario"]
+__all__ = ["Scenario", "SCENARIOS", "make_scenario", "per_scenario", "URBAN_OVERRIDES", "LITERAL_OVERRIDES"]
 
 
 
@@ -189,6 +195,34 @@ class Scenario:
         stored on board, no feedback, no link).
     reference_feedforward : bool
         Add the reference acceleration to the LQG command. The paper's law has none (False).
+    blockage : str
+        Blocked line of sight along the path (the urban task, ``docs/model.md`` Sec. 6): ``"none"`` (the
+        paper: always LoS, shadowing an AR(1) process along the path), ``"uma_av"`` or ``"umi_av"`` (3GPP TR
+        36.777 Annex B: LoS probability of Table B-1, path loss and shadowing of Table B-2; the LoS state
+        and the shadowing are spatially consistent fields over the horizontal plane, drawn per mission,
+        :mod:`iscc_gym.physics.blockage`). Needs the altitude band within (22.5, 300] m.
+    los_correlation_m : float
+        Correlation distance of the LoS state's field, m (TR 38.901 Table 7.6.3.1-2: 50 for UMa and UMi).
+    map_error_std : float
+        The GBS's channel-knowledge map: the std of the truth's normalised fields around the map's
+        (0: the map is the truth; 1: the map knows only the 3GPP prior). Default 0.4 (correlation 0.92).
+    queue_deadline_s : float
+        Downlink data queue (:mod:`iscc_gym.physics.queue`): bits not delivered within this time are
+        dropped; rounded to whole slots. 0 (the paper): no queue, the data link's per-slot rate
+        requirement ``rate_min_bps`` instead.
+    queue_arrival_bps : float
+        Mean arrival rate of the queue's data, bit/s.
+    queue_arrival_cv : float
+        Coefficient of variation of a slot's arrivals (log-normal bursts; 0 a constant stream).
+    preview_slots : int
+        Points of the look-ahead along the reference in the observation (the GBS's map: LoS
+        probability and predicted SNR of the command link and of the echo); 0 none. Needs ``blockage``.
+    preview_stride_slots : int
+        Slots between the preview's points (the look-ahead spans preview_slots x preview_stride_slots).
+    preview_source : str
+        ``"map"`` (the GBS's map, the task) or ``"truth"``: the preview shows the realised LoS state (0/1) and
+        the SNRs with the realised shadowing (both states' entries the realised one), the missions and every
+        draw unchanged. For an oracle bound (``eval``'s ``oracle``), not a policy's information.
     """
 
     # --- Table I: radio -------------------------------------------------------------------------
@@ -256,6 +290,16 @@ class Scenario:
     observation_source: str = "isac"
     control_mode: str = "lqg"
     reference_feedforward: bool = False
+    # --- the urban task (issue 25): off by default, so the paper's presets are unchanged --------------
+    blockage: str = "none"
+    los_correlation_m: float = 50.0
+    map_error_std: float = 0.4
+    queue_deadline_s: float = 0.0
+    queue_arrival_bps: float = 20e6
+    queue_arrival_cv: float = 0.5
+    preview_slots: int = 0
+    preview_stride_slots: int = 1
+    preview_source: str = "map"
 
     def __post_init__(self) -> None:
         validate(self)
@@ -275,6 +319,11 @@ class Scenario:
     def gnss_update_slots(self) -> int:
         """Slots between GNSS fixes: gnss_update_period_s / dt_s rounded, at least 1 (a fix every slot)."""
         return max(1, int(round(self.gnss_update_period_s / self.dt_s)))
+
+    @property
+    def queue_slots(self) -> int:
+        """The queue's deadline in slots (``queue_deadline_s / dt_s`` rounded, at least 1), 0 without a queue."""
+        return 0 if self.queue_deadline_s == 0.0 else max(1, int(round(self.queue_deadline_s / self.dt_s)))
 
     @property
     def n_slots(self) -> int:
@@ -320,9 +369,26 @@ LITERAL_OVERRIDES: dict[str, Any] = {
     "gnss_update_period_s": 0.1,
 }
 
+#: Overrides turning the ``paper`` preset into the low-altitude urban task (``docs/model.md`` Sec. 6).
+URBAN_OVERRIDES: dict[str, Any] = {
+    # UMa-AV below 100 m: blocked stretches on every mission (5-25 % of a flight), the link in NLoS 15-25 dB
+    # weaker but alive (UMi-AV blocks half the flight and loses track on most: the harder variant)
+    "blockage": "uma_av",
+    "altitude_min_m": 30.0,         # low-altitude flights, above the 22.5 m where Tables B-1/B-2 start
+    "altitude_max_m": 60.0,
+    "coverage_radius_m": 400.0,
+    "mission_duration_s": 120.0,    # a two-minute delivery or inspection flight
+    "queue_deadline_s": 1.0,        # video/telemetry downlink latency budget
+    "queue_arrival_bps": 5e6,
+    "queue_arrival_cv": 0.5,
+    "preview_slots": 10,
+    "preview_stride_slots": 5,      # 10 points over the next 5 s
+}
+
 SCENARIOS: dict[str, Scenario] = {
     "paper": Scenario(),
     "literal": Scenario(**LITERAL_OVERRIDES),
+    "urban": Scenario(**URBAN_OVERRIDES),
 }
 
 

@@ -35,6 +35,8 @@ CHOICES: dict[str, tuple[str, ...]] = {
     "observation_source": ("isac", "gnss"),
     "control_mode": ("lqg", "open_loop"),
     "rate_cost_determinant": ("pseudo", "printed"),
+    "blockage": ("none", "uma_av", "umi_av"),
+    "preview_source": ("map", "truth"),
 }
 
 
@@ -94,6 +96,13 @@ _RANGES: dict[str, tuple[float, float, bool]] = {
     "gnss_pos_std_m": (0.0, 1e6, True),
     "gnss_vel_std_mps": (0.0, 1e4, True),
     "gnss_update_period_s": (0.0, 1e6, True),
+    "los_correlation_m": (0.0, 1e5, True),
+    "map_error_std": (0.0, 1.0, False),
+    "queue_deadline_s": (0.0, 1e4, False),
+    "queue_arrival_bps": (0.0, 1e12, False),
+    "queue_arrival_cv": (0.0, 10.0, False),
+    "preview_slots": (0, 256, False),
+    "preview_stride_slots": (1, 10**4, False),
 }
 #: At most this many slots per mission (the reference alone takes 72 bytes a slot per loop).
 MAX_SLOTS = 1_000_000
@@ -153,7 +162,7 @@ def _range_text(lo: float, hi: float, lo_open: bool) -> str:
 
 def validate(s: Scenario) -> None:
     integer = ["n_x", "n_y", "n_symbols", "n_subcarriers", "ctrl_packet_bits", "ctrl_blocklength",
-               "comm_blocklength", "min_waypoints"]
+               "comm_blocklength", "min_waypoints", "preview_slots", "preview_stride_slots"]
     for f in dataclasses.fields(s):
         v = getattr(s, f.name)
         if f.name in CHOICES or f.name == "reference_feedforward":
@@ -227,6 +236,18 @@ def validate(s: Scenario) -> None:
               f"{REFERENCE_SHARE_DRAWS} seeded draws (a share of at least {MIN_REFERENCE_SHARE:g} needed; a reset "
               f"gives up after 1000 draws); lower it, "
               f"or widen the altitude band (altitude_min_m, altitude_max_m)")
+    if s.blockage != "none" and not (22.5 < s.altitude_min_m and s.altitude_max_m <= 300.0):
+        _fail("altitude_min_m" if s.altitude_min_m <= 22.5 else "altitude_max_m",
+              s.altitude_min_m if s.altitude_min_m <= 22.5 else s.altitude_max_m,
+              f"within (22.5, 300] m with blockage = {s.blockage!r} (the heights of TR 36.777 Table B-2's aerial path "
+              f"loss); raise altitude_min_m or lower altitude_max_m, or set blockage = 'none'")
+    if s.queue_deadline_s > 0.0 and s.queue_deadline_s < 0.5 * s.dt_s:
+        _fail("queue_deadline_s", s.queue_deadline_s, f"0 (no queue) or at least half a slot (dt_s = {s.dt_s} s)")
+    if s.queue_deadline_s > 1000.0 * s.dt_s:
+        _fail("queue_deadline_s", s.queue_deadline_s, f"at most 1000 slots of dt_s = {s.dt_s} s")
+    if s.preview_slots > 0 and s.blockage == "none":
+        _fail("preview_slots", s.preview_slots, "0 with blockage = 'none' (the preview reads the blockage map); "
+              "set blockage to 'uma_av' or 'umi_av'")
     if s.lqg_q_pos == 0.0:
         # (A, Q^{1/2}) must be detectable for the LQG gain to stabilise: position weight > 0.
         _fail("lqg_q_pos", s.lqg_q_pos, "> 0 (with zero position weight the LQR leaves the "

@@ -206,6 +206,7 @@ def env_step_reference(s: Scenario, state: loop.LoopState, actions, z):
     obs, evaluable = _observe_and_check(s, new, cols[COL["packet_received"]], cols[COL["peb_m"]])
     costs = reward_and_costs(s, m, new.n, evaluable)
     cols += [alpha[:, 0], alpha[:, 1], alpha[:, 2]] + [np.asarray(v, dtype=float) for v in costs]
+    cols += [np.zeros(len(alpha))] * 4  # the queue's columns: no queue in these scenarios
     out = np.stack(cols, axis=-1)
     return new, out, obs
 

@@ -30,8 +30,10 @@ def test_bench_quick_reports_every_figure(tmp_path, capsys, ppo_figure):
     captured = capsys.readouterr()
     assert "Pendulum-v1 (reference)" in captured.out and "64 envs" in captured.out
     # issue 23: a line per stage on stderr, also without a terminal
-    assert "[python -m eval.bench] 0/7 stage (single env)" in captured.err
-    assert "[python -m eval.bench] done: 7/7 stage" in captured.err
+    assert "[python -m eval.bench] 0/8 stage (single env)" in captured.err
+    assert "[python -m eval.bench] done: 8/8 stage" in captured.err
+    urban = res["urban"]  # the urban task's vector env beside the paper's, measured alike
+    assert urban["ratio"] > 0 and urban["reset_ms_per_env"] > 0 and "Urban task's vector env" in captured.out
     assert captured.err.count("stage (render)") == 1  # one line a stage, none with a finished stage's name
 
 

@@ -31,6 +31,15 @@ def test_readme_multi_drone_example_runs_in_five_lines(capsys):
     assert "[" in capsys.readouterr().out
 
 
+def test_readme_urban_example_runs(capsys):
+    code = _block("<!-- readme-urban:start -->", "<!-- readme-urban:end -->")
+    assert len(code.strip().splitlines()) == 4
+    namespace = {}
+    exec(compile(code, "README urban example", "exec"), namespace)
+    assert namespace["obs"].shape == (76,) and namespace["info"]["bits_dropped"] == 0.0
+    assert len(capsys.readouterr().out.split()) == 3
+
+
 def _outside_generated_blocks(text: str) -> str:
     return re.sub(r"<!-- ([\w-]+):start -->.*?<!-- \1:end -->", "", text, flags=re.S)
 

@@ -20,18 +20,20 @@ POSITIVE = [  # must be > 0
     "shadowing_decorrelation_m", "rcs_m2", "subcarrier_spacing_hz", "symbol_duration_s",
     "mission_duration_s", "dt_s", "lqg_r", "ctrl_deadline_s", "lqg_cost_target",
     "max_tracking_error_m", "waypoint_intensity_per_km3", "sensing_prior_var_m2",
-    "gnss_pos_std_m", "gnss_vel_std_mps",
+    "gnss_pos_std_m", "gnss_vel_std_mps", "los_correlation_m",
 ]
 NON_NEGATIVE = [  # must be >= 0
     "gbs_height_m", "shadowing_a_db", "shadowing_b_per_m", "lqg_q_vel", "process_noise_pos",
     "process_noise_vel", "rate_min_bps", "w_rate", "w_stab", "initial_pos_std_m",
-    "initial_vel_std_mps", "altitude_min_m",
+    "initial_vel_std_mps", "altitude_min_m", "map_error_std", "queue_deadline_s", "queue_arrival_bps",
+    "queue_arrival_cv",
 ]
 POSITIVE_INT = ["n_x", "n_y", "n_symbols", "n_subcarriers", "ctrl_packet_bits",
                 "ctrl_blocklength", "comm_blocklength", "min_waypoints"]
 BLER = ["ctrl_target_bler", "comm_target_bler"]  # in (0, 0.5)
 ANY_FINITE = ["tx_power_dbm", "noise_psd_dbm_hz", "comm_snr_offset_db", "sensing_snr_offset_db",
               "rician_k_db", "altitude_max_m"]
+URBAN_INT = ["preview_slots", "preview_stride_slots"]  # integers >= 0 and >= 1; previews need blockage
 SPECIAL = ["lqg_q_pos", "gnss_update_period_s"]  # > 0 (and: zero position weight; a multiple of dt_s)
 CHOICES = {
     "process_noise_reading": ("variance", "std"),
@@ -43,9 +45,11 @@ CHOICES = {
     "observation_source": ("isac", "gnss"),
     "control_mode": ("lqg", "open_loop"),
     "rate_cost_determinant": ("pseudo", "printed"),
+    "blockage": ("none", "uma_av", "umi_av"),
+    "preview_source": ("map", "truth"),
 }
 BOOLS = ["reference_feedforward"]
-NUMERIC = POSITIVE + NON_NEGATIVE + POSITIVE_INT + BLER + ANY_FINITE + SPECIAL
+NUMERIC = POSITIVE + NON_NEGATIVE + POSITIVE_INT + BLER + ANY_FINITE + SPECIAL + URBAN_INT
 
 
 def _msg(name):
@@ -115,6 +119,29 @@ def test_min_waypoints(bad):
         Scenario(min_waypoints=bad)
     assert Scenario(min_waypoints=2).min_waypoints == 2
     assert Scenario(min_waypoints=16).min_waypoints == 16
+
+
+@pytest.mark.parametrize("bad", [-1, 2.0, 257, True])
+def test_preview_slots(bad):
+    urban = SCENARIOS["urban"]
+    with pytest.raises(ValueError, match=_msg("preview_slots")):
+        urban.replace(preview_slots=bad)
+    assert urban.replace(preview_slots=0).preview_slots == 0
+    with pytest.raises(ValueError, match=_msg("preview_stride_slots")):
+        urban.replace(preview_stride_slots=0)
+    with pytest.raises(ValueError, match=_msg("preview_slots") + r"4 is invalid: must be 0 with blockage = 'none'"):
+        Scenario(preview_slots=4)
+
+
+def test_urban_fields_ranges_and_cross_checks():
+    with pytest.raises(ValueError, match=_msg("map_error_std")):
+        Scenario(map_error_std=1.5)
+    with pytest.raises(ValueError, match=_msg("queue_deadline_s") + r".*at least half a slot"):
+        Scenario(queue_deadline_s=0.01)
+    with pytest.raises(ValueError, match=_msg("altitude_min_m") + r".*TR 36.777 Table B-2"):
+        SCENARIOS["urban"].replace(altitude_min_m=20.0, gbs_height_m=10.0)
+    assert Scenario().queue_slots == 0 and SCENARIOS["urban"].queue_slots == 10
+    assert Scenario(queue_deadline_s=0.26).queue_slots == 3
 
 
 @pytest.mark.parametrize("name", BLER)

@@ -152,7 +152,7 @@ def test_parallel_kernel_equals_serial_kernel_bit_for_bit():
     refs = np.ascontiguousarray(np.broadcast_to(ref, (b,) + ref.shape))
     state = loop.init_state(s, refs, rng)
     c, mats = slot_params(s)
-    args = (c, mats, state.x, state.x_hat, state.p, state.shadow, state.n, state.ref, state.key,
+    args = (c, mats, state.x, state.x_hat, state.p, state.shadow, state.n, state.ref, state.key, state.queue,
             rng.uniform(-1, 1, (b, 3)), rng.uniform(0, 1, b), rng.standard_normal((b, loop.N_DRAWS)),
             rng.random(b) < 0.9)
     serial = kernel.new_outputs(b, len(STEP_COLUMNS))

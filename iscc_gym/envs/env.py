@@ -17,11 +17,10 @@ from iscc_gym.physics.stability import scenario_eps_star
 from iscc_gym.scenario import Scenario, make_scenario
 from iscc_gym.sim import loop
 from iscc_gym.sim.functional import env_step, observe, reset_info_arrays, step_info
-from iscc_gym.sim.schema import COL, OBS_BOUND, OBS_NAMES
-from iscc_gym.trajectory import sample_reference
+from iscc_gym.sim.schema import COL, OBS_BOUND, obs_size
 
-__all__ = ["ISCCEnv", "ENV_ID", "REGISTERED_MAX_EPISODE_STEPS", "check_seed", "check_keywords", "real_array",
-           "warn_time_limit"]
+__all__ = ["ISCCEnv", "ENV_ID", "URBAN_ENV_ID", "REGISTERED_MAX_EPISODE_STEPS", "check_seed", "check_keywords",
+           "real_array", "warn_time_limit"]
 
 #: Reward, terminated and truncated from a step's output row.
 _read_end = operator.itemgetter(COL["reward"], COL["terminated"], COL["truncated"])
@@ -85,6 +84,8 @@ def real_array(x: ArrayLike, name: str = "action") -> np.ndarray:
 
 #: The registered id of this env.
 ENV_ID = "iscc_gym/ISCC-v0"
+#: The urban task (issue 25): :class:`ISCCEnv` with the ``urban`` preset, a 1,200-slot mission.
+URBAN_ENV_ID = "iscc_gym/ISCC-Urban-v0"
 #: The registered ``max_episode_steps`` of ``iscc_gym/ISCC-v0`` (the paper's mission: 500 s / 0.1 s).
 REGISTERED_MAX_EPISODE_STEPS = 5000
 
@@ -156,6 +157,20 @@ class ISCCEnv(gym.Env):
     | 21 | last slot's PEB (0 at reset) | symlog(m, 0.05) | 0 | 10 |
     | 22 | mission time left | fraction | 0 | 1 |
 
+    **The urban task** (``iscc_gym/ISCC-Urban-v0``, preset ``"urban"``; ``docs/model.md`` Sec. 6) has
+    ``Box(-10, 10, (76,), float32)``: the 23 above (entry 13 the slot's measured large-scale SNR,
+    blocked line of sight included; entry 19 the data share that would carry the backlog and a slot's mean
+    arrivals in the slot), then (:func:`iscc_gym.sim.schema.obs_names`):
+
+    | Num | Observation | Unit / scaling | Min | Max |
+    |-----|-------------|----------------|-----|-----|
+    | 23 | data backlog B | ln(1 + B / (arrival rate x dt)) | 0 | 10 |
+    | 24 | oldest waiting bit's age | / deadline in slots | 0 | 1 |
+    | 25 | the slot's measured large-scale echo SNR per element and subcarrier | dB / 10 | -10 | 10 |
+    | 26 + 5(k-1) | map's LoS probability k stride slots ahead, k = 1 .. 10 | - | 0 | 1 |
+    | 27 + 5(k-1), 28 + 5(k-1) | map's large-scale SNR of the command link there, in LoS, in NLoS | dB / 10 | -10 | 10 |
+    | 29 + 5(k-1), 30 + 5(k-1) | map's large-scale echo SNR there, in LoS, in NLoS | dB / 10 | -10 | 10 |
+
     ## Rewards
 
     .. math::
@@ -169,6 +184,11 @@ class ISCCEnv(gym.Env):
     :class:`iscc_gym.envs.wrappers.SafetyCostWrapper` returns Safety-Gymnasium's 6-tuple. Loss of track
     adds a one-off penalty of ``max_tracking_error_m`` per remaining slot (as if the error stayed at
     the bound for the rest of the mission), so ending an episode early never pays.
+
+    With a data queue (the urban task), the data term is :math:`w_\mathrm{rate} X_n / (\lambda\Delta t)`,
+    the bits dropped at their deadline in the slot over a slot's mean arrivals, and ``cost_rate`` is 1 in a
+    slot that drops bits; ``info`` reports ``bits_arrived``, ``bits_served``, ``bits_dropped`` and
+    ``backlog_bits`` (0 without a queue).
 
     ## Starting State
 
@@ -202,7 +222,8 @@ class ISCCEnv(gym.Env):
     ## Arguments
 
     ``gymnasium.make("iscc_gym/ISCC-v0", scenario="paper", render_mode=None, **overrides)``:
-    ``scenario`` is a preset name (``"paper"``, ``"literal"``) or a :class:`iscc_gym.Scenario`;
+    ``scenario`` is a preset name (``"paper"``, ``"literal"``, ``"urban"``: ``iscc_gym/ISCC-Urban-v0``) or a
+    :class:`iscc_gym.Scenario`;
     ``overrides`` are Scenario fields, e.g. ``observation_source="gnss"`` (GNSS feedback, 3 m and
     0.2 m/s), ``control_mode="open_loop"`` (reference acceleration, no feedback),
     ``reference_feedforward=True``. An unknown keyword raises Python's own ``TypeError`` wording,
@@ -223,6 +244,9 @@ class ISCCEnv(gym.Env):
     * v0, issue 23 (no change to dynamics or rewards): the reset ``info`` carries a step's keys,
       ``render_mode="human"`` (a status line on stdout), Python's own ``TypeError`` wording for an
       unknown keyword, complex actions refused.
+    * v0, issue 25 (no change to ``ISCC-v0``'s dynamics, rewards or observations): the queue's four info keys
+      (0 without a queue); the urban task ``iscc_gym/ISCC-Urban-v0`` (blocked line of sight, a
+      channel-knowledge map, a data queue, a preview of the path), 1,200-slot missions.
 
     ## Example
 
@@ -245,7 +269,7 @@ class ISCCEnv(gym.Env):
         self.render_mode = render_mode
         self.eps_star = scenario_eps_star(self.scenario)
         self.action_space = spaces.Box(-1.0, 1.0, (3,), np.float32)
-        self.observation_space = spaces.Box(-OBS_BOUND, OBS_BOUND, (len(OBS_NAMES),), np.float32)
+        self.observation_space = spaces.Box(-OBS_BOUND, OBS_BOUND, (obs_size(self.scenario),), np.float32)
         self._state: loop.LoopState | None = None
         self._ended = False  # the episode terminated: step() needs a reset first
         self._last_received = True
@@ -263,9 +287,8 @@ class ISCCEnv(gym.Env):
         super().reset(seed=seed)
         s = self.scenario
         self._state, self._ended = None, False  # a reset that fails (see sample_reference) leaves no episode
-        ref = sample_reference(s, self.np_random)
         # a batch of one: bit-identical to the same drone in any batch (the vector env)
-        self._state = loop.init_state(s, [ref], [self.np_random])
+        self._state = loop.init_mission(s, self.np_random)
         self._last_received, self._last_peb = True, 0.0
         self._episodes += 1
         if self._renderer is not None:

@@ -28,8 +28,7 @@ from iscc_gym.sim.fleet import (
 )
 from iscc_gym.sim.functional import env_step, observe, reset_info_arrays, step_info
 from iscc_gym.sim.schema import COL as _COL
-from iscc_gym.sim.schema import OBS_BOUND, OBS_NAMES
-from iscc_gym.trajectory import sample_reference
+from iscc_gym.sim.schema import OBS_BOUND, obs_size
 
 __all__ = ["ISCCVectorEnv", "ISCCMultiVectorEnv", "check_memory", "reset_bytes", "available_memory_bytes"]
 
@@ -112,7 +111,7 @@ class ISCCVectorEnv(VectorEnv):
         s = self.scenario
         self.max_steps = s.n_slots if max_episode_steps is None else min(int(max_episode_steps), s.n_slots)
         self.single_action_space = spaces.Box(-1.0, 1.0, (3 * k,), np.float32)
-        self.single_observation_space = spaces.Box(-OBS_BOUND, OBS_BOUND, (k * len(OBS_NAMES),), np.float32)
+        self.single_observation_space = spaces.Box(-OBS_BOUND, OBS_BOUND, (k * obs_size(s),), np.float32)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self._rngs: list[np.random.Generator] | None = None
@@ -274,8 +273,7 @@ class ISCCVectorEnv(VectorEnv):
             return
         s = self.scenario
         if self.n_drones is None:
-            refs = [sample_reference(s, self._rngs[i]) for i in idx]
-            parts = [loop.init_state(s, [r], [self._rngs[i]]) for r, i in zip(refs, idx, strict=True)]
+            parts = [loop.init_mission(s, self._rngs[i]) for i in idx]
         else:  # each sub-env exactly ISCCMultiEnv's reset from its generator
             parts = [reset_drones(s, drone_seeds(self._rngs[i], self._k)) for i in idx]
         new = loop.LoopState(*(np.concatenate(fields) for fields in zip(*parts, strict=True)))
@@ -326,9 +324,11 @@ def reset_bytes(s: Scenario) -> int:
     """Peak memory of one sub-env in bytes while all are reset, about 304 bytes a slot (1.5 MB at 5,000
     slots, measured 1.49): the episode's reference kept in the state (72 bytes a slot), and during a
     reset the sampled :class:`iscc_gym.trajectory.Reference` (80), its (N+1, 9) array and the batch's
-    copy of it (72 each) beside the previous episode's; plus the small per-slot state.
+    copy of it (72 each) beside the previous episode's; plus the small per-slot state. With blockage the
+    mission rows carry 10 more columns (three copies of 80 bytes a slot) and the draw of the channel along
+    the path about 35 temporary arrays of a slot's float (280): 824 bytes a slot (estimated, not measured).
     """
-    return 304 * (s.n_slots + 1) + 16384
+    return (304 if s.blockage == "none" else 824) * (s.n_slots + 1) + 16384 + 8 * s.queue_slots
 
 
 def available_memory_bytes() -> int | None:

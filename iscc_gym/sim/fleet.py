@@ -27,7 +27,6 @@ from iscc_gym.sim import kernel, loop
 from iscc_gym.sim.functional import INFO_COLUMNS, env_step, reset_info_arrays
 from iscc_gym.sim.schema import COL, OBS_NAMES
 from iscc_gym.sim.task import action_to_split, check_split, split_to_action
-from iscc_gym.trajectory import sample_reference
 
 #: Drones per base station by default.
 N_DRONES = 4
@@ -52,6 +51,10 @@ def drone_scenario(s: Scenario, n_drones: int, rate_min_per_drone_bps: float | N
     the whole band; docs/model.md, section 5).
     """
     k = check_n_drones(n_drones)
+    if s.blockage != "none" or s.queue_slots > 0:
+        raise ValueError(f"the multi-drone env flies the paper's task only (blockage = 'none', queue_deadline_s = 0), "
+                         f"got blockage = {s.blockage!r}, queue_deadline_s = {s.queue_deadline_s!r}: use the single or "
+                         f"vector env for the urban task")
     rate = s.rate_min_bps / k if rate_min_per_drone_bps is None else rate_min_per_drone_bps
     try:
         rate = float(rate)
@@ -163,8 +166,7 @@ def reset_drones(s: Scenario, seeds) -> loop.LoopState:
     (:class:`iscc_gym.envs.env.ISCCEnv`) reset with ``seeds[k]``: its reference, initial state and noise key.
     """
     rngs = [seeding.np_random(int(sd))[0] for sd in seeds]
-    refs = [sample_reference(s, r) for r in rngs]
-    parts = [loop.init_state(s, [ref], [r]) for ref, r in zip(refs, rngs, strict=True)]
+    parts = [loop.init_mission(s, r) for r in rngs]
     return loop.LoopState(*(np.concatenate(fields) for fields in zip(*parts, strict=True)))
 
 

@@ -17,17 +17,26 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from iscc_gym import threads
-from iscc_gym.scenario import Scenario
+from iscc_gym.scenario import Scenario, per_scenario
 from iscc_gym.sim import kernel, loop
 from iscc_gym.sim.params import slot_params
-from iscc_gym.sim.schema import COL, N_DRAWS, OBS_NAMES, OBS_SCALING, STEP_COLUMNS
+from iscc_gym.sim.schema import (
+    COL,
+    N_DRAWS,
+    OBS_NAMES,
+    OBS_SCALING,
+    PREVIEW_OBS_NAMES,
+    SNR_SCALE,
+    STEP_COLUMNS,
+    obs_size,
+)
 
 __all__ = ["env_step", "observe", "decode_observation", "step_info", "reset_info_arrays", "INFO_COLUMNS", "INFO_KEYS",
            "SLOT_OUTCOME_KEYS", "PARALLEL_MIN_BATCH"]
 
 
 def observe(s: Scenario, state: loop.LoopState, last_received: ArrayLike, last_peb_m: ArrayLike):
-    """The observation of :class:`ISCCEnv` (table in its docstring), shape (B, 23), float32.
+    """The observation of :class:`ISCCEnv` (table in its docstring), shape (B, obs_size(s)), float32.
 
     A pure function of a batch of loop states and the last slot's outcome (arrays of shape (B,)),
     so the single env and any vector env build it the same way (:func:`iscc_gym.sim.kernel.observe_one`;
@@ -36,8 +45,8 @@ def observe(s: Scenario, state: loop.LoopState, last_received: ArrayLike, last_p
     if state.x.ndim == 1:
         return observe(s, loop.LoopState(*(f[None] for f in state)), last_received, last_peb_m)[0]
     nb = state.x.shape[0]
-    obs = np.empty((nb, len(OBS_NAMES)), np.float32)
-    kernel.observe_batch(slot_params(s)[0], state.x_hat, state.p, state.shadow, state.n, state.ref,
+    obs = np.empty((nb, _output_sizes(s)[0]), np.float32)
+    kernel.observe_batch(slot_params(s)[0], state.x_hat, state.p, state.shadow, state.n, state.ref, state.queue,
                          np.broadcast_to(np.asarray(last_received, dtype=float), (nb,)),
                          np.broadcast_to(np.asarray(last_peb_m, dtype=float), (nb,)), obs)
     return obs
@@ -59,8 +68,9 @@ def decode_observation(obs: ArrayLike, s: Scenario) -> dict:
         n, float) (shape (...)).
     """
     o = np.asarray(obs, dtype=float)
-    if o.shape[-1] != len(OBS_NAMES):
-        raise ValueError(f"obs must have {len(OBS_NAMES)} entries along the last axis, got shape {o.shape}")
+    if o.shape[-1] != obs_size(s):
+        raise ValueError(f"obs must have {obs_size(s)} entries along the last axis for this scenario, got shape "
+                         f"{o.shape}")
     val = {}
     for j, name in enumerate(OBS_NAMES):
         kind, k = OBS_SCALING[name]
@@ -77,12 +87,26 @@ def decode_observation(obs: ArrayLike, s: Scenario) -> dict:
     def vec(prefix):
         return np.stack([val[prefix + ax] for ax in "xyz"], -1)
 
-    return {"pos_err_m": vec("pos_err_"), "vel_err_mps": vec("vel_err_"), "ref_vel_mps": vec("ref_vel_"),
-            "ref_acc_mps2": vec("ref_acc_"), "est_pos_std_m": val["est_pos_std"], "snr_db": val["snr_db"],
-            "range_m": val["range"], "sin_elevation": val["sin_elevation"], "cos_azimuth": val["cos_azimuth"],
-            "sin_azimuth": val["sin_azimuth"], "alpha_ctrl_min": val["alpha_ctrl_min"],
-            "alpha_comm_min": val["alpha_comm_min"], "last_packet_received": val["last_packet_received"] > 0.5,
-            "last_peb_m": val["last_peb"], "slot": val["time_left"]}
+    out = {"pos_err_m": vec("pos_err_"), "vel_err_mps": vec("vel_err_"), "ref_vel_mps": vec("ref_vel_"),
+           "ref_acc_mps2": vec("ref_acc_"), "est_pos_std_m": val["est_pos_std"], "snr_db": val["snr_db"],
+           "range_m": val["range"], "sin_elevation": val["sin_elevation"], "cos_azimuth": val["cos_azimuth"],
+           "sin_azimuth": val["sin_azimuth"], "alpha_ctrl_min": val["alpha_ctrl_min"],
+           "alpha_comm_min": val["alpha_comm_min"], "last_packet_received": val["last_packet_received"] > 0.5,
+           "last_peb_m": val["last_peb"], "slot": val["time_left"]}
+    k = len(OBS_NAMES)
+    if s.queue_slots > 0:  # ln(1 + B / A), age / D
+        out["backlog_bits"] = np.expm1(o[..., k]) * s.queue_arrival_bps * s.dt_s
+        out["oldest_age_slots"] = o[..., k + 1] * s.queue_slots
+        k += 2
+    if s.blockage != "none":
+        out["echo_snr_db"] = o[..., k] / SNR_SCALE
+        k += 1
+    if s.preview_slots > 0:  # (..., H) each
+        ahead = o[..., k:].reshape(o.shape[:-1] + (s.preview_slots, len(PREVIEW_OBS_NAMES)))
+        out["p_los_ahead"] = ahead[..., 0]
+        for j, name in enumerate(PREVIEW_OBS_NAMES[1:], start=1):
+            out[name] = ahead[..., j] / SNR_SCALE
+    return out
 
 
 #: Smaller batches are always stepped serially; larger ones on all cores only when the parallel kernel
@@ -101,7 +125,7 @@ def env_step(s: Scenario, state: loop.LoopState, actions: ArrayLike, normals: Ar
     ----------
     state : LoopState (batched, B loops)
     actions : ndarray (B, 3), finite
-    normals : ndarray (B, N_DRAWS), optional
+    normals : ndarray (B, N_DRAWS), or (B, N_DRAWS + 1) with a queue, optional
         The slot's standard normals; default: each loop's episode stream
         (:func:`iscc_gym.sim.noise.slot_normals` of its key and slot, drawn inside the kernel).
     active : ndarray (B,) bool, optional
@@ -116,24 +140,50 @@ def env_step(s: Scenario, state: loop.LoopState, actions: ArrayLike, normals: Ar
     out : ndarray (B, len(STEP_COLUMNS))
         :data:`STEP_COLUMNS`: the loop metrics, the applied split, ``cost_rate``,
         ``cost_stability``, ``reward``, ``terminated`` and ``truncated`` (0/1).
-    obs : ndarray (B, 23) float32
+    obs : ndarray (B, obs_size(s)) float32
     """
     nb = state.x.shape[0]
     all_active = active is None
     if all_active:
         active = _all_active(nb)
     c, mats = slot_params(s)
-    x, x_hat, p, shadow, out, obs = outputs = kernel.new_outputs(nb, len(STEP_COLUMNS))
-    z = _NO_NORMALS if normals is None else normals
-    b = _WHOLE_BAND if budget is None else budget
-    args = (c, mats, state.x, state.x_hat, state.p, state.shadow, state.n, state.ref, state.key, actions, b, z, active)
-    # numba.get_num_threads() costs ~0.5 us: asked only for a batch the parallel kernel could take
-    if nb >= PARALLEL_MIN_BATCH and threads.use_parallel(nb, numba.get_num_threads()):
-        kernel.env_step_batch_parallel(*args, *outputs, kernel.parallel_chunk(nb))
+    n_obs, queue_slots = _output_sizes(s)
+    x, x_hat, p, shadow, queue, out, obs = outputs = kernel.new_outputs(nb, len(STEP_COLUMNS), n_obs, queue_slots)
+    if normals is None:
+        z = _NO_NORMALS
     else:
+        z = normals
+        draws = N_DRAWS + (1 if s.queue_slots > 0 else 0)
+        if z.shape != (nb, draws):
+            raise ValueError(f"normals must have shape ({nb}, {draws}) (the slot's draws"
+                             f"{', and the queue arrivals' if draws > N_DRAWS else ''}), got {z.shape}")
+    b = _WHOLE_BAND if budget is None else budget
+    args = (c, mats, state.x, state.x_hat, state.p, state.shadow, state.n, state.ref, state.key, state.queue, actions,
+            b, z, active)
+    # numba.get_num_threads() costs ~0.5 us: asked only for a batch the parallel kernel could take
+    blocked = _blocked(s)
+    if nb >= PARALLEL_MIN_BATCH and threads.use_parallel(nb, numba.get_num_threads()):
+        if blocked is None:
+            kernel.env_step_batch_parallel(*args, *outputs, kernel.parallel_chunk(nb))
+        else:
+            kernel.env_step_batch_parallel(*args, *outputs, kernel.parallel_chunk(nb), blocked)
+    elif blocked is None:  # the paper's kernel, compiled without the blockage branches
         kernel.env_step_batch(*args, *outputs)
+    else:
+        kernel.env_step_batch(*args, *outputs, blocked)
     n = state.n + 1 if all_active else state.n + active
-    return state._replace(x=x, x_hat=x_hat, p=p, shadow=shadow, n=n), out, obs
+    return state._replace(x=x, x_hat=x_hat, p=p, shadow=shadow, n=n, queue=queue), out, obs
+
+
+def _blocked(s: Scenario):
+    """The kernel's compile-time switch: None without blockage, True with (:func:`iscc_gym.sim.loop.step_one`)."""
+    return None if s.blockage == "none" else True
+
+
+@per_scenario
+def _output_sizes(s: Scenario) -> tuple[int, int]:
+    """The observation's length and the queue's slots of a scenario (cached: asked at every step)."""
+    return obs_size(s), s.queue_slots
 
 
 _ALL_ACTIVE: dict[int, np.ndarray] = {}
@@ -178,6 +228,9 @@ def reset_info_arrays(state: loop.LoopState) -> dict:
     info = {"tracking_error_m": np.linalg.norm(state.x[:, :3] - state.ref[np.arange(nb), state.n, :3], axis=1),
             "cost_rate": zeros, "cost_stability": zeros.copy()}
     info.update({key: np.full(nb, np.nan) for key in SLOT_OUTCOME_KEYS})
+    for key in ("bits_arrived", "bits_served", "bits_dropped"):
+        info[key] = zeros.copy()
+    info["backlog_bits"] = state.queue.sum(axis=1) if state.queue.shape[-1] else zeros.copy()
     info["cost"] = zeros.copy()
     info["packet_received"] = np.ones(nb, dtype=bool)
     info["alpha"] = np.full((nb, 3), 1.0 / 3.0)
@@ -187,7 +240,8 @@ def reset_info_arrays(state: loop.LoopState) -> dict:
 
 #: The output columns a step's info reports as they are, per loop.
 INFO_COLUMNS = ("tracking_error_m", "cost_rate", "cost_stability", "snr_db", "snr_large_scale_db", "peb_m", "veb_mps",
-                "eps_ctrl", "rate_comm_bps", "rate_ctrl_bps", "estimation_error_m")
+                "eps_ctrl", "rate_comm_bps", "rate_ctrl_bps", "estimation_error_m", "bits_arrived", "bits_served",
+                "bits_dropped", "backlog_bits")
 #: The keys of a step's info (:func:`step_info`): :data:`INFO_COLUMNS`, ``cost`` (rate plus stability cost,
 #: Safety-Gymnasium's key), ``packet_received`` (bool), ``alpha`` (the applied split) and ``slot``. The single
 #: env adds ``action``; the multi-drone env sums ``cost`` over its drones and adds ``mean_tracking_error_m``.

@@ -23,9 +23,12 @@ import math
 import numpy as np
 from numba import njit, prange, vectorize
 
-from iscc_gym.physics.channel import beam_gain_one, direction_one, link_snr_one, shadowing_db_one
+from iscc_gym.physics.channel import beam_gain_one, direction_one, link_snr_one
 from iscc_gym.physics.fbl import link_terms_one, min_comm_share_one, min_ctrl_share_one
-from iscc_gym.sim.loop import new_outputs, step_one, work_space
+from iscc_gym.physics.queue import arrival_bits_one, oldest_age_one, queue_step_one
+from iscc_gym.physics.sensing import echo_amplitude_one
+from iscc_gym.sim.loop import channel_state_one, new_outputs, step_one, work_space
+from iscc_gym.sim.mission import MC
 from iscc_gym.sim.noise import fill_slot_normals
 from iscc_gym.sim.schema import (
     COL,
@@ -42,6 +45,7 @@ from iscc_gym.sim.schema import (
     REF_ACC_SCALE,
     REF_VEL_SCALE,
     SNR_SCALE,
+    Z_ARRIVAL,
 )
 
 __all__ = ["env_step_batch", "env_step_batch_parallel", "observe_batch",
@@ -59,6 +63,13 @@ _O_POS, _O_REF, _O_STD, _O_SNR, _O_RANGE = OBS["pos_err_x"], OBS["ref_vel_x"], O
 _O_SIN_EL, _O_COS_AZ, _O_SIN_AZ = OBS["sin_elevation"], OBS["cos_azimuth"], OBS["sin_azimuth"]
 _O_CTRL, _O_COMM, _O_RX, _O_PEB, _O_TIME = (OBS[k] for k in ("alpha_ctrl_min", "alpha_comm_min", "last_packet_received",
                                                            "last_peb", "time_left"))
+_ARRIVED, _SERVED, _DROPPED, _BACKLOG = (COL[k] for k in ("bits_arrived", "bits_served", "bits_dropped",
+                                                          "backlog_bits"))
+_MC_P, _MC_LOS, _MC_SNR_TRUE, _MC_ECHO_TRUE = MC["p_los_map"], MC["los"], MC["snr_true_db"], MC["echo_true_db"]
+_N_PREVIEW_DB = 4  # the preview point's dB columns, after p_los_map's shadow_map_unit (sim.mission.CHANNEL_COLUMNS)
+_MC_DB = MC["snr_los_map_db"]
+assert tuple(MC[k] - _MC_DB for k in ("snr_los_map_db", "snr_nlos_map_db", "echo_los_map_db",
+                                      "echo_nlos_map_db")) == (0, 1, 2, 3)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -69,18 +80,28 @@ def _symlog(x, scale):
 
 
 @njit(cache=True, error_model="numpy")
-def observe_one(c, x_hat, p, shadow, n, ref, last_received, last_peb, out):
+def observe_one(c, x_hat, p, shadow, n, ref, q, last_received, last_peb, out):
     """The observation of one loop (table of :class:`iscc_gym.envs.env.ISCCEnv`, scalings
-    :data:`iscc_gym.sim.schema.OBS_SCALING`; what :func:`iscc_gym.sim.loop.preview` predicts), written into
-    ``out`` (23); returns False where an entry could not be evaluated (NaN, written as 0) or the
-    estimate is not finite.
+    :data:`iscc_gym.sim.schema.OBS_SCALING`), written into ``out`` (:func:`iscc_gym.sim.schema.obs_size`
+    entries: with a queue and a preview, their entries follow the 23); returns False where an entry could not
+    be evaluated (NaN, written as 0) or the estimate is not finite.
     """
     dist, gx, gy, gz, ct, st, cp, sp = direction_one(c.gbs_height_m, x_hat[0], x_hat[1], x_hat[2])
-    shadow_db = shadowing_db_one(c.sf_a, c.sf_b, x_hat[2], shadow)
-    snr = link_snr_one(c.snr_k, beam_gain_one(c, ct, st, cp, sp), dist, shadow_db)
+    shadow_db, extra_db = channel_state_one(c, ref[n], x_hat[2], dist, shadow)
+    # with blockage the slot's channel state is measured (the map tells only of the slots ahead)
+    shadow_comm = shadow_db if c.blockage == 0.0 else shadow_db + extra_db
+    snr = link_snr_one(c.snr_k, beam_gain_one(c, ct, st, cp, sp), dist, shadow_comm)
     cap, sqrt_v = link_terms_one(snr)
     ctrl_min = min_ctrl_share_one(cap, sqrt_v, c.bits_per_hz, c.q_back)
-    comm_min = min_comm_share_one(cap, sqrt_v, c.rate_min_bps, c.bandwidth_hz, c.k_comm)
+    if c.queue_slots > 0.0:  # the share that would clear the backlog and a slot's mean arrivals
+        backlog = 0.0
+        for j in range(q.shape[0]):
+            backlog += q[j]
+        rate_need = (backlog + c.arrival_mean_bits) / c.dt_s
+    else:
+        backlog = 0.0
+        rate_need = c.rate_min_bps
+    comm_min = min_comm_share_one(cap, sqrt_v, rate_need, c.bandwidth_hz, c.k_comm)
     for j in range(6):
         out[_O_POS + j] = _symlog(x_hat[j] - ref[n, j], ERR_SCALE)
     for j in range(6):
@@ -96,12 +117,34 @@ def observe_one(c, x_hat, p, shadow, n, ref, last_received, last_peb, out):
     out[_O_RX] = last_received
     out[_O_PEB] = _symlog(last_peb, PEB_SCALE)
     out[_O_TIME] = 1.0 - n * (1.0 / c.n_slots)
+    k = N_OBS
+    if c.queue_slots > 0.0:
+        out[k] = math.log1p(backlog / max(c.arrival_mean_bits, 1e-300))
+        out[k + 1] = oldest_age_one(q) / c.queue_slots
+        k += 2
+    if c.blockage != 0.0:
+        echo = echo_amplitude_one(c, dist, shadow_db + 2.0 * extra_db, 1.0) / c.sen_noise_w
+        out[k] = 10.0 * math.log10(echo) * SNR_SCALE
+        k += 1
+    last = int(c.n_slots)
+    stride = int(c.preview_stride_slots)
+    for j in range(1, int(c.preview_slots) + 1):
+        r = min(n + j * stride, last)
+        if c.preview_truth == 1.0:  # the oracle's preview: the realised state, both states' entries its SNRs
+            out[k] = ref[r, _MC_LOS]
+            out[k + 1] = out[k + 2] = ref[r, _MC_SNR_TRUE] * SNR_SCALE
+            out[k + 3] = out[k + 4] = ref[r, _MC_ECHO_TRUE] * SNR_SCALE
+        else:
+            out[k] = ref[r, _MC_P]
+            for m in range(_N_PREVIEW_DB):
+                out[k + 1 + m] = ref[r, _MC_DB + m] * SNR_SCALE
+        k += 1 + _N_PREVIEW_DB
     ok = math.isfinite(shadow)
     for j in range(6):
         ok = ok and math.isfinite(x_hat[j])
         for k in range(6):
             ok = ok and math.isfinite(p[j, k])
-    for j in range(N_OBS):
+    for j in range(out.shape[0]):
         v = out[j]
         if v != v:  # NaN: the model cannot evaluate this entry (a state far outside the region)
             v = 0.0
@@ -111,11 +154,11 @@ def observe_one(c, x_hat, p, shadow, n, ref, last_received, last_peb, out):
 
 
 @njit(cache=True, error_model="numpy")
-def observe_batch(cp, x_hat, p, shadow, n, ref, last_received, last_peb, obs):
-    """The observation of a batch (:func:`observe_one`), written into ``obs`` (B, 23) float32."""
+def observe_batch(cp, x_hat, p, shadow, n, ref, queue, last_received, last_peb, obs):
+    """The observation of a batch (:func:`observe_one`), written into ``obs`` (B, obs_size) float32."""
     c = cp[0]
     for i in range(x_hat.shape[0]):
-        observe_one(c, x_hat[i], p[i], shadow[i], n[i], ref[i], last_received[i], last_peb[i], obs[i])
+        observe_one(c, x_hat[i], p[i], shadow[i], n[i], ref[i], queue[i], last_received[i], last_peb[i], obs[i])
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -169,46 +212,56 @@ def terminal_penalty(max_err, n_slots, n_next):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def reward_one(c, err, rate, eps, terminated, n_next):
+def reward_one(c, err, rate, eps, dropped, terminated, n_next):
     """The slot's ``(cost_rate, cost_stability, reward)`` (:class:`iscc_gym.envs.env.ISCCEnv`, Rewards): a
     rate or loss probability that is NaN counts as a violation; an episode that terminates pays
-    ``max_tracking_error_m`` for each remaining slot.
+    ``max_tracking_error_m`` for each remaining slot. With a queue the data term is the dropped bits over a
+    slot's mean arrivals, and ``cost_rate`` 1 where bits were dropped (``rate`` unused); without, ``dropped``
+    is unused and the term is the normalised shortfall below ``rate_min_bps``.
     """
     max_err = c.max_tracking_error_m
     rate_min = c.rate_min_bps
-    if rate_min <= 0.0:
-        cost_rate = 0.0
-    elif rate != rate:
-        cost_rate = 1.0
+    if c.queue_slots > 0.0:
+        cost_rate = 1.0 if (dropped > 0.0 or dropped != dropped) else 0.0
+        rate_term = dropped / max(c.arrival_mean_bits, 1e-300)
     else:
-        cost_rate = max(0.0, rate_min - rate) / rate_min
+        if rate_min <= 0.0:
+            cost_rate = 0.0
+        elif rate != rate:
+            cost_rate = 1.0
+        else:
+            cost_rate = max(0.0, rate_min - rate) / rate_min
+        rate_term = cost_rate
     cost_stab = 1.0 if (eps > c.eps_star or eps != eps) else 0.0
-    reward = reward_from_costs_one(max_err, c.w_rate, c.w_stab, err, cost_rate, cost_stab)
+    reward = reward_from_costs_one(max_err, c.w_rate, c.w_stab, err, rate_term, cost_stab)
     if terminated:
         reward -= terminal_penalty_one(max_err, c.n_slots, n_next)
     return cost_rate, cost_stab, reward
 
 
 @njit(cache=True, error_model="numpy")
-def reward_batch(cp, err, rate, eps, terminated, n_next, cost_rate, cost_stab, reward):
+def reward_batch(cp, err, rate, eps, dropped, terminated, n_next, cost_rate, cost_stab, reward):
     """:func:`reward_one` over flat arrays (the numpy API :func:`iscc_gym.sim.task.reward_and_costs`)."""
     c = cp[0]
     for i in range(err.shape[0]):
-        cost_rate[i], cost_stab[i], reward[i] = reward_one(c, err[i], rate[i], eps[i], terminated[i], n_next[i])
+        cost_rate[i], cost_stab[i], reward[i] = reward_one(c, err[i], rate[i], eps[i], dropped[i], terminated[i],
+                                                           n_next[i])
 
 
 @njit(cache=True, error_model="numpy")
-def _env_rows(cp, mats, x, x_hat, p, shadow, n, ref, key, action, budget, z, active, lo, hi,
-              x_next, x_hat_next, p_next, shadow_next, out, obs):
+def _env_rows(cp, mats, x, x_hat, p, shadow, n, ref, key, queue, action, budget, z, active, lo, hi,
+              x_next, x_hat_next, p_next, shadow_next, queue_next, out, obs, blocked=None):
     """env_step_batch for rows lo..hi-1, writing into the output arrays."""
     c = cp[0]
     work = work_space()
     draw = z.shape[0] == 0
     whole = budget.shape[0] == 0
-    zbuf = np.empty(N_DRAWS)
+    has_queue = c.queue_slots > 0.0
+    zbuf = np.empty(N_DRAWS + (1 if has_queue else 0))
     for i in range(lo, hi):
         if not active[i]:
             x_next[i], x_hat_next[i], p_next[i], shadow_next[i] = x[i], x_hat[i], p[i], shadow[i]
+            queue_next[i] = queue[i]
             out[i] = 0.0
             obs[i] = 0.0
             continue
@@ -223,12 +276,24 @@ def _env_rows(cp, mats, x, x_hat, p, shadow, n, ref, key, action, budget, z, act
         else:
             zi = z[i]
         shadow_next[i] = step_one(c, mats, x[i], x_hat[i], p[i], shadow[i], n[i], ref[i], a0, a1, a2,
-                                  zi, x_next[i], x_hat_next[i], p_next[i], mt, work)
+                                  zi, x_next[i], x_hat_next[i], p_next[i], mt, work, blocked)
+        qn = queue_next[i]
+        qn[:] = queue[i]
+        if has_queue:  # the slot's arrivals, served by its data share (physics.queue)
+            arrived = arrival_bits_one(c.arrival_mean_bits, c.arrival_sigma, zi[Z_ARRIVAL])
+            capacity = mt[_RATE_COMM] * c.dt_s
+            served, dropped = queue_step_one(qn, arrived, capacity if capacity == capacity else 0.0)
+            backlog = 0.0
+            for j in range(qn.shape[0]):
+                backlog += qn[j]
+        else:
+            arrived = served = dropped = backlog = 0.0
+        mt[_ARRIVED], mt[_SERVED], mt[_DROPPED], mt[_BACKLOG] = arrived, served, dropped, backlog
         n_next = n[i] + 1
-        evaluable = observe_one(c, x_hat_next[i], p_next[i], shadow_next[i], n_next, ref[i], mt[_RX], mt[_PEB],
+        evaluable = observe_one(c, x_hat_next[i], p_next[i], shadow_next[i], n_next, ref[i], qn, mt[_RX], mt[_PEB],
                                 obs[i])
         terminated = mt[_DIVERGED] == 1.0 or not evaluable
-        cost_rate, cost_stab, reward = reward_one(c, mt[_ERR], mt[_RATE_COMM], mt[_EPS], terminated, n_next)
+        cost_rate, cost_stab, reward = reward_one(c, mt[_ERR], mt[_RATE_COMM], mt[_EPS], dropped, terminated, n_next)
         mt[_ALPHA], mt[_ALPHA + 1], mt[_ALPHA + 2] = a0, a1, a2
         mt[_COST_RATE], mt[_COST_STAB], mt[_REWARD] = cost_rate, cost_stab, reward
         mt[_TERM] = 1.0 if terminated else 0.0
@@ -236,8 +301,8 @@ def _env_rows(cp, mats, x, x_hat, p, shadow, n, ref, key, action, budget, z, act
 
 
 @njit(cache=True, error_model="numpy")
-def env_step_batch(c, mats, x, x_hat, p, shadow, n, ref, key, action, budget, z, active,
-                   x_next, x_hat_next, p_next, shadow_next, out, obs):
+def env_step_batch(c, mats, x, x_hat, p, shadow, n, ref, key, queue, action, budget, z, active,
+                   x_next, x_hat_next, p_next, shadow_next, queue_next, out, obs, blocked=None):
     """One env step of a batch: action -> split (:func:`split_one`), slot transition
     (:func:`iscc_gym.sim.loop.step_one`), reward and costs (:func:`reward_one`), next observation (:func:`observe_one`),
     written into the outputs: next x, x_hat, p, shadow, ``out`` (B, N_ENV_COLUMNS) and ``obs``
@@ -245,15 +310,16 @@ def env_step_batch(c, mats, x, x_hat, p, shadow, n, ref, key, action, budget, z,
     env, :mod:`iscc_gym.envs.multi`), or has no rows: the whole band (the single env). ``z`` holds the
     slot's normals (B, N_DRAWS), or has no rows: then each loop draws its own from its episode key
     (noise.slot_normals(key[i], n[i])). Loops with ``active[i]`` False are left as they are (state
-    copied, zero outputs).
+    copied, zero outputs). ``blocked``: None without blockage (the default), True with
+    (:func:`iscc_gym.sim.loop.step_one`'s compile-time switch).
     """
-    _env_rows(c, mats, x, x_hat, p, shadow, n, ref, key, action, budget, z, active, 0, x.shape[0],
-              x_next, x_hat_next, p_next, shadow_next, out, obs)
+    _env_rows(c, mats, x, x_hat, p, shadow, n, ref, key, queue, action, budget, z, active, 0, x.shape[0],
+              x_next, x_hat_next, p_next, shadow_next, queue_next, out, obs, blocked)
 
 
 @njit(cache=True, error_model="numpy", parallel=True)
-def env_step_batch_parallel(c, mats, x, x_hat, p, shadow, n, ref, key, action, budget, z, active,
-                            x_next, x_hat_next, p_next, shadow_next, out, obs, chunk):
+def env_step_batch_parallel(c, mats, x, x_hat, p, shadow, n, ref, key, queue, action, budget, z, active,
+                            x_next, x_hat_next, p_next, shadow_next, queue_next, out, obs, chunk, blocked=None):
     """:func:`env_step_batch` with chunks of ``chunk`` rows spread over all cores: each row goes
     through the same compiled :func:`_env_rows`, so results equal the serial kernel's bit for bit
     whatever the chunking.
@@ -262,8 +328,8 @@ def env_step_batch_parallel(c, mats, x, x_hat, p, shadow, n, ref, key, action, b
     n_chunks = (nb + chunk - 1) // chunk
     for k in prange(n_chunks):
         lo = k * chunk
-        _env_rows(c, mats, x, x_hat, p, shadow, n, ref, key, action, budget, z, active, lo, min(lo + chunk, nb),
-                  x_next, x_hat_next, p_next, shadow_next, out, obs)
+        _env_rows(c, mats, x, x_hat, p, shadow, n, ref, key, queue, action, budget, z, active, lo,
+                  min(lo + chunk, nb), x_next, x_hat_next, p_next, shadow_next, queue_next, out, obs, blocked)
 
 
 def parallel_chunk(nb: int) -> int:

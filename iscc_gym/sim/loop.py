@@ -22,6 +22,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import ArrayLike
 
+from iscc_gym.physics.blockage import excess_loss_db_one, shadowing_std_db_one
 from iscc_gym.physics.channel import (
     beam_gain_one,
     direction_one,
@@ -35,6 +36,7 @@ from iscc_gym.physics.fbl import ctrl_bler_one, delivered_one, link_terms_one, r
 from iscc_gym.physics.kalman import kf_predict_one, kf_update_whitened_one
 from iscc_gym.physics.sensing import crlb_local_one, whitened_rows_one
 from iscc_gym.scenario import Scenario
+from iscc_gym.sim.mission import MC, mission_columns, mission_rows
 from iscc_gym.sim.noise import draw_keys, slot_normals, standard_normals
 from iscc_gym.sim.params import MATS, slot_params
 from iscc_gym.sim.schema import (
@@ -50,11 +52,11 @@ from iscc_gym.sim.schema import (
     Z_PROC,
     Z_SHADOW,
 )
-from iscc_gym.trajectory import Reference
+from iscc_gym.trajectory import Reference, sample_reference
 
 __all__ = ["LoopState", "N_DRAWS", "init_state", "step", "reference_at",
            "standard_normals", "stack_references", "reference_array", "slot_noise", "step_one", "reference_rows",
-           "vector_norm", "check_step",
+           "vector_norm", "check_step", "channel_state_one", "init_mission",
            "step_batch", "new_outputs"]
 
 
@@ -74,10 +76,14 @@ class LoopState(NamedTuple):
         Unit-variance shadowing state (shadowing in dB is sigma_SF(h) * shadow).
     n : (B,) int
         Slot index.
-    ref : (B, N+1, 9)
-        Reference [position, velocity, acceleration] at every slot.
+    ref : (B, N+1, C)
+        The mission's rows (:mod:`iscc_gym.sim.mission`): the reference [position, velocity, acceleration]
+        at every slot (C = 9), and with blockage the channel along it (the truth and the GBS's map).
     key : (B,) uint64
         The episode's noise key: slot n's normals are :func:`iscc_gym.sim.noise.slot_normals` (key, n).
+    queue : (B, D)
+        The data queue's bits by the slots they have waited (:mod:`iscc_gym.physics.queue`); D = 0
+        without a queue.
     """
 
     x: np.ndarray
@@ -87,6 +93,7 @@ class LoopState(NamedTuple):
     n: np.ndarray
     ref: np.ndarray
     key: np.ndarray
+    queue: np.ndarray
 
     def rows(self, idx) -> LoopState:
         """The loops ``idx`` of a batch (copies)."""
@@ -97,7 +104,7 @@ class LoopState(NamedTuple):
         copied; the (large, constant per episode) reference array is updated in place.
         """
         fields = {}
-        for name in ("x", "x_hat", "p", "shadow", "n", "key"):
+        for name in ("x", "x_hat", "p", "shadow", "n", "key", "queue"):
             arr = getattr(self, name).copy()
             arr[idx] = getattr(sub, name)
             fields[name] = arr
@@ -139,10 +146,11 @@ def init_state(s: Scenario, refs: ArrayLike, rng: np.random.Generator) -> LoopSt
 
     Parameters
     ----------
-    refs : Reference or ndarray (N+1, 9)
-        One reference: an unbatched loop (state arrays without a batch axis; ``rng`` one
-        Generator). Or a sequence of B References / an ndarray (B, N+1, 9): a batch of B loops
-        (``rng`` one Generator or a sequence of B Generators).
+    refs : Reference or ndarray (N+1, C)
+        One mission: an unbatched loop (state arrays without a batch axis; ``rng`` one
+        Generator). Or a sequence of B References / an ndarray (B, N+1, C): a batch of B loops
+        (``rng`` one Generator or a sequence of B Generators). C = 9 (the reference), or with blockage
+        :func:`iscc_gym.sim.mission.mission_columns` (the rows of :func:`iscc_gym.sim.mission.mission_rows`).
     rng : Generator or sequence of Generators
         Per drone: 7 normals (initial state and shadowing), then the episode's noise key
         (:func:`iscc_gym.sim.noise.draw_keys`).
@@ -153,9 +161,11 @@ def init_state(s: Scenario, refs: ArrayLike, rng: np.random.Generator) -> LoopSt
         ref = np.asarray(refs, dtype=float)
     else:
         ref = stack_references(refs)
-    if ref.ndim not in (2, 3) or ref.shape[-2] != s.n_slots + 1 or ref.shape[-1] != 9:
-        raise ValueError(f"refs must have shape ({s.n_slots + 1}, 9) or (B, {s.n_slots + 1}, 9), "
-                         f"got {ref.shape}")
+    cols = mission_columns(s)
+    if ref.ndim not in (2, 3) or ref.shape[-2] != s.n_slots + 1 or ref.shape[-1] != cols:
+        raise ValueError(f"refs must have shape ({s.n_slots + 1}, {cols}) or (B, {s.n_slots + 1}, {cols}), "
+                         f"got {ref.shape}" + (" (a mission with blockage: iscc_gym.sim.mission.mission_rows)"
+                                               if cols > 9 else ""))
     batch = None if ref.ndim == 2 else ref.shape[0]
     shape = () if batch is None else (batch,)
     z = standard_normals(rng, batch, 7)
@@ -164,7 +174,17 @@ def init_state(s: Scenario, refs: ArrayLike, rng: np.random.Generator) -> LoopSt
     x_ref0 = ref[..., 0, :6]
     p0 = np.broadcast_to(np.diag(std0**2), shape + (6, 6)).copy()
     return LoopState(x=x_ref0 + std0 * z[..., :6], x_hat=x_ref0.copy(), p=p0,
-                     shadow=np.array(z[..., 6]), n=np.zeros(shape, dtype=np.int64), ref=ref, key=key)
+                     shadow=np.array(z[..., 6]), n=np.zeros(shape, dtype=np.int64), ref=ref, key=key,
+                     queue=np.zeros(shape + (s.queue_slots,)))
+
+
+def init_mission(s: Scenario, rng: np.random.Generator) -> LoopState:
+    """A new mission for one loop, as a batch of one: its reference (:func:`iscc_gym.trajectory.sample_reference`),
+    with blockage the channel along it (:func:`iscc_gym.sim.mission.mission_rows`), then :func:`init_state`, all
+    drawn from ``rng`` in that order (the paper's missions draw exactly what they drew before).
+    """
+    ref = mission_rows(s, reference_array(sample_reference(s, rng)), rng)
+    return init_state(s, ref[None], [rng])
 
 
 def reference_rows(ref, n):
@@ -221,14 +241,15 @@ def step(s: Scenario, state: LoopState, alpha: ArrayLike, rng: np.random.Generat
     check_step(s, state, alpha)
     z = slot_noise(state, rng)
     nb = 1 if batch is None else batch
-    x_n, xh_n, p_n, sh_n, met, _ = new_outputs(nb, N_METRICS)
+    x_n, xh_n, p_n, sh_n, _, met, _ = new_outputs(nb, N_METRICS)
+    blocked = None if s.blockage == "none" else True
     if batch is None:  # a batch of one, squeezed back
         step_batch(*slot_params(s), x[None], state.x_hat[None], state.p[None], state.shadow[None], state.n[None],
-                   state.ref[None], alpha[None], z[None], x_n, xh_n, p_n, sh_n, met)
+                   state.ref[None], alpha[None], z[None], x_n, xh_n, p_n, sh_n, met, blocked)
         x_n, xh_n, p_n, sh_n, met = x_n[0], xh_n[0], p_n[0], sh_n[0], met[0]
     else:
         step_batch(*slot_params(s), x, state.x_hat, state.p, state.shadow, state.n, state.ref, alpha, z,
-                   x_n, xh_n, p_n, sh_n, met)
+                   x_n, xh_n, p_n, sh_n, met, blocked)
     metrics = dict(zip(METRIC_NAMES, met.T, strict=True))
     metrics["packet_received"] = metrics["packet_received"] > 0.5
     metrics["diverged"] = metrics["diverged"] > 0.5
@@ -252,26 +273,58 @@ def check_step(s: Scenario, state: LoopState, alpha: np.ndarray) -> None:
 # batch reproduces single runs bit for bit.
 
 _A, _B, _K, _SIGMA_W, _DIAGS = MATS["a"], MATS["b"], MATS["k"], MATS["sigma_w"], MATS["diags"]
+_MC_LOS, _MC_SHADOW = MC["los"], MC["shadow_unit"]
 (_ERR, _EST, _SNR, _SNR_LS, _PEB, _VEB, _EPS, _RX, _RATE_COMM, _RATE_CTRL, _DIVERGED) = (
     COL[name] for name in METRIC_NAMES)
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def blocked_state_one(c, row, h_m, dist_m):
+    """With blockage, the slot's shadowing and excess path loss in dB, ``(shadow_db, extra_db)``, at height ``h_m``
+    and range ``dist_m``: the mission row's LoS state and unit shadowing field
+    (:data:`iscc_gym.sim.mission.CHANNEL_COLUMNS`) times the state's std, and the excess of
+    :func:`iscc_gym.physics.blockage.excess_loss_db_one` (the link pays it once, the echo twice).
+    """
+    los = row[_MC_LOS] == 1.0
+    sigma = shadowing_std_db_one(c.blockage, los, h_m, c.sf_a, c.sf_b)
+    return sigma * row[_MC_SHADOW], excess_loss_db_one(c.blockage, los, h_m, dist_m, c.carrier_freq_ghz)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def channel_state_one(c, row, h_m, dist_m, shadow):
+    """``(shadow_db, extra_db)`` of a slot: the paper's AR(1) shadowing state ``shadow`` (extra 0) without blockage,
+    else :func:`blocked_state_one`.
+    """
+    if c.blockage == 0.0:
+        return shadowing_db_one(c.sf_a, c.sf_b, h_m, shadow), 0.0
+    return blocked_state_one(c, row, h_m, dist_m)
+
+
 @njit(cache=True, error_model="numpy", fastmath={"reassoc", "contract"})
 def step_one(c, mats, xi, x_hat, p, shadow, ni, ref, a_sen, a_ctrl, a_comm, zi,
-             x_next, x_hat_next, p_next, mt, work):
+             x_next, x_hat_next, p_next, mt, work, blocked=None):
     """:func:`step_reference` for one drone (``c``, ``mats``: :func:`iscc_gym.sim.params.slot_params`);
     writes the next state and the metrics row ``mt`` (:data:`iscc_gym.sim.schema.METRIC_NAMES`); returns
-    the next shadowing state. ``zi``: the slot's normals (:data:`iscc_gym.sim.schema.DRAWS`).
+    the next shadowing state. ``zi``: the slot's normals (:data:`iscc_gym.sim.schema.DRAWS`). ``blocked``: None
+    without blockage (the default), True with (a compile-time switch: see the comment in the body).
     """
     w4, w6, y, x_post, p_post, u, bu, pa, h = work
     px, py, pz = xi[0], xi[1], xi[2]
     # channel: geometry, large-scale SNR, fading
     dist, gx, gy, gz, ct, st, cp, sp = direction_one(c.gbs_height_m, px, py, pz)
-    shadow_db = shadowing_db_one(c.sf_a, c.sf_b, pz, shadow)
-    snr_ls = link_snr_one(c.snr_k, beam_gain_one(c, ct, st, cp, sp), dist, shadow_db)
+    # ``blocked`` None (the paper) prunes the other branch when the kernel compiles: the paper's slot is the same
+    # machine code as before blockage existed (bit for bit under fastmath, tests/test_golden.py)
+    if blocked is None:
+        shadow_db = shadowing_db_one(c.sf_a, c.sf_b, pz, shadow)
+        snr_ls = link_snr_one(c.snr_k, beam_gain_one(c, ct, st, cp, sp), dist, shadow_db)
+        shadow_echo = shadow_db
+    else:  # the excess loss: once on the link, on both ways of the echo
+        shadow_db, extra_db = blocked_state_one(c, ref[ni], pz, dist)
+        snr_ls = link_snr_one(c.snr_k, beam_gain_one(c, ct, st, cp, sp), dist, shadow_db + extra_db)
+        shadow_echo = shadow_db + 2.0 * extra_db
     snr = rician_gain_one(c.ric_los, c.ric_scat, zi[Z_FADE_COMM], zi[Z_FADE_COMM + 1]) * snr_ls
     m_r, m_tt, m_tp, m_pp, crlb_vr = crlb_local_one(
-        c, a_sen, dist, ct, st, cp, sp, shadow_db,
+        c, a_sen, dist, ct, st, cp, sp, shadow_echo,
         rician_gain_one(c.ric_los, c.ric_scat, zi[Z_FADE_SEN], zi[Z_FADE_SEN + 1]))
     # measurement, whitened (ISAC or GNSS), and the Kalman measurement update
     if c.gnss == 1.0:
@@ -312,7 +365,11 @@ def step_one(c, mats, xi, x_hat, p, shadow, ni, ref, a_sen, a_ctrl, a_comm, zi,
     propagate_one(dt, xi, bu, mats[_DIAGS, 0], zi, Z_PROC, x_next)
     kf_predict_one(dt, x_post, p_post, bu, mats[_SIGMA_W], x_hat_next, p_next, pa)
     dx, dy, dz = x_next[0] - px, x_next[1] - py, x_next[2] - pz
-    shadow_next = shadowing_step_one(c.neg_inv_decorr, shadow, math.sqrt(dx * dx + dy * dy + dz * dz), zi[Z_SHADOW])
+    if blocked is None:
+        shadow_next = shadowing_step_one(c.neg_inv_decorr, shadow, math.sqrt(dx * dx + dy * dy + dz * dz),
+                                         zi[Z_SHADOW])
+    else:  # the shadowing is a field over the plane (the mission rows); the AR(1) state rests
+        shadow_next = shadow
     ex = x_next[0] - ref[ni + 1, 0]
     ey = x_next[1] - ref[ni + 1, 1]
     ez = x_next[2] - ref[ni + 1, 2]
@@ -344,7 +401,8 @@ def work_space():
 
 
 @njit(cache=True, error_model="numpy")
-def step_batch(cp, mats, x, x_hat, p, shadow, n, ref, alpha, z, x_next, x_hat_next, p_next, shadow_next, metrics):
+def step_batch(cp, mats, x, x_hat, p, shadow, n, ref, alpha, z, x_next, x_hat_next, p_next, shadow_next, metrics,
+               blocked=None):
     """:func:`step_one` over a batch, written into the output arrays (next x, x_hat, p, shadow and the
     metrics (B, N_METRICS)); outputs are passed in because returning fresh arrays from compiled code
     costs more than the slot itself at small batches. ``cp``: the parameter record array (1,).
@@ -354,12 +412,12 @@ def step_batch(cp, mats, x, x_hat, p, shadow, n, ref, alpha, z, x_next, x_hat_ne
     for i in range(x.shape[0]):
         shadow_next[i] = step_one(c, mats, x[i], x_hat[i], p[i], shadow[i], n[i], ref[i], alpha[i, 0],
                                   alpha[i, 1], alpha[i, 2], z[i], x_next[i], x_hat_next[i], p_next[i],
-                                  metrics[i], work)
+                                  metrics[i], work, blocked)
 
 
-def new_outputs(nb: int, columns: int):
-    """Fresh output arrays for the compiled batch functions: next x, x_hat, p, shadow, the columns
-    array, and the float32 observation.
+def new_outputs(nb: int, columns: int, n_obs: int = N_OBS, queue_slots: int = 0):
+    """Fresh output arrays for the compiled batch functions: next x, x_hat, p, shadow, queue (nb, queue_slots),
+    the columns array, and the float32 observation (nb, n_obs).
     """
-    return (np.empty((nb, 6)), np.empty((nb, 6)), np.empty((nb, 6, 6)), np.empty(nb), np.empty((nb, columns)),
-            np.empty((nb, N_OBS), np.float32))
+    return (np.empty((nb, 6)), np.empty((nb, 6)), np.empty((nb, 6, 6)), np.empty(nb), np.empty((nb, queue_slots)),
+            np.empty((nb, columns)), np.empty((nb, n_obs), np.float32))

@@ -12,10 +12,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from iscc_gym.physics.blockage import BLOCKAGE_MODELS
 from iscc_gym.physics.channel import matched_gain, rician_constants, snr_constant
 from iscc_gym.physics.dynamics import model_matrices
 from iscc_gym.physics.fbl import LINK_PARAMS, link_constants, link_params, q_inv
-from iscc_gym.physics.sensing import SENSING_PARAMS, sensing_params
+from iscc_gym.physics.queue import arrival_sigma
+from iscc_gym.physics.sensing import SENSING_PARAMS, sensing_noise_var_w, sensing_params
 from iscc_gym.physics.stability import scenario_eps_star
 from iscc_gym.scenario import Scenario, per_scenario
 
@@ -34,6 +36,14 @@ _OWN_FIELDS = (
     "q_back",          # Q^-1(eps*) / sqrt(L_ctrl): control-share bound of the observation (fbl.min_shares)
     "w_rate", "w_stab",
     "gnss_every",      # slots between GNSS fixes
+    "blockage",        # physics.blockage.BLOCKAGE_MODELS code: 0 none (the paper), 1 UMa-AV, 2 UMi-AV
+    "carrier_freq_ghz",
+    "queue_slots",     # the queue's deadline D in slots, 0 without a queue
+    "arrival_mean_bits", "arrival_sigma",  # mean arrivals per slot (bits), log-normal sigma (physics.queue)
+    "dt_s",
+    "preview_slots", "preview_stride_slots",
+    "sen_noise_w",     # sensing.sensing_noise_var_w: the echo SNR's noise
+    "preview_truth",   # 1.0 with preview_source="truth" (the oracle's preview)
 )
 #: The fields of the record (all float64; flags are 0.0/1.0): the slot's own, then those of
 #: :data:`iscc_gym.physics.sensing.SENSING_PARAMS` and :data:`iscc_gym.physics.fbl.LINK_PARAMS` (copied from
@@ -71,6 +81,15 @@ def slot_params(s: Scenario):
     r["q_back"] = float(q_inv(eps_star)) / link_constants(s)[3]
     r["w_rate"], r["w_stab"] = s.w_rate, s.w_stab
     r["gnss_every"] = s.gnss_update_slots
+    r["blockage"] = BLOCKAGE_MODELS[s.blockage]
+    r["carrier_freq_ghz"] = s.carrier_freq_ghz
+    r["queue_slots"] = s.queue_slots
+    r["arrival_mean_bits"] = s.queue_arrival_bps * s.dt_s
+    r["arrival_sigma"] = arrival_sigma(s.queue_arrival_cv)
+    r["dt_s"] = s.dt_s
+    r["preview_slots"], r["preview_stride_slots"] = s.preview_slots, s.preview_stride_slots
+    r["sen_noise_w"] = sensing_noise_var_w(s)
+    r["preview_truth"] = float(s.preview_source == "truth")
     mats = np.zeros((5, 6, 6))
     mats[MATS["a"]], mats[MATS["b"], :, :3], mats[MATS["k"], :3, :] = mm.a, mm.b, mm.k
     mats[MATS["sigma_w"]] = mm.sigma_w

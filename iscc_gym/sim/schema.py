@@ -9,7 +9,8 @@ compile time).
 
 from __future__ import annotations
 
-__all__ = ["METRIC_NAMES", "ENV_COLUMNS", "STEP_COLUMNS", "COL", "N_METRICS", "N_STEP_COLUMNS", "OBS_NAMES",
+__all__ = ["obs_names", "obs_size", "QUEUE_OBS_NAMES", "PREVIEW_OBS_NAMES", "BLOCKAGE_OBS_NAMES",
+           "METRIC_NAMES", "ENV_COLUMNS", "STEP_COLUMNS", "COL", "N_METRICS", "N_STEP_COLUMNS", "OBS_NAMES",
            "OBS", "N_OBS", "OBS_BOUND", "OBS_SCALING", "N_DRAWS", "DRAWS", "ERR_SCALE", "REF_VEL_SCALE",
            "REF_ACC_SCALE", "SNR_SCALE", "CTRL_SHARE_SCALE", "PEB_SCALE"]
 
@@ -18,7 +19,7 @@ METRIC_NAMES = ("tracking_error_m", "estimation_error_m", "snr_db", "snr_large_s
                 "veb_mps", "eps_ctrl", "packet_received", "rate_comm_bps", "rate_ctrl_bps", "diverged")
 #: Columns an env step adds after :data:`METRIC_NAMES`: the applied split, costs, reward, episode end (0/1).
 ENV_COLUMNS = ("alpha_sen", "alpha_ctrl", "alpha_comm", "cost_rate", "cost_stability", "reward",
-               "terminated", "truncated")
+               "terminated", "truncated", "bits_arrived", "bits_served", "bits_dropped", "backlog_bits")
 #: Columns of the per-loop output array of an env step (:func:`iscc_gym.sim.functional.env_step`).
 STEP_COLUMNS = METRIC_NAMES + ENV_COLUMNS
 #: Position of each column of :data:`STEP_COLUMNS` by name.
@@ -65,7 +66,40 @@ OBS_SCALING = {
     "time_left": ("time_left", None),
 }
 
-#: Standard normals per loop per slot.
+#: Observation entries of the data queue (after :data:`OBS_NAMES`, with a queue): the backlog, as
+#: ln(1 + B / A) with A the mean arrivals of a slot, and the oldest waiting bit's age over the deadline D.
+QUEUE_OBS_NAMES = ("backlog", "oldest_age")
+#: Observation entries of one preview point (after the others, with a preview), at the reference's slot
+#: n + k stride, k = 1 .. preview_slots (the last slot where that is past the mission's end): the map's LoS
+#: probability, and the large-scale SNRs it predicts there with its mean shadowing (dB, times SNR_SCALE) of the
+#: command link in LoS and in NLoS and of the echo in LoS and in NLoS.
+PREVIEW_OBS_NAMES = ("p_los_ahead", "snr_los_ahead_db", "snr_nlos_ahead_db", "echo_los_ahead_db",
+                     "echo_nlos_ahead_db")
+#: Observation entries with blockage (after the queue's, before the preview's): the slot's measured large-scale
+#: SNR of the echo per element and subcarrier (dB, times SNR_SCALE), as ``snr_db`` is the command link's.
+BLOCKAGE_OBS_NAMES = ("echo_snr_db",)
+
+
+def obs_names(s) -> tuple[str, ...]:
+    """The observation's entries for a scenario: :data:`OBS_NAMES`, then :data:`QUEUE_OBS_NAMES` with a queue
+    (``queue_slots`` > 0), then :data:`PREVIEW_OBS_NAMES` suffixed ``_1`` .. ``_H`` for each preview point.
+    """
+    names = OBS_NAMES
+    if s.queue_slots > 0:
+        names += QUEUE_OBS_NAMES
+    if s.blockage != "none":
+        names += BLOCKAGE_OBS_NAMES
+    for k in range(1, s.preview_slots + 1):
+        names += tuple(f"{name}_{k}" for name in PREVIEW_OBS_NAMES)
+    return names
+
+
+def obs_size(s) -> int:
+    """Length of :func:`obs_names`."""
+    return len(obs_names(s))
+
+
+#: Standard normals per loop per slot (one more, :data:`Z_ARRIVAL`, with a queue: the slot's arrivals).
 N_DRAWS = 18
 #: The layout of a slot's :data:`N_DRAWS` normals: first index and count of each group. Fading:
 #: (re, im) of the communication link, then of the sensing echo; measurement: 4 whitened ISAC rows
@@ -79,4 +113,7 @@ Z_MEAS = DRAWS["measurement"][0]
 Z_DROP = DRAWS["drop"][0]
 Z_PROC = DRAWS["process"][0]
 Z_SHADOW = DRAWS["shadowing"][0]
+#: The queue's arrival draw, after the slot's :data:`N_DRAWS` (drawn only with a queue: the stream's first
+#: N_DRAWS normals are the same with and without).
+Z_ARRIVAL = N_DRAWS
 assert sum(n for _, n in DRAWS.values()) == N_DRAWS

@@ -71,7 +71,8 @@ def split_to_action(alpha: ArrayLike):
 
 def reward_and_costs(s: Scenario, metrics: dict, n_next: ArrayLike, evaluable: ArrayLike = True):
     """Costs, reward and episode end of a slot from :func:`iscc_gym.sim.loop.step`'s metrics (numpy,
-    any batch shape): ``(cost_rate, cost_stability, reward, terminated, truncated)``. The reward is
+    any batch shape): ``(cost_rate, cost_stability, reward, terminated, truncated)``; with a queue,
+    ``metrics["bits_dropped"]`` gives the data term (the env step's column of that name). The reward is
     :func:`iscc_gym.sim.kernel.reward_one` (written once, also what the compiled env step uses).
 
     Reward and penalty as in :class:`iscc_gym.envs.env.ISCCEnv`'s docstring; ``n_next`` is the slot index
@@ -81,11 +82,12 @@ def reward_and_costs(s: Scenario, metrics: dict, n_next: ArrayLike, evaluable: A
     reward stays finite.
     """
     terminated = np.asarray(metrics["diverged"], dtype=bool) | ~np.asarray(evaluable, dtype=bool)
-    err, rate, eps, term, n1 = np.broadcast_arrays(*(np.asarray(metrics[k], dtype=float) for k in (
-        "tracking_error_m", "rate_comm_bps", "eps_ctrl")), terminated, np.asarray(n_next, dtype=np.int64))
+    dropped = np.asarray(metrics.get("bits_dropped", 0.0), dtype=float)
+    err, rate, eps, drop, term, n1 = np.broadcast_arrays(*(np.asarray(metrics[k], dtype=float) for k in (
+        "tracking_error_m", "rate_comm_bps", "eps_ctrl")), dropped, terminated, np.asarray(n_next, dtype=np.int64))
     cost_rate, cost_stab, reward = (np.empty(err.shape) for _ in range(3))
-    kernel.reward_batch(slot_params(s)[0], err.ravel(), rate.ravel(), eps.ravel(), term.ravel(),
-                        n1.ravel(), cost_rate.reshape(-1), cost_stab.reshape(-1), reward.reshape(-1))
+    kernel.reward_batch(slot_params(s)[0], err.ravel(), rate.ravel(), eps.ravel(), np.ascontiguousarray(drop).ravel(),
+                        term.ravel(), n1.ravel(), cost_rate.reshape(-1), cost_stab.reshape(-1), reward.reshape(-1))
     terminated = term.copy()
     truncated = ~terminated & (n1 >= s.n_slots)
     return cost_rate, cost_stab, reward, terminated, truncated

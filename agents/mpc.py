@@ -1,0 +1,223 @@
+r"""Receding-horizon planning over the urban task's preview: ``mpc`` (and ``oracle`` on the truth's preview).
+
+Each slot, for every env of a batch at once, the planner looks at the slot and the H preview points ahead
+(``preview_slots`` points ``preview_stride_slots`` = S slots apart, the next H S slots) and chooses the data
+shares of the blocks that maximise the expected reward over the horizon; the current slot's split is applied
+and the plan is made anew next slot.
+
+The model, each piece the env's own:
+
+* **Per slot, tracking and stability.** For a data share d, the best control share c of the slot's expected
+  reward without its data term, :math:`v(d) = \max_c -T(1 - c - d, \bar\varepsilon(c)) - w_\mathrm{stab}
+  P(\varepsilon_\mathrm{ctrl} > \varepsilon^\star)` (:class:`iscc_gym.agents.MyopicPolicy`'s objective with no data
+  term: the steady-state tracking error at the slot's geometry and echo, and the fading's stability violation),
+  on a grid of d and a geometric grid of c. The current slot uses its measured SNRs (the observation's
+  ``snr_db``, ``echo_snr_db``); a preview point uses the map's SNRs in LoS and in NLoS and the current geometry
+  (range and angles change little over the horizon), and its value is the map's expectation
+  :math:`p\,v_\mathrm{LoS}(d) + (1 - p)\,v_\mathrm{NLoS}(d)` (the state will be measured when the slot comes).
+* **The queue, as a fluid.** In units of a slot's mean arrivals A, the backlog b gains 1 a slot, loses the
+  bits the data share carries on average (:math:`d\,\bar C`, the fading-averaged FBL rate of the state, the map's
+  mixture ahead), and what has waited past the deadline D is dropped: b above D - 1 after the service (a FIFO
+  buffer fed at a constant rate holds the last b slots' arrivals; ``deadline_margin`` slots lower, for the bursts
+  and the fading the fluid does not see). Each dropped unit costs ``w_rate``, as in the env's reward.
+* **Dynamic programming** over the blocks (the current slot, then H blocks of S slots, each block's data share
+  held) on ``levels`` backlog levels in [0, D - 1], linear interpolation between them, and a terminal value
+  :math:`-\kappa b` (``terminal_weight``: what a backlog left at the horizon's end is worth).
+
+``oracle`` is the same planner on ``preview_source="truth"`` (the realised LoS state and shadowing ahead, the
+same missions): a bound on what better knowledge of the channel is worth, not a policy to beat.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from iscc_gym.scenario import Scenario, make_scenario
+from iscc_gym.sim.functional import decode_observation
+from iscc_gym.sim.schema import obs_size
+
+from .base import SplitPolicy, as_obs_batch
+from .myopic import MyopicPolicy
+
+__all__ = ["LookaheadPolicy", "DATA_GRID"]
+
+#: The data shares the planner chooses among (per block).
+DATA_GRID = (0.0, 0.03, 0.07, 0.12, 0.18, 0.25, 0.35, 0.5, 0.7)
+
+
+class LookaheadPolicy(SplitPolicy):
+    r"""Receding-horizon planner over the preview (see the module docstring).
+
+    Parameters
+    ----------
+    scenario : Scenario or str
+        A scenario with a data queue and a preview (the ``urban`` preset; ``preview_source="truth"`` for the
+        oracle).
+    terminal_weight : float
+        :math:`\kappa` >= 0, the value per unit of backlog left at the horizon's end (in ``w_rate`` units of A).
+    deadline_margin : float
+        Slots the fluid model takes off the deadline (>= 0): the real queue drops earlier than the fluid one
+        under bursty arrivals and fading, so the planner keeps the backlog this far below D - 1.
+    data_grid : sequence of float
+        Data shares to choose among, in [0, 1).
+    ctrl_points : int
+        Points of the geometric control-share grid from ``ctrl_floor`` (>= 4).
+    levels : int
+        Backlog levels of the dynamic programme (>= 3).
+    sensing_floor, ctrl_floor : float
+        Smallest sensing and control shares (as :class:`iscc_gym.agents.MyopicPolicy`'s).
+    refine_rounds : int
+        Rounds of local refinement of the current slot's shares around the plan's grid point (>= 0).
+    name : str
+
+    Raises
+    ------
+    ValueError
+        A scenario without a queue or a preview, or a parameter out of its range (named).
+    """
+
+    def __init__(self, scenario: Scenario | str = "urban", terminal_weight: float = 0.0, deadline_margin: float = 0.0,
+                 data_grid=DATA_GRID, ctrl_points: int = 10, levels: int = 21, sensing_floor: float = 1e-3,
+                 ctrl_floor: float = 1e-3, refine_rounds: int = 3, name: str = "mpc"):
+        s = make_scenario(scenario) if isinstance(scenario, str) else scenario
+        if not isinstance(s, Scenario):
+            raise ValueError(f"scenario must be a Scenario or a preset name, got {type(scenario).__name__}")
+        if s.queue_slots == 0 or s.preview_slots == 0:
+            raise ValueError("LookaheadPolicy plans over a data queue and a preview: the scenario needs "
+                             "queue_deadline_s > 0 and preview_slots > 0 (e.g. the 'urban' preset)")
+        if not (math.isfinite(float(terminal_weight)) and float(terminal_weight) >= 0.0):
+            raise ValueError(f"terminal_weight = {terminal_weight!r} is invalid: must be a finite number >= 0")
+        grid = np.asarray(data_grid, dtype=float)
+        if grid.ndim != 1 or len(grid) < 2 or not np.all((grid >= 0.0) & (grid < 1.0)):
+            raise ValueError(f"data_grid = {data_grid!r} is invalid: at least two shares in [0, 1)")
+        for field, value, lo in (("ctrl_points", ctrl_points, 4), ("levels", levels, 3),
+                                 ("refine_rounds", refine_rounds, 0)):
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < lo:
+                raise ValueError(f"{field} = {value!r} is invalid: must be an integer >= {lo}")
+        self.scenario = s
+        self.slot = MyopicPolicy(s, rate_weight=0.0, sensing_floor=sensing_floor, ctrl_floor=ctrl_floor)
+        self.terminal_weight = float(terminal_weight)
+        if not (math.isfinite(float(deadline_margin)) and 0.0 <= float(deadline_margin) < s.queue_slots - 1):
+            raise ValueError(f"deadline_margin = {deadline_margin!r} is invalid: must be in [0, {s.queue_slots - 1}) "
+                             "slots (the queue's deadline minus one)")
+        self.deadline_margin = float(deadline_margin)
+        #: The planner's largest backlog (units of A): the deadline less one slot and the margin.
+        self.top = s.queue_slots - 1.0 - self.deadline_margin
+        self.data_grid = grid
+        self.ctrl_grid = np.geomspace(ctrl_floor, 1.0 - sensing_floor, int(ctrl_points))
+        self.levels = int(levels)
+        self.refine_rounds = int(refine_rounds)
+        self.sensing_floor = float(sensing_floor)
+        self.obs_size = obs_size(s)
+        self.name = name
+
+    def _block_values(self, d: dict, n: int):
+        """Per context row (the slot, then each preview point in LoS and in NLoS): the best value v(d) on the
+        data grid, the control share reaching it, and the capacity per unit data share (units of A).
+        """
+        s = self.scenario
+        h = s.preview_slots
+        rows = 1 + 2 * h
+
+        def tile(x):
+            return np.repeat(np.asarray(x, dtype=float), rows)
+
+        snr = np.concatenate([d["snr_db"][:, None], d["snr_los_ahead_db"], d["snr_nlos_ahead_db"]], 1)
+        echo = np.concatenate([d["echo_snr_db"][:, None], d["echo_los_ahead_db"], d["echo_nlos_ahead_db"]], 1)
+        ctx = self.slot.context(snr.reshape(-1), tile(d["range_m"]), tile(d["sin_elevation"]),
+                                tile(d["cos_azimuth"]), tile(d["sin_azimuth"]), echo.reshape(-1),
+                                np.zeros(n * rows))
+        c = self.ctrl_grid[None, :, None]
+        dd = self.data_grid[None, None, :]
+        value, _ = self.slot.objective(ctx, c, dd)  # the control terms once per c, not per (c, d)
+        value = np.where(c + dd <= 1.0 - self.sensing_floor + 1e-12, value, -np.inf)
+        best = value.argmax(1)  # (N, J)
+        v = np.take_along_axis(value, best[:, None, :], 1)[:, 0, :]
+        cap = ctx.rate_per_share @ self.slot.fade_w  # (N,)
+        shape = (n, rows)
+        return v.reshape(shape + (-1,)), self.ctrl_grid[best].reshape(shape + (-1,)), cap.reshape(shape)
+
+    def _fluid(self, b, served_per_slot, slots: int):
+        """``slots`` slots of the fluid queue from backlogs ``b``: ``(b_after, dropped)`` (units of A)."""
+        top = self.top
+        dropped = np.zeros(np.broadcast_shapes(np.shape(b), np.shape(served_per_slot)))
+        for _ in range(slots):
+            b = b + 1.0
+            b = b - np.minimum(b, served_per_slot)
+            over = np.maximum(b - top, 0.0)
+            dropped = dropped + over
+            b = b - over
+        return b, dropped
+
+    def _interp(self, value, b):
+        """``value`` (n, L) on the backlog levels, at backlogs ``b`` (n, ...): linear between levels."""
+        top = self.top
+        step = top / (self.levels - 1) if top > 0 else 1.0
+        u = np.clip(b / step, 0.0, self.levels - 1 - 1e-9)
+        i = u.astype(np.int64)
+        w = u - i
+        n = value.shape[0]
+        idx = (np.arange(n).reshape((n,) + (1,) * (b.ndim - 1)), i)
+        return (1.0 - w) * value[idx] + w * value[idx[0], i + 1]
+
+    def split_batch(self, obs, state=None, episode_start=None):
+        s = self.scenario
+        o, _ = as_obs_batch(obs, self.obs_size)
+        if not np.all(np.isfinite(o)):
+            raise ValueError("obs contains NaN or inf; pass the env's (finite) observations")
+        d = decode_observation(o, s)
+        n = len(o)
+        h, stride = s.preview_slots, s.preview_stride_slots
+        v, c_best, cap = self._block_values(d, n)
+        p = d["p_los_ahead"]  # (n, H)
+        v_ahead = p[..., None] * v[:, 1:1 + h] + (1.0 - p[..., None]) * v[:, 1 + h:]  # (n, H, J)
+        cap_ahead = p * cap[:, 1:1 + h] + (1.0 - p) * cap[:, 1 + h:]  # (n, H)
+        levels = np.linspace(0.0, self.top, self.levels)
+        value = np.broadcast_to(-self.terminal_weight * s.w_rate * levels, (n, self.levels))
+        grid = self.data_grid
+        for k in range(h - 1, -1, -1):
+            served = grid[None, None, :] * cap_ahead[:, k, None, None]  # (n, 1, J)
+            b_next, dropped = self._fluid(levels[None, :, None], served, stride)  # (n, L, J)
+            total = stride * v_ahead[:, k, None, :] - s.w_rate * dropped + self._interp(value, b_next)
+            value = total.max(-1)
+        backlog = d["backlog_bits"] / (s.queue_arrival_bps * s.dt_s)
+        b_next, dropped = self._fluid(backlog[:, None], grid[None, :] * cap[:, :1], 1)  # (n, J)
+        total = v[:, 0, :] - s.w_rate * dropped + self._interp(value, b_next)
+        j = total.argmax(-1)
+        rows = np.arange(n)
+        ctrl, comm = self._refine_now(d, backlog, cap[:, 0], value, c_best[rows, 0, j], grid[j])
+        split = np.stack([np.maximum(1.0 - ctrl - comm, 0.0), ctrl, comm], -1)
+        return split / split.sum(-1, keepdims=True), state
+
+    def _refine_now(self, d: dict, backlog, cap, value_next, c0, d0):
+        """The current slot's (control, data) shares refined around the plan's grid point: ``refine_rounds``
+        lattices of 7 x 7 points (control on a log scale, data linear), each three times finer, scored by the slot's
+        value, its drops and the plan's value of the backlog it leaves.
+        """
+        s = self.scenario
+        ctx = self.slot.context(d["snr_db"], d["range_m"], d["sin_elevation"], d["cos_azimuth"], d["sin_azimuth"],
+                                d["echo_snr_db"], np.zeros(len(c0)))
+        rows = np.arange(len(c0))
+        k = np.arange(7) - 3
+        log_step = math.log(self.ctrl_grid[1] / self.ctrl_grid[0])
+        d_step = float(np.min(np.diff(self.data_grid)))
+        top = 1.0 - self.sensing_floor
+        for _ in range(self.refine_rounds):
+            log_step /= 3.0
+            d_step /= 3.0
+            cc = np.clip(c0[:, None, None] * np.exp(log_step * k)[None, :, None], self.ctrl_grid[0], top)
+            dd = np.clip(d0[:, None, None] + d_step * k[None, None, :], 0.0, top - cc)
+            v, _ = self.slot.objective(ctx, cc, dd)
+            b_next, dropped = self._fluid(backlog[:, None, None], dd * cap[:, None, None], 1)
+            total = v - s.w_rate * dropped + self._interp(value_next, b_next)
+            best = total.reshape(len(c0), -1).argmax(1)
+            ic, id_ = np.unravel_index(best, total.shape[1:])
+            c0, d0 = cc[rows, ic, 0], dd[rows, ic, id_]
+        return c0, d0
+
+    def __repr__(self) -> str:
+        return (f"LookaheadPolicy(name={self.name!r}, terminal_weight={self.terminal_weight:g}, "
+                f"deadline_margin={self.deadline_margin:g}, "
+                f"data_grid={len(self.data_grid)} shares, ctrl_points={len(self.ctrl_grid)}, levels={self.levels})")

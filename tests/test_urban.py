@@ -1,0 +1,179 @@
+"""The urban task (iscc_gym/ISCC-Urban-v0): API checks, bits conserved every slot, the two-way NLoS loss of the
+echo, the LoS frequency against TR 36.777 Table B-1, the map's calibration, the preview, the reward."""
+
+from __future__ import annotations
+
+import math
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+import iscc_gym
+from iscc_gym import SCENARIOS
+from iscc_gym.envs.env import ISCCEnv
+from iscc_gym.physics.blockage import los_probability
+from iscc_gym.sim import functional, loop
+from iscc_gym.sim.mission import MC, mission_rows
+from iscc_gym.sim.schema import OBS, obs_names, obs_size
+from iscc_gym.trajectory import sample_reference
+
+U = SCENARIOS["urban"]
+SHORT = U.replace(mission_duration_s=20.0)  # 200 slots
+
+
+def test_registered_env_passes_the_checkers_with_its_observation():
+    env = gym.make(iscc_gym.URBAN_ENV_ID)
+    assert env.spec.max_episode_steps == U.n_slots == 1200
+    assert env.observation_space.shape == (obs_size(U),) == (76,)
+    names = obs_names(U)
+    assert names[23:26] == ("backlog", "oldest_age", "echo_snr_db") and names[-1] == "echo_nlos_ahead_db_10"
+    check_env(env.unwrapped, skip_render_check=True)
+    from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+    sb3_check_env(ISCCEnv(SHORT), warn=True)
+
+
+def test_vector_env_reproduces_single_envs_bit_for_bit():
+    venv = gym.make_vec(iscc_gym.URBAN_ENV_ID, num_envs=3, vectorization_mode="vector_entry_point",
+                        mission_duration_s=20.0)
+    obs_v, _ = venv.reset(seed=[4, 5, 6])
+    singles = [ISCCEnv(SHORT) for _ in range(3)]
+    obs_s = [e.reset(seed=4 + i)[0] for i, e in enumerate(singles)]
+    assert np.array_equal(obs_v, np.stack(obs_s))
+    rng = np.random.default_rng(0)
+    for _ in range(60):
+        a = rng.uniform(-1, 1, (3, 3)).astype(np.float32)
+        o, r, te, tr, info = venv.step(a)
+        for i, e in enumerate(singles):
+            oi, ri, *_ , ii = e.step(a[i])
+            assert np.array_equal(o[i], oi) and r[i] == ri and info["bits_dropped"][i] == ii["bits_dropped"]
+    venv.close()
+
+
+def test_seeded_resets_repeat_and_differ():
+    e = ISCCEnv(SHORT)
+    a, _ = e.reset(seed=3)
+    rows = e._state.ref[0].copy()
+    b, _ = e.reset(seed=3)
+    assert np.array_equal(a, b) and np.array_equal(rows, e._state.ref[0])
+    e.reset(seed=4)
+    assert not np.array_equal(rows[:, MC["los"]:], e._state.ref[0][:, MC["los"]:])
+
+
+def test_bits_are_conserved_every_slot_and_the_reward_charges_the_drops():
+    s = SHORT
+    e = ISCCEnv(s)
+    e.reset(seed=1)
+    rng = np.random.default_rng(1)
+    backlog = 0.0
+    mean_bits = s.queue_arrival_bps * s.dt_s
+    dropped_any = False
+    for t in range(s.n_slots):
+        a = rng.uniform(-1, 1, 3).astype(np.float32)
+        if 40 <= t < 70:  # no data share for 3 s: the deadline (1 s) passes, bits are dropped
+            a[2] = -1.0
+        obs, r, term, trunc, info = e.step(a)
+        arrived, served, dropped, new = (info[k] for k in ("bits_arrived", "bits_served", "bits_dropped",
+                                                             "backlog_bits"))
+        assert arrived == pytest.approx(served + dropped + new - backlog, rel=1e-9, abs=1e-6)
+        assert served <= info["rate_comm_bps"] * s.dt_s * (1 + 1e-12)
+        assert info["cost_rate"] == (1.0 if dropped > 0 else 0.0)
+        want = -min(info["tracking_error_m"], s.max_tracking_error_m) - s.w_rate * dropped / mean_bits \
+            - s.w_stab * info["cost_stability"]
+        if not term:
+            assert r == pytest.approx(want, rel=1e-12, abs=1e-9)
+        assert obs[OBS["time_left"]] >= 0
+        dropped_any |= dropped > 0
+        backlog = new
+        if term or trunc:
+            break
+    assert dropped_any  # the starved slots dropped bits: the check above saw both cases
+
+
+def _table_b2_excess_uma(h, d, fc):
+    """UMa-AV NLoS minus LoS path loss, TR 36.777 Table B-2, written out."""
+    nlos = -17.5 + (46.0 - 7.0 * math.log10(h)) * math.log10(d) + 20.0 * math.log10(40.0 * math.pi * fc / 3.0)
+    return nlos - (28.0 + 22.0 * math.log10(d) + 20.0 * math.log10(fc))
+
+
+def test_the_echo_pays_the_nlos_excess_twice_the_link_once():
+    """Same state, its mission row flipped from LoS to NLoS (unit shadowing 0): the observed link SNR falls by the
+    Table B-2 excess, the echo's by twice it."""
+    s = SHORT
+    e = ISCCEnv(s)
+    e.reset(seed=2)
+    st = e._state
+    n = int(st.n[0])
+    ref = st.ref.copy()
+    ref[0, n, MC["shadow_unit"]] = 0.0
+    ref[0, n, MC["los"]] = 1.0
+    los = functional.observe(s, st._replace(ref=ref), 1.0, 0.0)
+    ref[0, n, MC["los"]] = 0.0
+    nlos = functional.observe(s, st._replace(ref=ref), 1.0, 0.0)
+    h = st.x_hat[0, 2]
+    d = math.dist(st.x_hat[0, :3], (0.0, 0.0, s.gbs_height_m))
+    excess = _table_b2_excess_uma(h, d, s.carrier_freq_ghz)
+    assert 10.0 < excess < 40.0
+    k_echo = obs_names(s).index("echo_snr_db")
+    assert (los[0, OBS["snr_db"]] - nlos[0, OBS["snr_db"]]) * 10.0 == pytest.approx(excess, abs=1e-3)
+    assert (los[0, k_echo] - nlos[0, k_echo]) * 10.0 == pytest.approx(2.0 * excess, abs=1e-3)
+
+
+def test_los_frequency_follows_table_b1_and_the_map_is_calibrated():
+    """Over many missions the realised LoS share equals the mean TR 36.777 probability at the reference's
+    positions (a binomial test on decorrelated samples), and within bins of the map's LoS probability the
+    truth's frequency matches the bin's mean probability."""
+    s = U
+    rng = np.random.default_rng(7)
+    truth, prior, mapped = [], [], []
+    for _ in range(60):
+        ref = loop.reference_array(sample_reference(s, rng))
+        rows = mission_rows(s, ref, rng)[::40]  # 40 slots apart: ~20 m or more, decorrelating
+        truth.append(rows[:, MC["los"]])
+        prior.append(los_probability(s.blockage, rows[:, 2], np.hypot(rows[:, 0], rows[:, 1])))
+        mapped.append(rows[:, MC["p_los_map"]])
+    truth, prior, mapped = (np.concatenate(v) for v in (truth, prior, mapped))
+    n = len(truth)
+    se = math.sqrt(np.mean(prior * (1 - prior)) / n) * 3.0  # correlated neighbours: a generous binomial bound
+    assert abs(truth.mean() - prior.mean()) < 4.0 * se
+    assert 0.02 < 1.0 - truth.mean() < 0.5  # blockage happens, but not on most of the path
+    edges = np.array([0.0, 0.2, 0.5, 0.8, 0.95, 1.0 + 1e-9])
+    for lo, hi in zip(edges[:-1], edges[1:], strict=True):
+        sel = (mapped >= lo) & (mapped < hi)
+        if sel.sum() < 40:
+            continue
+        p = mapped[sel].mean()
+        assert abs(truth[sel].mean() - p) < 4.0 * math.sqrt(p * (1 - p) / sel.sum()) * 3.0 + 0.02
+
+
+def test_the_preview_is_the_map_ahead_and_stops_at_the_mission_end():
+    s = SHORT
+    e = ISCCEnv(s)
+    obs, _ = e.reset(seed=5)
+    rows = e._state.ref[0]
+    k0 = obs_names(s).index("p_los_ahead_1")
+    stride = s.preview_stride_slots
+    cols = ("p_los_map", "snr_los_map_db", "snr_nlos_map_db", "echo_los_map_db", "echo_nlos_map_db")
+    for k in range(s.preview_slots):
+        r = min(0 + (k + 1) * stride, s.n_slots)
+        for j, col in enumerate(cols):
+            assert obs[k0 + 5 * k + j] == np.float32(rows[r, MC[col]] * (1.0 if j == 0 else 0.1))
+    # the map's two states: NLoS costs the link the Table B-2 excess once and the echo twice (the shadowing's
+    # std also changes with the state, the same for both, so it cancels in the difference of the differences)
+    drop_link = rows[:, MC["snr_los_map_db"]] - rows[:, MC["snr_nlos_map_db"]]
+    drop_echo = rows[:, MC["echo_los_map_db"]] - rows[:, MC["echo_nlos_map_db"]]
+    h, d = rows[:, 2], np.linalg.norm(rows[:, :3] - [0.0, 0.0, s.gbs_height_m], axis=1)
+    excess = np.array([_table_b2_excess_uma(hi, di, s.carrier_freq_ghz) for hi, di in zip(h, d, strict=True)])
+    np.testing.assert_allclose(drop_echo - drop_link, excess, rtol=0, atol=1e-9)
+    for _ in range(s.n_slots - 3):
+        obs, *_ = e.step(np.zeros(3, np.float32))
+    assert obs[k0 + 5 * (s.preview_slots - 1)] == np.float32(rows[s.n_slots, MC["p_los_map"]])
+    d = functional.decode_observation(obs, s)
+    assert d["p_los_ahead"].shape == (s.preview_slots,) and d["backlog_bits"] >= 0
+
+
+def test_the_multi_drone_env_refuses_the_urban_task():
+    with pytest.raises(ValueError, match="multi-drone env flies the paper's task only"):
+        gym.make(iscc_gym.MULTI_ENV_ID, scenario="urban")

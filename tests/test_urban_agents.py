@@ -1,0 +1,137 @@
+"""The urban task's baselines: drift-plus-penalty's queue price, the planner's fluid queue and its look-ahead, the
+oracle's view, tuning and the comparison command (tiny budgets)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from iscc_gym.agents import DriftPlusPenaltyPolicy, LookaheadPolicy, MyopicPolicy, make_policy
+
+from iscc_gym import SCENARIOS
+from iscc_gym.envs.env import ISCCEnv
+from iscc_gym.physics.queue import queue_step
+from iscc_gym.sim.schema import obs_names
+
+U = SCENARIOS["urban"]
+
+
+@pytest.fixture(scope="module")
+def observations():
+    """Observations of a urban mission under a fixed split (seed 500003, a tuning seed)."""
+    env = ISCCEnv(U)
+    obs, _ = env.reset(seed=500_003)
+    out = [obs]
+    for _ in range(40):
+        obs, *_ = env.step(np.array([0.0, -0.5, 0.3], np.float32))
+        out.append(obs)
+    return np.array(out)
+
+
+def _with_backlog(obs, backlog_bits):
+    o = obs.copy()
+    k = obs_names(U).index("backlog")
+    o[:, k] = np.log1p(backlog_bits / (U.queue_arrival_bps * U.dt_s))
+    return o
+
+
+def test_dpp_prices_data_by_the_backlog(observations):
+    """An empty buffer gets less data share than a full one; a larger V gives data less (tracking first)."""
+    pol = DriftPlusPenaltyPolicy(U, v=1.0)
+    empty, _ = pol.split_batch(_with_backlog(observations, 0.0))
+    full, _ = pol.split_batch(_with_backlog(observations, 8 * U.queue_arrival_bps * U.dt_s))
+    assert np.all(full[:, 2] >= empty[:, 2] - 1e-12) and full[:, 2].mean() > empty[:, 2].mean() + 0.02
+    patient, _ = DriftPlusPenaltyPolicy(U, v=50.0).split_batch(_with_backlog(observations, 8 * 5e5))
+    assert patient[:, 2].mean() < full[:, 2].mean()
+    with pytest.raises(ValueError, match="needs a data queue"):
+        DriftPlusPenaltyPolicy("paper")
+    with pytest.raises(ValueError, match="v = "):
+        DriftPlusPenaltyPolicy(U, v=0.0)
+
+
+def test_the_planners_fluid_queue_matches_the_queue_at_constant_rates():
+    """Constant arrivals and service: the fluid model's backlog and drops equal the FIFO queue's (physics.queue)."""
+    pol = LookaheadPolicy(U)
+    d, a = U.queue_slots, U.queue_arrival_bps * U.dt_s
+    for served in (0.0, 0.3, 0.9, 1.0, 1.7):
+        q = np.zeros((1, d))
+        dropped_q = 0.0
+        for _ in range(25):
+            q, _, x = queue_step(q, a, served * a)
+            dropped_q += x[0]
+        b, dropped_f = pol._fluid(np.zeros(1), np.array([served]), 25)
+        assert q.sum() / a == pytest.approx(b[0], abs=1e-9)
+        assert dropped_q / a == pytest.approx(dropped_f[0], abs=1e-9)
+
+
+def test_the_planner_sends_data_ahead_of_a_blocked_stretch(observations):
+    """Same slot, a backlog waiting: with the path ahead blocked (map LoS probability 0, the link 30 dB weaker) the
+    planner gives data more now than with it clear; myopic cannot tell the two apart."""
+    s = U
+    names = obs_names(s)
+    o = _with_backlog(observations[5:6], 4 * s.queue_arrival_bps * s.dt_s)
+    clear, blocked = o.copy(), o.copy()
+    for k in range(1, s.preview_slots + 1):
+        p, snr_l, snr_n = (names.index(f"{n}_{k}") for n in ("p_los_ahead", "snr_los_ahead_db", "snr_nlos_ahead_db"))
+        clear[0, p] = 1.0
+        blocked[0, p] = 0.0
+        blocked[0, snr_n] = clear[0, snr_l] - 3.0  # 30 dB below the LoS link
+    pol = LookaheadPolicy(s)
+    now_clear, now_blocked = pol.split_batch(clear)[0][0], pol.split_batch(blocked)[0][0]
+    assert now_blocked[2] > now_clear[2] + 0.02
+    my = MyopicPolicy(s)
+    assert np.array_equal(my.split_batch(clear)[0], my.split_batch(blocked)[0])
+    assert abs(now_clear.sum() - 1.0) < 1e-12 and np.all(now_blocked >= 0)
+
+
+def test_the_oracle_sees_the_truth_on_the_same_missions():
+    oracle = make_policy("oracle", U) if _has_record("mpc") else None
+    if oracle is None:
+        pytest.skip("no mpc-urban record yet")
+    assert oracle.scenario_overrides == {"preview_source": "truth"}
+    a = ISCCEnv(U)
+    b = ISCCEnv(U.replace(preview_source="truth"))
+    oa, _ = a.reset(seed=7)
+    ob, _ = b.reset(seed=7)
+    k = obs_names(U).index("p_los_ahead_1")
+    assert np.array_equal(oa[:k], ob[:k]) and set(np.unique(ob[k::5][:U.preview_slots])) <= {0.0, 1.0}
+    assert np.array_equal(a._state.ref, b._state.ref)
+
+
+def _has_record(name):
+    from iscc_gym.agents.tuned_records import TUNED_DIR
+
+    return (TUNED_DIR / f"{name}-urban.yml").exists()
+
+
+def test_urban_specs_need_the_urban_task():
+    with pytest.raises(ValueError, match="urban task"):
+        make_policy("mpc", "paper")
+    with pytest.raises(ValueError, match="'dpp:' takes one number"):
+        make_policy("dpp:x", U)
+    assert make_policy("dpp:2", U).v == 2.0
+
+
+def test_tune_and_compare_on_the_urban_task(tmp_path):
+    from iscc_gym.eval.__main__ import main as eval_main
+    from iscc_gym.eval.tune import main as tune_main
+
+    rec = tune_main(["dpp", "--scenario", "urban", "--episodes", "2", "--max-steps", "15", "--quiet",
+                     "--out", str(tmp_path / "dpp.yml")])
+    assert rec["policy"] == "dpp" and rec["params"]["v"] in [g for g, _ in rec["grid"]] and len(rec["grid"]) == 7
+    assert (tmp_path / "dpp.yml").exists()
+    res = eval_main(["--env", "iscc_gym/ISCC-Urban-v0", "--policies", "dpp:1,dpp:5", "--reference", "dpp:1",
+                     "--episodes", "2", "--max-steps", "12", "--workers", "1", "--quiet"])
+    assert set(res["policies"]) == {"dpp:1", "dpp:5"}
+    assert "dropped_mbit_mean" in res["policies"]["dpp:1"]
+
+
+def test_task_description_and_the_mission_figure(tmp_path):
+    from iscc_gym.eval.urban_figure import main as figure_main
+    from iscc_gym.eval.urban_task import main as task_main
+
+    st = task_main(["--missions", "3"])
+    assert st["n"] == 3 and 0.0 <= st["share_with_blockage"] <= 1.0 and 0.5 < st["los_share_mean"] <= 1.0
+    assert all(sum(m["stretches"]) == round((1.0 - m["los_share"]) * (U.n_slots + 1)) for m in st["missions"])
+    out = tmp_path / "mission.png"
+    assert figure_main(["--seed", "1500024", "--policies", "fixed:0.2,0.3,0.5,margin", "--out", str(out)]) == out
+    assert out.stat().st_size > 10_000

@@ -31,7 +31,7 @@ from iscc_gym.physics.channel import matched_gain
 from iscc_gym.physics.dynamics import axis_gain, axis_matrices
 from iscc_gym.physics.fbl import comm_rate_bps, min_shares
 from iscc_gym.physics.stability import scenario_eps_star, stability_matrix
-from iscc_gym.scenario import Scenario, make_scenario
+from iscc_gym.scenario import Scenario, make_scenario, per_scenario
 from iscc_gym.sim.functional import decode_observation
 from iscc_gym.sim.kernel import reward_from_costs
 from iscc_gym.sim.schema import obs_size
@@ -175,6 +175,14 @@ class LocalTrackingModel:
         return np.where(bad, self.e_max, np.minimum(t, self.e_max))
 
 
+@per_scenario
+def local_tracking_model(s: Scenario) -> LocalTrackingModel:
+    """:class:`LocalTrackingModel` of a scenario, built once (its Kalman tables take ~0.3 s; it keeps no state that
+    changes, so the policies of a scenario share it).
+    """
+    return LocalTrackingModel(s)
+
+
 @dataclass(frozen=True)
 class SlotContext:
     r"""What :class:`MyopicPolicy` decodes from a batch of n observations (arrays with leading n).
@@ -315,7 +323,7 @@ class MyopicPolicy(SplitPolicy):
         ok = a_star < 1e6
         self._log_alpha_star = np.log(a_star[ok])[::-1]
         self._log_snr_star = log_snr[ok][::-1]
-        self.tracking = LocalTrackingModel(s)
+        self.tracking = local_tracking_model(s)
         self._gain = matched_gain(s) if s.beamforming == "matched" else None
         self.obs_size = obs_size(s)
         self.name = "myopic"

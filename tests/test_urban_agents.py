@@ -115,7 +115,7 @@ def test_tune_and_compare_on_the_urban_task(tmp_path):
     from iscc_gym.eval.__main__ import main as eval_main
     from iscc_gym.eval.tune import main as tune_main
 
-    rec = tune_main(["dpp", "--scenario", "urban", "--episodes", "2", "--max-steps", "15", "--quiet",
+    rec = tune_main(["dpp", "--scenario", "urban", "--episodes", "1", "--max-steps", "5", "--quiet",
                      "--out", str(tmp_path / "dpp.yml")])
     assert rec["policy"] == "dpp" and rec["params"]["v"] in [g for g, _ in rec["grid"]] and len(rec["grid"]) == 7
     assert (tmp_path / "dpp.yml").exists()

@@ -377,6 +377,7 @@ URBAN_OVERRIDES: dict[str, Any] = {
     "altitude_min_m": 30.0,         # low-altitude flights, above the 22.5 m where Tables B-1/B-2 start
     "altitude_max_m": 60.0,
     "coverage_radius_m": 400.0,
+    "waypoint_intensity_per_km3": 336.0,  # 5 waypoints expected in the 0.0149 km^3 region (about 10 m/s)
     "mission_duration_s": 120.0,    # a two-minute delivery or inspection flight
     "queue_deadline_s": 1.0,        # video/telemetry downlink latency budget
     "queue_arrival_bps": 5e6,

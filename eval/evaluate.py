@@ -266,6 +266,14 @@ PAIR_COLUMNS = (("reward", "Δ episode reward", "{:+.1f}", "↑"),
                 ("tracking_error_m", "Δ tracking error (m)", "{:+.4f}", "↓"),
                 ("violation", "Δ violations", "{:+.3f}", "↓"))
 SPLIT_TITLE = "mean split: sensing / control / data"
+#: The detail column of a task with a data queue (shown when some policy dropped bits).
+DROPPED_COLUMN = ("dropped_mbit", "dropped (Mbit)", "{:.1f}", "↓")
+
+
+def detail_columns(res: dict) -> tuple:
+    """:data:`DETAIL_COLUMNS`, and :data:`DROPPED_COLUMN` where a policy of the comparison dropped data (a queue)."""
+    dropped = any(p.get("dropped_mbit_mean", 0.0) > 0.0 for p in res["policies"].values())
+    return DETAIL_COLUMNS + ((DROPPED_COLUMN,) if dropped else ())
 
 #: The line under the comparison explaining its columns.
 PEB_NOTE = ("PEB: position error bound, the Cramér–Rao bound on the error of the radar's position estimate (m), "
@@ -311,7 +319,7 @@ def format_table(res: dict) -> str:
     w0 = max([len("policy"), *map(len, names)]) + 2
     lines = [f"{n} held-out episodes per policy, common random numbers; mean ±half-width of the 95% CI",
              "(↑ higher is better, ↓ lower is better; PEB: the Cramér–Rao position error bound of the radar)"]
-    for cols, extra in ((MAIN_COLUMNS, False), (DETAIL_COLUMNS, True)):
+    for cols, extra in ((MAIN_COLUMNS, False), (detail_columns(res), True)):
         cells = {name: [ci_cell(p[f"{m}_mean"], p[f"{m}_ci95"], fmt) for m, _, fmt, _ in cols]
                  for name, p in res["policies"].items()}
         titles = [f"{title} {better}" for _, title, _, better in cols]
@@ -361,7 +369,7 @@ def markdown_table(res: dict, command: str) -> str:
 
     lines += table(MAIN_COLUMNS)
     lines += ["", wrap(PEB_NOTE), ""]
-    lines += table(DETAIL_COLUMNS, (SPLIT_TITLE, _split))
+    lines += table(detail_columns(res), (SPLIT_TITLE, _split))
     for title, pairs in _pair_groups(res):
         lines += ["", f"{title}:", "", "| pair | " + " | ".join(f"{t} {b}" for _, t, _, b in PAIR_COLUMNS) + " |",
                   "|---|" + "--:|" * len(PAIR_COLUMNS)]

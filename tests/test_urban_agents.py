@@ -135,3 +135,11 @@ def test_task_description_and_the_mission_figure(tmp_path):
     out = tmp_path / "mission.png"
     assert figure_main(["--seed", "1500024", "--policies", "fixed:0.2,0.3,0.5,margin", "--out", str(out)]) == out
     assert out.stat().st_size > 10_000
+
+
+def test_the_comparison_shows_dropped_data_only_where_a_queue_dropped_some():
+    from iscc_gym.eval.evaluate import DETAIL_COLUMNS, DROPPED_COLUMN, detail_columns
+
+    assert detail_columns({"policies": {"a": {"dropped_mbit_mean": 0.0}}}) == DETAIL_COLUMNS
+    assert detail_columns({"policies": {"a": {"dropped_mbit_mean": 0.0}, "b": {"dropped_mbit_mean": 2.5}}})[-1] \
+        == DROPPED_COLUMN

@@ -39,7 +39,7 @@ from iscc_gym.sim.functional import decode_observation
 from iscc_gym.sim.schema import obs_size
 
 from .base import SplitPolicy, as_obs_batch
-from .myopic import MyopicPolicy
+from .myopic import MyopicPolicy, refine_lattice
 
 __all__ = ["LookaheadPolicy", "DATA_GRID"]
 
@@ -199,23 +199,16 @@ class LookaheadPolicy(SplitPolicy):
         s = self.scenario
         ctx = self.slot.context(d["snr_db"], d["range_m"], d["sin_elevation"], d["cos_azimuth"], d["sin_azimuth"],
                                 d["echo_snr_db"], np.zeros(len(c0)))
-        rows = np.arange(len(c0))
-        k = np.arange(7) - 3
-        log_step = math.log(self.ctrl_grid[1] / self.ctrl_grid[0])
-        d_step = float(np.min(np.diff(self.data_grid)))
         top = 1.0 - self.sensing_floor
-        for _ in range(self.refine_rounds):
-            log_step /= 3.0
-            d_step /= 3.0
-            cc = np.clip(c0[:, None, None] * np.exp(log_step * k)[None, :, None], self.ctrl_grid[0], top)
-            dd = np.clip(d0[:, None, None] + d_step * k[None, None, :], 0.0, top - cc)
+
+        def score(cc, dd):
             v, _ = self.slot.objective(ctx, cc, dd)
             b_next, dropped = self._fluid(backlog[:, None, None], dd * cap[:, None, None], 1)
-            total = v - s.w_rate * dropped + self._interp(value_next, b_next)
-            best = total.reshape(len(c0), -1).argmax(1)
-            ic, id_ = np.unravel_index(best, total.shape[1:])
-            c0, d0 = cc[rows, ic, 0], dd[rows, ic, id_]
-        return c0, d0
+            return v - s.w_rate * dropped + self._interp(value_next, b_next)
+
+        return refine_lattice(score, c0, d0, math.log(self.ctrl_grid[1] / self.ctrl_grid[0]),
+                              float(np.min(np.diff(self.data_grid))), self.refine_rounds, 7, 3.0, self.ctrl_grid[0],
+                              top)
 
     def __repr__(self) -> str:
         return (f"LookaheadPolicy(name={self.name!r}, terminal_weight={self.terminal_weight:g}, "

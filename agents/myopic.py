@@ -41,7 +41,7 @@ from iscc_gym.units import db_to_lin
 from .base import SplitPolicy, as_obs_batch
 from .geometry import predicted_sensing
 
-__all__ = ["MyopicPolicy", "LocalTrackingModel", "rician_power_cdf", "SlotContext", "lead_axes"]
+__all__ = ["MyopicPolicy", "LocalTrackingModel", "rician_power_cdf", "SlotContext", "lead_axes", "refine_lattice"]
 
 
 def rician_power_cdf(s: Scenario, x):
@@ -435,10 +435,6 @@ class MyopicPolicy(SplitPolicy):
         return self.expected_terms(obs, split)["reward"]
 
     # --- the search -----------------------------------------------------------------------------
-    def _feasible(self, c, d):
-        c = np.clip(c, self.ctrl_floor, 1.0 - self.sensing_floor)
-        return c, np.clip(d, 0.0, 1.0 - self.sensing_floor - c)
-
     def split_batch(self, obs, state=None, episode_start=None):
         ctx = self.slot_context(obs)
         n = len(ctx.snr)
@@ -452,18 +448,9 @@ class MyopicPolicy(SplitPolicy):
         best = value.reshape(n, -1).argmax(1)
         ic, iu = np.unravel_index(best, value.shape[1:])
         c0, d0 = c_grid[ic], d[rows, ic, iu]
-        log_step = math.log(c_grid[1] / c_grid[0])
-        d_step = top / (self.n_coarse - 1)
-        k = np.arange(self.refine_points) - self.refine_points // 2
-        for _ in range(self.n_refine):
-            log_step /= self.refine_factor
-            d_step /= self.refine_factor
-            cc, dd = self._feasible(c0[:, None, None] * np.exp(log_step * k)[None, :, None],
-                                    d0[:, None, None] + d_step * k[None, None, :])
-            value, _ = self.objective(ctx, cc, dd)
-            best = value.reshape(n, -1).argmax(1)
-            ic, id_ = np.unravel_index(best, value.shape[1:])
-            c0, d0 = cc[rows, ic, 0], dd[rows, ic, id_]
+        c0, d0 = refine_lattice(lambda cc, dd: self.objective(ctx, cc, dd)[0], c0, d0,
+                                math.log(c_grid[1] / c_grid[0]), top / (self.n_coarse - 1), self.n_refine,
+                                self.refine_points, self.refine_factor, self.ctrl_floor, top)
         split = np.stack([np.maximum(1.0 - c0 - d0, 0.0), c0, d0], -1)
         return split / split.sum(-1, keepdims=True), state
 
@@ -472,6 +459,29 @@ class MyopicPolicy(SplitPolicy):
                 f"sensing_floor={self.sensing_floor:g}, ctrl_floor={self.ctrl_floor:g}, n_coarse={self.n_coarse}, "
                 f"n_refine={self.n_refine}, refine_points={self.refine_points}, "
                 f"refine_factor={self.refine_factor:g})")
+
+
+def refine_lattice(score, c0, d0, log_step: float, d_step: float, rounds: int, points: int, factor: float,
+                   ctrl_floor: float, top: float):
+    """Local search of (control, data) shares around ``(c0, d0)`` (arrays (n,)): ``rounds`` lattices of ``points`` x
+    ``points`` centred on the incumbent, control shares on a log scale and data shares linear, each round's steps
+    ``factor`` times finer than the last (from ``log_step``, ``d_step``), kept feasible (control in
+    [``ctrl_floor``, ``top``], data in [0, ``top`` - control]); ``score(cc, dd)`` gives the value of a lattice
+    (n, points, points). Returns the best ``(c, d)``: the refinement of :class:`MyopicPolicy` and of the planner's
+    current slot (:class:`iscc_gym.agents.LookaheadPolicy`).
+    """
+    rows = np.arange(len(c0))
+    k = np.arange(points) - points // 2
+    for _ in range(rounds):
+        log_step /= factor
+        d_step /= factor
+        cc = np.clip(c0[:, None, None] * np.exp(log_step * k)[None, :, None], ctrl_floor, top)
+        dd = np.clip(d0[:, None, None] + d_step * k[None, None, :], 0.0, top - cc)
+        value = score(cc, dd)
+        best = value.reshape(len(c0), -1).argmax(1)
+        ic, id_ = np.unravel_index(best, value.shape[1:])
+        c0, d0 = cc[rows, ic, 0], dd[rows, ic, id_]
+    return c0, d0
 
 
 def _weight(name, value):

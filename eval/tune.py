@@ -17,7 +17,7 @@ record goes to ``agents/tuned/sca-per-slot.yml``, which ``SCAPolicy(mode="per_sl
 
 On the urban task (``--scenario urban``; records ``<policy>-urban.yml``, which ``make_policy`` reads for a
 scenario with a queue or blockage): ``margin`` as above; ``myopic`` its data weight (the queue's greedy price),
-``dpp`` its V, ``mpc`` its deadline margin and terminal weight, each a grid (:data:`SCALAR_GRIDS`) on the tuning
+``dpp`` its V, ``mpc`` its deadline margin and terminal weight, each a grid (:data:`MODEL_GRIDS`) on the tuning
 seeds, every point on the same missions.
 
 Examples::
@@ -118,7 +118,7 @@ def margin_rewards(points, seeds, scenario="paper", progress=None) -> np.ndarray
 
 #: The urban task's model-based baselines: their parameters' grids for ``python -m eval.tune <policy> --scenario urban``
 #: (every combination played on the tuning seeds).
-SCALAR_GRIDS = {"myopic": {"rate_weight": (0.1, 0.3, 0.6, 1.0, 2.0, 4.0)},
+MODEL_GRIDS = {"myopic": {"rate_weight": (0.1, 0.3, 0.6, 1.0, 2.0, 4.0)},
                 "dpp": {"v": (0.3, 1.0, 3.0, 10.0, 30.0, 100.0, 300.0)},
                 "mpc": {"deadline_margin": (0.0, 2.0, 4.0, 6.0), "terminal_weight": (0.0, 1.0)}}
 
@@ -131,13 +131,13 @@ def _grid_policy(policy: str, scenario, params: dict):
     return LookaheadPolicy(scenario, **params)
 
 
-def tune_scalar(policy: str, seeds=TUNE_SEEDS, scenario: str = "urban", log=print, progress=None,
+def tune_model_grid(policy: str, seeds=TUNE_SEEDS, scenario: str = "urban", log=print, progress=None,
                 max_steps: int | None = None, grid: dict | None = None) -> dict:
-    """The parameters of ``policy`` on the grid of :data:`SCALAR_GRIDS` (every combination), every point on the same
+    """The parameters of ``policy`` on the grid of :data:`MODEL_GRIDS` (every combination), every point on the same
     tuning seeds; returns the tuning record. ``progress(1)`` after each point; ``max_steps`` cuts the missions.
     """
     seeds = check_tuning_seeds(seeds)
-    grid = SCALAR_GRIDS[policy] if grid is None else grid
+    grid = MODEL_GRIDS[policy] if grid is None else grid
     names = list(grid)
     points = [dict(zip(names, (float(v) for v in combo), strict=True))
               for combo in np.stack(np.meshgrid(*grid.values(), indexing="ij"), -1).reshape(-1, len(names))]
@@ -288,7 +288,7 @@ def _fmt(x) -> str:
 
 def build_parser(prog: str = "python -m eval.tune") -> Parser:
     ap = Parser(prog=prog, description=__doc__.split("\n")[0])
-    ap.add_argument("policy", choices=["margin", PER_SLOT_RECORD, *SCALAR_GRIDS],
+    ap.add_argument("policy", choices=["margin", PER_SLOT_RECORD, *MODEL_GRIDS],
                     help="the baseline to tune (myopic, dpp, mpc: on the urban task, --scenario urban)")
     ap.add_argument("--episodes", type=positive_int, default=len(TUNE_SEEDS), metavar="N",
                     help=f"tuning missions (default: {len(TUNE_SEEDS)})")
@@ -315,11 +315,11 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.tune") -> di
         check_writable_file(args.out, "--out")
     show = show_progress(args.quiet)
     task = task_of(make_scenario(args.scenario))
-    if args.policy in SCALAR_GRIDS:
-        total = int(np.prod([len(v) for v in SCALAR_GRIDS[args.policy].values()]))
+    if args.policy in MODEL_GRIDS:
+        total = int(np.prod([len(v) for v in MODEL_GRIDS[args.policy].values()]))
 
         def tune(seeds, scenario, refine, log, progress):
-            return tune_scalar(args.policy, seeds, scenario, log, progress, max_steps=args.max_steps)
+            return tune_model_grid(args.policy, seeds, scenario, log, progress, max_steps=args.max_steps)
     elif args.policy == "margin":
         total = n_batches(int(np.prod([len(v) for v in MARGIN_GRID.values()])), len(seeds))
         total += 0 if args.no_refine else MAX_REFINE

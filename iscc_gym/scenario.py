@@ -371,13 +371,13 @@ LITERAL_OVERRIDES: dict[str, Any] = {
 
 #: Overrides turning the ``paper`` preset into the low-altitude urban task (``docs/model.md`` Sec. 6).
 URBAN_OVERRIDES: dict[str, Any] = {
-    # UMa-AV below 100 m: blocked stretches on every mission (5-25 % of a flight), the link in NLoS 15-25 dB
-    # weaker but alive (UMi-AV blocks half the flight and loses track on most: the harder variant)
+    # UMa-AV below 100 m: blocked stretches on most missions (python -m eval.urban_task), the link in NLoS
+    # weaker but alive (UMi-AV blocks more of it and loses track on some missions: the harder variant)
     "blockage": "uma_av",
     "altitude_min_m": 30.0,         # low-altitude flights, above the 22.5 m where Tables B-1/B-2 start
     "altitude_max_m": 60.0,
     "coverage_radius_m": 400.0,
-    "waypoint_intensity_per_km3": 336.0,  # 5 waypoints expected in the 0.0149 km^3 region (about 10 m/s)
+    "waypoint_intensity_per_km3": 336.0,  # 5 waypoints expected in the 0.0149 km^3 region
     "mission_duration_s": 120.0,    # a two-minute delivery or inspection flight
     "queue_deadline_s": 1.0,        # video/telemetry downlink latency budget
     "queue_arrival_bps": 5e6,

@@ -161,23 +161,14 @@ def env_step(s: Scenario, state: loop.LoopState, actions: ArrayLike, normals: Ar
     args = (c, mats, state.x, state.x_hat, state.p, state.shadow, state.n, state.ref, state.key, state.queue, actions,
             b, z, active)
     # numba.get_num_threads() costs ~0.5 us: asked only for a batch the parallel kernel could take
-    blocked = _blocked(s)
+    # without blockage the argument is left out: the kernel's default (None) compiles the paper's slot
+    blocked = () if s.blockage == "none" else (loop.blocked_switch(s),)
     if nb >= PARALLEL_MIN_BATCH and threads.use_parallel(nb, numba.get_num_threads()):
-        if blocked is None:
-            kernel.env_step_batch_parallel(*args, *outputs, kernel.parallel_chunk(nb))
-        else:
-            kernel.env_step_batch_parallel(*args, *outputs, kernel.parallel_chunk(nb), blocked)
-    elif blocked is None:  # the paper's kernel, compiled without the blockage branches
-        kernel.env_step_batch(*args, *outputs)
+        kernel.env_step_batch_parallel(*args, *outputs, kernel.parallel_chunk(nb), *blocked)
     else:
-        kernel.env_step_batch(*args, *outputs, blocked)
+        kernel.env_step_batch(*args, *outputs, *blocked)
     n = state.n + 1 if all_active else state.n + active
     return state._replace(x=x, x_hat=x_hat, p=p, shadow=shadow, n=n, queue=queue), out, obs
-
-
-def _blocked(s: Scenario):
-    """The kernel's compile-time switch: None without blockage, True with (:func:`iscc_gym.sim.loop.step_one`)."""
-    return None if s.blockage == "none" else True
 
 
 @per_scenario
@@ -230,7 +221,7 @@ def reset_info_arrays(state: loop.LoopState) -> dict:
     info.update({key: np.full(nb, np.nan) for key in SLOT_OUTCOME_KEYS})
     for key in ("bits_arrived", "bits_served", "bits_dropped"):
         info[key] = zeros.copy()
-    info["backlog_bits"] = state.queue.sum(axis=1) if state.queue.shape[-1] else zeros.copy()
+    info["backlog_bits"] = state.queue.sum(axis=1)  # zeros without a queue (an empty last axis)
     info["cost"] = zeros.copy()
     info["packet_received"] = np.ones(nb, dtype=bool)
     info["alpha"] = np.full((nb, 3), 1.0 / 3.0)

@@ -56,7 +56,7 @@ from iscc_gym.trajectory import Reference, sample_reference
 
 __all__ = ["LoopState", "N_DRAWS", "init_state", "step", "reference_at",
            "standard_normals", "stack_references", "reference_array", "slot_noise", "step_one", "reference_rows",
-           "vector_norm", "check_step", "channel_state_one", "init_mission",
+           "vector_norm", "check_step", "channel_state_one", "init_mission", "blocked_switch",
            "step_batch", "new_outputs"]
 
 
@@ -178,6 +178,13 @@ def init_state(s: Scenario, refs: ArrayLike, rng: np.random.Generator) -> LoopSt
                      queue=np.zeros(shape + (s.queue_slots,)))
 
 
+def blocked_switch(s: Scenario):
+    """The compiled slot's ``blocked`` argument for a scenario: None without blockage (the paper's machine code),
+    True with (:func:`step_one`).
+    """
+    return None if s.blockage == "none" else True
+
+
 def init_mission(s: Scenario, rng: np.random.Generator) -> LoopState:
     """A new mission for one loop, as a batch of one: its reference (:func:`iscc_gym.trajectory.sample_reference`),
     with blockage the channel along it (:func:`iscc_gym.sim.mission.mission_rows`), then :func:`init_state`, all
@@ -242,7 +249,7 @@ def step(s: Scenario, state: LoopState, alpha: ArrayLike, rng: np.random.Generat
     z = slot_noise(state, rng)
     nb = 1 if batch is None else batch
     x_n, xh_n, p_n, sh_n, _, met, _ = new_outputs(nb, N_METRICS)
-    blocked = None if s.blockage == "none" else True
+    blocked = blocked_switch(s)
     if batch is None:  # a batch of one, squeezed back
         step_batch(*slot_params(s), x[None], state.x_hat[None], state.p[None], state.shadow[None], state.n[None],
                    state.ref[None], alpha[None], z[None], x_n, xh_n, p_n, sh_n, met, blocked)

@@ -52,10 +52,12 @@ def mission_columns(s: Scenario) -> int:
     return REFERENCE_COLUMNS + (len(CHANNEL_COLUMNS) if s.blockage != "none" else 0)
 
 
-def _state_snr_db(s: Scenario, dist, h, gain, los: bool, shadow_unit):
-    """Large-scale SNR of the command link and of the echo (dB) in a given LoS state and unit shadowing."""
-    sigma = shadowing_std_los_db(s.blockage, h, s.shadowing_a_db, s.shadowing_b_per_m) if los else \
-        shadowing_std_nlos_db(s.blockage, h)
+def _state_snr_db(s: Scenario, dist, h, gain, los, shadow_unit):
+    """Large-scale SNR of the command link and of the echo (dB) in LoS states ``los`` (a bool, or one per slot) and
+    unit shadowing.
+    """
+    sigma = np.where(los, shadowing_std_los_db(s.blockage, h, s.shadowing_a_db, s.shadowing_b_per_m),
+                     shadowing_std_nlos_db(s.blockage, h))
     shadow_db = sigma * shadow_unit
     extra = excess_loss_db(s.blockage, los, h, dist, s.carrier_freq_ghz)
     snr = link_snr(s, dist, shadow_db + extra, gain)
@@ -90,9 +92,7 @@ def channel_along(s: Scenario, ref: np.ndarray, rng: np.random.Generator) -> np.
     gain = beam_gain(s, direction_trig(g))
     snr_los, echo_los = _state_snr_db(s, dist, h, gain, True, shadow_map)
     snr_nlos, echo_nlos = _state_snr_db(s, dist, h, gain, False, shadow_map)
-    snr_t_los, echo_t_los = _state_snr_db(s, dist, h, gain, True, shadow_true)
-    snr_t_nlos, echo_t_nlos = _state_snr_db(s, dist, h, gain, False, shadow_true)
-    snr_true, echo_true = np.where(los, snr_t_los, snr_t_nlos), np.where(los, echo_t_los, echo_t_nlos)
+    snr_true, echo_true = _state_snr_db(s, dist, h, gain, los, shadow_true)
     return np.column_stack([los.astype(float), shadow_true, p_map, shadow_map, snr_los, snr_nlos, echo_los,
                             echo_nlos, snr_true, echo_true])
 

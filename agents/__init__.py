@@ -59,9 +59,9 @@ __all__ = [
 
 #: The specs :func:`make_policy` understands.
 POLICY_SPECS = ("sca", "sca-per-slot", "sca-ignore-loss", "equal", "fixed:A_SEN,A_CTRL,A_COMM", "grid",
-                "evolutionary", "margin", "margin:M_CTRL,M_COMM", "myopic", "dpp", "dpp:V", "mpc", "oracle")
+                "evolutionary", "margin", "margin:M_CTRL,M_COMM", "myopic", "dpp", "dpp:V", "mpc", "mpc-hold", "oracle")
 #: The specs of the urban task's queue planners (they need a scenario with a data queue and a preview).
-URBAN_SPECS = ("dpp", "mpc", "oracle")
+URBAN_SPECS = ("dpp", "mpc", "mpc-hold", "oracle")
 
 
 def make_policy(spec: str, scenario: Scenario | str = "paper", seed: int = 0):
@@ -80,7 +80,8 @@ def make_policy(spec: str, scenario: Scenario | str = "paper", seed: int = 0):
         :func:`iscc_gym.agents.tuned_records.task_of`) ``margin``, ``myopic``, ``dpp`` and ``mpc`` read the
         records ``<spec>-urban`` tuned there (``python -m eval.tune <spec> --scenario urban``); ``"dpp:2"``
         (given V), ``"oracle"`` (``mpc`` on the truth's preview: its ``scenario_overrides`` make the
-        evaluation show it the realised channel ahead on the same missions).
+        evaluation show it the realised channel ahead on the same missions), ``"mpc-hold"`` (``mpc`` blind to the
+        preview: the slot's channel held over the horizon).
     scenario : Scenario or str
         The scenario (or preset name) the model-based policies design for.
     seed : int
@@ -129,6 +130,8 @@ def make_policy(spec: str, scenario: Scenario | str = "paper", seed: int = 0):
         return DriftPlusPenaltyPolicy(s, v=v)
     if key == "mpc":
         return LookaheadPolicy(s, **load_tuned(record_name("mpc", task))["params"])
+    if key == "mpc-hold":
+        return LookaheadPolicy(s, preview="hold", name="mpc-hold", **load_tuned(record_name("mpc", task))["params"])
     if key == "oracle":
         oracle = LookaheadPolicy(s.replace(preview_source="truth"), name="oracle",
                                  **load_tuned(record_name("mpc", task))["params"])

@@ -25,7 +25,10 @@ The model, each piece the env's own:
   :math:`-\kappa b` (``terminal_weight``: what a backlog left at the horizon's end is worth).
 
 ``oracle`` is the same planner on ``preview_source="truth"`` (the realised LoS state and shadowing ahead, the
-same missions): a bound on what better knowledge of the channel is worth, not a policy to beat.
+same missions): a bound on what better knowledge of the channel is worth, not a policy to beat. ``mpc-hold``
+(``preview="hold"``) is the same planner blind to the preview: it takes the slot's measured channel to hold over
+the horizon (LoS with the measured SNRs), so ``mpc`` against ``mpc-hold`` is what the preview is worth to the
+planner, apart from its other approximations.
 """
 
 from __future__ import annotations
@@ -41,7 +44,10 @@ from iscc_gym.sim.schema import obs_size
 from .base import SplitPolicy, as_obs_batch
 from .myopic import MyopicPolicy, refine_lattice
 
-__all__ = ["LookaheadPolicy", "DATA_GRID"]
+__all__ = ["LookaheadPolicy", "DATA_GRID", "PREVIEW_MODES"]
+
+#: What the planner reads of the path ahead: the observation's preview, or the slot's channel held.
+PREVIEW_MODES = ("shown", "hold")
 
 #: The data shares the planner chooses among (per block).
 DATA_GRID = (0.0, 0.03, 0.07, 0.12, 0.18, 0.25, 0.35, 0.5, 0.7)
@@ -70,6 +76,9 @@ class LookaheadPolicy(SplitPolicy):
         Smallest sensing and control shares (as :class:`iscc_gym.agents.MyopicPolicy`'s).
     refine_rounds : int
         Rounds of local refinement of the current slot's shares around the plan's grid point (>= 0).
+    preview : str
+        ``"shown"``: plan over the observation's preview; ``"hold"``: ignore it, the slot's measured channel held
+        over the horizon (``mpc-hold``, the planner without knowledge of the future).
     name : str
 
     Raises
@@ -80,7 +89,7 @@ class LookaheadPolicy(SplitPolicy):
 
     def __init__(self, scenario: Scenario | str = "urban", terminal_weight: float = 0.0, deadline_margin: float = 0.0,
                  data_grid=DATA_GRID, ctrl_points: int = 10, levels: int = 21, sensing_floor: float = 1e-3,
-                 ctrl_floor: float = 1e-3, refine_rounds: int = 3, name: str = "mpc"):
+                 ctrl_floor: float = 1e-3, refine_rounds: int = 3, preview: str = "shown", name: str = "mpc"):
         s = make_scenario(scenario) if isinstance(scenario, str) else scenario
         if not isinstance(s, Scenario):
             raise ValueError(f"scenario must be a Scenario or a preset name, got {type(scenario).__name__}")
@@ -96,6 +105,9 @@ class LookaheadPolicy(SplitPolicy):
                                  ("refine_rounds", refine_rounds, 0)):
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < lo:
                 raise ValueError(f"{field} = {value!r} is invalid: must be an integer >= {lo}")
+        if preview not in PREVIEW_MODES:
+            raise ValueError(f"preview = {preview!r} is invalid: must be one of {PREVIEW_MODES}")
+        self.preview = preview
         self.scenario = s
         self.slot = MyopicPolicy(s, rate_weight=0.0, sensing_floor=sensing_floor, ctrl_floor=ctrl_floor)
         self.terminal_weight = float(terminal_weight)
@@ -170,6 +182,9 @@ class LookaheadPolicy(SplitPolicy):
         d = decode_observation(o, s)
         n = len(o)
         h, stride = s.preview_slots, s.preview_stride_slots
+        if self.preview == "hold":  # the measured channel of the slot, held over the horizon
+            d = {**d, "p_los_ahead": np.ones((n, h)), "snr_los_ahead_db": np.repeat(d["snr_db"][:, None], h, 1),
+                 "echo_los_ahead_db": np.repeat(d["echo_snr_db"][:, None], h, 1)}
         v, c_best, cap = self._block_values(d, n)
         p = d["p_los_ahead"]  # (n, H)
         v_ahead = p[..., None] * v[:, 1:1 + h] + (1.0 - p[..., None]) * v[:, 1 + h:]  # (n, H, J)
@@ -212,5 +227,5 @@ class LookaheadPolicy(SplitPolicy):
 
     def __repr__(self) -> str:
         return (f"LookaheadPolicy(name={self.name!r}, terminal_weight={self.terminal_weight:g}, "
-                f"deadline_margin={self.deadline_margin:g}, "
+                f"deadline_margin={self.deadline_margin:g}, preview={self.preview!r}, "
                 f"data_grid={len(self.data_grid)} shares, ctrl_points={len(self.ctrl_grid)}, levels={self.levels})")

@@ -203,6 +203,10 @@ class Scenario:
         :mod:`iscc_gym.physics.blockage`). Needs the altitude band within (22.5, 300] m.
     los_correlation_m : float
         Correlation distance of the LoS state's field, m (TR 38.901 Table 7.6.3.1-2: 50 for UMa and UMi).
+    los_field_kernel : str
+        Correlation of the LoS state's field over that distance: ``"exponential"`` (TR 38.901 Sec. 7.6.3,
+        exp(-Delta/d); rough, the state flickers at the metre scale) or ``"gaussian"`` (exp(-Delta^2/d^2);
+        smooth, blocked stretches of a building's scale). ``docs/model.md`` Sec. 6.1.
     map_error_std : float
         The GBS's channel-knowledge map: the std of the truth's normalised fields around the map's
         (0: the map is the truth; 1: the map knows only the 3GPP prior). Default 0.4 (correlation 0.92).
@@ -293,6 +297,7 @@ class Scenario:
     # --- the urban task (issue 25): off by default, so the paper's presets are unchanged --------------
     blockage: str = "none"
     los_correlation_m: float = 50.0
+    los_field_kernel: str = "exponential"
     map_error_std: float = 0.4
     queue_deadline_s: float = 0.0
     queue_arrival_bps: float = 20e6

@@ -37,6 +37,7 @@ CHOICES: dict[str, tuple[str, ...]] = {
     "rate_cost_determinant": ("pseudo", "printed"),
     "blockage": ("none", "uma_av", "umi_av"),
     "preview_source": ("map", "truth"),
+    "los_field_kernel": ("exponential", "gaussian"),
 }
 
 

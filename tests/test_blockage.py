@@ -85,23 +85,25 @@ def test_shadowing_std_table_b2():
     assert bl.shadowing_std_nlos_db("uma_av", 50.0) == 6.0 and bl.shadowing_std_nlos_db("umi_av", 50.0) == 8.0
 
 
-def test_field_correlation_matches_the_stated_exponential():
-    """Across 600 independent fields the sample correlation at each lag is exp(-lag/d) within 4 standard
-    errors; the marginal is standard normal (KS test)."""
+@pytest.mark.parametrize("kernel, law", [("exponential", lambda u: math.exp(-u)),
+                                         ("gaussian", lambda u: math.exp(-u * u))])
+def test_field_correlation_matches_the_stated_kernel(kernel, law):
+    """Across 600 independent fields the sample correlation at each lag is exp(-lag/d) (exponential) or
+    exp(-(lag/d)^2) (gaussian) within 4 standard errors; the marginal is standard normal (KS test)."""
     rng = np.random.default_rng(11)
     d_corr = 50.0
     lags = np.array([0.0, 10.0, 25.0, 50.0, 100.0, 200.0])
     n = 600
     v0, vl = np.empty(n), np.empty((n, len(lags)))
     for i in range(n):
-        f = bl.draw_field(rng, d_corr)
+        f = bl.draw_field(rng, d_corr, kernel=kernel)
         ang = rng.uniform(0, 2 * np.pi)
         x0, y0 = rng.uniform(-1000, 1000, 2)
         v0[i] = bl.field_at(f, x0, y0)
         vl[i] = bl.field_at(f, x0 + lags * math.cos(ang), y0 + lags * math.sin(ang))
     for j, lag in enumerate(lags):
         rho = np.corrcoef(v0, vl[:, j])[0, 1] if lag > 0 else 1.0
-        want = math.exp(-lag / d_corr)
+        want = law(lag / d_corr)
         se = max((1.0 - want * want) / math.sqrt(n), 1e-9)
         assert abs(rho - want) < 4.0 * se, (lag, rho, want)
     assert abs(v0.mean()) < 4.0 / math.sqrt(n) and abs(v0.var() - 1.0) < 4.0 * math.sqrt(2.0 / n)
@@ -117,6 +119,8 @@ def test_field_is_one_value_per_place_and_vectorised():
     assert v[1, 0] == bl.field_at(f, -40.0, 12.0) == bl.field_one(f, -40.0, 12.0)
     with pytest.raises(ValueError, match="corr_distance_m"):
         bl.draw_field(np.random.default_rng(0), 0.0)
+    with pytest.raises(ValueError, match="kernel"):
+        bl.draw_field(np.random.default_rng(0), 37.0, kernel="matern")
 
 
 @pytest.mark.parametrize("p", [0.2, 0.6])

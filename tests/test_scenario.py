@@ -47,6 +47,7 @@ CHOICES = {
     "rate_cost_determinant": ("pseudo", "printed"),
     "blockage": ("none", "uma_av", "umi_av"),
     "preview_source": ("map", "truth"),
+    "los_field_kernel": ("exponential", "gaussian"),
 }
 BOOLS = ["reference_feedforward"]
 NUMERIC = POSITIVE + NON_NEGATIVE + POSITIVE_INT + BLER + ANY_FINITE + SPECIAL + URBAN_INT

@@ -81,6 +81,10 @@ def test_the_planner_sends_data_ahead_of_a_blocked_stretch(observations):
     my = MyopicPolicy(s)
     assert np.array_equal(my.split_batch(clear)[0], my.split_batch(blocked)[0])
     assert abs(now_clear.sum() - 1.0) < 1e-12 and np.all(now_blocked >= 0)
+    hold = LookaheadPolicy(s, preview="hold")  # blind to the preview: the two paths look the same to it
+    assert np.array_equal(hold.split_batch(clear)[0], hold.split_batch(blocked)[0])
+    with pytest.raises(ValueError, match="preview = "):
+        LookaheadPolicy(s, preview="peek")
 
 
 def test_the_oracle_sees_the_truth_on_the_same_missions():
@@ -143,3 +147,23 @@ def test_the_comparison_shows_dropped_data_only_where_a_queue_dropped_some():
     assert detail_columns({"policies": {"a": {"dropped_mbit_mean": 0.0}}}) == DETAIL_COLUMNS
     assert detail_columns({"policies": {"a": {"dropped_mbit_mean": 0.0}, "b": {"dropped_mbit_mean": 2.5}}})[-1] \
         == DROPPED_COLUMN
+
+
+def test_the_levers_table_splits_myopics_reward_and_pairs_the_planners():
+    """``eval.urban_levers`` on a tiny budget: myopic's reward is the sum of its tracking, stability and dropped-data
+    terms (no loss of track in 25 slots), the planners are paired on the same missions, and an unknown variant is
+    refused by name."""
+    from iscc_gym.eval import urban_levers
+
+    rows = urban_levers.main(["--variants", "smooth", "--missions", "2", "--tune-missions", "2", "--max-steps",
+                              "25"])
+    (row,) = rows
+    assert row["overrides"] == {"los_field_kernel": "gaussian"}
+    assert row["parts"]["lost_track"] == pytest.approx(0.0, abs=1e-6)
+    assert row["parts"]["tracking"] > 0.0 and row["myopic"] < 0.0
+    assert row["seeds"] == [500002, 500003] and row["tune_seeds"] == [500000, 500001]
+    for k in ("mpc", "oracle", "preview", "knowledge"):
+        mean, (lo, hi) = row[k]
+        assert lo <= mean <= hi
+    with pytest.raises(ValueError, match="unknown"):
+        urban_levers.main(["--variants", "smooth,nope"])

@@ -27,6 +27,13 @@ bivariate Cauchy law of wave vectors):
 so :math:`\mathbb E f(\mathbf x) f(\mathbf y) = \exp(-|\mathbf x - \mathbf y|/d_\mathrm{corr})` exactly,
 and :math:`f` is Gaussian as M grows (M = 64 here). One place has one value within a mission.
 
+The exponential correlation is rough (not differentiable at 0): thresholded, its LoS state flickers at the
+metre scale, and most blocked stretches of a flight are a few metres long. ``kernel="gaussian"`` draws
+:math:`\mathbf k_m = \sqrt 2\,\mathbf z_m/d_\mathrm{corr}` instead, the field with correlation
+:math:`\exp(-\Delta^2/d_\mathrm{corr}^2)` (the same correlation distance: :math:`e^{-1}` at
+:math:`d_\mathrm{corr}`), smooth, whose stretches have the scale of :math:`d_\mathrm{corr}`: a building's
+(``Scenario.los_field_kernel``, ``docs/model.md`` Sec. 6.1).
+
 The map: the GBS knows a field :math:`m` of the same law; the truth is
 :math:`g = \rho\, m + \sigma_e\, e` with an independent error field :math:`e` and
 :math:`\rho = \sqrt{1 - \sigma_e^2}` (``map_error_std`` = :math:`\sigma_e`). The position is LoS iff
@@ -44,7 +51,8 @@ from numba import njit, vectorize
 from numpy.typing import ArrayLike
 from scipy.special import ndtr, ndtri
 
-__all__ = ["BLOCKAGE_MODELS", "N_FIELD_FEATURES", "LOS_CORRELATION_M", "los_probability", "path_loss_db",
+__all__ = ["BLOCKAGE_MODELS", "N_FIELD_FEATURES", "FIELD_KERNELS", "LOS_CORRELATION_M", "los_probability",
+           "path_loss_db",
            "excess_loss_db", "shadowing_std_nlos_db", "shadowing_std_los_db", "draw_field", "field_at",
            "map_los_probability", "los_probability_one", "excess_loss_db_one", "shadowing_std_db_one",
            "field_one"]
@@ -54,6 +62,8 @@ __all__ = ["BLOCKAGE_MODELS", "N_FIELD_FEATURES", "LOS_CORRELATION_M", "los_prob
 BLOCKAGE_MODELS = {"none": 0.0, "uma_av": 1.0, "umi_av": 2.0}
 #: Cosines per field (the field's marginal is Gaussian to within a few per cent at this size).
 N_FIELD_FEATURES = 64
+#: Correlation kernels of :func:`draw_field` (``Scenario.los_field_kernel``).
+FIELD_KERNELS = ("exponential", "gaussian")
 #: Correlation distance of the LoS state, m (TR 38.901 Table 7.6.3.1-2: UMa and UMi 50 m).
 LOS_CORRELATION_M = 50.0
 
@@ -205,18 +215,28 @@ def shadowing_std_nlos_db(model: str, h_m: ArrayLike):
     return _shadowing_std_ufunc(_model_code(model), False, h_m, 4.64, 0.0066)[()]
 
 
-def draw_field(rng: np.random.Generator, corr_distance_m: float, n_features: int = N_FIELD_FEATURES):
-    r"""Draw one unit-variance field with correlation :math:`\exp(-\Delta/d)` over the horizontal plane.
+def draw_field(rng: np.random.Generator, corr_distance_m: float, n_features: int = N_FIELD_FEATURES,
+               kernel: str = "exponential"):
+    r"""Draw one unit-variance field over the horizontal plane with correlation :math:`\exp(-\Delta/d)`
+    (``kernel="exponential"``, TR 38.901 Sec. 7.6.3) or :math:`\exp(-\Delta^2/d^2)` (``"gaussian"``: smooth,
+    wave vectors :math:`\mathbf k_m = \sqrt 2\,\mathbf z_m/d`), :math:`d` = ``corr_distance_m``.
 
     Returns its ``features`` (M, 4): rows :math:`(k_x, k_y, \phi, \sqrt{2/M})` for :func:`field_one` and
-    :func:`field_at` (see the module docstring for the law of the wave vectors).
+    :func:`field_at` (see the module docstring for the law of the wave vectors). Both kernels take the same
+    draws from ``rng`` (the same :math:`\mathbf z_m`, :math:`w_m`, :math:`\phi_m`), so a mission's other
+    draws do not depend on the kernel.
     """
     if not corr_distance_m > 0.0:
         raise ValueError(f"corr_distance_m = {corr_distance_m!r} must be > 0")
+    if kernel not in FIELD_KERNELS:
+        raise ValueError(f"kernel = {kernel!r} is invalid: must be one of {FIELD_KERNELS}")
     z = rng.standard_normal((n_features, 2))
     w = np.abs(rng.standard_normal(n_features))
     phase = rng.uniform(0.0, 2.0 * np.pi, n_features)
-    k = z / (corr_distance_m * np.maximum(w, 1e-300))[:, None]
+    if kernel == "gaussian":
+        k = z * (math.sqrt(2.0) / corr_distance_m)
+    else:
+        k = z / (corr_distance_m * np.maximum(w, 1e-300))[:, None]
     return np.column_stack([k, phase, np.full(n_features, math.sqrt(2.0 / n_features))])
 
 

@@ -69,15 +69,17 @@ def channel_along(s: Scenario, ref: np.ndarray, rng: np.random.Generator) -> np.
     r"""The channel part of a mission's rows, shape (N+1, len(CHANNEL_COLUMNS)), drawn from ``rng``.
 
     Four unit fields (:func:`iscc_gym.physics.blockage.draw_field`): the map's and the error's of the LoS
-    state (correlation ``los_correlation_m``) and of the shadowing (``shadowing_decorrelation_m``), in
-    that order. The truth is :math:`\rho\,m + \sigma_e e` (``map_error_std`` = :math:`\sigma_e`), LoS
-    where it is below :math:`\Phi^{-1}(P_\mathrm{LoS})` (TR 36.777 Table B-1 at the reference's height
-    and horizontal distance to the GBS).
+    state (correlation ``los_correlation_m``, kernel ``los_field_kernel``) and of the shadowing
+    (``shadowing_decorrelation_m``), in that order. The truth is :math:`\rho\,m + \sigma_e e`
+    (``map_error_std`` = :math:`\sigma_e`), LoS where it is below :math:`\Phi^{-1}(P_\mathrm{LoS})` (TR 36.777
+    Table B-1 at the reference's height and horizontal distance to the GBS).
     """
     if s.blockage == "none":
         raise ValueError("channel_along needs Scenario.blockage 'uma_av' or 'umi_av'")
-    fields = [draw_field(rng, d) for d in (s.los_correlation_m, s.los_correlation_m,
-                                           s.shadowing_decorrelation_m, s.shadowing_decorrelation_m)]
+    fields = [draw_field(rng, d, kernel=k) for d, k in ((s.los_correlation_m, s.los_field_kernel),
+                                                        (s.los_correlation_m, s.los_field_kernel),
+                                                        (s.shadowing_decorrelation_m, "exponential"),
+                                                        (s.shadowing_decorrelation_m, "exponential"))]
     x, y, h = ref[:, 0], ref[:, 1], ref[:, 2]
     m_los, e_los, m_sh, e_sh = (field_at(f, x, y) for f in fields)
     se = s.map_error_std

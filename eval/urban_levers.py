@@ -1,0 +1,189 @@
+"""``python -m eval.urban_levers``: what makes looking ahead pay on the urban task (issue 25, point 3).
+
+For each named variant of the ``urban`` preset (a change of the blockage statistics, the data's deadline, rate or
+weight, the map's error: :data:`VARIANTS`, each within the range its source states), on training missions only:
+
+1. ``myopic``'s data weight is tuned for the variant (:data:`RATE_WEIGHT_GRID` times the variant's ``w_rate``) on
+   :data:`TUNE_MISSIONS` tuning missions (from :data:`iscc_gym.protocol.TUNE_SEED_START`), so that the per-slot
+   policy is as strong on the variant as on the preset;
+2. ``myopic``, ``mpc`` (its record, ``agents/tuned/mpc-urban.yml``, not re-tuned: the variant can only make the
+   planner look worse), ``mpc-hold`` (the planner blind to the preview) and ``oracle`` play the next ``--missions``
+   training missions, common random numbers;
+3. the table reports ``myopic``'s episode reward and what it is made of (tracking error, stability violations,
+   dropped data: what the split can change lies in the last two and in the tracking error's part above its floor),
+   the blocked share of the flight, and the paired differences ``mpc`` - ``myopic``, ``oracle`` - ``myopic``,
+   ``mpc`` - ``mpc-hold`` (what the preview is worth to the planner) and ``oracle`` - ``mpc`` (the truth's worth
+   over the map's) with their 95 % intervals.
+
+The held-out missions are never played here: a variant chosen from this table is evaluated afterwards by
+``python -m eval --env iscc_gym/ISCC-Urban-v0``.
+
+Example::
+
+    python -m eval.urban_levers --missions 16 --write-docs
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+import numpy as np
+from iscc_gym.agents import MyopicPolicy, make_policy
+from iscc_gym.eval.evaluate import mean_ci, run_episodes
+from iscc_gym.eval.options import Parser, docs_command, positive_int, run_console
+from iscc_gym.eval.tune import tune_model_grid
+from iscc_gym.eval.urban_task import task_stats
+
+from iscc_gym.protocol import TUNE_SEED_START
+from iscc_gym.scenario import make_scenario
+
+__all__ = ["VARIANTS", "RATE_WEIGHT_GRID", "TUNE_MISSIONS", "lever_row", "markdown", "main"]
+
+#: The variants of ``urban``: name -> (Scenario overrides, why the value is physical).
+VARIANTS: dict[str, tuple[dict, str]] = {
+    "urban": ({}, "the preset (TR 38.901's exponential LoS field, 1 s deadline, 5 Mbit/s, w_rate 1)"),
+    "smooth": ({"los_field_kernel": "gaussian"},
+               "smooth LoS field, the same 50 m correlation distance: building-scale blocked stretches"),
+    "smooth w_rate=5": ({"los_field_kernel": "gaussian", "w_rate": 5.0},
+                         "a dropped slot of data costs 5 m-slots of tracking error"),
+    "smooth deadline=3s": ({"los_field_kernel": "gaussian", "queue_deadline_s": 3.0},
+                             "a buffered video stream's latency budget"),
+    "smooth 15Mbps": ({"los_field_kernel": "gaussian", "queue_arrival_bps": 15e6},
+                          "a 4K video downlink"),
+    "w_rate=5": ({"w_rate": 5.0}, "the preset, data worth 5x"),
+    "map_error=0.8": ({"map_error_std": 0.8}, "a coarse map (correlation 0.6 with the truth)"),
+    "umi_av": ({"blockage": "umi_av"}, "TR 36.777 UMi-AV: more of the path blocked"),
+}
+
+#: ``myopic``'s data weight is tuned among these multiples of the variant's ``w_rate``.
+RATE_WEIGHT_GRID = (0.1, 0.3, 1.0, 3.0)
+#: Tuning missions per variant (seeds from TUNE_SEED_START); the evaluation's follow them.
+TUNE_MISSIONS = 8
+
+
+def lever_row(name: str, overrides: dict, missions: int, tune_missions: int = TUNE_MISSIONS,
+              max_steps: int | None = None, log=print) -> dict:
+    """One variant: ``myopic`` tuned on ``tune_missions`` training missions, then ``myopic``, ``mpc`` and ``oracle`` on
+    the next ``missions`` (see the module docstring). Returns the figures of the table's row.
+    """
+    s = make_scenario("urban", **overrides)
+    tune_seeds = list(range(TUNE_SEED_START, TUNE_SEED_START + tune_missions))
+    seeds = list(range(TUNE_SEED_START + tune_missions, TUNE_SEED_START + tune_missions + missions))
+    t0 = time.perf_counter()
+    grid = {"rate_weight": tuple(w * s.w_rate for w in RATE_WEIGHT_GRID)}
+    record = tune_model_grid("myopic", tune_seeds, s, log=lambda *_: None, max_steps=max_steps, grid=grid)
+    weight = record["params"]["rate_weight"]
+    policies = {"myopic": MyopicPolicy(s, rate_weight=weight), "mpc": make_policy("mpc", scenario=s),
+                "mpc-hold": make_policy("mpc-hold", scenario=s), "oracle": make_policy("oracle", scenario=s)}
+    eps = {k: run_episodes(p, seeds, s, max_steps=max_steps)["episodes"] for k, p in policies.items()}
+    m = eps["myopic"]
+    slots = m["length"]
+    mean_arrival_mbit = s.queue_arrival_bps * s.dt_s * 1e-6
+    parts = {"tracking": float(np.mean(m["tracking_error_m"] * slots)),
+             "stability": float(np.mean(s.w_stab * m["stability_violation"] * slots)),
+             "dropped": float(np.mean(s.w_rate * m["dropped_mbit"] / mean_arrival_mbit))}
+    parts["lost_track"] = -float(m["reward"].mean()) - sum(parts.values())  # the loss-of-track penalty
+    st = task_stats(s, seeds)
+    row = {"name": name, "overrides": overrides, "rate_weight": weight, "myopic": float(m["reward"].mean()),
+           "parts": parts, "lost_track": {k: float(e["terminated"].mean()) for k, e in eps.items()},
+           "nlos_share": 1.0 - st["los_share_mean"], "stretch_s_median": st["stretch_s_median"],
+           "stretch_s_p90": st["stretch_s_p90"], "seeds": [seeds[0], seeds[-1]], "tune_seeds": [tune_seeds[0],
+                                                                                              tune_seeds[-1]]}
+    for k in ("mpc", "oracle"):
+        row[k] = mean_ci(eps[k]["reward"] - m["reward"])
+        row[f"{k}_dropped_mbit"] = float(eps[k]["dropped_mbit"].mean())
+    row["preview"] = mean_ci(eps["mpc"]["reward"] - eps["mpc-hold"]["reward"])  # what the preview is worth to mpc
+    row["knowledge"] = mean_ci(eps["oracle"]["reward"] - eps["mpc"]["reward"])  # the truth's over the map's
+    row["myopic_dropped_mbit"] = float(m["dropped_mbit"].mean())
+    log(f"{name}: myopic {row['myopic']:.1f} (rate_weight {weight:g}); mpc {row['mpc'][0]:+.1f} "
+        f"[{row['mpc'][1][0]:+.1f}, {row['mpc'][1][1]:+.1f}]; oracle {row['oracle'][0]:+.1f} "
+        f"[{row['oracle'][1][0]:+.1f}, {row['oracle'][1][1]:+.1f}]; mpc - mpc-hold {_ci(row['preview'])}; "
+        f"oracle - mpc {_ci(row['knowledge'])} ({time.perf_counter() - t0:.0f} s)")
+    return row
+
+
+def _ci(x) -> str:
+    mean, (lo, hi) = x
+    return f"{mean:+.1f} [{lo:+.1f}, {hi:+.1f}]"
+
+
+def markdown(rows: list[dict], command: str) -> str:
+    r = rows[0]
+    lines = [
+        f"Generated by `{command}`: training missions only (`myopic`'s data weight tuned per variant on seeds "
+        f"{r['tune_seeds'][0]}-{r['tune_seeds'][1]}, then every policy on seeds {r['seeds'][0]}-{r['seeds'][1]}, "
+        "common random numbers). `myopic`'s episode reward is split into its tracking error, stability violations "
+        "and dropped data (each as the reward charges it); `mpc` and `oracle` are the paired differences against "
+        "`myopic`, mean [95 % interval]; `mpc` - `mpc-hold` is what the preview is worth to the planner (the same "
+        "planner blind to it, the slot's channel held over the horizon), `oracle` - `mpc` what the truth ahead is "
+        "worth over the map.", "",
+        "| variant | NLoS share | stretch median / p90 (s) | myopic reward = tracking + stability + dropped | "
+        "mpc - myopic | oracle - myopic | mpc - mpc-hold | oracle - mpc | dropped Mbit: myopic / mpc / oracle |",
+        "|---|--:|--:|--:|--:|--:|--:|--:|--:|"]
+    for r in rows:
+        p = r["parts"]
+        lines.append(
+            f"| {r['name']} | {r['nlos_share']:.3f} | {r['stretch_s_median']:.1f} / {r['stretch_s_p90']:.1f} | "
+            f"{r['myopic']:.1f} = -{p['tracking']:.1f} - {p['stability']:.1f} - {p['dropped']:.1f}"
+            + (f" - {p['lost_track']:.1f} (lost track)" if p["lost_track"] > 0.05 else "") + f" | {_ci(r['mpc'])} | "
+            f"{_ci(r['oracle'])} | {_ci(r['preview'])} | {_ci(r['knowledge'])} | "
+            f"{r['myopic_dropped_mbit']:.1f} / {r['mpc_dropped_mbit']:.1f} / "
+            f"{r['oracle_dropped_mbit']:.1f} |")
+    lines += ["", "Variants: " + "; ".join(f"**{r['name']}**: {VARIANTS[r['name']][1]}" if r["name"] in VARIANTS
+                                           else r["name"] for r in rows) + "."]
+    for k in ("mpc", "oracle", "preview"):
+        above = [r["name"] for r in rows if r[k][1][0] > 0.0]
+        below = [r["name"] for r in rows if r[k][1][1] < 0.0]
+        pair = "`mpc` over `mpc-hold`" if k == "preview" else f"`{k}` over `myopic`"
+        lines.append(f"{pair}, interval above zero: "
+                     f"{', '.join(above) if above else 'no variant'}; interval below zero: "
+                     f"{', '.join(below) if below else 'no variant'}.")
+    lost = [r for r in rows if any(v > 0 for v in r["lost_track"].values())]
+    if lost:
+        lines.append("Missions that lost track: " + "; ".join(
+            f"{r['name']}: " + ", ".join(f"{k} {100 * v:.0f} %" for k, v in r["lost_track"].items()) for r in lost)
+            + ".")
+    return "\n".join(lines)
+
+
+def build_parser(prog: str = "python -m eval.urban_levers") -> Parser:
+    ap = Parser(prog=prog, description=__doc__.split("\n")[0])
+    ap.add_argument("--variants", default=",".join(VARIANTS), metavar="LIST",
+                    help=f"comma-separated variant names (default: all of {', '.join(VARIANTS)})")
+    ap.add_argument("--missions", type=positive_int, default=16, metavar="N",
+                    help="training missions each policy plays per variant (default: 16)")
+    ap.add_argument("--tune-missions", type=positive_int, default=TUNE_MISSIONS, metavar="N",
+                    help=f"missions myopic's data weight is tuned on per variant (default: {TUNE_MISSIONS})")
+    ap.add_argument("--max-steps", type=positive_int, default=None, metavar="N",
+                    help="cut every mission after N slots (smoke runs)")
+    ap.add_argument("--write-docs", action="store_true",
+                    help="write the table into the project's docs/results.md (section urban-levers)")
+    return ap
+
+
+def main(argv: list[str] | None = None, prog: str = "python -m eval.urban_levers") -> list[dict]:
+    args = build_parser(prog).parse_args(argv)
+    names = [v.strip() for v in args.variants.split(",") if v.strip()]
+    unknown = [v for v in names if v not in VARIANTS]
+    if unknown or not names:
+        raise ValueError(f"--variants {args.variants!r}: unknown {unknown}; choose among {list(VARIANTS)}")
+    if args.write_docs:
+        from iscc_gym.eval.options import check_writable_file
+
+        from iscc_gym.docs import RESULTS_PATH, docs_path
+
+        check_writable_file(docs_path(RESULTS_PATH), "--write-docs")
+    rows = [lever_row(n, VARIANTS[n][0], args.missions, args.tune_missions, args.max_steps) for n in names]
+    table = markdown(rows, docs_command(prog, argv))
+    print(table)
+    if args.write_docs:
+        from iscc_gym.docs import RESULTS_PATH, docs_path, write_section
+
+        write_section(docs_path(RESULTS_PATH), "urban-levers", "## What makes looking ahead pay\n\n" + table)
+        print(f"wrote {docs_path(RESULTS_PATH)}")
+    return rows
+
+
+if __name__ == "__main__":
+    sys.exit(run_console(main, None, "python -m eval.urban_levers"))

@@ -13,16 +13,24 @@ The model, each piece the env's own:
   term: the steady-state tracking error at the slot's geometry and echo, and the fading's stability violation),
   on a grid of d and a geometric grid of c. The current slot uses its measured SNRs (the observation's
   ``snr_db``, ``echo_snr_db``); a preview point uses the map's SNRs in LoS and in NLoS and the current geometry
-  (range and angles change little over the horizon), and its value is the map's expectation
-  :math:`p\,v_\mathrm{LoS}(d) + (1 - p)\,v_\mathrm{NLoS}(d)` (the state will be measured when the slot comes).
+  (range and angles change little over the horizon), one value per state (the dynamic programme below weighs
+  them by the map's LoS probability p).
 * **The queue, as a fluid.** In units of a slot's mean arrivals A, the backlog b gains 1 a slot, loses the
-  bits the data share carries on average (:math:`d\,\bar C`, the fading-averaged FBL rate of the state, the map's
-  mixture ahead), and what has waited past the deadline D is dropped: b above D - 1 after the service (a FIFO
-  buffer fed at a constant rate holds the last b slots' arrivals; ``deadline_margin`` slots lower, for the bursts
-  and the fading the fluid does not see). Each dropped unit costs ``w_rate``, as in the env's reward.
+  bits the data share carries on average (:math:`d\,\bar C`, the fading-averaged FBL rate of the slot's state),
+  and what has waited past the deadline D is dropped: b above D - 1 after the service (a FIFO buffer fed at a
+  constant rate holds the last b slots' arrivals; ``deadline_margin`` slots lower, for the bursts and the fading
+  the fluid does not see). Each dropped unit costs ``w_rate``, as in the env's reward, and each unit held a slot
+  ``holding_cost`` x ``w_rate``.
 * **Dynamic programming** over the blocks (the current slot, then H blocks of S slots, each block's data share
   held) on ``levels`` backlog levels in [0, D - 1], linear interpolation between them, and a terminal value
-  :math:`-\kappa b` (``terminal_weight``: what a backlog left at the horizon's end is worth).
+  :math:`-\kappa b` (``terminal_weight``: what a backlog left at the horizon's end is worth). A block's LoS state
+  is known when the block comes (the slot measures it), so its data share is chosen per state and the value is
+  the map's mixture of the two states' best, :math:`V_k(b) = p_k \max_d[\ldots]_\mathrm{LoS} + (1 - p_k)
+  \max_d[\ldots]_\mathrm{NLoS}` (a stochastic programme over the states, the blocks' states taken as independent),
+  not a plan for the mean channel: a backlog carried into a block that may be blocked is priced as the risk it is.
+* **The current slot's split** is the search of :class:`iscc_gym.agents.MyopicPolicy` (a coarse grid of every
+  split, then local refinement) of the slot's value, less the fluid's cost of the slot, plus the plan's value of
+  the backlog it leaves: with no preview and no queue cost it is ``myopic`` with no data term.
 
 ``oracle`` is the same planner on ``preview_source="truth"`` (the realised LoS state and shadowing ahead, the
 same missions): a bound on what better knowledge of the channel is worth, not a policy to beat. ``mpc-hold``
@@ -42,7 +50,7 @@ from iscc_gym.sim.functional import decode_observation
 from iscc_gym.sim.schema import obs_size
 
 from .base import SplitPolicy, as_obs_batch
-from .myopic import MyopicPolicy, refine_lattice
+from .myopic import MyopicPolicy
 
 __all__ = ["LookaheadPolicy", "DATA_GRID", "PREVIEW_MODES"]
 
@@ -66,6 +74,10 @@ class LookaheadPolicy(SplitPolicy):
     deadline_margin : float
         Slots the fluid model takes off the deadline (>= 0): the real queue drops earlier than the fluid one
         under bursty arrivals and fading, so the planner keeps the backlog this far below D - 1.
+    holding_cost : float
+        :math:`\eta` >= 0: the cost of a unit of backlog held one slot, in ``w_rate`` units. The fluid sees no risk
+        in a backlog (no bursts, no fading, no blocked slot the map missed), so where serving now and later cost
+        the same it may defer; a backlog carried into a surprise is what the real queue drops. 0: no such cost.
     data_grid : sequence of float
         Data shares to choose among, in [0, 1).
     ctrl_points : int
@@ -74,8 +86,6 @@ class LookaheadPolicy(SplitPolicy):
         Backlog levels of the dynamic programme (>= 3).
     sensing_floor, ctrl_floor : float
         Smallest sensing and control shares (as :class:`iscc_gym.agents.MyopicPolicy`'s).
-    refine_rounds : int
-        Rounds of local refinement of the current slot's shares around the plan's grid point (>= 0).
     preview : str
         ``"shown"``: plan over the observation's preview; ``"hold"``: ignore it, the slot's measured channel held
         over the horizon (``mpc-hold``, the planner without knowledge of the future).
@@ -88,8 +98,9 @@ class LookaheadPolicy(SplitPolicy):
     """
 
     def __init__(self, scenario: Scenario | str = "urban", terminal_weight: float = 0.0, deadline_margin: float = 0.0,
+                 holding_cost: float = 0.0,
                  data_grid=DATA_GRID, ctrl_points: int = 10, levels: int = 21, sensing_floor: float = 1e-3,
-                 ctrl_floor: float = 1e-3, refine_rounds: int = 3, preview: str = "shown", name: str = "mpc"):
+                 ctrl_floor: float = 1e-3, preview: str = "shown", name: str = "mpc"):
         s = make_scenario(scenario) if isinstance(scenario, str) else scenario
         if not isinstance(s, Scenario):
             raise ValueError(f"scenario must be a Scenario or a preset name, got {type(scenario).__name__}")
@@ -101,8 +112,7 @@ class LookaheadPolicy(SplitPolicy):
         grid = np.asarray(data_grid, dtype=float)
         if grid.ndim != 1 or len(grid) < 2 or not np.all((grid >= 0.0) & (grid < 1.0)):
             raise ValueError(f"data_grid = {data_grid!r} is invalid: at least two shares in [0, 1)")
-        for field, value, lo in (("ctrl_points", ctrl_points, 4), ("levels", levels, 3),
-                                 ("refine_rounds", refine_rounds, 0)):
+        for field, value, lo in (("ctrl_points", ctrl_points, 4), ("levels", levels, 3)):
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < lo:
                 raise ValueError(f"{field} = {value!r} is invalid: must be an integer >= {lo}")
         if preview not in PREVIEW_MODES:
@@ -115,19 +125,21 @@ class LookaheadPolicy(SplitPolicy):
             raise ValueError(f"deadline_margin = {deadline_margin!r} is invalid: must be in [0, {s.queue_slots - 1}) "
                              "slots (the queue's deadline minus one)")
         self.deadline_margin = float(deadline_margin)
+        if not (math.isfinite(float(holding_cost)) and float(holding_cost) >= 0.0):
+            raise ValueError(f"holding_cost = {holding_cost!r} is invalid: must be a finite number >= 0")
+        self.holding_cost = float(holding_cost)
         #: The planner's largest backlog (units of A): the deadline less one slot and the margin.
         self.top = s.queue_slots - 1.0 - self.deadline_margin
         self.data_grid = grid
         self.ctrl_grid = np.geomspace(ctrl_floor, 1.0 - sensing_floor, int(ctrl_points))
         self.levels = int(levels)
-        self.refine_rounds = int(refine_rounds)
         self.sensing_floor = float(sensing_floor)
         self.obs_size = obs_size(s)
         self.name = name
 
     def _block_values(self, d: dict, n: int):
         """Per context row (the slot, then each preview point in LoS and in NLoS): the best value v(d) on the
-        data grid, the control share reaching it, and the capacity per unit data share (units of A).
+        data grid and the capacity per unit data share (units of A).
         """
         s = self.scenario
         h = s.preview_slots
@@ -149,19 +161,28 @@ class LookaheadPolicy(SplitPolicy):
         v = np.take_along_axis(value, best[:, None, :], 1)[:, 0, :]
         cap = ctx.rate_per_share @ self.slot.fade_w  # (N,)
         shape = (n, rows)
-        return v.reshape(shape + (-1,)), self.ctrl_grid[best].reshape(shape + (-1,)), cap.reshape(shape)
+        return v.reshape(shape + (-1,)), cap.reshape(shape)
 
     def _fluid(self, b, served_per_slot, slots: int):
-        """``slots`` slots of the fluid queue from backlogs ``b``: ``(b_after, dropped)`` (units of A)."""
+        """``slots`` slots of the fluid queue from backlogs ``b``: ``(b_after, dropped, held)`` (units of A; ``held``
+        the backlog summed over the slots' ends, what :attr:`holding_cost` charges).
+        """
         top = self.top
-        dropped = np.zeros(np.broadcast_shapes(np.shape(b), np.shape(served_per_slot)))
+        shape = np.broadcast_shapes(np.shape(b), np.shape(served_per_slot))
+        dropped, held = np.zeros(shape), np.zeros(shape)
         for _ in range(slots):
             b = b + 1.0
             b = b - np.minimum(b, served_per_slot)
             over = np.maximum(b - top, 0.0)
             dropped = dropped + over
             b = b - over
-        return b, dropped
+            held = held + b
+        return b, dropped, held
+
+    def _queue_cost(self, b, served_per_slot, slots: int):
+        """The fluid's ``(b_after, cost)``: ``w_rate`` (dropped + ``holding_cost`` x held), reward units."""
+        b, dropped, held = self._fluid(b, served_per_slot, slots)
+        return b, self.scenario.w_rate * (dropped + self.holding_cost * held)
 
     def _interp(self, value, b):
         """``value`` (n, L) on the backlog levels, at backlogs ``b`` (n, ...): linear between levels."""
@@ -185,47 +206,47 @@ class LookaheadPolicy(SplitPolicy):
         if self.preview == "hold":  # the measured channel of the slot, held over the horizon
             d = {**d, "p_los_ahead": np.ones((n, h)), "snr_los_ahead_db": np.repeat(d["snr_db"][:, None], h, 1),
                  "echo_los_ahead_db": np.repeat(d["echo_snr_db"][:, None], h, 1)}
-        v, c_best, cap = self._block_values(d, n)
+        v, cap = self._block_values(d, n)
         p = d["p_los_ahead"]  # (n, H)
-        v_ahead = p[..., None] * v[:, 1:1 + h] + (1.0 - p[..., None]) * v[:, 1 + h:]  # (n, H, J)
-        cap_ahead = p * cap[:, 1:1 + h] + (1.0 - p) * cap[:, 1 + h:]  # (n, H)
         levels = np.linspace(0.0, self.top, self.levels)
         value = np.broadcast_to(-self.terminal_weight * s.w_rate * levels, (n, self.levels))
         grid = self.data_grid
         for k in range(h - 1, -1, -1):
-            served = grid[None, None, :] * cap_ahead[:, k, None, None]  # (n, 1, J)
-            b_next, dropped = self._fluid(levels[None, :, None], served, stride)  # (n, L, J)
-            total = stride * v_ahead[:, k, None, :] - s.w_rate * dropped + self._interp(value, b_next)
-            value = total.max(-1)
+            # the block's LoS state is measured when it comes: the best data share in each state, weighed by the
+            # map's probability (the states of different blocks taken as independent)
+            branch = []
+            for row in (1 + k, 1 + h + k):  # LoS, NLoS
+                served = grid[None, None, :] * cap[:, row, None, None]  # (n, 1, J)
+                b_next, cost = self._queue_cost(levels[None, :, None], served, stride)  # (n, L, J)
+                total = stride * v[:, row, None, :] - cost + self._interp(value, b_next)
+                branch.append(total.max(-1))
+            value = p[:, k, None] * branch[0] + (1.0 - p[:, k, None]) * branch[1]
         backlog = d["backlog_bits"] / (s.queue_arrival_bps * s.dt_s)
-        b_next, dropped = self._fluid(backlog[:, None], grid[None, :] * cap[:, :1], 1)  # (n, J)
-        total = v[:, 0, :] - s.w_rate * dropped + self._interp(value, b_next)
-        j = total.argmax(-1)
-        rows = np.arange(n)
-        ctrl, comm = self._refine_now(d, backlog, cap[:, 0], value, c_best[rows, 0, j], grid[j])
+        ctrl, comm = self._now(d, backlog, cap[:, 0], value)
         split = np.stack([np.maximum(1.0 - ctrl - comm, 0.0), ctrl, comm], -1)
         return split / split.sum(-1, keepdims=True), state
 
-    def _refine_now(self, d: dict, backlog, cap, value_next, c0, d0):
-        """The current slot's (control, data) shares refined around the plan's grid point: ``refine_rounds``
-        lattices of 7 x 7 points (control on a log scale, data linear), each three times finer, scored by the slot's
-        value, its drops and the plan's value of the backlog it leaves.
+    def _now(self, d: dict, backlog, cap, value_next):
+        """The current slot's (control, data) shares: :meth:`iscc_gym.agents.MyopicPolicy.search` of the slot's value
+        (measured channel), less the fluid queue's cost, plus the plan's value of the backlog the slot leaves, both
+        averaged over the fading's quadrature nodes (the slot's service is the faded rate's, not its mean's).
         """
-        s = self.scenario
         ctx = self.slot.context(d["snr_db"], d["range_m"], d["sin_elevation"], d["cos_azimuth"], d["sin_azimuth"],
-                                d["echo_snr_db"], np.zeros(len(c0)))
-        top = 1.0 - self.sensing_floor
+                                d["echo_snr_db"], np.zeros(len(backlog)))
+        n = len(backlog)
+        w = self.slot.fade_w
 
         def score(cc, dd):
             v, _ = self.slot.objective(ctx, cc, dd)
-            b_next, dropped = self._fluid(backlog[:, None, None], dd * cap[:, None, None], 1)
-            return v - s.w_rate * dropped + self._interp(value_next, b_next)
+            extra = (1,) * np.ndim(dd)
+            rate = ctx.rate_per_share.reshape((n,) + extra[1:] + (-1,))  # the fading's nodes on the last axis
+            b_next, cost = self._queue_cost(backlog.reshape((n,) + extra), dd[..., None] * rate, 1)
+            return v + (self._interp(value_next, b_next) - cost) @ w
 
-        return refine_lattice(score, c0, d0, math.log(self.ctrl_grid[1] / self.ctrl_grid[0]),
-                              float(np.min(np.diff(self.data_grid))), self.refine_rounds, 7, 3.0, self.ctrl_grid[0],
-                              top)
+        return self.slot.search(len(backlog), score)
 
     def __repr__(self) -> str:
         return (f"LookaheadPolicy(name={self.name!r}, terminal_weight={self.terminal_weight:g}, "
-                f"deadline_margin={self.deadline_margin:g}, preview={self.preview!r}, "
+                f"deadline_margin={self.deadline_margin:g}, holding_cost={self.holding_cost:g}, "
+                f"preview={self.preview!r}, "
                 f"data_grid={len(self.data_grid)} shares, ctrl_points={len(self.ctrl_grid)}, levels={self.levels})")

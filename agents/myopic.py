@@ -435,22 +435,28 @@ class MyopicPolicy(SplitPolicy):
         return self.expected_terms(obs, split)["reward"]
 
     # --- the search -----------------------------------------------------------------------------
-    def split_batch(self, obs, state=None, episode_start=None):
-        ctx = self.slot_context(obs)
-        n = len(ctx.snr)
+    def search(self, n: int, score):
+        """The (control, data) shares maximising ``score(cc, dd)`` (the value of candidate shares of shape
+        (n, ...)) for n slots: a coarse grid of every feasible split (control geometric, data a fraction of what is
+        left), then :func:`refine_lattice` around the best. Returns ``(control, data)``, arrays (n,). The search of
+        :meth:`split_batch` (``score`` the objective) and of the planner's current slot.
+        """
         rows = np.arange(n)
         top = 1.0 - self.sensing_floor
         c_grid = np.geomspace(self.ctrl_floor, top, self.n_coarse)
         u_grid = np.linspace(0.0, 1.0, self.n_coarse)
         c = np.broadcast_to(c_grid[None, :, None], (n, self.n_coarse, 1))
         d = (top - c) * u_grid  # (n, C, U): every point feasible
-        value, _ = self.objective(ctx, c, d)
+        value = score(c, d)
         best = value.reshape(n, -1).argmax(1)
         ic, iu = np.unravel_index(best, value.shape[1:])
         c0, d0 = c_grid[ic], d[rows, ic, iu]
-        c0, d0 = refine_lattice(lambda cc, dd: self.objective(ctx, cc, dd)[0], c0, d0,
-                                math.log(c_grid[1] / c_grid[0]), top / (self.n_coarse - 1), self.n_refine,
-                                self.refine_points, self.refine_factor, self.ctrl_floor, top)
+        return refine_lattice(score, c0, d0, math.log(c_grid[1] / c_grid[0]), top / (self.n_coarse - 1),
+                              self.n_refine, self.refine_points, self.refine_factor, self.ctrl_floor, top)
+
+    def split_batch(self, obs, state=None, episode_start=None):
+        ctx = self.slot_context(obs)
+        c0, d0 = self.search(len(ctx.snr), lambda cc, dd: self.objective(ctx, cc, dd)[0])
         split = np.stack([np.maximum(1.0 - c0 - d0, 0.0), c0, d0], -1)
         return split / split.sum(-1, keepdims=True), state
 
@@ -467,8 +473,7 @@ def refine_lattice(score, c0, d0, log_step: float, d_step: float, rounds: int, p
     ``points`` centred on the incumbent, control shares on a log scale and data shares linear, each round's steps
     ``factor`` times finer than the last (from ``log_step``, ``d_step``), kept feasible (control in
     [``ctrl_floor``, ``top``], data in [0, ``top`` - control]); ``score(cc, dd)`` gives the value of a lattice
-    (n, points, points). Returns the best ``(c, d)``: the refinement of :class:`MyopicPolicy` and of the planner's
-    current slot (:class:`iscc_gym.agents.LookaheadPolicy`).
+    (n, points, points). Returns the best ``(c, d)``: the refinement of :meth:`MyopicPolicy.search`.
     """
     rows = np.arange(len(c0))
     k = np.arange(points) - points // 2

@@ -174,6 +174,10 @@ class LineProgress:
             self.last = now
             self._line(self._status())
 
+    def write(self, s: str) -> None:
+        """A message line on stdout, as ``tqdm.write`` prints one."""
+        print(s, flush=True)
+
     def set_postfix_str(self, s: str) -> None:
         self.postfix = s
         self.last = time.monotonic()

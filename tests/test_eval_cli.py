@@ -224,6 +224,16 @@ def test_line_progress_prints_stages_every_interval_and_the_end():
     assert lines[2].startswith("[cmd] done: 60/100 slot") and len(lines) == 3
 
 
+def test_line_progress_writes_messages_as_tqdm_does(capsys):
+    """``bar.write`` (what ``eval.tune`` logs through) exists off a terminal too: the message on stdout, not the
+    progress stream (``python -m eval.tune`` failed with stderr redirected)."""
+    from iscc_gym.eval.options import LineProgress
+
+    out = io.StringIO()
+    LineProgress(3, "cmd", stream=out).write("grid: best v = 1")
+    assert capsys.readouterr().out == "grid: best v = 1\n" and out.getvalue() == ""
+
+
 def test_python_m_eval_prints_progress_lines_without_a_terminal(capsys):
     from iscc_gym.eval.__main__ import main
 

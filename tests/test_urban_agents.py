@@ -58,7 +58,7 @@ def test_the_planners_fluid_queue_matches_the_queue_at_constant_rates():
         for _ in range(25):
             q, _, x = queue_step(q, a, served * a)
             dropped_q += x[0]
-        b, dropped_f = pol._fluid(np.zeros(1), np.array([served]), 25)
+        b, dropped_f, _ = pol._fluid(np.zeros(1), np.array([served]), 25)
         assert q.sum() / a == pytest.approx(b[0], abs=1e-9)
         assert dropped_q / a == pytest.approx(dropped_f[0], abs=1e-9)
 
@@ -85,6 +85,17 @@ def test_the_planner_sends_data_ahead_of_a_blocked_stretch(observations):
     assert np.array_equal(hold.split_batch(clear)[0], hold.split_batch(blocked)[0])
     with pytest.raises(ValueError, match="preview = "):
         LookaheadPolicy(s, preview="peek")
+
+
+def test_a_holding_cost_serves_a_backlog_sooner(observations):
+    """A backlog of 4 slots' arrivals with the deadline far: without a holding cost the fluid sees no reason to serve it
+    now rather than later; with one the planner gives data more now (never less), and a negative cost is refused."""
+    o = _with_backlog(observations[5:25], 4 * U.queue_arrival_bps * U.dt_s)
+    free, _ = LookaheadPolicy(U, holding_cost=0.0).split_batch(o)
+    held, _ = LookaheadPolicy(U, holding_cost=0.2).split_batch(o)
+    assert np.all(held[:, 2] >= free[:, 2] - 1e-9) and held[:, 2].mean() > free[:, 2].mean() + 0.01
+    with pytest.raises(ValueError, match="holding_cost = "):
+        LookaheadPolicy(U, holding_cost=-0.1)
 
 
 def test_the_oracle_sees_the_truth_on_the_same_missions():

@@ -96,11 +96,12 @@ def draw(runs: dict, path: str | Path) -> Path:
 
     ax_q = fig.add_subplot(grid[0, 1])
     ax_e = fig.add_subplot(grid[1, 1], sharex=ax_q)
-    for name, run in runs.items():
+    for i, (name, run) in enumerate(runs.items()):
         t = np.arange(len(run["backlog_bits"])) * dt
-        ax_q.plot(t, run["backlog_bits"] * 1e-6, lw=0.9,
+        style = {"ls": ("-", "--", ":")[i % 3], "alpha": 0.85}  # where two policies coincide, both stay visible
+        ax_q.plot(t, run["backlog_bits"] * 1e-6, lw=0.9, **style,
                   label=f"{name} (dropped {run['bits_dropped'].sum() * 1e-6:.1f} Mbit)")
-        ax_e.plot(t, run["tracking_error_m"], lw=0.8, label=name)
+        ax_e.plot(t, run["tracking_error_m"], lw=0.8, **style, label=name)
     for a, label in ((ax_q, "backlog (Mbit)"), (ax_e, "tracking error (m)")):
         shade(a)
         a.set_ylabel(label)

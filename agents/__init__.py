@@ -128,13 +128,13 @@ def make_policy(spec: str, scenario: Scenario | str = "paper", seed: int = 0):
         except ValueError:
             raise ValueError(f"spec {spec!r}: 'dpp:' takes one number V > 0, e.g. 'dpp:2'") from None
         return DriftPlusPenaltyPolicy(s, v=v)
-    if key == "mpc":
-        return LookaheadPolicy(s, **load_tuned(record_name("mpc", task))["params"])
-    if key == "mpc-hold":
-        return LookaheadPolicy(s, preview="hold", name="mpc-hold", **load_tuned(record_name("mpc", task))["params"])
-    if key == "oracle":
-        oracle = LookaheadPolicy(s.replace(preview_source="truth"), name="oracle",
-                                 **load_tuned(record_name("mpc", task))["params"])
+    if key in ("mpc", "mpc-hold", "oracle"):  # one planner, its tuned parameters
+        params = load_tuned(record_name("mpc", task))["params"]
+        if key == "mpc":
+            return LookaheadPolicy(s, **params)
+        if key == "mpc-hold":
+            return LookaheadPolicy(s, preview="hold", name="mpc-hold", **params)
+        oracle = LookaheadPolicy(s.replace(preview_source="truth"), name="oracle", **params)
         oracle.scenario_overrides = {"preview_source": "truth"}
         return oracle
     if key == "sca":

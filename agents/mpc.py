@@ -138,18 +138,16 @@ class LookaheadPolicy(SplitPolicy):
         self.name = name
 
     def _block_values(self, d: dict, n: int):
-        """Per context row (the slot, then each preview point in LoS and in NLoS): the best value v(d) on the
-        data grid and the capacity per unit data share (units of A).
+        """Per preview point, in LoS (rows 0..H-1) and in NLoS (rows H..2H-1): the best value v(d) on the data grid
+        and the capacity per unit data share (units of A). The current slot is :meth:`_now`'s.
         """
-        s = self.scenario
-        h = s.preview_slots
-        rows = 1 + 2 * h
+        rows = 2 * self.scenario.preview_slots
 
         def tile(x):
             return np.repeat(np.asarray(x, dtype=float), rows)
 
-        snr = np.concatenate([d["snr_db"][:, None], d["snr_los_ahead_db"], d["snr_nlos_ahead_db"]], 1)
-        echo = np.concatenate([d["echo_snr_db"][:, None], d["echo_los_ahead_db"], d["echo_nlos_ahead_db"]], 1)
+        snr = np.concatenate([d["snr_los_ahead_db"], d["snr_nlos_ahead_db"]], 1)
+        echo = np.concatenate([d["echo_los_ahead_db"], d["echo_nlos_ahead_db"]], 1)
         ctx = self.slot.context(snr.reshape(-1), tile(d["range_m"]), tile(d["sin_elevation"]),
                                 tile(d["cos_azimuth"]), tile(d["sin_azimuth"]), echo.reshape(-1),
                                 np.zeros(n * rows))
@@ -215,18 +213,18 @@ class LookaheadPolicy(SplitPolicy):
             # the block's LoS state is measured when it comes: the best data share in each state, weighed by the
             # map's probability (the states of different blocks taken as independent)
             branch = []
-            for row in (1 + k, 1 + h + k):  # LoS, NLoS
+            for row in (k, h + k):  # LoS, NLoS
                 served = grid[None, None, :] * cap[:, row, None, None]  # (n, 1, J)
                 b_next, cost = self._queue_cost(levels[None, :, None], served, stride)  # (n, L, J)
                 total = stride * v[:, row, None, :] - cost + self._interp(value, b_next)
                 branch.append(total.max(-1))
             value = p[:, k, None] * branch[0] + (1.0 - p[:, k, None]) * branch[1]
         backlog = d["backlog_bits"] / (s.queue_arrival_bps * s.dt_s)
-        ctrl, comm = self._now(d, backlog, cap[:, 0], value)
+        ctrl, comm = self._now(d, backlog, value)
         split = np.stack([np.maximum(1.0 - ctrl - comm, 0.0), ctrl, comm], -1)
         return split / split.sum(-1, keepdims=True), state
 
-    def _now(self, d: dict, backlog, cap, value_next):
+    def _now(self, d: dict, backlog, value_next):
         """The current slot's (control, data) shares: :meth:`iscc_gym.agents.MyopicPolicy.search` of the slot's value
         (measured channel), less the fluid queue's cost, plus the plan's value of the backlog the slot leaves, both
         averaged over the fading's quadrature nodes (the slot's service is the faded rate's, not its mean's).

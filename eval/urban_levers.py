@@ -96,10 +96,9 @@ def lever_row(name: str, overrides: dict, missions: int, tune_missions: int = TU
     row["preview"] = mean_ci(eps["mpc"]["reward"] - eps["mpc-hold"]["reward"])  # what the preview is worth to mpc
     row["knowledge"] = mean_ci(eps["oracle"]["reward"] - eps["mpc"]["reward"])  # the truth's over the map's
     row["myopic_dropped_mbit"] = float(m["dropped_mbit"].mean())
-    log(f"{name}: myopic {row['myopic']:.1f} (rate_weight {weight:g}); mpc {row['mpc'][0]:+.1f} "
-        f"[{row['mpc'][1][0]:+.1f}, {row['mpc'][1][1]:+.1f}]; oracle {row['oracle'][0]:+.1f} "
-        f"[{row['oracle'][1][0]:+.1f}, {row['oracle'][1][1]:+.1f}]; mpc - mpc-hold {_ci(row['preview'])}; "
-        f"oracle - mpc {_ci(row['knowledge'])} ({time.perf_counter() - t0:.0f} s)")
+    log(f"{name}: myopic {row['myopic']:.1f} (rate_weight {weight:g}); mpc {_ci(row['mpc'])}; oracle "
+        f"{_ci(row['oracle'])}; mpc - mpc-hold {_ci(row['preview'])}; oracle - mpc {_ci(row['knowledge'])} "
+        f"({time.perf_counter() - t0:.0f} s)")
     return row
 
 

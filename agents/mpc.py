@@ -74,6 +74,10 @@ class LookaheadPolicy(SplitPolicy):
     deadline_margin : float
         Slots the fluid model takes off the deadline (>= 0): the real queue drops earlier than the fluid one
         under bursty arrivals and fading, so the planner keeps the backlog this far below D - 1.
+    rate_weight : float, optional
+        The planner's price of a dropped unit of data (>= 0; ``holding_cost`` and ``terminal_weight`` are in its
+        units). Default: the scenario's ``w_rate`` (the env's reward). As :class:`iscc_gym.agents.MyopicPolicy`'s
+        ``rate_weight``, another value corrects what the per-slot model misprices (it is tuned on training seeds).
     holding_cost : float
         :math:`\eta` >= 0: the cost of a unit of backlog held one slot, in ``w_rate`` units. The fluid sees no risk
         in a backlog (no bursts, no fading, no blocked slot the map missed), so where serving now and later cost
@@ -98,7 +102,7 @@ class LookaheadPolicy(SplitPolicy):
     """
 
     def __init__(self, scenario: Scenario | str = "urban", terminal_weight: float = 0.0, deadline_margin: float = 0.0,
-                 holding_cost: float = 0.0,
+                 holding_cost: float = 0.0, rate_weight: float | None = None,
                  data_grid=DATA_GRID, ctrl_points: int = 10, levels: int = 21, sensing_floor: float = 1e-3,
                  ctrl_floor: float = 1e-3, preview: str = "shown", name: str = "mpc"):
         s = make_scenario(scenario) if isinstance(scenario, str) else scenario
@@ -128,6 +132,11 @@ class LookaheadPolicy(SplitPolicy):
         if not (math.isfinite(float(holding_cost)) and float(holding_cost) >= 0.0):
             raise ValueError(f"holding_cost = {holding_cost!r} is invalid: must be a finite number >= 0")
         self.holding_cost = float(holding_cost)
+        rw = s.w_rate if rate_weight is None else rate_weight
+        if isinstance(rw, bool) or not (isinstance(rw, (int, float, np.integer, np.floating))
+                                        and math.isfinite(float(rw)) and float(rw) >= 0.0):
+            raise ValueError(f"rate_weight = {rate_weight!r} is invalid: must be a finite number >= 0")
+        self.rate_weight = float(rw)
         #: The planner's largest backlog (units of A): the deadline less one slot and the margin.
         self.top = s.queue_slots - 1.0 - self.deadline_margin
         self.data_grid = grid
@@ -178,9 +187,9 @@ class LookaheadPolicy(SplitPolicy):
         return b, dropped, held
 
     def _queue_cost(self, b, served_per_slot, slots: int):
-        """The fluid's ``(b_after, cost)``: ``w_rate`` (dropped + ``holding_cost`` x held), reward units."""
+        """The fluid's ``(b_after, cost)``: ``rate_weight`` (dropped + ``holding_cost`` x held), reward units."""
         b, dropped, held = self._fluid(b, served_per_slot, slots)
-        return b, self.scenario.w_rate * (dropped + self.holding_cost * held)
+        return b, self.rate_weight * (dropped + self.holding_cost * held)
 
     def _interp(self, value, b):
         """``value`` (n, L) on the backlog levels, at backlogs ``b`` (n, ...): linear between levels."""
@@ -207,7 +216,7 @@ class LookaheadPolicy(SplitPolicy):
         v, cap = self._block_values(d, n)
         p = d["p_los_ahead"]  # (n, H)
         levels = np.linspace(0.0, self.top, self.levels)
-        value = np.broadcast_to(-self.terminal_weight * s.w_rate * levels, (n, self.levels))
+        value = np.broadcast_to(-self.terminal_weight * self.rate_weight * levels, (n, self.levels))
         grid = self.data_grid
         for k in range(h - 1, -1, -1):
             # the block's LoS state is measured when it comes: the best data share in each state, weighed by the
@@ -246,5 +255,6 @@ class LookaheadPolicy(SplitPolicy):
     def __repr__(self) -> str:
         return (f"LookaheadPolicy(name={self.name!r}, terminal_weight={self.terminal_weight:g}, "
                 f"deadline_margin={self.deadline_margin:g}, holding_cost={self.holding_cost:g}, "
+                f"rate_weight={self.rate_weight:g}, "
                 f"preview={self.preview!r}, "
                 f"data_grid={len(self.data_grid)} shares, ctrl_points={len(self.ctrl_grid)}, levels={self.levels})")

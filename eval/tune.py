@@ -17,8 +17,8 @@ record goes to ``agents/tuned/sca-per-slot.yml``, which ``SCAPolicy(mode="per_sl
 
 On the urban task (``--scenario urban``; records ``<policy>-urban.yml``, which ``make_policy`` reads for a
 scenario with a queue or blockage): ``margin`` as above; ``myopic`` its data weight (the queue's greedy price),
-``dpp`` its V, ``mpc`` its deadline margin and holding cost, each a grid (:data:`MODEL_GRIDS`) on the tuning
-seeds, every point on the same missions.
+``dpp`` its V, ``mpc`` its deadline margin, holding cost and data weight, each a grid (:data:`MODEL_GRIDS`) on the
+tuning seeds, every point on the same missions.
 
 Examples::
 
@@ -120,7 +120,8 @@ def margin_rewards(points, seeds, scenario="paper", progress=None) -> np.ndarray
 #: (every combination played on the tuning seeds).
 MODEL_GRIDS = {"myopic": {"rate_weight": (0.1, 0.3, 0.6, 1.0, 2.0, 4.0)},
                 "dpp": {"v": (0.3, 1.0, 3.0, 10.0, 30.0, 100.0, 300.0)},
-                "mpc": {"deadline_margin": (0.0, 2.0, 4.0, 6.0), "holding_cost": (0.0, 0.05, 0.2)}}
+                "mpc": {"deadline_margin": (0.0, 2.0, 4.0), "holding_cost": (0.05, 0.2),
+                        "rate_weight": (0.1, 0.3, 1.0)}}
 
 
 def _grid_policy(policy: str, scenario, params: dict):

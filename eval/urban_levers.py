@@ -29,7 +29,8 @@ import sys
 import time
 
 import numpy as np
-from iscc_gym.agents import MyopicPolicy, make_policy
+from iscc_gym.agents import LookaheadPolicy, MyopicPolicy
+from iscc_gym.agents.tuned_records import load_tuned, record_name
 from iscc_gym.eval.evaluate import mean_ci, run_episodes
 from iscc_gym.eval.options import Parser, docs_command, positive_int, run_console
 from iscc_gym.eval.tune import tune_model_grid
@@ -53,6 +54,15 @@ VARIANTS: dict[str, tuple[dict, str]] = {
                           "a 4K video downlink"),
     "w_rate=5": ({"w_rate": 5.0}, "the preset, data worth 5x"),
     "map_error=0.8": ({"map_error_std": 0.8}, "a coarse map (correlation 0.6 with the truth)"),
+    "smooth 40Mbps deadline=5s": ({"los_field_kernel": "gaussian", "queue_arrival_bps": 40e6, "queue_deadline_s": 5.0},
+                                  "data scarce while the link is clear (about 3/4 of a clear link's capacity), a 5 s "
+                                  "buffer"),
+    "calm smooth 20Mbps deadline=3s": ({"process_noise_pos": 0.005, "process_noise_vel": 0.05,
+                                        "los_field_kernel": "gaussian", "queue_arrival_bps": 20e6,
+                                        "queue_deadline_s": 3.0},
+                                       "light wind: process noise 5 mm and 0.05 m/s per slot (the diagonal of a "
+                                       "white-noise acceleration model, 0.5-1 m/s^2), so that tracking depends on "
+                                       "sensing while the link is clear; the paper's R_min 20 Mbit/s, a 3 s buffer"),
     "umi_av": ({"blockage": "umi_av"}, "TR 36.777 UMi-AV: more of the path blocked"),
 }
 
@@ -74,9 +84,15 @@ def lever_row(name: str, overrides: dict, missions: int, tune_missions: int = TU
     grid = {"rate_weight": tuple(w * s.w_rate for w in RATE_WEIGHT_GRID)}
     record = tune_model_grid("myopic", tune_seeds, s, log=lambda *_: None, max_steps=max_steps, grid=grid)
     weight = record["params"]["rate_weight"]
-    policies = {"myopic": MyopicPolicy(s, rate_weight=weight), "mpc": make_policy("mpc", scenario=s),
-                "mpc-hold": make_policy("mpc-hold", scenario=s), "oracle": make_policy("oracle", scenario=s)}
-    eps = {k: run_episodes(p, seeds, s, max_steps=max_steps)["episodes"] for k, p in policies.items()}
+    # the planner's data weight likewise (its other parameters the record's); mpc-hold and oracle take mpc's
+    params = dict(load_tuned(record_name("mpc", "urban"))["params"])
+    grid = {**{k: (v,) for k, v in params.items() if k != "rate_weight"}, **grid}
+    plan = tune_model_grid("mpc", tune_seeds, s, log=lambda *_: None, max_steps=max_steps, grid=grid)["params"]
+    truth = s.replace(preview_source="truth")
+    policies = {"myopic": MyopicPolicy(s, rate_weight=weight), "mpc": LookaheadPolicy(s, **plan),
+                "mpc-hold": LookaheadPolicy(s, preview="hold", name="mpc-hold", **plan),
+                "oracle": LookaheadPolicy(truth, name="oracle", **plan)}
+    eps = {k: run_episodes(p, seeds, p.scenario, max_steps=max_steps)["episodes"] for k, p in policies.items()}
     m = eps["myopic"]
     slots = m["length"]
     mean_arrival_mbit = s.queue_arrival_bps * s.dt_s * 1e-6
@@ -85,7 +101,8 @@ def lever_row(name: str, overrides: dict, missions: int, tune_missions: int = TU
              "dropped": float(np.mean(s.w_rate * m["dropped_mbit"] / mean_arrival_mbit))}
     parts["lost_track"] = -float(m["reward"].mean()) - sum(parts.values())  # the loss-of-track penalty
     st = task_stats(s, seeds)
-    row = {"name": name, "overrides": overrides, "rate_weight": weight, "myopic": float(m["reward"].mean()),
+    row = {"name": name, "overrides": overrides, "rate_weight": weight, "mpc_rate_weight": plan["rate_weight"],
+           "myopic": float(m["reward"].mean()),
            "parts": parts, "lost_track": {k: float(e["terminated"].mean()) for k, e in eps.items()},
            "nlos_share": 1.0 - st["los_share_mean"], "stretch_s_median": st["stretch_s_median"],
            "stretch_s_p90": st["stretch_s_p90"], "seeds": [seeds[0], seeds[-1]], "tune_seeds": [tune_seeds[0],
@@ -96,9 +113,9 @@ def lever_row(name: str, overrides: dict, missions: int, tune_missions: int = TU
     row["preview"] = mean_ci(eps["mpc"]["reward"] - eps["mpc-hold"]["reward"])  # what the preview is worth to mpc
     row["knowledge"] = mean_ci(eps["oracle"]["reward"] - eps["mpc"]["reward"])  # the truth's over the map's
     row["myopic_dropped_mbit"] = float(m["dropped_mbit"].mean())
-    log(f"{name}: myopic {row['myopic']:.1f} (rate_weight {weight:g}); mpc {_ci(row['mpc'])}; oracle "
-        f"{_ci(row['oracle'])}; mpc - mpc-hold {_ci(row['preview'])}; oracle - mpc {_ci(row['knowledge'])} "
-        f"({time.perf_counter() - t0:.0f} s)")
+    log(f"{name}: myopic {row['myopic']:.1f} (rate_weight {weight:g}, mpc's {plan['rate_weight']:g}); mpc "
+        f"{_ci(row['mpc'])}; oracle {_ci(row['oracle'])}; mpc - mpc-hold {_ci(row['preview'])}; oracle - mpc "
+        f"{_ci(row['knowledge'])} ({time.perf_counter() - t0:.0f} s)")
     return row
 
 

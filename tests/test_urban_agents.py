@@ -98,6 +98,21 @@ def test_a_holding_cost_serves_a_backlog_sooner(observations):
         LookaheadPolicy(U, holding_cost=-0.1)
 
 
+
+def test_the_planners_data_weight_is_the_rewards_unless_given(observations):
+    """``rate_weight`` prices the planner's dropped data: by default the scenario's ``w_rate``; a lower one gives a
+    backlog at its deadline less data share (never more), and 0 none: it is the weight of the fluid's cost."""
+    o = _with_backlog(observations[5:25], 8.5 * U.queue_arrival_bps * U.dt_s)
+    default, _ = LookaheadPolicy(U, holding_cost=0.2).split_batch(o)
+    same, _ = LookaheadPolicy(U, holding_cost=0.2, rate_weight=U.w_rate).split_batch(o)
+    assert np.array_equal(default, same)
+    cheap, _ = LookaheadPolicy(U, holding_cost=0.2, rate_weight=0.05 * U.w_rate).split_batch(o)
+    assert np.all(cheap[:, 2] <= default[:, 2] + 1e-9) and cheap[:, 2].mean() < default[:, 2].mean() - 0.01
+    assert np.all(LookaheadPolicy(U, rate_weight=0.0).split_batch(o)[0][:, 2] == 0.0)
+    for bad in (-1.0, float("nan"), True):
+        with pytest.raises(ValueError, match="rate_weight = "):
+            LookaheadPolicy(U, rate_weight=bad)
+
 def test_the_oracle_sees_the_truth_on_the_same_missions():
     oracle = make_policy("oracle", U) if _has_record("mpc") else None
     if oracle is None:

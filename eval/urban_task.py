@@ -3,8 +3,9 @@
 Draws held-out missions of a scenario with blockage (default the ``urban`` preset) exactly as the env's reset
 draws them (:func:`iscc_gym.sim.loop.init_mission`) and reports, from the truth along each reference
 (:mod:`iscc_gym.sim.mission`): the share of the flight in line of sight, the blocked stretches (runs of NLoS
-slots) per mission and their lengths, the share of missions with at least one, and the command link's
-large-scale SNR at the reference in LoS and in NLoS (the map's mean shadowing; dB).
+slots) per mission and their lengths, the share of missions with at least one, the command link's
+large-scale SNR at the reference in LoS and in NLoS (the map's mean shadowing; dB), and what the data link carries
+at those SNRs with the whole band (the FBL rate, no fading) against the queue's mean arrivals.
 
 Example::
 
@@ -19,6 +20,7 @@ import numpy as np
 from gymnasium.utils import seeding
 from iscc_gym.eval.options import Parser, docs_command, positive_int, run_console
 
+from iscc_gym.physics.fbl import comm_rate_bps
 from iscc_gym.protocol import URBAN_SEED_START, held_out_seeds
 from iscc_gym.scenario import SCENARIOS, Scenario, make_scenario
 from iscc_gym.sim import loop
@@ -50,14 +52,18 @@ def task_stats(s: Scenario, seeds) -> dict:
     lengths = np.array([n for m in per for n in m["stretches"]], dtype=float) * s.dt_s
     counts = np.array([len(m["stretches"]) for m in per])
     los = np.array([m["los_share"] for m in per])
+    snr_los = float(np.nanmedian([m["snr_los_db"] for m in per]))
+    snr_nlos = float(np.nanmedian([m["snr_nlos_db"] for m in per]))
+    capacity = comm_rate_bps(s, 1.0, 10.0 ** (np.array([snr_los, snr_nlos]) / 10.0)) * 1e-6
     return {"missions": per, "n": len(per), "share_with_blockage": float(np.mean(counts > 0)),
             "los_share_mean": float(los.mean()), "los_share_range": [float(los.min()), float(los.max())],
             "stretches_median": float(np.median(counts)), "stretches_max": int(counts.max()),
             "stretch_s_median": float(np.median(lengths)) if len(lengths) else float("nan"),
             "stretch_s_p90": float(np.quantile(lengths, 0.9)) if len(lengths) else float("nan"),
             "stretch_s_max": float(lengths.max()) if len(lengths) else float("nan"),
-            "snr_los_db_median": float(np.nanmedian([m["snr_los_db"] for m in per])),
-            "snr_nlos_db_median": float(np.nanmedian([m["snr_nlos_db"] for m in per]))}
+            "snr_los_db_median": snr_los, "snr_nlos_db_median": snr_nlos,
+            "capacity_los_mbps": float(capacity[0]), "capacity_nlos_mbps": float(capacity[1]),
+            "arrival_mbps": s.queue_arrival_bps * 1e-6 if s.queue_slots else float("nan")}
 
 
 def markdown(st: dict, s_name: str, command: str, seeds) -> str:
@@ -72,7 +78,9 @@ def markdown(st: dict, s_name: str, command: str, seeds) -> str:
         f"| stretch length, median / 90th percentile / max | {st['stretch_s_median']:.1f} / {st['stretch_s_p90']:.1f} /"
         f" {st['stretch_s_max']:.1f} s |",
         f"| command-link SNR at the reference (map's mean shadowing), median in LoS / NLoS | "
-        f"{st['snr_los_db_median']:.1f} / {st['snr_nlos_db_median']:.1f} dB |"])
+        f"{st['snr_los_db_median']:.1f} / {st['snr_nlos_db_median']:.1f} dB |",
+        f"| data link at those SNRs with the whole band (FBL rate, no fading), LoS / NLoS; the queue's mean arrivals | "
+        f"{st['capacity_los_mbps']:.1f} / {st['capacity_nlos_mbps']:.2f} Mbit/s; {st['arrival_mbps']:g} Mbit/s |"])
 
 
 def build_parser(prog: str = "python -m eval.urban_task") -> Parser:

@@ -162,6 +162,10 @@ def test_task_description_and_the_mission_figure(tmp_path):
     st = task_main(["--missions", "3"])
     assert st["n"] == 3 and 0.0 <= st["share_with_blockage"] <= 1.0 and 0.5 < st["los_share_mean"] <= 1.0
     assert all(sum(m["stretches"]) == round((1.0 - m["los_share"]) * (U.n_slots + 1)) for m in st["missions"])
+    for state in ("los", "nlos"):  # the FBL rate at the whole band: below Shannon's B log2(1 + SNR), above half of it
+        shannon = U.bandwidth_hz * np.log2(1.0 + 10.0 ** (st[f"snr_{state}_db_median"] / 10.0)) * 1e-6
+        assert 0.5 * shannon < st[f"capacity_{state}_mbps"] < shannon or st[f"capacity_{state}_mbps"] == 0.0
+    assert st["capacity_los_mbps"] > st["arrival_mbps"] == U.queue_arrival_bps * 1e-6
     out = tmp_path / "mission.png"
     assert figure_main(["--seed", "1500024", "--policies", "fixed:0.2,0.3,0.5,margin", "--out", str(out)]) == out
     assert out.stat().st_size > 10_000

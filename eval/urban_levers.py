@@ -21,12 +21,14 @@ The held-out missions are never played here: a variant chosen from this table is
 Example::
 
     python -m eval.urban_levers --missions 16 --write-docs
+    python -m eval.urban_levers --missions 16 --jobs 2 --write-docs    # two variants at a time
 """
 
 from __future__ import annotations
 
 import sys
 import time
+from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 from iscc_gym.agents import LookaheadPolicy, MyopicPolicy
@@ -171,6 +173,9 @@ def build_parser(prog: str = "python -m eval.urban_levers") -> Parser:
                     help="training missions each policy plays per variant (default: 16)")
     ap.add_argument("--tune-missions", type=positive_int, default=TUNE_MISSIONS, metavar="N",
                     help=f"missions myopic's data weight is tuned on per variant (default: {TUNE_MISSIONS})")
+    ap.add_argument("--jobs", type=positive_int, default=1, metavar="N",
+                    help="variants run at once in N processes (default: 1; each single-threaded, so at most the "
+                         "machine's cores)")
     ap.add_argument("--max-steps", type=positive_int, default=None, metavar="N",
                     help="cut every mission after N slots (smoke runs)")
     ap.add_argument("--write-docs", action="store_true",
@@ -190,7 +195,13 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.urban_levers
         from iscc_gym.docs import RESULTS_PATH, docs_path
 
         check_writable_file(docs_path(RESULTS_PATH), "--write-docs")
-    rows = [lever_row(n, VARIANTS[n][0], args.missions, args.tune_missions, args.max_steps) for n in names]
+    args_of = ([VARIANTS[n][0] for n in names], [args.missions] * len(names), [args.tune_missions] * len(names),
+               [args.max_steps] * len(names))
+    if args.jobs > 1:  # one variant per process; each row is seeded, so the table is the same as with one
+        with ProcessPoolExecutor(min(args.jobs, len(names))) as pool:
+            rows = list(pool.map(lever_row, names, *args_of))
+    else:
+        rows = list(map(lever_row, names, *args_of))
     table = markdown(rows, docs_command(prog, argv))
     print(table)
     if args.write_docs:

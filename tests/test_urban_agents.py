@@ -185,9 +185,10 @@ def test_the_levers_table_splits_myopics_reward_and_pairs_the_planners():
     refused by name."""
     from iscc_gym.eval import urban_levers
 
-    rows = urban_levers.main(["--variants", "smooth", "--missions", "2", "--tune-missions", "2", "--max-steps",
-                              "25"])
-    (row,) = rows
+    argv = ["--variants", "smooth,urban", "--missions", "2", "--tune-missions", "2", "--max-steps", "25"]
+    rows = urban_levers.main(argv)
+    assert urban_levers.main(argv + ["--jobs", "2"]) == rows  # the same rows from two processes
+    row = rows[0]
     assert row["overrides"] == {"los_field_kernel": "gaussian"}
     assert row["parts"]["lost_track"] == pytest.approx(0.0, abs=1e-6)
     assert row["parts"]["tracking"] > 0.0 and row["myopic"] < 0.0

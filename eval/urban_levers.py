@@ -34,7 +34,7 @@ import numpy as np
 from iscc_gym.agents import LookaheadPolicy, MyopicPolicy
 from iscc_gym.agents.tuned_records import load_tuned, record_name
 from iscc_gym.eval.evaluate import mean_ci, run_episodes
-from iscc_gym.eval.options import Parser, docs_command, positive_int, run_console
+from iscc_gym.eval.options import Parser, docs_command, nonneg_int, positive_int, run_console
 from iscc_gym.eval.tune import tune_model_grid
 from iscc_gym.eval.urban_task import task_stats
 
@@ -75,13 +75,15 @@ TUNE_MISSIONS = 8
 
 
 def lever_row(name: str, overrides: dict, missions: int, tune_missions: int = TUNE_MISSIONS,
-              max_steps: int | None = None, log=print) -> dict:
-    """One variant: ``myopic`` tuned on ``tune_missions`` training missions, then ``myopic``, ``mpc`` and ``oracle`` on
-    the next ``missions`` (see the module docstring). Returns the figures of the table's row.
+              max_steps: int | None = None, log=print, skip: int = 0) -> dict:
+    """One variant: ``myopic`` and the planner's data weights tuned on ``tune_missions`` training missions, then
+    ``myopic``, ``mpc``, ``mpc-hold`` and ``oracle`` on ``missions`` more, ``skip`` missions after the tuning ones (a
+    replication on other missions: ``--skip``; see the module docstring). Returns the figures of the table's row.
     """
     s = make_scenario("urban", **overrides)
     tune_seeds = list(range(TUNE_SEED_START, TUNE_SEED_START + tune_missions))
-    seeds = list(range(TUNE_SEED_START + tune_missions, TUNE_SEED_START + tune_missions + missions))
+    first = TUNE_SEED_START + tune_missions + skip
+    seeds = list(range(first, first + missions))
     t0 = time.perf_counter()
     grid = {"rate_weight": tuple(w * s.w_rate for w in RATE_WEIGHT_GRID)}
     record = tune_model_grid("myopic", tune_seeds, s, log=lambda *_: None, max_steps=max_steps, grid=grid)
@@ -173,6 +175,9 @@ def build_parser(prog: str = "python -m eval.urban_levers") -> Parser:
                     help="training missions each policy plays per variant (default: 16)")
     ap.add_argument("--tune-missions", type=positive_int, default=TUNE_MISSIONS, metavar="N",
                     help=f"missions myopic's data weight is tuned on per variant (default: {TUNE_MISSIONS})")
+    ap.add_argument("--skip", type=nonneg_int, default=0, metavar="N",
+                    help="play the missions N after the tuning ones (default 0): a replication on other training "
+                         "missions, e.g. --skip 16 after a --missions 16 table")
     ap.add_argument("--jobs", type=positive_int, default=1, metavar="N",
                     help="variants run at once in N processes (default: 1; each single-threaded, so at most the "
                          "machine's cores)")
@@ -196,7 +201,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.urban_levers
 
         check_writable_file(docs_path(RESULTS_PATH), "--write-docs")
     args_of = ([VARIANTS[n][0] for n in names], [args.missions] * len(names), [args.tune_missions] * len(names),
-               [args.max_steps] * len(names))
+               [args.max_steps] * len(names), [print] * len(names), [args.skip] * len(names))
     if args.jobs > 1:  # one variant per process; each row is seeded, so the table is the same as with one
         with ProcessPoolExecutor(min(args.jobs, len(names))) as pool:
             rows = list(pool.map(lever_row, names, *args_of))

@@ -46,15 +46,22 @@ def mission_stats(s: Scenario, seed: int) -> dict:
             "snr_nlos_db": float(np.median(snr_nlos[~los])) if (~los).any() else float("nan")}
 
 
+def _median(values) -> float:
+    """The median of the finite values, nan if there are none."""
+    v = np.asarray(values, dtype=float)
+    v = v[np.isfinite(v)]
+    return float(np.median(v)) if len(v) else float("nan")
+
+
 def task_stats(s: Scenario, seeds) -> dict:
     """:func:`mission_stats` of every seed and their summary."""
     per = [mission_stats(s, sd) for sd in seeds]
     lengths = np.array([n for m in per for n in m["stretches"]], dtype=float) * s.dt_s
     counts = np.array([len(m["stretches"]) for m in per])
     los = np.array([m["los_share"] for m in per])
-    snr_los = float(np.nanmedian([m["snr_los_db"] for m in per]))
-    snr_nlos = float(np.nanmedian([m["snr_nlos_db"] for m in per]))
-    capacity = comm_rate_bps(s, 1.0, 10.0 ** (np.array([snr_los, snr_nlos]) / 10.0)) * 1e-6
+    snr_los, snr_nlos = (_median([m[k] for m in per]) for k in ("snr_los_db", "snr_nlos_db"))
+    capacity = [float(comm_rate_bps(s, 1.0, 10.0 ** (x / 10.0))) * 1e-6 if np.isfinite(x) else float("nan")
+                for x in (snr_los, snr_nlos)]  # nan where no mission had the state
     return {"missions": per, "n": len(per), "share_with_blockage": float(np.mean(counts > 0)),
             "los_share_mean": float(los.mean()), "los_share_range": [float(los.min()), float(los.max())],
             "stretches_median": float(np.median(counts)), "stretches_max": int(counts.max()),

@@ -188,6 +188,9 @@ def test_the_levers_table_splits_myopics_reward_and_pairs_the_planners():
     argv = ["--variants", "smooth,urban", "--missions", "2", "--tune-missions", "2", "--max-steps", "25"]
     rows = urban_levers.main(argv)
     assert urban_levers.main(argv + ["--jobs", "2"]) == rows  # the same rows from two processes
+    (other,) = urban_levers.main(["--variants", "smooth", "--missions", "2", "--tune-missions", "2", "--max-steps",
+                                  "25", "--skip", "3"])
+    assert other["seeds"] == [500005, 500006] and other["rate_weight"] == rows[0]["rate_weight"]  # tuned alike
     row = rows[0]
     assert row["overrides"] == {"los_field_kernel": "gaussian"}
     assert row["parts"]["lost_track"] == pytest.approx(0.0, abs=1e-6)

@@ -19,8 +19,8 @@ The model, each piece the env's own:
   bits the data share carries on average (:math:`d\,\bar C`, the fading-averaged FBL rate of the slot's state),
   and what has waited past the deadline D is dropped: b above D - 1 after the service (a FIFO buffer fed at a
   constant rate holds the last b slots' arrivals; ``deadline_margin`` slots lower, for the bursts and the fading
-  the fluid does not see). Each dropped unit costs ``w_rate``, as in the env's reward, and each unit held a slot
-  ``holding_cost`` x ``w_rate``.
+  the fluid does not see). Each dropped unit costs ``rate_weight`` (the env's ``w_rate`` unless tuned otherwise),
+  and each unit held a slot ``holding_cost`` x ``rate_weight``.
 * **Dynamic programming** over the blocks (the current slot, then H blocks of S slots, each block's data share
   held) on ``levels`` backlog levels in [0, D - 1], linear interpolation between them, and a terminal value
   :math:`-\kappa b` (``terminal_weight``: what a backlog left at the horizon's end is worth). A block's LoS state
@@ -70,7 +70,7 @@ class LookaheadPolicy(SplitPolicy):
         A scenario with a data queue and a preview (the ``urban`` preset; ``preview_source="truth"`` for the
         oracle).
     terminal_weight : float
-        :math:`\kappa` >= 0, the value per unit of backlog left at the horizon's end (in ``w_rate`` units of A).
+        :math:`\kappa` >= 0, the value per unit of backlog left at the horizon's end (in ``rate_weight`` units of A).
     deadline_margin : float
         Slots the fluid model takes off the deadline (>= 0): the real queue drops earlier than the fluid one
         under bursty arrivals and fading, so the planner keeps the backlog this far below D - 1.
@@ -79,7 +79,7 @@ class LookaheadPolicy(SplitPolicy):
         units). Default: the scenario's ``w_rate`` (the env's reward). As :class:`iscc_gym.agents.MyopicPolicy`'s
         ``rate_weight``, another value corrects what the per-slot model misprices (it is tuned on training seeds).
     holding_cost : float
-        :math:`\eta` >= 0: the cost of a unit of backlog held one slot, in ``w_rate`` units. The fluid sees no risk
+        :math:`\eta` >= 0: the cost of a unit of backlog held one slot, in ``rate_weight`` units. The fluid sees no risk
         in a backlog (no bursts, no fading, no blocked slot the map missed), so where serving now and later cost
         the same it may defer; a backlog carried into a surprise is what the real queue drops. 0: no such cost.
     data_grid : sequence of float

@@ -281,6 +281,17 @@ def test_rare_waypoint_condition_returns_the_conditioned_count(overrides):
         assert np.all(in_coverage(s, pts))
 
 
+def test_an_uncommon_condition_draws_the_conditioned_count_at_once():
+    """p = 4e-4 (below HOPELESS_TAIL): the count comes from the conditioned law, as the redraws would sample it."""
+    s = S.replace(waypoint_intensity_per_km3=1.0, min_waypoints=5)
+    mu = coverage_volume_km3(s)
+    rng = np.random.default_rng(3)
+    counts = np.array([len(sample_waypoints(s, rng)) for _ in range(1000)])
+    assert counts.min() >= 5
+    expected = stats.poisson.pmf(5, mu) / stats.poisson.sf(4, mu)  # 0.91
+    assert abs(np.mean(counts == 5) - expected) < 4 * np.sqrt(expected * (1 - expected) / len(counts))
+
+
 def test_conditioned_count_follows_the_truncated_poisson_law():
     from iscc_gym.trajectory import _conditioned_poisson
 
@@ -310,7 +321,11 @@ def test_default_waypoint_draws_are_those_of_the_plain_redraw_loop():
             pts = np.vstack([pts, cand[in_coverage(s, cand)]])
         return pts[:n]
 
-    for s in (S, S.replace(waypoint_intensity_per_km3=1.0, min_waypoints=5)):
+    from iscc_gym.trajectory import HOPELESS_TAIL, _poisson_tail
+
+    rare = S.replace(waypoint_intensity_per_km3=3.0, min_waypoints=5)  # the condition holds with p = 0.037
+    assert _poisson_tail(3.0 * coverage_volume_km3(S), 5) > HOPELESS_TAIL
+    for s in (S, rare):
         a, b = np.random.default_rng(9), np.random.default_rng(9)
         for _ in range(50):
             np.testing.assert_array_equal(sample_waypoints(s, a), plain(s, b))

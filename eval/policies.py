@@ -11,6 +11,9 @@ from pathlib import Path
 from iscc_gym.agents.shipped import PPO_AGENT
 from iscc_gym.eval.evaluate import run_episodes
 
+from iscc_gym.scenario import make_scenario
+from iscc_gym.sim.schema import obs_size
+
 __all__ = ["build_policy", "build_policies", "run_parallel", "resolve_specs", "check_specs", "policy_name",
            "SLOW_SPECS", "SHIPPED_AGENT"]
 
@@ -29,7 +32,13 @@ def build_policy(item: str, scenario: str = "paper"):
         name, path = item.split("=", 1)
         from iscc_gym.agents.sb3_policy import SB3Policy
 
-        return name, SB3Policy.load(path)
+        policy = SB3Policy.load(path, check_env=None)
+        want = (obs_size(make_scenario(scenario)),)  # the env the comparison runs, not always the paper's
+        if policy.obs_shape != want:
+            raise ValueError(f"--policies {item!r}: the model takes observations of shape {policy.obs_shape}, the "
+                             f"{scenario if isinstance(scenario, str) else 'given'} scenario's env gives {want}: it "
+                             "was trained on another env; compare it with --env set to the env it was trained on")
+        return name, policy
     return item, make_policy(item, scenario)
 
 

@@ -303,3 +303,21 @@ def test_docs_quote_the_command_without_its_output_flags():
                                            "--plots=figs", "--quiet"]) == "python -m eval --episodes 20"
     seeds = docs_command("python -m eval.seeds", ["runs/seeds", "--json=/tmp/s.json"])
     assert seeds == "python -m eval.seeds runs/seeds"
+
+
+def test_an_agent_is_checked_against_the_env_it_is_compared_on(tmp_path):
+    """``NAME=PATH`` on ``--env iscc_gym/ISCC-Urban-v0``: an urban model loads (it was refused with the paper env's
+    shape), the shipped paper agent is refused by name with the fix, and the paper env still takes the paper agent."""
+    import gymnasium as gym
+    from iscc_gym.eval.policies import build_policy
+    from stable_baselines3 import PPO
+
+    import iscc_gym
+
+    PPO("MlpPolicy", gym.make(iscc_gym.URBAN_ENV_ID), n_steps=8, batch_size=8, device="cpu").save(tmp_path / "m.zip")
+    (tmp_path / "config.yml").write_text("args: {algo: ppo, normalize: false}\n")
+    name, agent = build_policy(f"urban={tmp_path / 'm.zip'}", "urban")
+    assert name == "urban" and agent.obs_shape == (76,)
+    with pytest.raises(ValueError, match=r"--policies 'ppo=.*\(23,\).*\(76,\).*--env"):
+        build_policy(f"ppo={SHIPPED_AGENT}", "urban")
+    assert build_policy(f"ppo={SHIPPED_AGENT}", "paper")[1].obs_shape == (23,)

@@ -27,6 +27,7 @@ Example::
 
 from __future__ import annotations
 
+import functools
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -202,13 +203,14 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.urban_levers
         from iscc_gym.docs import RESULTS_PATH, docs_path
 
         check_writable_file(docs_path(RESULTS_PATH), "--write-docs")
-    args_of = ([VARIANTS[n][0] for n in names], [args.missions] * len(names), [args.tune_missions] * len(names),
-               [args.max_steps] * len(names), [print] * len(names), [args.skip] * len(names))
+    row = functools.partial(lever_row, missions=args.missions, tune_missions=args.tune_missions,
+                            max_steps=args.max_steps, skip=args.skip)
+    overrides = [VARIANTS[n][0] for n in names]
     if args.jobs > 1:  # one variant per process; each row is seeded, so the table is the same as with one
         with ProcessPoolExecutor(min(args.jobs, len(names))) as pool:
-            rows = list(pool.map(lever_row, names, *args_of))
+            rows = list(pool.map(row, names, overrides))
     else:
-        rows = list(map(lever_row, names, *args_of))
+        rows = list(map(row, names, overrides))
     table = markdown(rows, docs_command(prog, argv))
     print(table)
     if args.write_docs:

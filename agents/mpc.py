@@ -50,7 +50,7 @@ from iscc_gym.sim.functional import decode_observation
 from iscc_gym.sim.schema import obs_size
 
 from .base import SplitPolicy, as_obs_batch
-from .myopic import MyopicPolicy, _weight
+from .myopic import MyopicPolicy
 
 __all__ = ["LookaheadPolicy", "DATA_GRID", "PREVIEW_MODES"]
 
@@ -132,7 +132,11 @@ class LookaheadPolicy(SplitPolicy):
         if not (math.isfinite(float(holding_cost)) and float(holding_cost) >= 0.0):
             raise ValueError(f"holding_cost = {holding_cost!r} is invalid: must be a finite number >= 0")
         self.holding_cost = float(holding_cost)
-        self.rate_weight = _weight("rate_weight", s.w_rate if rate_weight is None else rate_weight)
+        rw = s.w_rate if rate_weight is None else rate_weight
+        if isinstance(rw, bool) or not (isinstance(rw, (int, float, np.integer, np.floating))
+                                        and math.isfinite(float(rw)) and float(rw) >= 0.0):
+            raise ValueError(f"rate_weight = {rate_weight!r} is invalid: must be a finite number >= 0")
+        self.rate_weight = float(rw)
         #: The planner's largest backlog (units of A): the deadline less one slot and the margin.
         self.top = s.queue_slots - 1.0 - self.deadline_margin
         self.data_grid = grid

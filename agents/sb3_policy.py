@@ -24,7 +24,7 @@ import yaml
 
 from iscc_gym import ENV_ID
 
-__all__ = ["SB3Policy", "MANIFEST", "LAGRANGE_FILE", "write_manifest", "read_manifest", "ALGOS"]
+__all__ = ["SB3Policy", "residual_policy", "MANIFEST", "LAGRANGE_FILE", "write_manifest", "read_manifest", "ALGOS"]
 
 MANIFEST = "manifest.yml"
 #: The Lagrange multipliers of a constrained run (``python -m train --algo ppo-lag``), beside its model.
@@ -222,7 +222,9 @@ class SB3Policy:
                 if cfg.exists():
                     try:
                         args = yaml.safe_load(cfg.read_text())["args"]
-                        run = {"algo": args["algo"], "normalize": args.get("normalize")}
+                        run = {"algo": args["algo"], "normalize": args.get("normalize"),
+                               **{k: args.get(k) for k in ("residual", "residual_scale", "scenario", "env_overrides")
+                                  if args.get("residual") not in (None, "none")}}
                     except (yaml.YAMLError, KeyError, TypeError):
                         raise ValueError(f"{cfg}: not a config.yml written by python -m train") from None
                     break
@@ -257,6 +259,8 @@ class SB3Policy:
             if want is not None and tuple(want) != policy.obs_shape:
                 raise ValueError(f"{model_path}: the model takes observations of shape {policy.obs_shape}, "
                                  f"{check_env} gives {tuple(want)}: it was trained on another env")
+        if run.get("residual"):
+            return residual_policy(policy, run)
         return policy
 
     def predict(self, obs, state=None, episode_start=None, deterministic: bool = True):
@@ -268,6 +272,19 @@ class SB3Policy:
         if self.vecnormalize is not None:
             o = self.vecnormalize.normalize_obs(o).astype(np.float32)
         return self.model.predict(o, state=state, episode_start=episode_start, deterministic=deterministic)
+
+
+def residual_policy(agent: SB3Policy, run: dict):
+    """The :class:`agents.residual.ResidualPolicy` of a residual run's trained ``agent``: its base policy
+    (``run["residual"]``) built for the run's scenario, corrected by ``agent`` at ``run["residual_scale"]``.
+    """
+    from iscc_gym.agents import make_policy
+    from iscc_gym.agents.residual import ResidualPolicy
+
+    from iscc_gym import make_scenario
+
+    scenario = make_scenario(run.get("scenario") or "paper", **(run.get("env_overrides") or {}))
+    return ResidualPolicy(make_policy(run["residual"], scenario), agent, run["residual_scale"], run["residual"])
 
 
 def _obs_shape(env_id: str):

@@ -30,6 +30,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from iscc_gym.agents.shipped import SHIPPED_AGENTS
 from iscc_gym.eval.evaluate import evaluate, format_table, horizon_slots, markdown_table, summarize  # noqa: F401
 from iscc_gym.eval.options import (
     PICKLE_WARNING,
@@ -61,9 +62,9 @@ from iscc_gym.docs import README_PATH, RESULTS_PATH, docs_path, publish, save_js
 from iscc_gym.protocol import EVAL_SEED_START
 
 DEFAULT_POLICIES = "ppo,sca,sca-per-slot,margin,myopic,equal"
-#: The default comparison on the urban task (``--env iscc_gym/ISCC-Urban-v0``): the per-slot rules, the queue's
-#: drift-plus-penalty, the look-ahead planner and its oracle bound.
-URBAN_POLICIES = "myopic,margin,dpp,mpc,oracle"
+#: The default comparison on the urban task (``--env iscc_gym/ISCC-Urban-v0``): the shipped urban agent, the
+#: per-slot rules, the queue's drift-plus-penalty, the look-ahead planner and its oracle bound.
+URBAN_POLICIES = "ppo,myopic,margin,dpp,mpc,oracle"
 PROG = "python -m eval"
 
 
@@ -207,7 +208,7 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> dict:
         raise ValueError(f"--scenario {args.scenario!r}: {e.args[0] if e.args else e}") from None
     seeds = (parse_seeds(args.seeds) if args.seeds is not None
              else list(range(args.seed_start, args.seed_start + args.episodes)))
-    items = resolve_specs(args.policies)
+    items = resolve_specs(args.policies, SHIPPED_AGENTS[args.env])
     if args.train_steps > 0:
         items = [it for it in items if policy_name(it) != "ppo"]
         items.insert(0, f"ppo={args.train_out}")
@@ -231,7 +232,7 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> dict:
             check_writable_file(docs_path(rel), "--write-docs")
     show = show_progress(args.quiet)
     if args.train_steps > 0:
-        summary = run_training(["--total-timesteps", args.train_steps, "--scenario", args.scenario],
+        summary = run_training(["--env", args.env, "--total-timesteps", args.train_steps, "--scenario", args.scenario],
                                args.train_out, quiet=not show)["summary"]
         print(f"trained PPO: {summary['timesteps']} steps in {summary['wall_time_s']:.0f} s -> {args.train_out}")
     specs = ",".join(items)

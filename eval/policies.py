@@ -52,14 +52,15 @@ def policy_name(item: str) -> str:
     return item.split("=", 1)[0] if "=" in item else item
 
 
-def resolve_specs(specs: str) -> list[str]:
-    """The items of a ``--policies`` value: a bare ``ppo`` becomes the shipped agent (``ppo=`` its path);
+def resolve_specs(specs: str, agent: Path = SHIPPED_AGENT) -> list[str]:
+    """The items of a ``--policies`` value: a bare ``ppo`` becomes the shipped ``agent`` (``ppo=`` its path;
+    by default the paper env's, :data:`iscc_gym.agents.shipped.SHIPPED_AGENTS` holds each env's);
     ``ValueError`` if it is empty or names a policy twice (results are keyed by name).
     """
     items = [p.strip() for p in split_specs(specs) if p.strip()]
     if not items:
         raise ValueError("--policies is empty; e.g. --policies ppo,sca,equal")
-    items = [f"ppo={SHIPPED_AGENT}" if item.lower() == "ppo" else item for item in items]
+    items = [f"ppo={agent}" if item.lower() == "ppo" else item for item in items]
     names = [policy_name(item) for item in items]
     for item, name in zip(items, names, strict=True):
         if not name:

@@ -200,3 +200,38 @@ def test_the_levers_table_splits_myopics_reward_and_pairs_the_planners():
         assert lo <= mean <= hi
     with pytest.raises(ValueError, match="unknown"):
         urban_levers.main(["--variants", "smooth,nope"])
+
+
+def test_shifted_missions_change_the_env_and_leave_the_policies_as_tuned(monkeypatch):
+    """``eval.urban_shift``: every policy is built for the urban preset, only the env's missions are shifted; the
+    table pairs the focus with every other policy on each shift.
+    """
+    from iscc_gym.eval import urban_shift
+
+    seen = []
+    real = urban_shift.run_episodes
+
+    def spy(policy, seeds, scenario, **kw):
+        seen.append((getattr(policy, "scenario", U), scenario))
+        return real(policy, seeds, scenario, **kw)
+
+    monkeypatch.setattr(urban_shift, "run_episodes", spy)
+    res = urban_shift.main(["--shifts", "none,umi_av", "--policies", "myopic,margin", "--focus", "myopic",
+                            "--episodes", "2", "--max-steps", "5"])
+    assert list(res) == ["none", "umi_av"] and set(res["umi_av"]["focus_paired"]) == {"myopic_vs_margin"}
+    assert seen[0][0] == U and all(built == U for built, _ in seen)  # myopic designed for the preset
+    assert [env.blockage for _, env in seen] == ["uma_av", "uma_av", "umi_av", "umi_av"]
+    for bad, match in ((["--shifts", "nope"], "unknown"), (["--policies", "myopic,margin", "--focus", "dpp"], "--focus")):
+        with pytest.raises(ValueError, match=match):
+            urban_shift.main(bad)
+
+
+def test_the_phases_of_a_mission_against_its_blocked_stretches():
+    from iscc_gym.eval.urban_learned import PHASES, phases
+
+    los = np.array([1, 1, 1, 0, 0, 1, 1, 1, 1, 1], dtype=bool)
+    # by hand, window 2: slots 1-2 see the stretch ahead, 3-4 are in it, 5-6 follow it
+    assert [PHASES[k] for k in phases(los, 2)] == ["clear", "ahead", "ahead", "blocked", "blocked", "after",
+                                                   "after", "clear", "clear", "clear"]
+    assert list(phases(np.array([1, 0, 1], dtype=bool), 5)) == [1, 2, 3]  # ahead wins over after only where both
+    assert list(phases(np.array([0, 1, 0], dtype=bool), 1)) == [2, 1, 2]

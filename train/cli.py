@@ -40,15 +40,17 @@ def build_parser(prog: str = "python -m train") -> argparse.ArgumentParser:
         if f.name in ("overrides", "env_overrides"):
             continue
         flag = "--" + f.name.replace("_", "-")
+        flags = (flag, "--env") if f.name == "env_id" else (flag,)  # --env: python -m eval's name of it
         default = getattr(defaults, f.name)
         help_ = FIELD_HELP[f.name]
         if isinstance(default, bool) or f.name in ("normalize", "progress_bar"):
-            ap.add_argument(flag, action=argparse.BooleanOptionalAction, default=default, help=help_)
+            ap.add_argument(*flags, action=argparse.BooleanOptionalAction, default=default, help=help_)
         elif default is None:  # a run setting the YAML fills (RUN_KEYS), or numba's default
-            kind = {"init_policy": str, "init_log_std": float, "cost_limit": str}.get(f.name, int)
-            ap.add_argument(flag, type=kind, default=None, help=help_)
+            kind = {"init_policy": str, "init_log_std": float, "cost_limit": str, "scenario": str, "residual": str,
+                    "residual_scale": float}.get(f.name, int)
+            ap.add_argument(*flags, type=kind, default=None, help=help_)
         else:
-            ap.add_argument(flag, type=type(default), default=default, help=help_ + f" (default: {default})")
+            ap.add_argument(*flags, type=type(default), default=default, help=help_ + f" (default: {default})")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="override a hyperparameter of the YAML, e.g. --set n_steps=256 (value read as YAML)")
     ap.add_argument("--env-set", action="append", default=[], metavar="FIELD=VALUE",

@@ -14,14 +14,14 @@ from typing import Any
 import numpy as np
 import yaml
 
-from iscc_gym import ENV_ID, MULTI_ENV_ID
+from iscc_gym import ENV_ID, MULTI_ENV_ID, URBAN_ENV_ID
 from iscc_gym.protocol import INIT_SEED_START, check_outside_evaluation
 
 HYPERPARAMS = Path(__file__).with_name("hyperparams.yml")
 ALGOS = ("ppo", "sac", "td3")
 VEC_ENVS = ("dummy", "subproc", "batched")
-#: The multi-drone env's id, and the ids the native batched env serves.
-ISCC_ENV_IDS = (ENV_ID, MULTI_ENV_ID)
+#: The ids the native batched env serves (the paper's env, the urban task, the multi-drone env).
+ISCC_ENV_IDS = (ENV_ID, URBAN_ENV_ID, MULTI_ENV_ID)
 #: ``--algo ppo-lag``: PPO with the Lagrangian of train/lagrangian.py, at these limits unless
 #: ``--cost-limit`` gives others.
 PPO_LAG_LIMITS = "rate=0.05,stability=0.0"
@@ -38,7 +38,7 @@ class Args:
     n_envs: int | None = None
     vec_env: str = "batched"  # dummy | subproc | batched (the native batched env)
     seed: int = 0
-    scenario: str = "paper"
+    scenario: str | None = None  # None: the preset the env id is registered with (urban for ISCC-Urban-v0)
     env_overrides: dict = field(default_factory=dict)  # Scenario field overrides, e.g. {"observation_source": "gnss"}
     out: str = "runs/ppo"
     hyperparams: str = str(HYPERPARAMS)
@@ -50,6 +50,10 @@ class Args:
     init_envs: int | None = None
     init_steps: int | None = None
     init_log_std: float | None = None
+    # residual learning (agents/residual.py): the agent corrects this scripted policy's action (an
+    # agents.make_policy spec; None: the YAML's residual, else none) by at most residual_scale
+    residual: str | None = None
+    residual_scale: float | None = None
     eval_freq: int = 500_000  # env steps between evaluations (0: none)
     eval_episodes: int = 8
     eval_max_steps: int = 5000  # slots per eval episode (the full mission by default)
@@ -76,7 +80,8 @@ FIELD_HELP = {
     "n_envs": "parallel envs (default: the YAML entry's n_envs, else 4)",
     "vec_env": "dummy | subproc | batched (the ISCC env's own batched env, fastest)",
     "seed": "training seed (envs, networks, sampling)",
-    "scenario": "Scenario preset of the env (e.g. paper)",
+    "scenario": "Scenario preset of the env (default: the env id's own: paper, or urban for "
+                f"{URBAN_ENV_ID})",
     "out": "run directory; must be empty or new unless --resume or --overwrite",
     "hyperparams": "hyperparameter YAML in rl-zoo3's layout (env id -> hyperparameters; see train/hyperparams.yml)",
     "normalize": "VecNormalize observations and rewards (default: the YAML entry's normalize, else on)",
@@ -85,6 +90,10 @@ FIELD_HELP = {
     "init_envs": "envs the scripted policy plays during the warm start (default: the YAML's, else 16)",
     "init_steps": "steps per env of the warm start (default: the YAML's, else 5000)",
     "init_log_std": "log standard deviation of the actions after the warm start (default: the YAML's, else kept)",
+    "residual": "residual learning: the agent corrects this scripted policy's action (agents.make_policy spec, e.g. "
+                "myopic; none: no residual; default: the YAML's)",
+    "residual_scale": "reach of the residual agent's correction in action units, in (0, 2] (default: the YAML's, "
+                      "else 0.5)",
     "eval_freq": "env steps between held-out evaluations (0: none); the best model goes to OUT/best/",
     "eval_episodes": "held-out missions per evaluation (seeds from 1,000,000)",
     "eval_max_steps": "slots per held-out episode at most (the full mission by default)",
@@ -108,9 +117,9 @@ FIELD_HELP = {
 #: ``init_*`` are python -m train's own: in a file rl-zoo3 reads too, they go under ``iscc_gym.train.settings``.
 RUN_KEYS = {"n_timesteps": "total_timesteps", "n_envs": "n_envs", "normalize": "normalize",
             "init_policy": "init_policy", "init_envs": "init_envs", "init_steps": "init_steps",
-            "init_log_std": "init_log_std"}
+            "init_log_std": "init_log_std", "residual": "residual", "residual_scale": "residual_scale"}
 RUN_DEFAULTS = {"total_timesteps": 200_000, "n_envs": 4, "normalize": True, "init_policy": None, "init_envs": 16,
-                "init_steps": 5000, "init_log_std": None}
+                "init_steps": 5000, "init_log_std": None, "residual": None, "residual_scale": 0.5}
 
 
 def _to_int(v):
@@ -127,7 +136,8 @@ def _to_bool(v):
 
 
 _RUN_TYPES = {"total_timesteps": _to_int, "n_envs": _to_int, "normalize": _to_bool, "init_policy": str,
-              "init_envs": _to_int, "init_steps": _to_int, "init_log_std": float}
+              "init_envs": _to_int, "init_steps": _to_int, "init_log_std": float, "residual": str,
+              "residual_scale": float}
 
 #: The key of a hyperparameter file that only python -m train reads (rl-zoo3 reads the entry of its env id).
 OWN_SECTION = "iscc_gym.train"
@@ -266,15 +276,30 @@ def resolve_args(args: Args) -> tuple[Args, dict]:
             try:
                 filled[name] = _RUN_TYPES[name](value)
             except (TypeError, ValueError):
-                kind = {"normalize": "true or false", "init_policy": "a policy spec",
-                        "init_log_std": "a number"}.get(name, "an integer")
+                kind = {"normalize": "true or false", "init_policy": "a policy spec", "residual": "a policy spec",
+                        "init_log_std": "a number", "residual_scale": "a number"}.get(name, "an integer")
                 raise ValueError(f"{key} = {value!r} in {args.hyperparams} or --set; use {kind}") from None
     env_kwargs = hp.pop("env_kwargs", None) or {}
     if not isinstance(env_kwargs, dict):
         raise ValueError(f"env_kwargs = {env_kwargs!r}; use a mapping of Scenario fields")
     if env_kwargs:
         filled["env_overrides"] = {**env_kwargs, **args.env_overrides}
+    if args.scenario is None:
+        filled["scenario"] = registered_scenario(args.env_id)
     return dataclasses.replace(args, **filled), hp
+
+
+def registered_scenario(env_id: str) -> str:
+    """The Scenario preset ``env_id`` is registered with (``iscc_gym/ISCC-Urban-v0``: ``urban``), ``paper``
+    for an env registered without one.
+    """
+    import gymnasium as gym
+
+    try:
+        kwargs = gym.spec(env_id).kwargs or {}
+    except gym.error.Error:
+        return "paper"
+    return str(kwargs.get("scenario", "paper"))
 
 
 def _closed(lo, hi):
@@ -472,8 +497,24 @@ def check_args(args: Args) -> None:
             raise ValueError(f"{name} = {getattr(args, name)}; use an integer >= 0 (0: none)")
     if not 0 <= args.seed < 2**32:
         raise ValueError(f"seed = {args.seed}; use an integer in [0, 2**32)")
+    if has_residual(args):
+        if args.env_id == MULTI_ENV_ID or (args.env_id not in ISCC_ENV_IDS):
+            raise ValueError(f"residual = {args.residual!r}: a scripted base policy plays {ENV_ID} and {URBAN_ENV_ID} "
+                             f"only, not {args.env_id}; unset residual")
+        if args.init_policy and str(args.init_policy).lower() != "none":
+            raise ValueError(f"residual = {args.residual!r} and init_policy = {args.init_policy!r}: use one (a "
+                             "residual agent starts at its base policy already)")
+    if args.residual_scale is not None:
+        from iscc_gym.agents.residual import check_scale
+
+        check_scale(args.residual_scale)
     if args.init_log_std is not None and not math.isfinite(args.init_log_std):
         raise ValueError(f"init_log_std = {args.init_log_std}; use a finite number (a log standard deviation)")
+
+
+def has_residual(args: Args) -> bool:
+    """Whether ``args`` trains a residual agent (``residual`` set, and not ``none``)."""
+    return bool(args.residual) and str(args.residual).lower() != "none"
 
 
 def _seed_ranges(args: Args) -> list[tuple[str, int, int]]:

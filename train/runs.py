@@ -21,7 +21,7 @@ from iscc_gym.agents.sb3_policy import LAGRANGE_FILE, MANIFEST, read_manifest, r
 
 from iscc_gym.files import atomic_target, write_atomic
 
-from .config import Args
+from .config import Args, has_residual
 
 RUN_FILES = ("model.zip", "vecnormalize.pkl", MANIFEST, "config.yml", "summary.yml", "learning_curve.csv",
              "learning_curve.png", "checkpoints", "best", "eval", "tb", LAGRANGE_FILE)
@@ -47,6 +47,9 @@ def run_identity(args: Args, hyperparams: dict | None = None) -> dict:
         ident["n_envs"] = args.n_envs
     ident["cost_limit"] = parse_cost_limits(args.cost_limit) if args.cost_limit else None
     ident["lagrange_lr"] = float(args.lagrange_lr) if args.cost_limit else None
+    # a residual agent's base policy and reach (agents/residual.py; SB3Policy.load plays them); None otherwise
+    ident["residual"] = str(args.residual) if has_residual(args) else None
+    ident["residual_scale"] = float(args.residual_scale) if has_residual(args) else None
     if hyperparams is not None:
         ident["hyperparams"] = hyperparams
     return yaml.safe_load(yaml.safe_dump(ident))

@@ -56,6 +56,7 @@ from .config import (
     check_hyperparams,
     check_resolved,
     expand_algo,
+    has_residual,
     resolve_args,
     resolve_policy_kwargs,
 )
@@ -78,8 +79,8 @@ from .runs import (
 #: Seconds between two progress lines of the training loop on stderr (without a progress bar).
 PROGRESS_EVERY_S = 10.0
 
-__all__ = ["main", "make_train_env", "make_eval_env", "batched_kwargs", "set_numba_threads", "progress_bar_on",
-           "PROGRESS_EVERY_S"]
+__all__ = ["main", "make_train_env", "make_eval_env", "with_residual", "batched_kwargs", "set_numba_threads",
+           "progress_bar_on", "PROGRESS_EVERY_S"]
 
 
 def make_train_env(args: Args):
@@ -93,11 +94,27 @@ def make_train_env(args: Args):
         keys = ("cost_rate", "cost_stability") if args.cost_limit else ()
         venv = ISCCBatchedVecEnv(args.n_envs, scenario=args.scenario, info_keys=keys, **batched_kwargs(args))
         venv.seed(args.seed)
-        return VecMonitor(venv)
+        return VecMonitor(with_residual(venv, args))
     kwargs = {"scenario": args.scenario, **args.env_overrides} if args.env_id in ISCC_ENV_IDS else {}
     cls = SubprocVecEnv if args.vec_env == "subproc" else DummyVecEnv
-    # make_vec_env wraps each env in a Monitor already
-    return make_vec_env(args.env_id, n_envs=args.n_envs, seed=args.seed, vec_env_cls=cls, env_kwargs=kwargs)
+    # make_vec_env wraps each env in a Monitor already (below the residual: it records the env's rewards)
+    return with_residual(make_vec_env(args.env_id, n_envs=args.n_envs, seed=args.seed, vec_env_cls=cls,
+                                      env_kwargs=kwargs), args)
+
+
+def with_residual(venv, args: Args):
+    """``venv`` as a residual agent's env (:class:`agents.residual.ResidualVecEnv` on ``args.residual``, built
+    for the run's scenario), or unchanged without a residual.
+    """
+    if not has_residual(args):
+        return venv
+    from iscc_gym.agents import make_policy
+    from iscc_gym.agents.residual import ResidualVecEnv
+
+    from iscc_gym import make_scenario
+
+    base = make_policy(args.residual, make_scenario(args.scenario, **args.env_overrides))
+    return ResidualVecEnv(venv, base, args.residual_scale)
 
 
 def batched_kwargs(args: Args) -> dict:
@@ -124,7 +141,7 @@ def make_eval_env(args: Args):
         if args.eval_max_steps < venv.venv.max_steps:
             venv.venv.max_steps = args.eval_max_steps
         venv.seed(CALLBACK_EVAL_SEED_START)
-        return VecMonitor(venv)
+        return VecMonitor(with_residual(venv, args))
     venv = make_vec_env(args.env_id, n_envs=args.eval_episodes, vec_env_cls=DummyVecEnv)
     venv.seed(CALLBACK_EVAL_SEED_START)
     return venv

@@ -1,0 +1,90 @@
+"""Residual learning (agents/residual.py) and training on the urban task (python -m train --env ISCC-Urban-v0)."""
+
+import numpy as np
+import pytest
+from iscc_gym.agents import make_policy
+from iscc_gym.agents.residual import ResidualPolicy, ResidualVecEnv, residual_action
+from iscc_gym.agents.sb3_policy import SB3Policy
+from iscc_gym.agents.sb3_vec_env import ISCCBatchedVecEnv
+from iscc_gym.train import Args
+from iscc_gym.train.cli import parse_args
+from iscc_gym.train.config import resolve_args
+from iscc_gym.train.train import main
+from tiny_runs import tiny_args
+
+from iscc_gym import URBAN_ENV_ID
+
+BASE = "fixed:0.2,0.3,0.5"
+
+
+def test_the_residual_action_is_the_clipped_sum():
+    base = np.array([[1.0, -0.5, 0.2], [-1.0, 0.0, 0.9]])
+    agent = np.array([[0.4, -0.4, 3.0], [-0.2, 0.6, 0.5]])  # 3.0: clipped to 1 first, as SB3 clips to the box
+    got = residual_action(base, agent, 0.5)
+    want = [[1.0, -0.7, 0.7], [-1.0, 0.3, 1.0]]  # by hand
+    np.testing.assert_allclose(got, want, atol=1e-7)
+    assert got.dtype == np.float32
+    np.testing.assert_array_equal(residual_action(base, np.zeros_like(base), 2.0), base.astype(np.float32))
+    with pytest.raises(ValueError, match="NaN or inf"):
+        residual_action(base, np.full_like(base, np.nan), 0.5)
+    with pytest.raises(ValueError, match="shape"):
+        residual_action(base, agent[:1], 0.5)
+    for bad in (0.0, -1.0, 2.5, float("nan"), "x"):
+        with pytest.raises(ValueError, match="residual_scale"):
+            ResidualPolicy(make_policy(BASE), None, bad)
+
+
+def test_a_zero_correction_plays_the_base_policy_exactly():
+    base = make_policy("margin")
+    plain, res = ISCCBatchedVecEnv(3), ResidualVecEnv(ISCCBatchedVecEnv(3), base, 0.5)
+    plain.seed(7)
+    res.seed(7)
+    obs, obs_r = plain.reset(), res.reset()
+    state, start = None, np.ones(3, dtype=bool)
+    for _ in range(30):
+        np.testing.assert_array_equal(obs, obs_r)
+        action, state = base.predict(obs, state=state, episode_start=start)
+        obs, rew, done, _ = plain.step(action)
+        obs_r, rew_r, done_r, _ = res.step(np.zeros((3, 3), dtype=np.float32))
+        np.testing.assert_array_equal(rew, rew_r)
+        start = done
+    # a correction moves the env's action: the env plays clip(base + 0.5 correction) (recorded below it)
+    played = []
+    res.venv.step_async = lambda a: (played.append(np.array(a)), ISCCBatchedVecEnv.step_async(res.venv, a))
+    o = res.reset()
+    res.step(np.tile([-1.0, 0.4, 0.0], (3, 1)).astype(np.float32))
+    a, _ = base.predict(o)
+    np.testing.assert_allclose(played[0], np.clip(a + 0.5 * np.array([-1.0, 0.4, 0.0]), -1, 1), atol=1e-6)
+    assert not np.allclose(played[0], a)
+
+
+def test_a_residual_run_saves_what_loads_as_base_plus_correction(tmp_path):
+    out = tmp_path / "res"
+    main(tiny_args(out, residual=BASE, residual_scale=0.4, eval_freq=0, checkpoint_freq=0, quiet=True))
+    policy = SB3Policy.load(out)
+    assert isinstance(policy, ResidualPolicy) and policy.spec == BASE and policy.scale == 0.4
+    agent = SB3Policy.load(out, check_env=None)
+    assert not isinstance(agent, ResidualPolicy) or agent.agent is not None
+    obs = ISCCBatchedVecEnv(4).reset()
+    correction, _ = policy.agent.predict(obs)
+    base, _ = make_policy(BASE).predict(obs)
+    want = np.clip(base + 0.4 * np.clip(correction, -1, 1), -1, 1)  # the definition, written out
+    np.testing.assert_allclose(policy.predict(obs)[0], want, atol=1e-6)
+
+
+def test_residual_settings_are_checked_before_any_work(tmp_path):
+    with pytest.raises(ValueError, match="residual_scale"):
+        main(tiny_args(tmp_path / "a", residual="myopic", residual_scale=3.0))
+    with pytest.raises(ValueError, match="use one"):
+        main(tiny_args(tmp_path / "b", residual="myopic", init_policy="myopic"))
+    with pytest.raises(ValueError, match="not iscc_gym/ISCC-Multi-v0"):
+        main(tiny_args(tmp_path / "c", env_id="iscc_gym/ISCC-Multi-v0", residual="myopic"))
+    assert not any(tmp_path.iterdir())
+
+
+def test_the_urban_env_trains_on_the_batched_env_with_its_own_scenario_and_entry():
+    args, hp = resolve_args(parse_args(["--env", URBAN_ENV_ID]))
+    assert args.env_id == URBAN_ENV_ID and args.scenario == "urban" and args.vec_env == "batched"
+    assert hp["gamma"] == 0.9  # the urban entry of train/hyperparams.yml, not the paper env's
+    assert resolve_args(Args())[0].scenario == "paper"
+    assert resolve_args(parse_args(["--env", URBAN_ENV_ID, "--scenario", "paper"]))[0].scenario == "paper"

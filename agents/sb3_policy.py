@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from iscc_gym import ENV_ID
+from iscc_gym import ENV_ID, URBAN_ENV_ID
 
 __all__ = ["SB3Policy", "residual_policy", "MANIFEST", "LAGRANGE_FILE", "write_manifest", "read_manifest", "ALGOS"]
 
@@ -293,4 +293,9 @@ def _obs_shape(env_id: str):
         from iscc_gym.sim.schema import OBS_NAMES
 
         return (len(OBS_NAMES),)
+    if env_id == URBAN_ENV_ID:
+        from iscc_gym import SCENARIOS
+        from iscc_gym.sim.schema import obs_size
+
+        return (obs_size(SCENARIOS["urban"]),)
     return None

@@ -88,3 +88,27 @@ def test_the_urban_env_trains_on_the_batched_env_with_its_own_scenario_and_entry
     assert hp["gamma"] == 0.9  # the urban entry of train/hyperparams.yml, not the paper env's
     assert resolve_args(Args())[0].scenario == "paper"
     assert resolve_args(parse_args(["--env", URBAN_ENV_ID, "--scenario", "paper"]))[0].scenario == "paper"
+
+
+def test_the_shipped_urban_agent_is_the_urban_entrys_residual_on_myopic():
+    import gymnasium as gym
+    import yaml
+    from iscc_gym.agents.shipped import URBAN_AGENT
+    from iscc_gym.eval.policies import resolve_specs
+    from iscc_gym.train.ship import ship_args
+
+    policy = SB3Policy.load(URBAN_AGENT, check_env=URBAN_ENV_ID)
+    assert isinstance(policy, ResidualPolicy) and policy.spec == "myopic"
+    with pytest.raises(ValueError, match="trained on another env"):
+        SB3Policy.load(URBAN_AGENT)  # the paper env's observations are another size
+    cfg = yaml.safe_load((URBAN_AGENT / "config.yml").read_text())["args"]
+    shipped, _ = resolve_args(ship_args(URBAN_ENV_ID))
+    for key in ("env_id", "scenario", "seed", "total_timesteps", "n_envs", "residual", "residual_scale"):
+        assert cfg[key] == getattr(shipped, key), key
+    assert resolve_specs("ppo", URBAN_AGENT) == [f"ppo={URBAN_AGENT}"]
+    env = gym.make(URBAN_ENV_ID)
+    obs, _ = env.reset(seed=10_000)
+    for _ in range(5):
+        action, _ = policy.predict(obs)
+        assert env.action_space.contains(action)
+        obs, *_ = env.step(action)

@@ -221,7 +221,8 @@ def test_shifted_missions_change_the_env_and_leave_the_policies_as_tuned(monkeyp
     assert list(res) == ["none", "umi_av"] and set(res["umi_av"]["focus_paired"]) == {"myopic_vs_margin"}
     assert seen[0][0] == U and all(built == U for built, _ in seen)  # myopic designed for the preset
     assert [env.blockage for _, env in seen] == ["uma_av", "uma_av", "umi_av", "umi_av"]
-    for bad, match in ((["--shifts", "nope"], "unknown"), (["--policies", "myopic,margin", "--focus", "dpp"], "--focus")):
+    for bad, match in ((["--shifts", "nope"], "unknown"),
+                       (["--policies", "myopic,margin", "--focus", "dpp"], "--focus")):
         with pytest.raises(ValueError, match=match):
             urban_shift.main(bad)
 

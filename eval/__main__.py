@@ -31,7 +31,15 @@ from pathlib import Path
 
 import numpy as np
 from iscc_gym.agents.shipped import SHIPPED_AGENTS
-from iscc_gym.eval.evaluate import evaluate, format_table, horizon_slots, markdown_table, summarize  # noqa: F401
+from iscc_gym.eval.evaluate import (  # noqa: F401
+    evaluate,
+    format_table,
+    horizon_slots,
+    markdown_table,
+    oracle_share,
+    oracle_share_sentence,
+    summarize,
+)
 from iscc_gym.eval.options import (
     PICKLE_WARNING,
     Parser,
@@ -258,6 +266,10 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> dict:
     finally:
         bar.close()
     print(format_table(res))
+    share = oracle_share(res) if urban else None
+    if share is not None:
+        res["oracle_share"] = share
+        print(oracle_share_sentence(share))
     print(f"evaluated {len(res['policies'])} policies x {len(seeds)} episodes in {time.perf_counter() - t0:.1f} s")
     if args.plots:
         for p in save_plots(res, args.plots, scenario.dt_s):
@@ -266,8 +278,9 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> dict:
     if args.write_docs:
         cmd = docs_command("python -m eval", argv)
         if urban:
+            text = markdown_table(res, cmd) + (f"\n\n{oracle_share_sentence(share)}" if share is not None else "")
             write_section(docs_path(RESULTS_PATH), "urban-comparison",
-                          "## The urban task: look-ahead against per-slot policies\n\n" + markdown_table(res, cmd))
+                          "## The urban task: the learned agent, look-ahead and per-slot policies\n\n" + text)
             print(f"wrote {docs_path(RESULTS_PATH)}")
         else:
             publish("comparison", "Learned vs scripted allocation", markdown_table(res, cmd))

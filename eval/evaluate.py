@@ -344,6 +344,33 @@ def format_table(res: dict) -> str:
     return "\n".join(lines)
 
 
+def oracle_share(res: dict, agent: str = "ppo", oracle: str = "oracle", base: str = "myopic") -> dict | None:
+    """The share of the oracle's gain an agent recovers, ``(agent - base) / (oracle - base)`` in mean episode
+    reward on the same missions, with both gains' paired means and 95 % intervals; None unless all three played.
+    The share is a ratio of means: where the oracle's interval includes zero it is not a measured fraction.
+    """
+    pol = res["policies"]
+    if not all(k in pol for k in (agent, oracle, base)):
+        return None
+    ref = np.asarray(pol[base]["episodes"]["reward"], dtype=float)
+    gain = np.asarray(pol[agent]["episodes"]["reward"], dtype=float) - ref
+    best = np.asarray(pol[oracle]["episodes"]["reward"], dtype=float) - ref
+    out = {"agent": agent, "oracle": oracle, "base": base, "agent_gain": mean_ci(gain), "oracle_gain": mean_ci(best)}
+    out["share"] = float(gain.mean() / best.mean()) if best.mean() != 0.0 else math.nan
+    return out
+
+
+def oracle_share_sentence(share: dict) -> str:
+    """One sentence of :func:`oracle_share`."""
+    (g, (gl, gh)), (o, (ol, oh)) = share["agent_gain"], share["oracle_gain"]
+    a, b, base = share["agent"], share["oracle"], share["base"]
+    known = ol > 0.0
+    return (f"Share of the {b}'s gain over {base} that {a} recovers, ({a} - {base}) / ({b} - {base}): "
+            f"{g:+.1f} [{gl:+.1f}, {gh:+.1f}] / {o:+.1f} [{ol:+.1f}, {oh:+.1f}] = {share['share']:.2f}"
+            + ("." if known else f" (the {b}'s gain is not distinguishable from zero on these missions, so the "
+                                 "ratio measures nothing)."))
+
+
 def markdown_table(res: dict, command: str) -> str:
     """The comparison as markdown (tables under 120 columns): the main metrics per policy, a line
     explaining the columns, the violations split and the mean allocation, then the paired differences;

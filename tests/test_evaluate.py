@@ -249,3 +249,21 @@ def test_reading_sentences_say_what_the_paired_table_says():
     assert "ppo is behind myopic by 34.3 ±" in text
     assert text.count("ppo is ahead of sca") == 1  # the pair against the reference is not repeated
     assert reading_sentences({"reference": None}) == ""
+
+
+def test_the_share_of_the_oracles_gain_is_a_ratio_of_paired_means():
+    from iscc_gym.eval.evaluate import oracle_share, oracle_share_sentence
+
+    def run(*r):
+        return {"episodes": {"reward": list(r)}}
+
+    res = {"policies": {"myopic": run(-10.0, -20.0, -30.0), "ppo": run(-9.0, -19.0, -28.0),
+                        "oracle": run(-6.0, -16.0, -26.0)}}
+    share = oracle_share(res)
+    assert share["agent_gain"][0] == pytest.approx(4.0 / 3.0) and share["oracle_gain"][0] == pytest.approx(4.0)
+    assert share["share"] == pytest.approx(1.0 / 3.0)  # (4/3) / 4, by hand
+    assert "= 0.33." in oracle_share_sentence(share)  # the oracle's gain is +4 on every mission: measured
+    res["policies"]["oracle"] = run(-6.0, -24.0, -30.0)  # gains +4, -4, 0: not distinguishable from zero
+    assert "measures nothing" in oracle_share_sentence(oracle_share(res))
+    del res["policies"]["oracle"]
+    assert oracle_share(res) is None

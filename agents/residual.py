@@ -113,10 +113,14 @@ class ResidualPolicy:
         self.model = agent.model
 
     def predict(self, obs, state=None, episode_start=None, deterministic: bool = True):
-        """The env action(s) for raw observation(s) (one, or a batch); the state is the base's."""
-        correction, _ = self.agent.predict(obs, deterministic=deterministic)
-        base, state = self.base.predict(obs, state=state, episode_start=episode_start, deterministic=True)
-        return residual_action(base, correction, self.scale), state
+        """The env action(s) for raw observation(s) (one, or a batch); the state is the pair of the agent's
+        (a recurrent agent's LSTM state) and the base's.
+        """
+        agent_state, base_state = (None, None) if state is None else state
+        correction, agent_state = self.agent.predict(obs, state=agent_state, episode_start=episode_start,
+                                                     deterministic=deterministic)
+        base, base_state = self.base.predict(obs, state=base_state, episode_start=episode_start, deterministic=True)
+        return residual_action(base, correction, self.scale), (agent_state, base_state)
 
     def __repr__(self) -> str:
         return f"ResidualPolicy(base={self.spec!r}, scale={self.scale})"

@@ -24,12 +24,37 @@ import yaml
 
 from iscc_gym import ENV_ID, URBAN_ENV_ID
 
-__all__ = ["SB3Policy", "residual_policy", "MANIFEST", "LAGRANGE_FILE", "write_manifest", "read_manifest", "ALGOS"]
+__all__ = ["SB3Policy", "residual_policy", "MANIFEST", "LAGRANGE_FILE", "write_manifest", "read_manifest", "ALGOS",
+           "algo_class"]
 
 MANIFEST = "manifest.yml"
 #: The Lagrange multipliers of a constrained run (``python -m train --algo ppo-lag``), beside its model.
 LAGRANGE_FILE = "lagrange.yml"
-ALGOS = ("ppo", "sac", "td3")
+#: The algorithms a run may use: SB3's PPO, SAC and TD3, and sb3-contrib's RecurrentPPO under rl-zoo3's name for it.
+ALGOS = ("ppo", "sac", "td3", "ppo_lstm")
+
+
+def algo_class(algo: str):
+    """The SB3 class of ``algo`` (one of :data:`ALGOS`); ``ppo_lstm`` needs sb3-contrib (the ``train`` extra).
+
+    Raises
+    ------
+    ValueError
+        An unknown algorithm, or ``ppo_lstm`` without sb3-contrib installed.
+    """
+    if algo == "ppo_lstm":
+        try:
+            from sb3_contrib import RecurrentPPO
+        except ImportError:
+            raise ValueError("algo = 'ppo_lstm' is sb3-contrib's RecurrentPPO: pip install sb3-contrib (in the "
+                             "project's train extra)") from None
+        return RecurrentPPO
+    from stable_baselines3 import PPO, SAC, TD3
+
+    classes = {"ppo": PPO, "sac": SAC, "td3": TD3}
+    if algo not in classes:
+        raise ValueError(f"algo = {algo!r}; use one of {ALGOS}")
+    return classes[algo]
 
 
 def _digest(path: Path) -> str:
@@ -81,10 +106,9 @@ def read_manifest(directory: str | Path) -> dict:
 
 
 def _load_model(algo: str, path: Path):
-    from stable_baselines3 import PPO, SAC, TD3
-
+    cls = algo_class(algo)
     try:
-        return {"ppo": PPO, "sac": SAC, "td3": TD3}[algo].load(str(path), device="cpu")
+        return cls.load(str(path), device="cpu")
     except (zipfile.BadZipFile, EOFError, pickle.UnpicklingError) as e:
         raise ValueError(f"{path}: not a complete SB3 model file (truncated or corrupt: {e})") from None
     except ValueError as e:  # SB3's "wasn't a zip-file" around a BadZipFile

@@ -112,3 +112,43 @@ def test_the_shipped_urban_agent_is_the_urban_entrys_residual_on_myopic():
         action, _ = policy.predict(obs)
         assert env.action_space.contains(action)
         obs, *_ = env.step(action)
+
+
+def test_each_env_ships_its_own_agent():
+    from iscc_gym.agents.shipped import PPO_AGENT, SHIPPED_AGENTS, URBAN_AGENT
+    from iscc_gym.train.ship import SHIP_ARGS, ship_args
+
+    from iscc_gym import ENV_ID
+
+    assert ship_args(ENV_ID) is SHIP_ARGS and SHIPPED_AGENTS == {ENV_ID: PPO_AGENT, URBAN_ENV_ID: URBAN_AGENT}
+    urban = ship_args(URBAN_ENV_ID)
+    assert (urban.env_id, urban.seed, urban.out) == (URBAN_ENV_ID, 0, "runs/ship_ppo_urban")
+    with pytest.raises(ValueError, match="an agent is shipped for"):
+        ship_args("iscc_gym/ISCC-Multi-v0")
+
+
+def test_recurrent_ppo_trains_a_residual_agent_that_carries_its_memory(tmp_path):
+    """``--algo ppo_lstm`` (sb3-contrib's RecurrentPPO, the urban entry's section): a run saves, loads as a
+    residual policy whose state holds the LSTM's, and a new episode's start resets that memory.
+    """
+    pytest.importorskip("sb3_contrib")
+    out = tmp_path / "lstm"
+    main(tiny_args(out, env_id=URBAN_ENV_ID, algo="ppo_lstm", n_envs=2, eval_freq=0, checkpoint_freq=0,
+                   overrides={"n_steps": 16, "batch_size": 16, "n_epochs": 1}, residual="margin", quiet=True))
+    policy = SB3Policy.load(out, check_env=URBAN_ENV_ID)
+    assert isinstance(policy, ResidualPolicy) and type(policy.model).__name__ == "RecurrentPPO"
+    venv = ISCCBatchedVecEnv(2, scenario="urban")
+    venv.seed(3)
+    obs = venv.reset()
+    a0, state = policy.predict(obs, episode_start=np.ones(2, dtype=bool))
+    h = state[0][0]
+    assert h.shape[-1] == 64  # the LSTM's hidden state, carried between calls
+    obs, *_ = venv.step(a0)
+    a1, _ = policy.predict(obs, state=state, episode_start=np.zeros(2, dtype=bool))
+    fresh, _ = policy.predict(obs, state=None, episode_start=np.ones(2, dtype=bool))
+    carried = policy.agent.predict(obs, state=state[0], episode_start=np.zeros(2, dtype=bool))[0]
+    reset = policy.agent.predict(obs, state=state[0], episode_start=np.ones(2, dtype=bool))[0]
+    np.testing.assert_array_equal(reset, policy.agent.predict(obs, episode_start=np.ones(2, dtype=bool))[0])
+    assert not np.array_equal(carried, reset)  # the memory changes the correction
+    np.testing.assert_array_equal(a1, residual_action(make_policy("margin", "urban").predict(obs)[0], carried, 0.5))
+    np.testing.assert_array_equal(fresh, residual_action(make_policy("margin", "urban").predict(obs)[0], reset, 0.5))

@@ -13,12 +13,16 @@ from typing import Any
 
 import numpy as np
 import yaml
+from iscc_gym.agents.sb3_policy import ALGOS as SB3_ALGOS
+from iscc_gym.agents.sb3_policy import algo_class
 
 from iscc_gym import ENV_ID, MULTI_ENV_ID, URBAN_ENV_ID
 from iscc_gym.protocol import INIT_SEED_START, check_outside_evaluation
 
 HYPERPARAMS = Path(__file__).with_name("hyperparams.yml")
-ALGOS = ("ppo", "sac", "td3")
+ALGOS = SB3_ALGOS  # ppo, sac, td3 and ppo_lstm (sb3-contrib's RecurrentPPO, rl-zoo3's name for it)
+#: The on-policy algorithms (rollouts of n_steps per env, advantages normalised per mini-batch).
+ON_POLICY = ("ppo", "ppo_lstm")
 VEC_ENVS = ("dummy", "subproc", "batched")
 #: The ids the native batched env serves (the paper's env, the urban task, the multi-drone env).
 ISCC_ENV_IDS = (ENV_ID, URBAN_ENV_ID, MULTI_ENV_ID)
@@ -32,7 +36,7 @@ class Args:
     """Everything a training run depends on (``python -m train --help`` lists them; :data:`FIELD_HELP`)."""
 
     env_id: str = ENV_ID
-    algo: str = "ppo"  # ppo | sac | td3
+    algo: str = "ppo"  # ppo | sac | td3 | ppo_lstm
     # None: the YAML entry's ``n_timesteps`` / ``n_envs`` (rl-zoo3's keys), else RUN_DEFAULTS
     total_timesteps: int | None = None
     n_envs: int | None = None
@@ -74,7 +78,8 @@ class Args:
 #: The ``--help`` text of every :class:`Args` field.
 FIELD_HELP = {
     "env_id": "Gymnasium env id to train on (an entry of --hyperparams)",
-    "algo": "SB3 algorithm: ppo | sac | td3 | ppo-lag (PPO with --cost-limit, by default "
+    "algo": "SB3 algorithm: ppo | sac | td3 | ppo_lstm (sb3-contrib's RecurrentPPO) | ppo-lag (PPO with --cost-limit, "
+            "by default "
             f"{PPO_LAG_LIMITS})",
     "total_timesteps": "env steps to train (default: the YAML entry's n_timesteps, else 200000)",
     "n_envs": "parallel envs (default: the YAML entry's n_envs, else 4)",
@@ -336,7 +341,7 @@ def _check_ranges(algo: str, hp: dict) -> None:
         if key == "train_freq" and isinstance(value, list | tuple):
             value = value[0]
         text, ok = HYPERPARAM_RANGES[key]
-        if algo == "ppo" and key == "batch_size":
+        if algo in ON_POLICY and key == "batch_size":
             text, ok = _above(2, False)
         if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
             raise ValueError(f"{key} = {value!r}; use a number {text}")
@@ -363,9 +368,7 @@ def check_hyperparams(algo: str, hp: dict) -> dict:
     import difflib
     import inspect
 
-    from stable_baselines3 import PPO, SAC, TD3
-
-    cls = {"ppo": PPO, "sac": SAC, "td3": TD3}[algo]
+    cls = algo_class(algo)
     params = inspect.signature(cls.__init__).parameters
     extra = {"noise_type", "noise_std"} if algo in ("sac", "td3") else set()
     hp = dict(hp)
@@ -539,7 +542,7 @@ def check_resolved(args: Args, hyperparams: dict) -> None:
         Naming the setting and its valid range (for seeds: both ranges).
     """
     check_args(args)
-    if args.algo == "ppo" and args.n_envs * int(hyperparams.get("n_steps", 2048)) < 2:
+    if args.algo in ON_POLICY and args.n_envs * int(hyperparams.get("n_steps", 2048)) < 2:
         raise ValueError(f"n_steps = {hyperparams.get('n_steps')} with n_envs = {args.n_envs}: PPO needs a rollout "
                          "of at least 2 steps (n_steps x n_envs >= 2)")
     for what, lo, hi in _seed_ranges(args):

@@ -52,6 +52,7 @@ from .config import (
     MULTI_ENV_ID,
     Args,
     action_noise,
+    algo_class,
     check_args,
     check_hyperparams,
     check_resolved,
@@ -457,7 +458,6 @@ def main(args: Args, callback_after_eval=None) -> dict:
     Optuna studies of :mod:`train.study` report and prune through it.
     """
     import torch
-    from stable_baselines3 import PPO, SAC, TD3
     from stable_baselines3.common.callbacks import CallbackList
     from stable_baselines3.common.vec_env import VecNormalize
 
@@ -485,7 +485,7 @@ def main(args: Args, callback_after_eval=None) -> dict:
     # count, which torch shares; the other order left torch on numba's threads (2 instead of 1 in a forked worker)
     torch.set_num_threads(args.torch_threads)
     out.mkdir(parents=True, exist_ok=True)
-    algo_cls = {"ppo": PPO, "sac": SAC, "td3": TD3}[args.algo]
+    algo_cls = algo_class(args.algo)
     off_policy = args.algo in ("sac", "td3")
     venv = make_train_env(args)
     lagrange = None

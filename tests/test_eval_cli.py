@@ -116,8 +116,8 @@ def test_train_steps_trains_through_the_command_line_then_evaluates(tmp_path, mo
     res = cli.main(["--train-steps", "256", "--train-out", str(out), "--policies", "ppo,equal", "--workers", "1",
                     "--episodes", "2",
                     "--max-steps", "5", "--quiet"])
-    assert len(commands) == 1 and commands[0][3:] == ["--total-timesteps", "256", "--scenario", "paper", "--out",
-                                                      str(out), "--quiet"]
+    assert len(commands) == 1 and commands[0][3:] == ["--env", "iscc_gym/ISCC-v0", "--total-timesteps", "256",
+                                                      "--scenario", "paper", "--out", str(out), "--quiet"]
     assert (out / "model.zip").is_file() and (out / "summary.yml").is_file()
     assert {"ppo", "equal"} <= set(res["policies"])
 

@@ -20,7 +20,7 @@ from pathlib import Path
 import yaml
 from iscc_gym.agents.sb3_policy import LAGRANGE_FILE
 from iscc_gym.agents.shipped import PPO_AGENT, SHIPPED_AGENTS
-from iscc_gym.train.config import Args, resolve_args
+from iscc_gym.train.config import Args, has_residual, resolve_args
 from iscc_gym.train.train import main
 
 from iscc_gym import ENV_ID, URBAN_ENV_ID
@@ -61,8 +61,14 @@ def ship(args: Args = SHIP_ARGS, dest: Path | None = None, write_docs: bool = Tr
     """Train ``args`` and copy its small artifacts into ``dest`` (default: the env's shipped agent);
     returns the shipped summary.
     """
+    return publish(args, main(args), dest, write_docs)
+
+
+def publish(args: Args, summary: dict, dest: Path | None = None, write_docs: bool = True) -> dict:
+    """Copy the small artifacts of the finished run ``args`` (its ``summary``) into ``dest`` (default: the env's
+    shipped agent) and, with ``write_docs``, record it in docs/results.md; returns the shipped summary.
+    """
     dest = SHIPPED_AGENTS[args.env_id] if dest is None else dest
-    summary = main(args)
     args, _ = resolve_args(args)
     dest.mkdir(parents=True, exist_ok=True)
     # the statistics and the rest before the model, the manifest (sizes and SHA-256 of both) last
@@ -86,7 +92,10 @@ def ship(args: Args = SHIP_ARGS, dest: Path | None = None, write_docs: bool = Tr
             "",
             f"- command: `python -m train{flag or ' with no flags'}` (seed 0): the configuration of "
             "`train/hyperparams.yml` (resolved copy in the agent's `config.yml`)",
-            f"- algorithm: PPO, {args.n_envs} envs on the batched env, VecNormalize"
+            f"- algorithm: {'RecurrentPPO' if args.algo == 'ppo_lstm' else 'PPO'}, {args.n_envs} envs on the batched "
+            "env, VecNormalize"
+            + (f"; a residual agent: it corrects `{args.residual}`'s action by at most {args.residual_scale:g} "
+               "(agents/residual.py)" if has_residual(args) else "")
             + (f"; warm start: behaviour cloning of `{ws['policy']}` on {ws['envs']} x {ws['steps_per_env']:,} "
                f"slots ({ws['samples']:,} samples, actor MSE {ws['actor_mse']:.2g}, {ws['wall_time_s']:.0f} s)"
                if (ws := summary.get("warm_start")) else ""),

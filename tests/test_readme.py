@@ -44,8 +44,8 @@ def _outside_generated_blocks(text: str) -> str:
     return re.sub(r"<!-- ([\w-]+):start -->.*?<!-- \1:end -->", "", text, flags=re.S)
 
 
-def _comparison_row(text: str, pair: str) -> tuple[float, float]:
-    block = text[text.index("<!-- comparison:start -->"):text.index("<!-- comparison:end -->")]
+def _comparison_row(text: str, pair: str, section: str = "comparison") -> tuple[float, float]:
+    block = text[text.index(f"<!-- {section}:start -->"):text.index(f"<!-- {section}:end -->")]
     row = re.search(rf"^\| {re.escape(pair)} \| ([+-][0-9.]+) ±([0-9.]+) \|", block, re.M)
     assert row, f"no row {pair!r} in the generated comparison"
     return float(row.group(1)), float(row.group(2))
@@ -64,6 +64,19 @@ def test_readme_prose_agrees_with_its_generated_comparison():
     for other in ("margin", "myopic", "ppo"):  # 'every policy that adapts the split ... beats the static allocation'
         mean, half = _comparison_row(text, f"{other} vs sca")
         assert mean - half > 0, f"README says {other} beats static SCA, the table says {mean} ±{half}"
+
+
+def test_readme_reading_of_the_urban_comparison_agrees_with_its_table():
+    """The README says the urban agent does not beat the planner, and quotes its two differences: the generated
+    table in docs/results.md must hold both figures and have neither interval above zero.
+    """
+    results = (README.parent / "docs" / "results.md").read_text()
+    flat = " ".join(_outside_generated_blocks(README.read_text()).split()).replace("−", "-")
+    assert "It does **not** beat the planner" in flat
+    for other in ("mpc", "myopic"):
+        mean, half = _comparison_row(results, f"ppo vs {other}", "urban-comparison")
+        assert mean - half <= 0, f"README says ppo does not beat {other}, the table says {mean} ±{half}"
+        assert f"{mean:.1f} ±{half:.1f}" in flat, f"README's figure for ppo vs {other} is not the table's"
 
 
 def test_readme_quotes_no_time_that_no_command_produced():

@@ -17,7 +17,7 @@ from __future__ import annotations
 import sys
 
 import numpy as np
-from iscc_gym.eval.options import Parser, check_writable_file, docs_command, positive_int, run_console
+from iscc_gym.eval.options import Parser, check_writable_file, docs_command, nonneg_int, positive_int, run_console
 from iscc_gym.eval.policies import policy_name, split_specs
 from iscc_gym.eval.urban_figure import pick_mission, play_mission
 
@@ -108,7 +108,7 @@ def build_parser(prog: str = "python -m eval.urban_learned") -> Parser:
                     help=f"held-out missions, seeds from {EVAL_SEED_START} (default: 10)")
     ap.add_argument("--window-s", type=float, default=WINDOW_S, metavar="S",
                     help=f"how near a blocked slot makes a clear slot 'ahead' or 'after' (default: {WINDOW_S:g})")
-    ap.add_argument("--figure-seed", type=int, default=None, metavar="SEED",
+    ap.add_argument("--figure-seed", type=nonneg_int, default=None, metavar="SEED",
                     help="also draw this mission (python -m eval.urban_figure's figure) with the same policies; "
                          "with --write-docs into docs/figures/urban_learned.png")
     ap.add_argument("--write-docs", action="store_true",

@@ -24,7 +24,7 @@ from iscc_gym.envs.vector import ISCCVectorEnv
 from iscc_gym.scenario import Scenario
 from iscc_gym.sim.functional import INFO_KEYS
 
-__all__ = ["ISCCBatchedVecEnv"]
+__all__ = ["ISCCBatchedVecEnv", "ConcatVecEnv"]
 
 
 class ISCCBatchedVecEnv(VecEnv):
@@ -93,3 +93,79 @@ class ISCCBatchedVecEnv(VecEnv):
 
     def get_images(self):
         raise NotImplementedError("the batched env does not render; use gymnasium.make(..., render_mode='rgb_array')")
+
+
+class ConcatVecEnv(VecEnv):
+    """Several SB3 VecEnvs as one, their sub-envs side by side (e.g. batched envs of different scenarios:
+    training over randomised missions). ``seed(s)`` gives sub-env i of the whole the seed s + i, as one
+    VecEnv of the total size would (SB3's convention).
+
+    Raises
+    ------
+    ValueError
+        No envs, or envs of different observation or action spaces.
+    """
+
+    def __init__(self, venvs: Sequence[VecEnv]):
+        venvs = list(venvs)
+        if not venvs:
+            raise ValueError("ConcatVecEnv of no envs; give at least one")
+        first = venvs[0]
+        for v in venvs[1:]:
+            if v.observation_space != first.observation_space or v.action_space != first.action_space:
+                raise ValueError(f"ConcatVecEnv: spaces differ ({v.observation_space} / {v.action_space} against "
+                                 f"{first.observation_space} / {first.action_space}); concatenate envs of one task")
+        self.venvs = venvs
+        self.sizes = [v.num_envs for v in venvs]
+        self.offsets = np.cumsum([0] + self.sizes)
+        self.render_mode = None
+        super().__init__(int(self.offsets[-1]), first.observation_space, first.action_space)
+
+    def seed(self, seed: int | None = None):
+        if seed is None:  # one draw for the whole, so the sub-envs stay distinct (SB3's VecEnv.seed)
+            seed = int(np.random.default_rng().integers(0, np.iinfo(np.uint32).max))
+        return [s for v, off in zip(self.venvs, self.offsets, strict=False) for s in v.seed(int(seed) + int(off))]
+
+    def reset(self):
+        self.reset_infos = [{} for _ in range(self.num_envs)]
+        return np.concatenate([v.reset() for v in self.venvs])
+
+    def step_async(self, actions: np.ndarray) -> None:
+        actions = np.asarray(actions)
+        for v, lo, hi in zip(self.venvs, self.offsets[:-1], self.offsets[1:], strict=True):
+            v.step_async(actions[lo:hi])
+
+    def step_wait(self):
+        parts = [v.step_wait() for v in self.venvs]
+        return (np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts]),
+                np.concatenate([p[2] for p in parts]), [info for p in parts for info in p[3]])
+
+    def close(self) -> None:
+        for v in self.venvs:
+            v.close()
+
+    def _split(self, indices):
+        """``[(venv, local indices)]`` of global ``indices``."""
+        out = []
+        for v, lo, hi in zip(self.venvs, self.offsets[:-1], self.offsets[1:], strict=True):
+            local = [i - lo for i in self._get_indices(indices) if lo <= i < hi]
+            if local:
+                out.append((v, local))
+        return out
+
+    def get_attr(self, attr_name: str, indices=None) -> list[Any]:
+        return [x for v, idx in self._split(indices) for x in v.get_attr(attr_name, idx)]
+
+    def set_attr(self, attr_name: str, value: Any, indices=None) -> None:
+        for v, idx in self._split(indices):
+            v.set_attr(attr_name, value, idx)
+
+    def env_method(self, method_name: str, *method_args, indices=None, **method_kwargs) -> list[Any]:
+        return [x for v, idx in self._split(indices)
+                for x in v.env_method(method_name, *method_args, indices=idx, **method_kwargs)]
+
+    def env_is_wrapped(self, wrapper_class, indices=None) -> list[bool]:
+        return [x for v, idx in self._split(indices) for x in v.env_is_wrapped(wrapper_class, idx)]
+
+    def get_images(self):
+        raise NotImplementedError("ConcatVecEnv does not render")

@@ -69,12 +69,13 @@ def compare_seeds(root, seeds, scenario: str = "paper", scripted=SCRIPTED, max_s
     """
     import torch
     from iscc_gym.agents import make_policy
-    from iscc_gym.agents.sb3_policy import SB3Policy
+    from iscc_gym.eval.policies import build_policy
 
     torch.set_num_threads(1)
     runs = seed_runs(root)
     policies = {name: make_policy(name, scenario) for name in scripted}
-    policies.update({f"seed_{s}": SB3Policy.load(p) for s, p in runs.items()})
+    # each agent checked against the env it is compared on (build_policy: the scenario's observation size)
+    policies.update(dict(build_policy(f"seed_{s}={p}", scenario) for s, p in runs.items()))
     res = evaluate(policies, seeds, scenario=scenario, max_steps=max_steps, progress=progress)
     eps = {name: np.asarray(p["episodes"]["reward"]) for name, p in res["policies"].items()}
     best = max(scripted, key=lambda n: eps[n].mean())

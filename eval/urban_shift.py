@@ -27,19 +27,19 @@ from iscc_gym.eval.options import Parser, docs_command, positive_int, run_consol
 from iscc_gym.eval.policies import build_policies, policy_name, resolve_specs
 
 from iscc_gym.protocol import EVAL_SEED_START
-from iscc_gym.scenario import make_scenario
+from iscc_gym.scenario import URBAN_SHIFTS, make_scenario
 
 __all__ = ["SHIFTS", "POLICIES", "shift_runs", "markdown", "main"]
 
-#: The shifts: name -> (Scenario overrides of the ``urban`` preset, what changes).
+#: The shifts: name -> (Scenario overrides of the ``urban`` preset, what changes); the overrides are
+#: :data:`iscc_gym.scenario.URBAN_SHIFTS` (which ``python -m train --randomize urban-shifts`` trains over).
 SHIFTS: dict[str, tuple[dict, str]] = {
     "none": ({}, "the preset's missions (UMa-AV, 30-60 m, 5 Mbit/s within 1 s, map error 0.4)"),
-    "umi_av": ({"blockage": "umi_av"}, "TR 36.777 UMi-AV instead of UMa-AV: more of the path blocked"),
-    "altitude 60-100 m": ({"altitude_min_m": 60.0, "altitude_max_m": 100.0},
-                          "higher flights (UMa-AV's LoS probability rises with height)"),
-    "10 Mbit/s within 2 s": ({"queue_arrival_bps": 10e6, "queue_deadline_s": 2.0},
-                             "twice the data, twice the deadline"),
-    "map error 0.8": ({"map_error_std": 0.8}, "the channel map's error doubled"),
+    **{name: (URBAN_SHIFTS[name], what) for name, what in (
+        ("umi_av", "TR 36.777 UMi-AV instead of UMa-AV: more of the path blocked"),
+        ("altitude 60-100 m", "higher flights (UMa-AV's LoS probability rises with height)"),
+        ("10 Mbit/s within 2 s", "twice the data, twice the deadline"),
+        ("map error 0.8", "the channel map's error doubled"))},
 }
 #: The policies compared on each shift: the shipped urban agent and every scripted policy of the urban task.
 POLICIES = "ppo,myopic,margin,dpp,mpc"

@@ -152,3 +152,47 @@ def test_recurrent_ppo_trains_a_residual_agent_that_carries_its_memory(tmp_path)
     assert not np.array_equal(carried, reset)  # the memory changes the correction
     np.testing.assert_array_equal(a1, residual_action(make_policy("margin", "urban").predict(obs)[0], carried, 0.5))
     np.testing.assert_array_equal(fresh, residual_action(make_policy("margin", "urban").predict(obs)[0], reset, 0.5))
+
+
+def test_concatenated_envs_play_each_part_as_it_would_alone():
+    from iscc_gym.agents.sb3_vec_env import ConcatVecEnv
+
+    both = ConcatVecEnv([ISCCBatchedVecEnv(2, scenario="urban"), ISCCBatchedVecEnv(3, scenario="urban",
+                                                                                   blockage="umi_av")])
+    alone = [ISCCBatchedVecEnv(2, scenario="urban"), ISCCBatchedVecEnv(3, scenario="urban", blockage="umi_av")]
+    assert both.num_envs == 5 and both.seed(11) == [11, 12, 13, 14, 15]
+    alone[0].seed(11)
+    alone[1].seed(13)  # sub-env i of the whole is seeded 11 + i
+    np.testing.assert_array_equal(both.reset(), np.concatenate([v.reset() for v in alone]))
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        a = rng.uniform(-1, 1, (5, 3)).astype(np.float32)
+        got = both.step(a)
+        want = [alone[0].step(a[:2]), alone[1].step(a[2:])]
+        np.testing.assert_array_equal(got[0], np.concatenate([w[0] for w in want]))
+        np.testing.assert_array_equal(got[1], np.concatenate([w[1] for w in want]))
+    with pytest.raises(ValueError, match="spaces differ"):
+        ConcatVecEnv([ISCCBatchedVecEnv(1), ISCCBatchedVecEnv(1, scenario="urban")])
+
+
+def test_randomised_training_splits_the_envs_between_the_preset_and_its_shifts(tmp_path):
+    from iscc_gym.train.train import make_train_env
+
+    from iscc_gym.scenario import URBAN_SHIFTS
+
+    args, _ = resolve_args(parse_args(["--env", URBAN_ENV_ID, "--randomize", "urban-shifts", "--n-envs", "7"]))
+    venv = make_train_env(args)
+    parts = venv.venv.venv.venvs  # VecMonitor(ResidualVecEnv(ConcatVecEnv))
+    assert [p.num_envs for p in parts] == [2, 2, 1, 1, 1]
+    assert parts[0].venv.scenario.blockage == "uma_av" and parts[1].venv.scenario.blockage == "umi_av"
+    for part, shift in zip(parts[1:], URBAN_SHIFTS.values(), strict=True):
+        assert all(getattr(part.venv.scenario, k) == v for k, v in shift.items())
+    out = tmp_path / "rand"
+    main(tiny_args(out, env_id=URBAN_ENV_ID, randomize="urban-shifts", n_envs=5, residual="margin", eval_freq=0,
+                   checkpoint_freq=0, overrides={"n_steps": 16, "batch_size": 16, "n_epochs": 1}, quiet=True))
+    import yaml
+
+    assert yaml.safe_load((out / "manifest.yml").read_text())["run"]["randomize"] == "urban-shifts"
+    for bad, match in (({"randomize": "nope"}, "use one of"), ({"randomize": "urban-shifts"}, "draws urban")):
+        with pytest.raises(ValueError, match=match):
+            main(tiny_args(tmp_path / "bad", **bad))

@@ -18,6 +18,7 @@ from iscc_gym.agents.sb3_policy import algo_class
 
 from iscc_gym import ENV_ID, MULTI_ENV_ID, URBAN_ENV_ID
 from iscc_gym.protocol import INIT_SEED_START, check_outside_evaluation
+from iscc_gym.scenario import URBAN_SHIFTS
 
 HYPERPARAMS = Path(__file__).with_name("hyperparams.yml")
 ALGOS = SB3_ALGOS  # ppo, sac, td3 and ppo_lstm (sb3-contrib's RecurrentPPO, rl-zoo3's name for it)
@@ -26,6 +27,8 @@ ON_POLICY = ("ppo", "ppo_lstm")
 VEC_ENVS = ("dummy", "subproc", "batched")
 #: The ids the native batched env serves (the paper's env, the urban task, the multi-drone env).
 ISCC_ENV_IDS = (ENV_ID, URBAN_ENV_ID, MULTI_ENV_ID)
+#: ``--randomize NAME``: the shifted statistics a randomised run trains over, beside the env's own.
+RANDOMIZE = {"urban-shifts": URBAN_SHIFTS}
 #: ``--algo ppo-lag``: PPO with the Lagrangian of train/lagrangian.py, at these limits unless
 #: ``--cost-limit`` gives others.
 PPO_LAG_LIMITS = "rate=0.05,stability=0.0"
@@ -58,6 +61,9 @@ class Args:
     # agents.make_policy spec; None: the YAML's residual, else none) by at most residual_scale
     residual: str | None = None
     residual_scale: float | None = None
+    # training over randomised missions: "urban-shifts" splits the envs between the urban preset and each of
+    # iscc_gym.scenario.URBAN_SHIFTS (None: the YAML's, else the env's own missions only)
+    randomize: str | None = None
     eval_freq: int = 500_000  # env steps between evaluations (0: none)
     eval_episodes: int = 8
     eval_max_steps: int = 5000  # slots per eval episode (the full mission by default)
@@ -99,6 +105,8 @@ FIELD_HELP = {
                 "myopic; none: no residual; default: the YAML's)",
     "residual_scale": "reach of the residual agent's correction in action units, in (0, 2] (default: the YAML's, "
                       "else 0.5)",
+    "randomize": "train over randomised missions: urban-shifts (the urban preset and each of its shifted "
+                 "statistics, iscc_gym.scenario.URBAN_SHIFTS, on equal shares of the envs); none: the env's own",
     "eval_freq": "env steps between held-out evaluations (0: none); the best model goes to OUT/best/",
     "eval_episodes": "held-out missions per evaluation (seeds from 1,000,000)",
     "eval_max_steps": "slots per held-out episode at most (the full mission by default)",
@@ -122,9 +130,11 @@ FIELD_HELP = {
 #: ``init_*`` are python -m train's own: in a file rl-zoo3 reads too, they go under ``iscc_gym.train.settings``.
 RUN_KEYS = {"n_timesteps": "total_timesteps", "n_envs": "n_envs", "normalize": "normalize",
             "init_policy": "init_policy", "init_envs": "init_envs", "init_steps": "init_steps",
-            "init_log_std": "init_log_std", "residual": "residual", "residual_scale": "residual_scale"}
+            "init_log_std": "init_log_std", "residual": "residual", "residual_scale": "residual_scale",
+            "randomize": "randomize"}
 RUN_DEFAULTS = {"total_timesteps": 200_000, "n_envs": 4, "normalize": True, "init_policy": None, "init_envs": 16,
-                "init_steps": 5000, "init_log_std": None, "residual": None, "residual_scale": 0.5}
+                "init_steps": 5000, "init_log_std": None, "residual": None, "residual_scale": 0.5,
+                "randomize": None}
 
 
 def _to_int(v):
@@ -142,7 +152,7 @@ def _to_bool(v):
 
 _RUN_TYPES = {"total_timesteps": _to_int, "n_envs": _to_int, "normalize": _to_bool, "init_policy": str,
               "init_envs": _to_int, "init_steps": _to_int, "init_log_std": float, "residual": str,
-              "residual_scale": float}
+              "residual_scale": float, "randomize": str}
 
 #: The key of a hyperparameter file that only python -m train reads (rl-zoo3 reads the entry of its env id).
 OWN_SECTION = "iscc_gym.train"
@@ -507,12 +517,30 @@ def check_args(args: Args) -> None:
         if args.init_policy and str(args.init_policy).lower() != "none":
             raise ValueError(f"residual = {args.residual!r} and init_policy = {args.init_policy!r}: use one (a "
                              "residual agent starts at its base policy already)")
+    if randomized(args):
+        if args.randomize not in RANDOMIZE:
+            raise ValueError(f"randomize = {args.randomize!r}; use one of {sorted(RANDOMIZE)} or none")
+        if args.env_id != URBAN_ENV_ID or args.vec_env != "batched":
+            raise ValueError(f"randomize = {args.randomize!r} draws urban missions on the batched env; use --env "
+                             f"{URBAN_ENV_ID} with vec_env = 'batched'")
     if args.residual_scale is not None:
         from iscc_gym.agents.residual import check_scale
 
         check_scale(args.residual_scale)
     if args.init_log_std is not None and not math.isfinite(args.init_log_std):
         raise ValueError(f"init_log_std = {args.init_log_std}; use a finite number (a log standard deviation)")
+
+
+def randomized(args: Args) -> bool:
+    """Whether ``args`` trains over randomised missions (``randomize`` set, and not ``none``)."""
+    return bool(args.randomize) and str(args.randomize).lower() != "none"
+
+
+def randomized_overrides(args: Args) -> list[dict]:
+    """The Scenario overrides of each share of the envs of a randomised run: the run's own (``env_overrides``),
+    then each of :data:`RANDOMIZE`'s sets on top of them.
+    """
+    return [dict(args.env_overrides)] + [{**args.env_overrides, **o} for o in RANDOMIZE[args.randomize].values()]
 
 
 def has_residual(args: Args) -> bool:

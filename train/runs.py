@@ -21,7 +21,7 @@ from iscc_gym.agents.sb3_policy import LAGRANGE_FILE, MANIFEST, read_manifest, r
 
 from iscc_gym.files import atomic_target, write_atomic
 
-from .config import Args, has_residual
+from .config import Args, has_residual, randomized
 
 RUN_FILES = ("model.zip", "vecnormalize.pkl", MANIFEST, "config.yml", "summary.yml", "learning_curve.csv",
              "learning_curve.png", "checkpoints", "best", "eval", "tb", LAGRANGE_FILE)
@@ -50,6 +50,7 @@ def run_identity(args: Args, hyperparams: dict | None = None) -> dict:
     # a residual agent's base policy and reach (agents/residual.py; SB3Policy.load plays them); None otherwise
     ident["residual"] = str(args.residual) if has_residual(args) else None
     ident["residual_scale"] = float(args.residual_scale) if has_residual(args) else None
+    ident["randomize"] = str(args.randomize) if randomized(args) else None
     if hyperparams is not None:
         ident["hyperparams"] = hyperparams
     return yaml.safe_load(yaml.safe_dump(ident))

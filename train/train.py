@@ -58,6 +58,8 @@ from .config import (
     check_resolved,
     expand_algo,
     has_residual,
+    randomized,
+    randomized_overrides,
     resolve_args,
     resolve_policy_kwargs,
 )
@@ -93,7 +95,15 @@ def make_train_env(args: Args):
         from iscc_gym.agents.sb3_vec_env import ISCCBatchedVecEnv
 
         keys = ("cost_rate", "cost_stability") if args.cost_limit else ()
-        venv = ISCCBatchedVecEnv(args.n_envs, scenario=args.scenario, info_keys=keys, **batched_kwargs(args))
+        if randomized(args):  # equal shares of the envs (the first ones one more), one scenario per share
+            from iscc_gym.agents.sb3_vec_env import ConcatVecEnv
+
+            sets = randomized_overrides(args)
+            sizes = [args.n_envs // len(sets) + (k < args.n_envs % len(sets)) for k in range(len(sets))]
+            venv = ConcatVecEnv([ISCCBatchedVecEnv(n, scenario=args.scenario, info_keys=keys, **o)
+                                 for n, o in zip(sizes, sets, strict=True) if n > 0])
+        else:
+            venv = ISCCBatchedVecEnv(args.n_envs, scenario=args.scenario, info_keys=keys, **batched_kwargs(args))
         venv.seed(args.seed)
         return VecMonitor(with_residual(venv, args))
     kwargs = {"scenario": args.scenario, **args.env_overrides} if args.env_id in ISCC_ENV_IDS else {}

@@ -11,7 +11,7 @@ paired difference against it (95 % interval).
 Examples::
 
     python -m eval.urban_shift --episodes 20 --jobs 2 --write-docs
-    python -m eval.urban_shift --policies ppo=runs/urban_rand,myopic,mpc --shifts umi_av
+    python -m eval.urban_shift --policies ppo-rand=runs/urban_rand,myopic,margin,dpp,mpc --focus ppo-rand
 """
 
 from __future__ import annotations
@@ -101,7 +101,8 @@ def build_parser(prog: str = "python -m eval.urban_shift") -> Parser:
     ap.add_argument("--max-steps", type=positive_int, default=None, metavar="N",
                     help="cut every mission after N slots (smoke runs)")
     ap.add_argument("--write-docs", action="store_true",
-                    help="write the table into the project's docs/results.md (section urban-shift)")
+                    help="write the table into the project's docs/results.md (section urban-shift; for a --focus "
+                         "other than the shipped agent, urban-shift-<focus>)")
     return ap
 
 
@@ -138,8 +139,12 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.urban_shift"
     if args.write_docs:
         from iscc_gym.docs import RESULTS_PATH, docs_path, write_section
 
-        write_section(docs_path(RESULTS_PATH), "urban-shift", "## The urban agent on missions it never saw\n\n"
-                      + table)
+        # the shipped agent's table, or another focus's beside it (e.g. ppo-rand=runs/urban_rand)
+        shipped = args.focus == "ppo" and f"ppo={URBAN_AGENT}" in items
+        section = "urban-shift" if shipped else f"urban-shift-{args.focus}"
+        title = "The urban agent on missions it never saw" if shipped else \
+            f"`{args.focus}` on the urban task's shifted missions"
+        write_section(docs_path(RESULTS_PATH), section, f"## {title}\n\n" + table)
         print(f"wrote {docs_path(RESULTS_PATH)}")
     return results
 

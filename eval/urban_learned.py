@@ -147,7 +147,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.urban_learne
     if args.write_docs:
         from iscc_gym.docs import write_section
 
-        write_section(learning, "urban-learned", "## What the urban agent does, phase by phase\n\n" + text)
+        write_section(learning, "urban-learned", "### What the urban agent does, phase by phase\n\n" + text)
         print(f"wrote {learning}")
     return table
 

@@ -60,7 +60,8 @@ def test_a_zero_correction_plays_the_base_policy_exactly():
 
 def test_a_residual_run_saves_what_loads_as_base_plus_correction(tmp_path):
     out = tmp_path / "res"
-    main(tiny_args(out, residual=BASE, residual_scale=0.4, eval_freq=0, checkpoint_freq=0, quiet=True))
+    main(tiny_args(out, residual=BASE, residual_scale=0.4, total_timesteps=128, eval_freq=0, checkpoint_freq=0,
+                   quiet=True))
     policy = SB3Policy.load(out)
     assert isinstance(policy, ResidualPolicy) and policy.spec == BASE and policy.scale == 0.4
     agent = SB3Policy.load(out, check_env=None)

@@ -289,3 +289,26 @@ def test_seeds_with_a_held_out_seed_are_refused_before_any_run(tmp_path):
              "n_steps=32", "--set", "batch_size=32", "--no-tensorboard", "--out", str(tmp_path)])
     assert e.value.code == 2
     assert not (tmp_path / "seed_0").exists()
+
+
+def test_the_exported_entry_keeps_the_trials_run_settings(tmp_path):
+    """A trial of a residual run (the urban entry's settings) exports them, so the exported file trains the same
+    kind of agent; a trial that recorded none (older studies) exports the entry alone."""
+    from types import SimpleNamespace
+
+    from iscc_gym.train.config import run_settings
+    from iscc_gym.train.study_io import best_entry
+
+    from iscc_gym import URBAN_ENV_ID
+
+    resolved, kwargs = resolve_args(Args(env_id=URBAN_ENV_ID))
+    settings = run_settings(resolved)
+    assert settings == {"residual": "myopic", "residual_scale": 0.5}  # the urban entry's, and nothing unused
+    attrs = {"n_timesteps": 1000, "n_envs": 8, "normalize": True, "hyperparams": {"gamma": 0.9},
+             "settings": settings}
+    path = tmp_path / "best.yml"
+    path.write_text(yaml.safe_dump(best_entry(SimpleNamespace(user_attrs=attrs), URBAN_ENV_ID, "ppo")))
+    args, hp = resolve_args(Args(env_id=URBAN_ENV_ID, hyperparams=str(path)))
+    assert (args.residual, args.residual_scale, args.n_envs, hp) == ("myopic", 0.5, 8, {"gamma": 0.9})
+    del attrs["settings"]
+    assert set(best_entry(SimpleNamespace(user_attrs=attrs), URBAN_ENV_ID, "ppo")["iscc_gym.train"]) == {"algo"}

@@ -543,6 +543,23 @@ def randomized_overrides(args: Args) -> list[dict]:
     return [dict(args.env_overrides)] + [{**args.env_overrides, **o} for o in RANDOMIZE[args.randomize].values()]
 
 
+def run_settings(args: Args) -> dict:
+    """The run settings of resolved ``args`` that shape what is trained beside the hyperparameters (a warm
+    start, a residual base, randomised missions), as a hyperparameter file's ``settings`` entry holds them;
+    only those in use.
+    """
+    out: dict[str, Any] = {}
+    if args.init_policy and str(args.init_policy).lower() != "none":
+        out.update(init_policy=args.init_policy, init_envs=args.init_envs, init_steps=args.init_steps)
+        if args.init_log_std is not None:
+            out["init_log_std"] = float(args.init_log_std)
+    if has_residual(args):
+        out.update(residual=str(args.residual), residual_scale=float(args.residual_scale))
+    if randomized(args):
+        out["randomize"] = str(args.randomize)
+    return out
+
+
 def has_residual(args: Args) -> bool:
     """Whether ``args`` trains a residual agent (``residual`` set, and not ``none``)."""
     return bool(args.residual) and str(args.residual).lower() != "none"

@@ -441,9 +441,11 @@ def best_entry(trial: optuna.trial.FrozenTrial, env_id: str, algo: str) -> dict:
     Returns
     -------
     dict
-        ``{env_id: entry, "iscc_gym.train": {"algo": algo}}``: the entry holds ``n_timesteps``, ``n_envs``,
+        ``{env_id: entry, "iscc_gym.train": {"algo": algo, "settings": {env_id: ...}}}``: the entry holds
+        ``n_timesteps``, ``n_envs``,
         ``normalize`` (read by :func:`iscc_gym.train.train.resolve_args` and by rl-zoo3) and the
-        algorithm's keyword arguments, ``policy_kwargs`` as rl-zoo3's ``dict(...)`` string.
+        algorithm's keyword arguments, ``policy_kwargs`` as rl-zoo3's ``dict(...)`` string; ``settings`` the
+        trial's run settings in use (a warm start, a residual base, randomised missions), where it recorded any.
     """
     from iscc_gym.train.config import OWN_SECTION, format_policy_kwargs
 
@@ -453,7 +455,10 @@ def best_entry(trial: optuna.trial.FrozenTrial, env_id: str, algo: str) -> dict:
         hp["policy_kwargs"] = format_policy_kwargs(hp["policy_kwargs"])
     entry = {"n_timesteps": int(attrs["n_timesteps"]), "n_envs": int(attrs["n_envs"]),
              "normalize": bool(attrs["normalize"]), **hp}
-    return {env_id: entry, OWN_SECTION: {"algo": algo}}
+    own: dict = {"algo": algo}
+    if attrs.get("settings"):  # the trial's warm start / residual / randomisation (older trials recorded none)
+        own["settings"] = {env_id: dict(attrs["settings"])}
+    return {env_id: entry, OWN_SECTION: own}
 
 
 def export_best(s: optuna.Study, env_id: str, algo: str, path: str | os.PathLike) -> str:

@@ -246,9 +246,10 @@ class SB3Policy:
                 if cfg.exists():
                     try:
                         args = yaml.safe_load(cfg.read_text())["args"]
-                        run = {"algo": args["algo"], "normalize": args.get("normalize"),
-                               **{k: args.get(k) for k in ("residual", "residual_scale", "scenario", "env_overrides")
-                                  if args.get("residual") not in (None, "none")}}
+                        run = {"algo": args["algo"], "normalize": args.get("normalize")}
+                        if args.get("residual") not in (None, "none"):  # a residual run: its base and reach
+                            run.update({k: args.get(k) for k in ("residual", "residual_scale", "scenario",
+                                                                 "env_overrides")})
                     except (yaml.YAMLError, KeyError, TypeError):
                         raise ValueError(f"{cfg}: not a config.yml written by python -m train") from None
                     break

@@ -63,8 +63,8 @@ def play_mission(spec: str, seed: int, scenario="urban") -> dict:
         action, _ = policy.predict(obs, deterministic=True)
         obs, r, term, trunc, info = env.step(np.asarray(action, dtype=np.float32))
         reward += r
-        info = {**info, "slot_reward": r}
-        for k in out:
+        out["slot_reward"].append(r)
+        for k in ("alpha", "backlog_bits", "bits_dropped", "tracking_error_m"):
             out[k].append(info[k])
         if term or trunc:
             break

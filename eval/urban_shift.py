@@ -24,7 +24,7 @@ from concurrent.futures import ProcessPoolExecutor
 from iscc_gym.agents.shipped import URBAN_AGENT
 from iscc_gym.eval.evaluate import run_episodes, summarize
 from iscc_gym.eval.options import Parser, docs_command, positive_int, run_console
-from iscc_gym.eval.policies import build_policies, policy_name, resolve_specs
+from iscc_gym.eval.policies import build_policy, policy_name, resolve_specs
 
 from iscc_gym.protocol import EVAL_SEED_START
 from iscc_gym.scenario import URBAN_SHIFTS, make_scenario
@@ -49,11 +49,12 @@ def shift_runs(name: str, specs: str, seeds: list[int], max_steps: int | None = 
     """Every policy of ``specs`` (built for the ``urban`` preset) on the missions of shift ``name``: the
     per-policy runs of :func:`iscc_gym.eval.evaluate.run_episodes`, keyed by policy name.
     """
-    if any("=" in it for it in resolve_specs(specs, URBAN_AGENT)):
+    items = resolve_specs(specs, URBAN_AGENT)
+    if any("=" in it for it in items):
         import torch
 
         torch.set_num_threads(torch_threads)
-    policies = build_policies(",".join(resolve_specs(specs, URBAN_AGENT)), "urban")
+    policies = dict(build_policy(it, "urban") for it in items)
     shifted = make_scenario("urban", **SHIFTS[name][0])
     return {k: run_episodes(p, seeds, shifted, max_steps=max_steps) for k, p in policies.items()}
 

@@ -511,10 +511,10 @@ def check_args(args: Args) -> None:
     if not 0 <= args.seed < 2**32:
         raise ValueError(f"seed = {args.seed}; use an integer in [0, 2**32)")
     if has_residual(args):
-        if args.env_id == MULTI_ENV_ID or (args.env_id not in ISCC_ENV_IDS):
+        if args.env_id not in (ENV_ID, URBAN_ENV_ID):
             raise ValueError(f"residual = {args.residual!r}: a scripted base policy plays {ENV_ID} and {URBAN_ENV_ID} "
                              f"only, not {args.env_id}; unset residual")
-        if args.init_policy and str(args.init_policy).lower() != "none":
+        if has_warm_start(args):
             raise ValueError(f"residual = {args.residual!r} and init_policy = {args.init_policy!r}: use one (a "
                              "residual agent starts at its base policy already)")
     if randomized(args):
@@ -531,9 +531,19 @@ def check_args(args: Args) -> None:
         raise ValueError(f"init_log_std = {args.init_log_std}; use a finite number (a log standard deviation)")
 
 
+def _in_use(setting) -> bool:
+    """Whether a run setting naming something (a policy spec, a set of missions) is in use: set, and not ``none``."""
+    return bool(setting) and str(setting).lower() != "none"
+
+
+def has_warm_start(args: Args) -> bool:
+    """Whether ``args`` clones a scripted policy before training (``init_policy`` in use)."""
+    return _in_use(args.init_policy)
+
+
 def randomized(args: Args) -> bool:
-    """Whether ``args`` trains over randomised missions (``randomize`` set, and not ``none``)."""
-    return bool(args.randomize) and str(args.randomize).lower() != "none"
+    """Whether ``args`` trains over randomised missions (``randomize`` in use)."""
+    return _in_use(args.randomize)
 
 
 def randomized_overrides(args: Args) -> list[dict]:
@@ -549,7 +559,7 @@ def run_settings(args: Args) -> dict:
     only those in use.
     """
     out: dict[str, Any] = {}
-    if args.init_policy and str(args.init_policy).lower() != "none":
+    if has_warm_start(args):
         out.update(init_policy=args.init_policy, init_envs=args.init_envs, init_steps=args.init_steps)
         if args.init_log_std is not None:
             out["init_log_std"] = float(args.init_log_std)
@@ -561,8 +571,8 @@ def run_settings(args: Args) -> dict:
 
 
 def has_residual(args: Args) -> bool:
-    """Whether ``args`` trains a residual agent (``residual`` set, and not ``none``)."""
-    return bool(args.residual) and str(args.residual).lower() != "none"
+    """Whether ``args`` trains a residual agent (``residual`` in use)."""
+    return _in_use(args.residual)
 
 
 def _seed_ranges(args: Args) -> list[tuple[str, int, int]]:
@@ -570,7 +580,7 @@ def _seed_ranges(args: Args) -> list[tuple[str, int, int]]:
     convention) and the warm start's (:data:`iscc_gym.protocol.INIT_SEED_START` + 1000 ``seed`` + i).
     """
     ranges = [("the training envs' seeds", args.seed, args.seed + args.n_envs - 1)]
-    if args.init_policy and str(args.init_policy).lower() != "none":
+    if has_warm_start(args):
         first = INIT_SEED_START + 1000 * args.seed
         ranges.append(("the warm start's seeds", first, first + args.init_envs - 1))
     return ranges

@@ -58,6 +58,7 @@ from .config import (
     check_resolved,
     expand_algo,
     has_residual,
+    has_warm_start,
     randomized,
     randomized_overrides,
     resolve_args,
@@ -527,7 +528,7 @@ def main(args: Args, callback_after_eval=None) -> dict:
         kw = action_noise(kw, venv.num_envs, venv.action_space.shape[0])
         policy = kw.pop("policy", "MlpPolicy")
         model = algo_cls(policy, venv, seed=args.seed, device="cpu", verbose=args.verbose, tensorboard_log=tb, **kw)
-        if args.init_policy and args.init_policy.lower() != "none":
+        if has_warm_start(args):
             say(f"warm start: cloning {args.init_policy} played on {args.init_envs} envs x {args.init_steps:,} steps")
             warm_start = _behaviour_clone(model, venv, args)
             say(f"warm start done in {warm_start['wall_time_s']:.1f} s (actor MSE {warm_start['actor_mse']:.3g})")

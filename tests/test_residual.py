@@ -197,3 +197,10 @@ def test_randomised_training_splits_the_envs_between_the_preset_and_its_shifts(t
     for bad, match in (({"randomize": "nope"}, "use one of"), ({"randomize": "urban-shifts"}, "draws urban")):
         with pytest.raises(ValueError, match=match):
             main(tiny_args(tmp_path / "bad", **bad))
+
+
+def test_randomised_training_refuses_fewer_envs_than_mission_sets(tmp_path):
+    # 4 envs over the preset and its 4 shifts would never train on the last shift
+    with pytest.raises(ValueError, match="n_envs = 4.*--n-envs 5 or more"):
+        main(tiny_args(tmp_path / "few", env_id=URBAN_ENV_ID, randomize="urban-shifts", n_envs=4))
+    assert not (tmp_path / "few").exists()

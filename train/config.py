@@ -106,7 +106,8 @@ FIELD_HELP = {
     "residual_scale": "reach of the residual agent's correction in action units, in (0, 2] (default: the YAML's, "
                       "else 0.5)",
     "randomize": "train over randomised missions: urban-shifts (the urban preset and each of its shifted "
-                 "statistics, iscc_gym.scenario.URBAN_SHIFTS, on equal shares of the envs); none: the env's own",
+                 "statistics, iscc_gym.scenario.URBAN_SHIFTS, on equal shares of the envs: n_envs >= 5); none: "
+                 "the env's own",
     "eval_freq": "env steps between held-out evaluations (0: none); the best model goes to OUT/best/",
     "eval_episodes": "held-out missions per evaluation (seeds from 1,000,000)",
     "eval_max_steps": "slots per held-out episode at most (the full mission by default)",
@@ -588,8 +589,9 @@ def _seed_ranges(args: Args) -> list[tuple[str, int, int]]:
 
 def check_resolved(args: Args, hyperparams: dict) -> None:
     """Checks of a run's resolved settings (:func:`resolve_args`), before any work: the run settings the
-    YAML may fill (``init_*``, as :func:`check_args` does for the flags), PPO's rollout size, and training
-    seeds outside :data:`iscc_gym.protocol.EVAL_SEED_RANGES` (the held-out missions stay unseen in training).
+    YAML may fill (``init_*``, as :func:`check_args` does for the flags), PPO's rollout size, an env for each
+    mission set of a randomised run, and training seeds outside :data:`iscc_gym.protocol.EVAL_SEED_RANGES` (the
+    held-out missions stay unseen in training).
 
     Raises
     ------
@@ -600,6 +602,9 @@ def check_resolved(args: Args, hyperparams: dict) -> None:
     if args.algo in ON_POLICY and args.n_envs * int(hyperparams.get("n_steps", 2048)) < 2:
         raise ValueError(f"n_steps = {hyperparams.get('n_steps')} with n_envs = {args.n_envs}: PPO needs a rollout "
                          "of at least 2 steps (n_steps x n_envs >= 2)")
+    if randomized(args) and args.n_envs < len(shares := randomized_overrides(args)):
+        raise ValueError(f"randomize = {args.randomize!r} with n_envs = {args.n_envs}: each of its {len(shares)} "
+                         f"mission sets needs an env of its own; use --n-envs {len(shares)} or more")
     for what, lo, hi in _seed_ranges(args):
         check_outside_evaluation(lo, hi, f"seed = {args.seed}: {what}",
                                  "train on another seed (the held-out missions must stay unseen in training)")

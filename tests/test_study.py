@@ -312,3 +312,22 @@ def test_the_exported_entry_keeps_the_trials_run_settings(tmp_path):
     assert (args.residual, args.residual_scale, args.n_envs, hp) == ("myopic", 0.5, 8, {"gamma": 0.9})
     del attrs["settings"]
     assert set(best_entry(SimpleNamespace(user_attrs=attrs), URBAN_ENV_ID, "ppo")["iscc_gym.train"]) == {"algo"}
+
+
+def test_the_exported_header_names_rl_zoo3_only_for_a_trial_it_can_train(tmp_path):
+    """A residual trial's export says python -m train (with its env) trains it and rl-zoo3 does not (it would
+    train a plain PPO agent); a trial without run settings names both."""
+    from iscc_gym import URBAN_ENV_ID
+
+    s = optuna.create_study(direction="maximize")
+    attrs = {"n_timesteps": 1000, "n_envs": 8, "normalize": True, "hyperparams": {"gamma": 0.9},
+             "settings": {"residual": "myopic", "residual_scale": 0.5}}
+    s.add_trial(optuna.trial.create_trial(value=1.0, user_attrs=attrs))
+    path = tmp_path / "best.yml"
+    header = [line for line in export_best(s, URBAN_ENV_ID, "ppo", path).splitlines() if line.startswith("#")]
+    assert not any("python -m rl_zoo3" in line for line in header)
+    assert f"#   python -m train --algo ppo --env {URBAN_ENV_ID} --hyperparams {path}" in header
+    assert any("rl-zoo3 ignores" in line and "residual=myopic" in line for line in header)
+    del attrs["settings"]
+    s.add_trial(optuna.trial.create_trial(value=2.0, user_attrs=attrs))
+    assert "python -m rl_zoo3.train --algo ppo" in export_best(s, URBAN_ENV_ID, "ppo", path)

@@ -462,7 +462,9 @@ def best_entry(trial: optuna.trial.FrozenTrial, env_id: str, algo: str) -> dict:
 
 
 def export_best(s: optuna.Study, env_id: str, algo: str, path: str | os.PathLike) -> str:
-    """Write the best trial as a hyperparams.yml entry to ``path`` (temporary name, then rename).
+    """Write the best trial as a hyperparams.yml entry to ``path`` (temporary name, then rename), under a
+    header saying how to train it: ``python -m train``, and rl-zoo3 only for a trial without run settings
+    (rl-zoo3 ignores a residual base, a warm start or randomised missions and trains a plain agent).
 
     Parameters
     ----------
@@ -478,14 +480,23 @@ def export_best(s: optuna.Study, env_id: str, algo: str, path: str | os.PathLike
     str
         The YAML text written.
     """
+    from iscc_gym.train.config import OWN_SECTION
+
     best = best_trial(s)
     if best is None:
         raise ValueError(f"study {s.study_name!r} has no completed trial to export yet")
+    entry = best_entry(best, env_id, algo)
     header = (f"# Best trial #{best.number} of Optuna study {s.study_name!r}: final held-out mean episode reward "
               f"{best.value:.4f}\n# ({len(s.trials)} trials in the study when exported). Train it with:\n"
-              f"#   python -m train --hyperparams {path}\n"
-              f"# or rl-zoo3 (its layout): python -m rl_zoo3.train --algo {algo} --env {env_id} "
-              f"--gym-packages iscc_gym -conf {path}\n")
-    text = header + yaml.safe_dump(best_entry(best, env_id, algo), sort_keys=False)
+              f"#   python -m train --algo {algo} --env {env_id} --hyperparams {path}\n")
+    settings = entry[OWN_SECTION].get("settings", {}).get(env_id)
+    if settings:  # rl-zoo3 reads the entry alone: it would train a plain agent, not the trial's
+        shown = ", ".join(f"{k}={v}" for k, v in settings.items())
+        header += (f"# (python -m train only: rl-zoo3 ignores the run settings under {OWN_SECTION}.settings, "
+                   f"{shown},\n# and would train a plain {algo} agent instead)\n")
+    else:
+        header += (f"# or rl-zoo3 (its layout): python -m rl_zoo3.train --algo {algo} --env {env_id} "
+                   f"--gym-packages iscc_gym -conf {path}\n")
+    text = header + yaml.safe_dump(entry, sort_keys=False)
     write_atomic(path, text)
     return text

@@ -13,10 +13,14 @@ Every output of the project (``--json``, figures, run files, tuned records) goes
 
 In the last two cases the writer still writes to a temporary file first, so a failing writer sends
 nothing. A directory is refused (``IsADirectoryError``).
+
+A directory written as one unit (a saved agent, ``best/``) goes through :func:`atomic_dir`: filled
+under a temporary name beside it, then swapped in whole.
 """
 
 from __future__ import annotations
 
+import errno
 import os
 import re
 import shutil
@@ -28,7 +32,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-__all__ = ["write_atomic", "atomic_target", "destination", "create_exclusive"]
+__all__ = ["write_atomic", "atomic_target", "atomic_dir", "destination", "create_exclusive"]
 
 #: A path naming an open descriptor of a process: ``/proc/self/fd/N``, ``/proc/<pid>/fd/N``,
 #: ``/proc/thread-self/fd/N`` or ``/proc/<pid>/task/<tid>/fd/N``.
@@ -131,6 +135,69 @@ def atomic_target(path: str | os.PathLike) -> Iterator[Path]:
         os.replace(tmp, target)
     finally:
         tmp.unlink(missing_ok=True)
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Swap the two existing paths ``a`` and ``b`` in one step (Linux ``renameat2(RENAME_EXCHANGE)``);
+    False where the system or the file system cannot.
+    """
+    if not sys.platform.startswith("linux"):
+        return False
+    import ctypes
+
+    try:
+        renameat2 = ctypes.CDLL(None, use_errno=True).renameat2
+    except AttributeError:  # a C library older than glibc 2.28
+        return False
+    renameat2.argtypes = (ctypes.c_int, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_uint)
+    at_fdcwd, rename_exchange = -100, 2
+    if renameat2(at_fdcwd, os.fsencode(a), at_fdcwd, os.fsencode(b), rename_exchange) == 0:
+        return True
+    err = ctypes.get_errno()
+    if err in (errno.EINVAL, errno.ENOSYS, errno.EOPNOTSUPP, errno.EPERM):
+        return False
+    raise OSError(err, os.strerror(err), str(b))
+
+
+def _remove(p: Path) -> None:
+    """Delete a directory tree, or a file or link, where one is."""
+    if p.is_dir() and not p.is_symlink():
+        shutil.rmtree(p, ignore_errors=True)
+    else:
+        p.unlink(missing_ok=True)
+
+
+@contextmanager
+def atomic_dir(path: str | os.PathLike) -> Iterator[Path]:
+    """A new, empty directory beside ``path`` (``.NAME.<pid>.<tag>.tmp``) to fill; on leaving the block
+    without an error it takes ``path``'s place whole, else it is deleted and ``path`` is left as it was.
+
+    ``with atomic_dir("agents/trained/ppo_iscc") as tmp: copy files into tmp``: a kill or a full disk while
+    filling leaves the old directory untouched (and at most the hidden temporary one beside it). The swap
+    is one exchange of the two names on Linux, so ``path`` is at every instant the old directory or the
+    new one; where the file system cannot exchange, two renames (the old one aside as ``.NAME.<pid>.<tag>
+    .old``, the new one into place), and a kill between them leaves both whole beside ``path``
+    (:func:`iscc_gym.train.runs.recover_unit` puts one back). The old directory is then deleted.
+    """
+    d = Path(path)
+    d.parent.mkdir(parents=True, exist_ok=True)
+    tag = f"{os.getpid()}.{uuid.uuid4().hex[:8]}"
+    tmp = d.with_name(f".{d.name}.{tag}.tmp")
+    tmp.mkdir()
+    try:
+        yield tmp
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    if not (d.exists() or d.is_symlink()):
+        os.rename(tmp, d)
+    elif _exchange(tmp, d):
+        _remove(tmp)  # the old directory, under the temporary name now
+    else:
+        old = d.with_name(f".{d.name}.{tag}.old")
+        os.rename(d, old)
+        os.rename(tmp, d)
+        _remove(old)
 
 
 def write_atomic(path: str | os.PathLike, text: str) -> Path:

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from iscc_gym.files import atomic_target, create_exclusive, destination, write_atomic
+from iscc_gym.files import atomic_dir, atomic_target, create_exclusive, destination, write_atomic
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -147,3 +147,23 @@ def test_create_exclusive_creates_once_whole(tmp_path):
     assert create_exclusive(p, "first") is True
     assert create_exclusive(p, "second") is False
     assert p.read_text() == "first" and sorted(q.name for q in p.parent.iterdir()) == ["study.yml"]
+
+
+@pytest.mark.parametrize("exchange", [True, False])
+def test_atomic_dir_swaps_a_folder_in_whole_or_leaves_the_old_one(tmp_path, monkeypatch, exchange):
+    """Filled then swapped in (one exchange, or two renames where the file system has none); a failure while
+    filling leaves the old folder as it was and nothing beside it."""
+    import iscc_gym.files as files
+
+    if not exchange:
+        monkeypatch.setattr(files, "_exchange", lambda a, b: False)
+    d = tmp_path / "agent"
+    for text in ("old", "new"):
+        with atomic_dir(d) as tmp:
+            (tmp / "a").write_text(text)
+            (tmp / text).write_text(text)
+    assert sorted(p.name for p in d.iterdir()) == ["a", "new"] and (d / "a").read_text() == "new"
+    with pytest.raises(KeyboardInterrupt), atomic_dir(d) as tmp:
+        (tmp / "a").write_text("newer")
+        raise KeyboardInterrupt
+    assert (d / "a").read_text() == "new" and [p.name for p in tmp_path.iterdir()] == ["agent"]

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from iscc_gym.agents.sb3_policy import SB3Policy, read_manifest
+from iscc_gym.agents.sb3_policy import SB3Policy, read_manifest, write_manifest
 from iscc_gym.train import Args, main
 from iscc_gym.train.cli import build_parser, console
 from iscc_gym.train.config import HYPERPARAMS, format_policy_kwargs, load_hyperparams, parse_policy_kwargs, resolve_args
@@ -384,6 +384,40 @@ def test_ship_copies_a_unit(tmp_path, monkeypatch):
     ship(args, dest=tmp_path / "dest", write_docs=False)
     assert {p.name for p in (tmp_path / "dest").iterdir()} == set(ARTIFACTS)
     assert SB3Policy.load(tmp_path / "dest").vecnormalize is not None and read_manifest(tmp_path / "dest")
+
+
+def test_a_ship_killed_while_copying_leaves_the_old_agent_whole(run_256, tmp_path, monkeypatch):
+    """A kill after the new statistics are copied, before the model: the shipped folder is still the old agent
+    (it loads, every file its own), never new statistics beside the old model; the next ship swaps the new one
+    in whole and clears what a killed one left beside it."""
+    from iscc_gym.train.ship import publish
+
+    dest = tmp_path / "agent"
+    publish(_args(run_256), {}, dest, write_docs=False)
+    old = {p.name: p.read_bytes() for p in dest.iterdir()}
+    new = _copy(run_256, tmp_path)  # another agent: the step-128 checkpoint's model and statistics
+    meta = read_manifest(new)
+    for name in ("model.zip", "vecnormalize.pkl"):
+        shutil.copy2(new / "checkpoints" / "step_128" / name, new / name)
+    write_manifest(new, list(meta.pop("files")), **{**meta, "timesteps": 128})
+    copy2, copied = shutil.copy2, []
+
+    def killed(src, dst):
+        if copied:
+            raise KeyboardInterrupt
+        copied.append(copy2(src, dst))
+
+    monkeypatch.setattr(shutil, "copy2", killed)
+    with pytest.raises(KeyboardInterrupt):
+        publish(_args(new), {}, dest, write_docs=False)
+    monkeypatch.undo()
+    assert {p.name: p.read_bytes() for p in dest.iterdir()} == old and sorted(tmp_path.iterdir()) == [dest, new]
+    SB3Policy.load(dest)
+    (tmp_path / ".agent.1.dead.tmp").mkdir()  # what a SIGKILL mid-copy leaves
+    publish(_args(new), {}, dest, write_docs=False)
+    assert (dest / "model.zip").read_bytes() == (new / "model.zip").read_bytes()
+    assert read_manifest(dest)["timesteps"] == 128 and sorted(tmp_path.iterdir()) == [dest, new]
+    SB3Policy.load(dest)
 
 
 def test_a_run_leaves_nothing_in_the_temporary_directory(tmp_path, monkeypatch):

@@ -11,7 +11,6 @@ import os
 import re
 import shutil
 import sys
-import uuid
 import zipfile
 from pathlib import Path
 
@@ -19,7 +18,7 @@ import numpy as np
 import yaml
 from iscc_gym.agents.sb3_policy import LAGRANGE_FILE, MANIFEST, read_manifest, read_vecnormalize, write_manifest
 
-from iscc_gym.files import atomic_target, write_atomic
+from iscc_gym.files import atomic_dir, atomic_target, write_atomic
 
 from .config import Args, has_residual, randomized
 
@@ -88,26 +87,13 @@ def save_unit(directory: str | os.PathLike, model, vecnormalize=None, *, model_n
 
 def replace_unit(directory: str | os.PathLike, model, vecnormalize=None, **kw) -> Path:
     """:func:`save_unit` as one step: the unit is written whole into a temporary directory beside
-    ``directory`` (manifest last), then swapped in by two renames (the old unit aside, the new one into
-    place) and the old one deleted. A kill or a full disk while writing leaves the previous unit as it
-    was; a kill between the two renames leaves both whole, and :func:`recover_unit` puts one back.
+    ``directory`` (manifest last), then swapped in (:func:`iscc_gym.files.atomic_dir`) and the old one
+    deleted. A kill or a full disk while writing leaves the previous unit as it was; where the swap takes
+    two renames, a kill between them leaves both whole, and :func:`recover_unit` puts one back.
     """
-    d = Path(directory)
-    tag = f"{os.getpid()}.{uuid.uuid4().hex[:8]}"
-    tmp = d.with_name(f".{d.name}.{tag}.tmp")
-    try:
+    with atomic_dir(directory) as tmp:
         save_unit(tmp, model, vecnormalize, **kw)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-    old = None
-    if d.exists():
-        old = d.with_name(f".{d.name}.{tag}.old")
-        os.rename(d, old)
-    os.rename(tmp, d)
-    if old is not None:
-        shutil.rmtree(old, ignore_errors=True)
-    return d
+    return Path(directory)
 
 
 def recover_unit(directory: str | os.PathLike) -> str | None:

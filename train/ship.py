@@ -4,9 +4,10 @@
 Trains with :data:`SHIP_ARGS` (for the urban task :func:`ship_args`), which is ``python -m train`` with
 no flags but ``--env`` (the configuration of ``train/hyperparams.yml``: env count, warm start,
 hyperparameters, step budget) into ``runs/ship_ppo`` (``runs/ship_ppo_urban``) with seed 0, copies the
-small artifacts (policy weights, VecNormalize statistics, resolved config, summary, learning curve) into
-the agent's folder (:data:`iscc_gym.agents.shipped.SHIPPED_AGENTS`) and records the training time, steps
-and curve in ``docs/results.md`` (section ``agent``, for the urban task ``urban-agent``).
+small artifacts (policy weights, VecNormalize statistics, resolved config, summary, learning curve) into a
+new folder swapped in whole for the agent's folder (:data:`iscc_gym.agents.shipped.SHIPPED_AGENTS`) and
+records the training time, steps and curve in ``docs/results.md`` (section ``agent``, for the urban task
+``urban-agent``).
 """
 
 from __future__ import annotations
@@ -21,10 +22,11 @@ import yaml
 from iscc_gym.agents.sb3_policy import LAGRANGE_FILE
 from iscc_gym.agents.shipped import PPO_AGENT, SHIPPED_AGENTS
 from iscc_gym.train.config import Args, has_residual, resolve_args
+from iscc_gym.train.runs import recover_unit
 from iscc_gym.train.train import main
 
 from iscc_gym import ENV_ID, URBAN_ENV_ID
-from iscc_gym.files import atomic_target
+from iscc_gym.files import atomic_dir, atomic_target
 
 ROOT = Path(__file__).resolve().parent.parent
 SHIP_DIR = PPO_AGENT
@@ -70,11 +72,12 @@ def publish(args: Args, summary: dict, dest: Path | None = None, write_docs: boo
     """
     dest = SHIPPED_AGENTS[args.env_id] if dest is None else dest
     args, _ = resolve_args(args)
-    dest.mkdir(parents=True, exist_ok=True)
-    # the statistics and the rest before the model, the manifest (sizes and SHA-256 of both) last
+    recover_unit(dest)  # what a ship killed while swapping the folder in (or filling it) left beside it
+    # copied into a new folder beside dest, swapped in whole: a kill never mixes two agents' files
     names = ARTIFACTS + tuple(n for n in OPTIONAL if (Path(args.out) / n).is_file())
-    for name in sorted(names, key=lambda n: (n == "manifest.yml", n == "model.zip")):
-        _copy(Path(args.out) / name, dest / name)
+    with atomic_dir(dest) as tmp:
+        for name in names:
+            shutil.copy2(Path(args.out) / name, tmp / name)
     if write_docs:
         from iscc_gym.docs import RESULTS_PATH, write_section
 

@@ -64,10 +64,10 @@ class ISCCBatchedVecEnv(VecEnv):
         obs, reward, terminated, truncated, info = self.venv.step(self._actions)
         dones = terminated | truncated
         infos: list[dict[str, Any]] = [{} for _ in range(self.num_envs)]
+        ended = info.get("final_info", {})  # SB3's info of an ended episode: its last step's, not the reset's
         for key in self.info_keys:
-            vals, mask = info[key], info["_" + key]
-            for i in np.flatnonzero(mask):
-                infos[i][key] = vals[i]
+            for i in np.flatnonzero(info["_" + key]):
+                infos[i][key] = (ended if dones[i] else info)[key][i]
         for i in np.flatnonzero(dones):
             infos[i]["terminal_observation"] = info["final_obs"][i]
             infos[i]["TimeLimit.truncated"] = bool(truncated[i])

@@ -334,3 +334,62 @@ def test_same_step_autoreset_ends_and_restarts_in_one_step():
     for _ in range(3):
         obs, _, term, trunc, info = venv.step(np.zeros((2, 3), np.float32))
     assert trunc.all() and info["_final_obs"].all() and (venv._slots() == 0).all()
+
+
+# --- issue 34 -----------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("env_id", [iscc_gym.ENV_ID, iscc_gym.MULTI_ENV_ID])
+def test_same_step_autoreset_info_is_gymnasiums_sync_vector_envs(env_id):
+    """Item 11: SameStep puts a reset sub-env's reset info at the top level and the ended step's under
+    final_info, as Gymnasium's SyncVectorEnv over the single env (the oracle) does: a consumer summing
+    info["bits_arrived"] counted each episode's last slot twice."""
+    same = gym.vector.AutoresetMode.SAME_STEP
+    kw = {"max_episode_steps": 3, **({"n_drones": 2} if env_id == iscc_gym.MULTI_ENV_ID else {})}
+    sync = gym.make_vec(env_id, num_envs=2, vectorization_mode="sync", vector_kwargs={"autoreset_mode": same}, **kw)
+    venv = gym.make_vec(env_id, num_envs=2, vectorization_mode="vector_entry_point", autoreset_mode=same, **kw)
+    for env in (sync, venv):
+        env.reset(seed=[3, 4])
+        env.step(np.zeros(env.action_space.shape, np.float32))
+        env.reset(options={"reset_mask": np.array([True, False])})  # sub-env 0 ends a step after sub-env 1
+    acts = np.random.default_rng(0).uniform(-1, 1, (6, *venv.action_space.shape)).astype(np.float32)
+    ends = 0
+    for a in acts:
+        (o, r, te, tr, info), (so, sr, ste, str_, sinfo) = venv.step(a), sync.step(a)
+        assert np.array_equal(o, so) and np.array_equal(r, sr) and np.array_equal(te | tr, ste | str_)
+        for top, ref in ((info, sinfo), (info.get("final_info"), sinfo.get("final_info"))):
+            if ref is None:
+                assert top is None
+                continue
+            for key in (k for k in top if not k.startswith(("_", "final"))):
+                assert np.array_equal(top["_" + key], ref["_" + key]), key
+                m = ref["_" + key]
+                assert np.array_equal(top[key][m], ref[key][m], equal_nan=True), key
+        if "final_obs" in sinfo:
+            assert np.array_equal(info["_final_obs"], sinfo["_final_obs"])
+            for i in np.flatnonzero(sinfo["_final_obs"]):
+                assert np.array_equal(info["final_obs"][i], sinfo["final_obs"][i])
+        ends += int((te | tr).sum())
+    assert ends == 4  # each sub-env ended twice, at different steps
+
+
+def test_sb3_batched_env_reports_an_ended_episodes_last_step_as_dummy_vec_env():
+    """Item 11: the SB3 face keeps SB3's convention (an ended episode's info is its last step's) now that the
+    vector env's top-level info holds the reset's."""
+    from iscc_gym.agents.sb3_vec_env import ISCCBatchedVecEnv
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    keys = ("cost", "slot", "tracking_error_m")
+    ours = ISCCBatchedVecEnv(2, info_keys=keys, max_episode_steps=3)
+    dummy = DummyVecEnv([lambda: gym.make(iscc_gym.ENV_ID, max_episode_steps=3)] * 2)
+    for v in (ours, dummy):
+        v.seed(5)
+        v.reset()
+    ended = 0
+    for a in np.random.default_rng(1).uniform(-1, 1, (4, 2, 3)).astype(np.float32):
+        (o, r, d, infos), (so, sr, sd, sinfos) = ours.step(a), dummy.step(a)
+        assert np.array_equal(o, so) and np.array_equal(r, sr) and np.array_equal(d, sd)
+        for i, si in zip(infos, sinfos, strict=True):
+            assert {k: i[k] for k in keys} == {k: si[k] for k in keys}
+        ended += int(d.sum())
+    assert ended == 2  # both episodes ended at step 3, and their last slot is reported: slot 3

@@ -146,3 +146,18 @@ def test_wrapper_inside_sb3_dummy_vec_env():
     for a in _actions(3, (2, 3)):
         obs, rew, done, infos = venv.step(a)
         assert obs.shape == (2, 23) and all("cost" in i for i in infos)
+
+
+def test_vector_cost_of_a_same_step_reset_is_the_ended_steps():
+    """Issue 34 item 11: with SameStep autoreset the top-level info of a reset sub-env is the reset's (cost 0); the
+    cost returned with the ending step's reward is that step's, as the single env's."""
+    venv = SafetyCostWrapper(gym.make_vec(iscc_gym.ENV_ID, num_envs=2, vectorization_mode="vector_entry_point",
+                                          max_episode_steps=3, autoreset_mode="SameStep"))
+    single = gym.make(iscc_gym.ENV_ID, max_episode_steps=3)
+    venv.reset(seed=[7, 8])
+    single.reset(seed=7)
+    for a in _actions(3, (2, 3)):
+        _, _, cost, _, trunc, info = venv.step(a)
+        *_, sinfo = single.step(a[0])
+        assert cost[0] == sinfo["cost"]
+    assert trunc.all() and info["cost"][0] == 0.0 and cost[0] > 0.0

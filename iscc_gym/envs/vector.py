@@ -53,9 +53,10 @@ class ISCCVectorEnv(VectorEnv):
         (or their values ``"NextStep"``, ``"SameStep"``, or names ``"NEXT_STEP"``, ``"SAME_STEP"``).
         NextStep: the step after an episode ends resets that sub-env (reward 0, not done).
         SameStep: it is reset in the step that ends it; the last observation and info go to
-        ``info["final_obs"]`` / ``info["final_info"]`` (masks ``_final_obs``, ``_final_info``);
-        TorchRL's ``GymWrapper`` needs it. Through ``gymnasium.make_vec`` it is a keyword,
-        ``gym.make_vec(id, num_envs=N, autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)``: Gymnasium
+        ``info["final_obs"]`` / ``info["final_info"]`` (masks ``_final_obs``, ``_final_info``) and the top-level
+        info holds the new episode's reset info, as in Gymnasium's ``SyncVectorEnv`` (a sum over steps of
+        ``info[key]`` counts no slot twice); TorchRL's ``GymWrapper`` needs it. Through ``gymnasium.make_vec``
+        it is a keyword, ``gym.make_vec(id, num_envs=N, autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)``: Gymnasium
         (1.1 to 1.4) refuses ``vector_kwargs`` for a vector entry point before calling it ("Custom
         vector environment can be passed arguments only through kwargs"); ``vector_kwargs=
         {"autoreset_mode": ...}`` is the form of ``vectorization_mode="sync"`` / ``"async"``
@@ -182,6 +183,12 @@ class ISCCVectorEnv(VectorEnv):
             info["_final_info"] = done.copy()
             self._reset_rows(idx)
             obs[idx] = self._observe(idx)
+            # as Gymnasium's SyncVectorEnv: a sub-env reset in this step reports its reset's info at the top level
+            # (new arrays: final_info keeps the ended step's)
+            new = self._reset_info(done)
+            for key in new:
+                if not key.startswith("_"):
+                    info[key] = np.where(done.reshape(-1, *(1,) * (np.ndim(info[key]) - 1)), new[key], info[key])
             self._done = np.zeros(self.num_envs, dtype=bool)
         else:
             self._done = done

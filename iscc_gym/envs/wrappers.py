@@ -90,7 +90,8 @@ class SafetyCostWrapper(gym.Wrapper):
 class SafetyCostVectorWrapper(gym.vector.VectorWrapper):
     """:class:`SafetyCostWrapper` of a vector env: ``(obs, rewards, costs, terminations, truncations,
     infos)`` with ``costs = infos["cost"]`` (float64, shape (num_envs,); 0 for a sub-env whose
-    ``_cost`` mask is off, i.e. that did not step: an autoreset step).
+    ``_cost`` mask is off, i.e. that did not step: an autoreset step; the ended step's ``final_info["cost"]`` for
+    a sub-env reset in the same step, ``AutoresetMode.SAME_STEP``).
     """
 
     def step(self, actions):
@@ -101,4 +102,7 @@ class SafetyCostVectorWrapper(gym.vector.VectorWrapper):
         mask = infos.get("_cost")
         if mask is not None:
             costs = np.where(np.asarray(mask, dtype=bool), costs, 0.0)
+        final = infos.get("final_info")
+        if final is not None and "cost" in final:  # SameStep: the top level holds a reset's info, the step's is here
+            costs = np.where(np.asarray(final["_cost"], dtype=bool), np.asarray(final["cost"], np.float64), costs)
         return obs, rewards, costs, terminations, truncations, infos

@@ -177,3 +177,23 @@ def test_the_preview_is_the_map_ahead_and_stops_at_the_mission_end():
 def test_the_multi_drone_env_refuses_the_urban_task():
     with pytest.raises(ValueError, match="multi-drone env flies the paper's task only"):
         gym.make(iscc_gym.MULTI_ENV_ID, scenario="urban")
+
+
+def test_a_longer_mission_warns_of_the_urban_ids_own_time_limit(recwarn):
+    """Issue 34 item 12: make(ISCC-Urban-v0, mission_duration_s=300) was cut at its registered 1200 steps without
+    a warning (the check compared with the paper env's 5000); the warning names the id's limit and the fix, and
+    the fix runs the whole mission."""
+    match = r"n_slots = 3000 slots, but iscc_gym/ISCC-Urban-v0 is registered with a TimeLimit of 1200 steps.*" \
+            r"max_episode_steps=3000"
+    with pytest.warns(UserWarning, match=match):
+        env = gym.make(iscc_gym.URBAN_ENV_ID, mission_duration_s=300.0)
+    assert env.spec.max_episode_steps == 1200
+    with pytest.warns(UserWarning, match=match):
+        venv = gym.make_vec(iscc_gym.URBAN_ENV_ID, num_envs=1, vectorization_mode="vector_entry_point",
+                            mission_duration_s=300.0)
+    assert venv.max_steps == 1200
+    recwarn.clear()
+    venv = gym.make_vec(iscc_gym.URBAN_ENV_ID, num_envs=1, vectorization_mode="vector_entry_point",
+                        mission_duration_s=300.0, max_episode_steps=3000)  # the fix: the vector env knows it
+    ISCCEnv("urban", mission_duration_s=300.0)  # no TimeLimit without gymnasium.make
+    assert venv.max_steps == 3000 and not [w for w in recwarn if "TimeLimit" in str(w.message)]

@@ -20,7 +20,7 @@ from iscc_gym.sim.functional import env_step, observe, reset_info_arrays, step_i
 from iscc_gym.sim.schema import COL, OBS_BOUND, obs_size
 
 __all__ = ["ISCCEnv", "ENV_ID", "URBAN_ENV_ID", "REGISTERED_MAX_EPISODE_STEPS", "check_seed", "check_keywords",
-           "real_array", "warn_time_limit"]
+           "real_array", "warn_time_limit", "TimeLimitCheck"]
 
 #: Reward, terminated and truncated from a step's output row.
 _read_end = operator.itemgetter(COL["reward"], COL["terminated"], COL["truncated"])
@@ -90,18 +90,48 @@ URBAN_ENV_ID = "iscc_gym/ISCC-Urban-v0"
 REGISTERED_MAX_EPISODE_STEPS = 5000
 
 
-def warn_time_limit(s: Scenario) -> None:
-    """Warn when the scenario's mission is longer than the registered TimeLimit: ``gymnasium.make``
-    wraps the env in ``TimeLimit(5000)`` unless it is given ``max_episode_steps``, which would cut
-    the mission short (a shorter mission ends by itself).
+def warn_time_limit(s: Scenario, env_id: str, steps: int | None = None) -> None:
+    """Warn when ``gymnasium.make`` / ``make_vec`` of ``env_id`` cut the scenario's mission short: its registered
+    TimeLimit (``max_episode_steps``; 5000 for ``iscc_gym/ISCC-v0``, 1200 for ``iscc_gym/ISCC-Urban-v0``) is
+    shorter than the mission's ``n_slots`` (a shorter mission ends by itself).
+
+    ``steps``: the limit the env was given (the vector env's ``max_episode_steps``); another value than the
+    registered one is the user's, so no warning. Without it (the single env, which cannot see the TimeLimit
+    wrapper) the warning says to ignore it if ``max_episode_steps`` was passed.
     """
-    if s.n_slots > REGISTERED_MAX_EPISODE_STEPS:
-        gym.logger.warn(f"this scenario's mission has n_slots = {s.n_slots} slots, but gymnasium.make applies the "
-                        f"registered TimeLimit of {REGISTERED_MAX_EPISODE_STEPS} steps: pass "
-                        f"max_episode_steps={s.n_slots} to gymnasium.make / make_vec (ignore this if you did)")
+    try:
+        limit = gym.spec(env_id).max_episode_steps
+    except gym.error.Error:  # not a registered id (an EnvSpec made by hand)
+        return
+    if limit is None or s.n_slots <= limit or (steps is not None and steps != limit):
+        return
+    gym.logger.warn(f"this scenario's mission has n_slots = {s.n_slots} slots, but {env_id} is registered with a "
+                    f"TimeLimit of {limit} steps, which cuts it short: pass max_episode_steps={s.n_slots} to "
+                    "gymnasium.make / make_vec" + (" (ignore this if you did)" if steps is None else ""))
 
 
-class ISCCEnv(gym.Env):
+class TimeLimitCheck:
+    """Mixin of the envs: :func:`warn_time_limit` for the env id the env is made as. ``gymnasium.make`` and
+    ``make_vec`` set ``env.unwrapped.spec`` right after construction (before wrapping the env in that id's
+    TimeLimit): the one moment the env learns its id, so ``spec`` is a property whose setter checks.
+    """
+
+    _spec = None
+    #: The time limit the env was given (the vector env's ``max_episode_steps``), None if it cannot know it.
+    _time_limit_given: int | None = None
+
+    @property
+    def spec(self):
+        return self._spec
+
+    @spec.setter
+    def spec(self, value) -> None:
+        self._spec = value
+        if value is not None:
+            warn_time_limit(self.scenario, value.id, self._time_limit_given)
+
+
+class ISCCEnv(TimeLimitCheck, gym.Env):
     r"""Allocate each slot's time-frequency resources of an ISCC drone-tracking loop.
 
     ## Description
@@ -247,6 +277,9 @@ class ISCCEnv(gym.Env):
     * v0, issue 25 (no change to ``ISCC-v0``'s dynamics, rewards or observations): the queue's four info keys
       (0 without a queue); the urban task ``iscc_gym/ISCC-Urban-v0`` (blocked line of sight, a
       channel-knowledge map, a data queue, a preview of the path), 1,200-slot missions.
+    * v0, issue 34 (no change to dynamics, rewards or observations): a mission longer than the registered
+      TimeLimit of the id made warns with that id's limit (1,200 for the urban task); the vector env's
+      ``SameStep`` top-level info is the reset's, as Gymnasium's ``SyncVectorEnv``.
 
     ## Example
 
@@ -261,8 +294,7 @@ class ISCCEnv(gym.Env):
     def __init__(self, scenario: str | Scenario = "paper", render_mode: str | None = None,
                  **overrides: Any):
         check_keywords(type(self).__name__, overrides)
-        self.scenario = make_scenario(scenario, **overrides)
-        warn_time_limit(self.scenario)
+        self.scenario = make_scenario(scenario, **overrides)  # the time limit: TimeLimitCheck, when made by id
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode={render_mode!r}; use None or one of "
                              f"{self.metadata['render_modes']}")

@@ -12,7 +12,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from iscc_gym.envs.env import check_keywords, check_seed, real_array, warn_time_limit
+from iscc_gym.envs.env import TimeLimitCheck, check_keywords, check_seed, real_array
 from iscc_gym.scenario import Scenario, make_scenario
 from iscc_gym.sim import loop
 from iscc_gym.sim.fleet import (
@@ -33,7 +33,7 @@ __all__ = ["ISCCMultiEnv", "MULTI_ENV_ID"]
 MULTI_ENV_ID = "iscc_gym/ISCC-Multi-v0"
 
 
-class ISCCMultiEnv(gym.Env):
+class ISCCMultiEnv(TimeLimitCheck, gym.Env):
     r"""Split one base station's time-frequency budget across K drones, every slot.
 
     ## Description
@@ -117,7 +117,6 @@ class ISCCMultiEnv(gym.Env):
                        ("n_drones", "scenario", "render_mode", "rate_min_per_drone_bps"))
         self.n_drones = check_n_drones(n_drones)
         self.scenario = drone_scenario(make_scenario(scenario, **overrides), self.n_drones, rate_min_per_drone_bps)
-        warn_time_limit(self.scenario)
         if render_mode is not None:
             raise ValueError(f"render_mode={render_mode!r}; the multi-drone env has no renderer (use None)")
         self.render_mode = None

@@ -14,7 +14,7 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from iscc_gym.envs.env import REGISTERED_MAX_EPISODE_STEPS, check_keywords, check_seed, real_array, warn_time_limit
+from iscc_gym.envs.env import TimeLimitCheck, check_keywords, check_seed, real_array
 from iscc_gym.scenario import Scenario, make_scenario
 from iscc_gym.sim import loop
 from iscc_gym.sim.fleet import (
@@ -34,7 +34,7 @@ __all__ = ["ISCCVectorEnv", "ISCCMultiVectorEnv", "check_memory", "reset_bytes",
 
 
 
-class ISCCVectorEnv(VectorEnv):
+class ISCCVectorEnv(TimeLimitCheck, VectorEnv):
     """``num_envs`` independent ISCC loops (:class:`iscc_gym.envs.env.ISCCEnv`) stepped as one batch.
 
     Every sub-env runs exactly the single env's pipeline (:func:`iscc_gym.sim.functional.env_step` on a batch),
@@ -62,8 +62,9 @@ class ISCCVectorEnv(VectorEnv):
         {"autoreset_mode": ...}`` is the form of ``vectorization_mode="sync"`` / ``"async"``
         (Gymnasium's own vector envs around the single env).
     max_episode_steps : int >= 1, optional
-        Truncate after this many steps (``make_vec`` passes the registered 5000); a non-integer
-        (2.5, ``'10'``, NaN, True) is a ``TypeError`` naming it.
+        Truncate after this many steps (``make_vec`` passes the env id's registered limit, 5000 or 1200 for
+        ``iscc_gym/ISCC-Urban-v0``, and a warning names the fix where that cuts a longer mission short); a
+        non-integer (2.5, ``'10'``, NaN, True) is a ``TypeError`` naming it.
 
     n_drones : int, optional
         K drones per sub-env: each sub-env is the multi-drone env :class:`iscc_gym.envs.multi.ISCCMultiEnv`
@@ -103,8 +104,7 @@ class ISCCVectorEnv(VectorEnv):
         elif rate_min_per_drone_bps is not None:
             raise ValueError("rate_min_per_drone_bps needs n_drones (the multi-drone env); set rate_min_bps instead")
         check_memory(self.scenario, int(num_envs) * k)
-        if max_episode_steps == REGISTERED_MAX_EPISODE_STEPS:
-            warn_time_limit(self.scenario)
+        self._time_limit_given = max_episode_steps  # make_vec passes the id's registered one: TimeLimitCheck
         self.num_envs = int(num_envs)
         self.render_mode = None
         self.metadata = {**self.metadata, "autoreset_mode": mode}

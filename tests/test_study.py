@@ -331,3 +331,18 @@ def test_the_exported_header_names_rl_zoo3_only_for_a_trial_it_can_train(tmp_pat
     del attrs["settings"]
     s.add_trial(optuna.trial.create_trial(value=2.0, user_attrs=attrs))
     assert "python -m rl_zoo3.train --algo ppo" in export_best(s, URBAN_ENV_ID, "ppo", path)
+
+
+def test_seeds_score_a_recurrent_run(tmp_path):
+    """--algo ppo_lstm --seeds: each seed's run is scored by its own algorithm (RecurrentPPO; seed 0 trained,
+    then its scoring failed with ``error: ppo_lstm``). One rollout of 2 x 8 slots, one held-out episode of 5."""
+    pytest.importorskip("sb3_contrib")
+    from iscc_gym.train.multi_seed import run_seeds
+
+    from iscc_gym import URBAN_ENV_ID
+
+    args = Args(env_id=URBAN_ENV_ID, algo="ppo_lstm", total_timesteps=16, n_envs=2, eval_freq=0, checkpoint_freq=0,
+                eval_episodes=1, eval_max_steps=5, tensorboard=False, quiet=True, out=str(tmp_path),
+                overrides={"n_steps": 8, "batch_size": 16, "n_epochs": 1})
+    result = run_seeds(args, [0])
+    assert [r["seed"] for r in result["runs"]] == [0] and np.isfinite(result["final_reward_mean"])

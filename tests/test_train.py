@@ -164,3 +164,37 @@ def test_td3_with_rl_zoo3_noise_keys(tmp_path):
                          overrides={"learning_starts": 16, "batch_size": 16, "noise_type": "normal",
                                     "noise_std": 0.1}))
     assert summary["timesteps"] == 64
+
+
+def test_subproc_workers_import_iscc_gym_to_make_their_envs(monkeypatch):
+    """SB3's subproc workers start by forkserver with gymnasium's registry alone (every iscc_gym id failed
+    there): the env factory a worker unpickles imports an iscc_gym module, whose import registers the ids, and
+    makes the run's env."""
+    import io
+    import pickle
+
+    import cloudpickle
+    from iscc_gym.train.config import resolve_args
+    from iscc_gym.train.train import make_train_env
+    from stable_baselines3.common import vec_env
+
+    class Workers:  # SubprocVecEnv without its processes: the env factories it would send them
+        def __init__(self, env_fns, start_method=None):
+            self.env_fns = env_fns
+
+        def seed(self, seed=None):
+            pass
+
+    class Worker(pickle.Unpickler):  # what a worker imports to unpickle its factory (cloudpickle.loads)
+        def find_class(self, module, name):
+            imported.append(module)
+            return super().find_class(module, name)
+
+    monkeypatch.setattr(vec_env, "SubprocVecEnv", Workers)
+    args, _ = resolve_args(_args("unused", vec_env="subproc", env_overrides={"rate_min_bps": 2e6}))
+    imported = []
+    make = Worker(io.BytesIO(cloudpickle.dumps(make_train_env(args).env_fns[1]))).load()
+    assert any(m.split(".")[0] == "iscc_gym" for m in imported), imported
+    env = make()
+    assert env.spec.id == "iscc_gym/ISCC-v0" and env.unwrapped.scenario.rate_min_bps == 2e6
+    env.close()

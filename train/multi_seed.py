@@ -13,6 +13,7 @@ import numpy as np
 import yaml
 from iscc_gym.train.config import (
     Args,
+    algo_class,
     check_args,
     check_hyperparams,
     check_resolved,
@@ -65,7 +66,6 @@ def evaluate_run(args: Args) -> tuple[float, float]:
         Over the ``args.eval_episodes`` episodes.
     """
     from iscc_gym.train.train import make_eval_env
-    from stable_baselines3 import PPO, SAC, TD3
     from stable_baselines3.common.evaluation import evaluate_policy
     from stable_baselines3.common.vec_env import VecNormalize
 
@@ -75,7 +75,7 @@ def evaluate_run(args: Args) -> tuple[float, float]:
     if args.normalize:
         env = VecNormalize.load(str(out / "vecnormalize.pkl"), env)
         env.training, env.norm_reward = False, False
-    model = {"ppo": PPO, "sac": SAC, "td3": TD3}[args.algo].load(str(out / "model.zip"), device="cpu")
+    model = algo_class(args.algo).load(str(out / "model.zip"), device="cpu")
     rewards, _ = evaluate_policy(model, env, n_eval_episodes=args.eval_episodes, deterministic=True,
                                  return_episode_rewards=True)
     env.close()

@@ -83,8 +83,20 @@ from .runs import (
 #: Seconds between two progress lines of the training loop on stderr (without a progress bar).
 PROGRESS_EVERY_S = 10.0
 
-__all__ = ["main", "make_train_env", "make_eval_env", "with_residual", "batched_kwargs", "set_numba_threads",
-           "progress_bar_on", "PROGRESS_EVERY_S"]
+__all__ = ["main", "make_train_env", "make_env", "make_eval_env", "with_residual", "batched_kwargs",
+           "set_numba_threads", "progress_bar_on", "PROGRESS_EVERY_S"]
+
+
+def make_env(env_id: str, **kwargs):
+    """``gymnasium.make(env_id, **kwargs)``: each env of a dummy or subproc training VecEnv. A subproc worker
+    (started by forkserver) begins with gymnasium's registry alone; it unpickles this function by reference,
+    importing this module and so ``iscc_gym``, whose import registers the env ids.
+    """
+    import gymnasium as gym
+
+    import iscc_gym  # noqa: F401  (the env ids, in a worker that has not imported it yet)
+
+    return gym.make(env_id, **kwargs)
 
 
 def make_train_env(args: Args):
@@ -108,9 +120,10 @@ def make_train_env(args: Args):
         venv.seed(args.seed)
         return VecMonitor(with_residual(venv, args))
     kwargs = {"scenario": args.scenario, **args.env_overrides} if args.env_id in ISCC_ENV_IDS else {}
+    kwargs["env_id"] = args.env_id  # made by make_env, which a subproc worker imports iscc_gym for
     cls = SubprocVecEnv if args.vec_env == "subproc" else DummyVecEnv
     # make_vec_env wraps each env in a Monitor already (below the residual: it records the env's rewards)
-    return with_residual(make_vec_env(args.env_id, n_envs=args.n_envs, seed=args.seed, vec_env_cls=cls,
+    return with_residual(make_vec_env(make_env, n_envs=args.n_envs, seed=args.seed, vec_env_cls=cls,
                                       env_kwargs=kwargs), args)
 
 

@@ -65,7 +65,7 @@ from iscc_gym.eval.policies import (  # noqa: F401
 from iscc_gym.eval.training import run_training
 
 from iscc_gym import ENV_ID, MULTI_ENV_ID, URBAN_ENV_ID
-from iscc_gym.cli import run
+from iscc_gym.cli import invoked_prog, run
 from iscc_gym.docs import README_PATH, RESULTS_PATH, docs_path, publish, save_json, write_section
 from iscc_gym.protocol import EVAL_SEED_START
 
@@ -303,7 +303,7 @@ def console(argv: list[str] | None = None, prog: str | None = None) -> int:
     """The ``iscc-eval`` command: :func:`main`, ending with exit code 0 on success, 2 after a one-line
     error for a user's mistake, 130 on Ctrl-C (:func:`iscc_gym.cli.run`).
     """
-    prog = prog or os.path.basename(sys.argv[0]) or PROG
+    prog = invoked_prog(prog or os.path.basename(sys.argv[0]) or PROG)  # python -m iscc_gym.eval, as typed
     return run(functools.partial(main, prog=prog), argv, prog)
 
 

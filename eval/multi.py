@@ -26,6 +26,7 @@ from iscc_gym.agents.sb3_policy import LAGRANGE_FILE
 from iscc_gym.agents.shipped import multi_agent_dir
 from iscc_gym.eval.evaluate import Entry, ci_cell, evaluate, horizon_slots, markdown_table
 from iscc_gym.eval.options import (
+    PICKLE_WARNING,
     Parser,
     check_writable_file,
     nonneg_int,
@@ -123,7 +124,7 @@ def scan_table(out: dict) -> str:
 
 
 def build_parser(prog: str = "python -m eval.multi") -> Parser:
-    ap = Parser(prog=prog, description=__doc__.split("\n\n")[0])
+    ap = Parser(prog=prog, description=__doc__.split("\n\n")[0], epilog=PICKLE_WARNING)
     ap.add_argument("--n-drones", type=positive_int, default=N_DRONES, help=f"drones per env (default: {N_DRONES})")
     ap.add_argument("--k-scan", default=None, metavar="K1,K2,...",
                     help="repeat the comparison for these numbers of drones (each with its shipped agent)")

@@ -15,6 +15,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from iscc_gym.cli import invoked_prog
 from iscc_gym.files import destination
 
 __all__ = ["Parser", "PICKLE_WARNING", "positive_int", "nonneg_int", "parse_seeds", "check_writable_file",
@@ -27,7 +28,13 @@ PICKLE_WARNING = ("A model .zip and its vecnormalize.pkl are pickles: loading th
 
 
 class Parser(argparse.ArgumentParser):
-    """An ``ArgumentParser`` whose errors are one line, ``PROG: error: MESSAGE (see --help)``, exit code 2."""
+    """An ``ArgumentParser`` whose errors are one line, ``PROG: error: MESSAGE (see --help)``, exit code 2, and
+    whose ``prog`` is the command as invoked (:func:`iscc_gym.cli.invoked_prog`: ``python -m iscc_gym.eval.seeds``
+    for ``python -m eval.seeds`` when run under the installed name).
+    """
+
+    def __init__(self, *args, prog: str | None = None, **kwargs):
+        super().__init__(*args, prog=invoked_prog(prog) if prog else None, **kwargs)
 
     def error(self, message: str):  # noqa: D102 (argparse's hook)
         self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
@@ -147,29 +154,44 @@ class LineProgress:
     """Progress as plain lines on a stream that is not a terminal (tqdm's bar there is a mess of carriage
     returns): one line when a stage starts (:meth:`set_postfix_str`), then at most one every ``interval`` seconds
     (done/total, rate, elapsed, estimated time left), and one at the end. The part of tqdm's API the commands use.
+
+    The time left is estimated from the work done since the first progress report, so the start-up before it
+    (spawning workers, importing, compiling the kernels: seconds, against a few slots done) does not inflate it; no
+    estimate is shown until a report after the first has come. ``clock``: seconds (tests pass their own).
     """
 
-    def __init__(self, total: float, desc: str, unit: str = "it", stream=None, interval: float = LINE_INTERVAL_S):
+    def __init__(self, total: float, desc: str, unit: str = "it", stream=None, interval: float = LINE_INTERVAL_S,
+                 clock=time.monotonic):
         self.total, self.desc, self.unit, self.n = total, desc, unit, 0
-        self.stream, self.interval = stream if stream is not None else sys.stderr, interval
-        self.t0 = self.last = time.monotonic()
+        self.stream, self.interval, self.clock = stream if stream is not None else sys.stderr, interval, clock
+        self.t0 = self.last = clock()
+        self.timed_from = None  # (time, done) at the first report: the rate is measured from there
         self.postfix, self.closed = "", False
 
     def _line(self, text: str) -> None:
         print(f"[{self.desc}] {text}", file=self.stream, flush=True)
 
     def _status(self) -> str:
-        elapsed = time.monotonic() - self.t0
+        now = self.clock()
+        elapsed = now - self.t0
         done = f"{self.n:,.0f}/{self.total:,.0f} {self.unit}" if self.total else f"{self.n:,.0f} {self.unit}"
         eta = ""
-        if self.total and 0 < self.n < self.total:
-            eta = f", about {elapsed * (self.total - self.n) / self.n:.0f} s left"
+        if self.total and self.n < self.total and self.timed_from is not None:
+            t1, n1 = self.timed_from
+            if self.n > n1 and now > t1:
+                eta = f", about {(now - t1) * (self.total - self.n) / (self.n - n1):.0f} s left"
         stage = f" ({self.postfix})" if self.postfix else ""
         return f"{done}{stage}, {elapsed:.0f} s elapsed{eta}"
 
-    def update(self, n: float = 1) -> None:
+    def count(self, n: float = 1) -> None:
+        """Add ``n`` done, printing nothing (the first report starts the timing of the estimate)."""
         self.n += n
-        now = time.monotonic()
+        if self.timed_from is None and n > 0:
+            self.timed_from = (self.clock(), self.n)
+
+    def update(self, n: float = 1) -> None:
+        self.count(n)
+        now = self.clock()
         if now - self.last >= self.interval:
             self.last = now
             self._line(self._status())
@@ -180,7 +202,7 @@ class LineProgress:
 
     def set_postfix_str(self, s: str) -> None:
         self.postfix = s
-        self.last = time.monotonic()
+        self.last = self.clock()
         self._line(self._status())
 
     def close(self) -> None:
@@ -220,7 +242,7 @@ class Stages:
     def next(self, label: str) -> None:
         if self.started:
             if isinstance(self.bar, LineProgress):
-                self.bar.n += 1  # the stage's own line follows: no interval line with the old stage's name
+                self.bar.count(1)  # the stage's own line follows: no interval line with the old stage's name
             else:
                 self.bar.update(1)
         self.started = True
@@ -262,7 +284,7 @@ def claims_parser(prog: str, description: str, *, missions: int, quick_missions:
                    help=f"directory of the PNG figures (default {figures_default})")
     p.add_argument("--no-figures", action="store_true", help="draw no figures")
     p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
-    p.set_defaults(prog=prog)
+    p.set_defaults(prog=p.prog)
     return p
 
 

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 from iscc_gym.agents.shipped import URBAN_AGENT
 from iscc_gym.eval.figures import new_figure, save_figure
-from iscc_gym.eval.options import Parser, check_writable_file, docs_command, nonneg_int, run_console
+from iscc_gym.eval.options import PICKLE_WARNING, Parser, check_writable_file, docs_command, nonneg_int, run_console
 from iscc_gym.eval.policies import build_policy, policy_name, resolve_specs, split_specs
 from iscc_gym.eval.urban_task import mission_stats
 
@@ -123,10 +123,10 @@ def draw(runs: dict, path: str | Path) -> Path:
 
 
 def build_parser(prog: str = "python -m eval.urban_figure") -> Parser:
-    ap = Parser(prog=prog, description=__doc__.split("\n")[0])
+    ap = Parser(prog=prog, description=__doc__.split("\n")[0], epilog=PICKLE_WARNING)
     ap.add_argument("--seed", type=nonneg_int, default=None, metavar="SEED",
                     help=f"the held-out mission (default: the first from {URBAN_SEED_START} with at least "
-                         f"{BLOCKED_SHARE:.0%} of the flight blocked)")
+                         f"{BLOCKED_SHARE * 100:.0f}%% of the flight blocked)")  # %%: argparse formats help with %
     ap.add_argument("--policies", default="myopic,mpc", metavar="LIST",
                     help="policies to draw, as in python -m eval (ppo: the shipped urban agent; default: myopic,mpc)")
     ap.add_argument("--out", default="runs/urban_mission.png", metavar="PATH",

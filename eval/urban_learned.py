@@ -17,7 +17,15 @@ from __future__ import annotations
 import sys
 
 import numpy as np
-from iscc_gym.eval.options import Parser, check_writable_file, docs_command, nonneg_int, positive_int, run_console
+from iscc_gym.eval.options import (
+    PICKLE_WARNING,
+    Parser,
+    check_writable_file,
+    docs_command,
+    nonneg_int,
+    positive_int,
+    run_console,
+)
 from iscc_gym.eval.policies import policy_name, split_specs
 from iscc_gym.eval.urban_figure import pick_mission, play_mission
 
@@ -101,7 +109,7 @@ def markdown(table: dict, seeds: list[int], command: str, window_s: float) -> st
 
 
 def build_parser(prog: str = "python -m eval.urban_learned") -> Parser:
-    ap = Parser(prog=prog, description=__doc__.split("\n")[0])
+    ap = Parser(prog=prog, description=__doc__.split("\n")[0], epilog=PICKLE_WARNING)
     ap.add_argument("--policies", default="ppo,myopic,mpc", metavar="LIST",
                     help="policies as in python -m eval (ppo: the shipped urban agent; default: ppo,myopic,mpc)")
     ap.add_argument("--missions", type=positive_int, default=10, metavar="N",

@@ -23,7 +23,7 @@ from concurrent.futures import ProcessPoolExecutor
 
 from iscc_gym.agents.shipped import URBAN_AGENT
 from iscc_gym.eval.evaluate import run_episodes, summarize
-from iscc_gym.eval.options import Parser, docs_command, positive_int, run_console
+from iscc_gym.eval.options import PICKLE_WARNING, Parser, docs_command, positive_int, run_console
 from iscc_gym.eval.policies import build_policy, policy_name, resolve_specs
 
 from iscc_gym.protocol import EVAL_SEED_START
@@ -89,7 +89,7 @@ def markdown(results: dict, focus: str, command: str) -> str:
 
 
 def build_parser(prog: str = "python -m eval.urban_shift") -> Parser:
-    ap = Parser(prog=prog, description=__doc__.split("\n")[0])
+    ap = Parser(prog=prog, description=__doc__.split("\n")[0], epilog=PICKLE_WARNING)
     ap.add_argument("--shifts", default=",".join(SHIFTS), metavar="LIST",
                     help=f"comma-separated shifts (default: all of {', '.join(SHIFTS)})")
     ap.add_argument("--policies", default=POLICIES, metavar="LIST",

@@ -2,7 +2,9 @@
 or number) exits 2 with one line naming it, no traceback; Ctrl-C exits 130.
 
 ``iscc-eval``, ``iscc-train`` and every ``python -m`` command end through :func:`run`. Set
-``ISCC_GYM_TRACEBACK=1`` to see the traceback of an error instead.
+``ISCC_GYM_TRACEBACK=1`` to see the traceback of an error instead. A package of an extra that is not installed
+(torch on the core install) is a user's error too: one line naming the extra. :func:`invoked_prog` names a
+command as it was typed (``python -m eval`` in the checkout, ``python -m iscc_gym.eval`` installed).
 """
 
 from __future__ import annotations
@@ -12,25 +14,60 @@ import sys
 import zipfile
 from collections.abc import Callable
 
-__all__ = ["USER_ERRORS", "run"]
+__all__ = ["USER_ERRORS", "EXTRAS", "run", "invoked_prog"]
 
 #: The exceptions that mean "the input was wrong": reported in one line, exit code 2.
 USER_ERRORS = (ValueError, TypeError, KeyError, OSError, zipfile.BadZipFile)
+
+#: The packages of pyproject's extras, by import name: a ``ModuleNotFoundError`` for one of them is reported in
+#: one line naming the extra, exit code 2 (the core install has none of them).
+EXTRAS = {"torch": "train", "stable_baselines3": "train", "sb3_contrib": "train", "tensorboard": "train",
+          "optuna": "train", "rich": "train", "pettingzoo": "multi"}
+
+
+def invoked_prog(prog: str) -> str:
+    """``prog`` (``python -m eval.seeds``) as this process was invoked: ``python -m iscc_gym.eval.seeds`` when run
+    as that module (the installed name), else ``prog`` unchanged (a console script, a test, another module).
+    """
+    module = prog.split()[2] if prog.startswith("python -m ") and len(prog.split()) == 3 else None
+    spec = getattr(sys.modules.get("__main__"), "__spec__", None)
+    name = getattr(spec, "name", None) or ""
+    name = name.removesuffix(".__main__")
+    if module and name != module and name.endswith("." + module):
+        return f"python -m {name}"
+    return prog
+
+
+def _missing_extra(e: ModuleNotFoundError) -> str | None:
+    """The one-line error of a missing package of an extra (:data:`EXTRAS`), else None."""
+    package = (e.name or "").split(".")[0]
+    if package not in EXTRAS:
+        return None
+    if f"iscc-gym[{EXTRAS[package]}]" in str(e):  # a check's own message, naming the extra already
+        return str(e)
+    return f"{package} is not installed; it comes with the {EXTRAS[package]} extra: pip install " \
+           f"'iscc-gym[{EXTRAS[package]}]'"
 
 
 def run(main: Callable[[list[str] | None], object], argv: list[str] | None = None, prog: str | None = None) -> int:
     """Call ``main(argv)`` and turn its outcome into an exit code (for ``sys.exit``).
 
     Returns 0 when ``main`` returns (whatever it returns), 2 after printing ``PROG: error: MESSAGE``
-    to stderr for a :data:`USER_ERRORS` exception, 130 on Ctrl-C. argparse's own exits (``--help``,
-    a bad flag) pass through.
+    to stderr for a :data:`USER_ERRORS` exception or a missing package of an extra (:data:`EXTRAS`), 130 on
+    Ctrl-C. argparse's own exits (``--help``, a bad flag) pass through.
     """
-    prog = prog or os.path.basename(sys.argv[0])
+    prog = invoked_prog(prog or os.path.basename(sys.argv[0]))
     try:
         main(argv)
     except KeyboardInterrupt:
         print(f"{prog}: interrupted", file=sys.stderr)
         return 130
+    except ModuleNotFoundError as e:
+        msg = _missing_extra(e)
+        if msg is None or os.environ.get("ISCC_GYM_TRACEBACK"):
+            raise
+        print(f"{prog}: error: {msg}", file=sys.stderr)
+        return 2
     except USER_ERRORS as e:
         if os.environ.get("ISCC_GYM_TRACEBACK"):
             raise

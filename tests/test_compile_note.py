@@ -91,3 +91,28 @@ def test_other_packages_compilations_print_nothing(tmp_path):
     finally:
         event.unregister("numba:compile", note)
     assert stream.getvalue() == "" and not note.noted
+
+
+def test_note_once_per_run_across_its_worker_processes(tmp_path, monkeypatch):
+    """Issue 34: ``python -m eval`` printed the note once per worker. Each worker process builds its own listener when
+    it imports the package and inherits the run's marker name (:data:`RUN_ENV`) from the first process: here three
+    such listeners (the first process and two workers) each see a compilation of the package; one note in all."""
+    import io
+    import types
+
+    from iscc_gym.compile_note import NOTE, RUN_ENV, CompileNote
+    from iscc_gym.sim.loop import step_one
+
+    monkeypatch.delenv("ISCC_GYM_QUIET", raising=False)
+    monkeypatch.setenv(RUN_ENV, str(tmp_path / "note"))
+    compiling = types.SimpleNamespace(data={"dispatcher": step_one})  # numba's numba:compile event, as it starts
+    streams = [io.StringIO() for _ in range(3)]
+    for stream in streams:
+        note = CompileNote(stream=stream, per_run=True)
+        note.on_start(compiling)
+        note.on_start(compiling)
+    assert "".join(s.getvalue() for s in streams) == NOTE + "\n"
+    monkeypatch.delenv(RUN_ENV)  # no run's marker: each process notes for itself, once
+    for stream in streams:
+        CompileNote(stream=stream, per_run=True).on_start(compiling)
+    assert sum(s.getvalue().count(NOTE) for s in streams) == 4

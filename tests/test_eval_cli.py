@@ -3,6 +3,7 @@ help for every flag, progress only on a terminal, --write-docs into the checkout
 
 import argparse
 import io
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -253,8 +254,9 @@ def test_python_m_eval_exits_2_with_one_line_on_a_mistake(monkeypatch, capsys):
     with pytest.raises(SystemExit) as e:
         runpy.run_module("iscc_gym.eval", run_name="__main__", alter_sys=True)
     assert e.value.code == 2
-    assert capsys.readouterr().err == "python -m eval: error: --seeds: seed 5 is given twice; every mission must " \
-                                      "be a different seed\n"
+    # run as iscc_gym.eval (the installed name), so named (issue 34)
+    assert capsys.readouterr().err == "python -m iscc_gym.eval: error: --seeds: seed 5 is given twice; every mission " \
+                                      "must be a different seed\n"
 
 
 def test_figures_are_written_atomically(tmp_path):
@@ -321,3 +323,75 @@ def test_an_agent_is_checked_against_the_env_it_is_compared_on(tmp_path):
     with pytest.raises(ValueError, match=r"--policies 'ppo=.*\(23,\).*\(76,\).*--env"):
         build_policy(f"ppo={SHIPPED_AGENT}", "urban")
     assert build_policy(f"ppo={SHIPPED_AGENT}", "paper")[1].obs_shape == (23,)
+
+
+# --- issue 34: every command's --help, named as invoked; progress estimates; pickles -----------------------------
+
+#: Every ``python -m`` command of the checkout (installed under ``iscc_gym.``): ``main`` / ``cli`` called with --help.
+COMMANDS = ["eval", "eval.bench", "eval.multi", "eval.outage", "eval.pareto", "eval.probes", "eval.seeds", "eval.tune",
+            "eval.urban_figure", "eval.urban_learned", "eval.urban_levers", "eval.urban_shift", "eval.urban_task",
+            "eval.paper.evaluator_check", "eval.paper.fading", "eval.paper.reproduce", "eval.paper.sensitivity",
+            "train", "train.multi", "train.pareto", "train.ship"]
+
+
+def _help(command: str, capsys) -> str:
+    """``python -m COMMAND --help``, in process: the command's ``main``/``cli`` prints the help and exits 0."""
+    import importlib
+
+    name = {"eval": "iscc_gym.eval.__main__", "train": "iscc_gym.train.cli"}.get(command, f"iscc_gym.{command}")
+    module = importlib.import_module(name)
+    entry = module.cli if command.startswith("train") else module.main
+    with pytest.raises(SystemExit) as e:
+        entry(["--help"])
+    assert e.value.code == 0, command
+    return capsys.readouterr().out
+
+
+@pytest.mark.parametrize("command", COMMANDS)
+def test_every_commands_help_prints(command, capsys):
+    """``python -m eval.urban_figure --help`` crashed: a ``10%`` in a help string (argparse formats help with %)."""
+    assert _help(command, capsys).startswith(f"usage: python -m {command} ")
+
+
+@pytest.mark.parametrize("command", COMMANDS)
+def test_usage_names_the_command_as_invoked(command, capsys, monkeypatch):
+    """``python -m iscc_gym.eval --help`` showed ``usage: python -m eval``: run under the installed name (what
+    ``runpy`` sets as ``__main__``), every command's usage says that name."""
+    import types
+
+    spec = types.SimpleNamespace(name=f"iscc_gym.{command}" + (".__main__" if command in ("eval", "train") else ""))
+    monkeypatch.setitem(sys.modules, "__main__", types.SimpleNamespace(__spec__=spec))
+    assert _help(command, capsys).startswith(f"usage: python -m iscc_gym.{command} ")
+
+
+def test_line_progress_estimates_from_the_work_after_start_up():
+    """``python -m eval``'s first line said ``about 14898 s left`` for a 2.6-minute run: the start-up (spawning,
+    imports, compiling the kernels) counted as if slots were played in it. Here 15,000 slots, 10 s of start-up,
+    then 100 slots/s: every estimate shown is within 20 % of the time really left."""
+    from iscc_gym.eval.options import LineProgress
+
+    now = [0.0]
+    out = io.StringIO()
+    bar = LineProgress(15_000, "evaluating", unit="slot", stream=out, clock=lambda: now[0])
+    now[0] = 10.0
+    while bar.n < 15_000:
+        now[0] += 1.0
+        bar.update(100)
+    bar.close()
+    lines = out.getvalue().splitlines()
+    estimates = [(int(m.group(1)), float(m.group(2))) for m in
+                 (re.search(r"\] ([0-9,]+)/.* about ([0-9]+) s left", ln.replace(",", "")) for ln in lines) if m]
+    assert len(lines) > 10 and estimates and "s left" not in lines[0]
+    for done, left in estimates:
+        true_left = (15_000 - done) / 100
+        assert abs(left - true_left) <= 0.2 * true_left + 1, (done, left, true_left)
+
+
+@pytest.mark.parametrize("command", ["eval", "eval.seeds", "eval.multi", "eval.urban_shift", "eval.urban_learned",
+                                     "eval.urban_figure"])
+def test_commands_that_load_agents_say_they_are_pickles(command, capsys):
+    """Every command that loads a trained agent (``NAME=PATH``, ``--agent``) says so in its --help, in the one
+    wording of :data:`iscc_gym.eval.options.PICKLE_WARNING` (eval.urban_levers plays scripted policies only)."""
+    from iscc_gym.eval.options import PICKLE_WARNING
+
+    assert " ".join(PICKLE_WARNING.split()) in " ".join(_help(command, capsys).split())

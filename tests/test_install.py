@@ -222,3 +222,23 @@ def test_env_and_scripted_policies_work_without_the_train_extra(core_only):
     out, err = core_only.communicate(timeout=300)
     assert core_only.returncode == 0, err
     assert int(out.split()[-1]) == 3
+
+
+@pytest.mark.parametrize("command", ["iscc-train", "iscc-eval"])
+def test_commands_without_the_train_extra_exit_2_with_one_line_naming_it(command, monkeypatch, capsys, tmp_path):
+    """Issue 34: on the core install, ``iscc-train`` ended in a traceback (``No module named 'torch'``). Simulated in
+    process: torch and SB3 cannot be imported (``None`` in ``sys.modules``, what ``import`` and ``find_spec`` take for
+    a missing module), after the commands themselves are imported, as a core install imports them."""
+    from iscc_gym.eval.__main__ import console as eval_console
+    from iscc_gym.train.cli import console as train_console
+
+    for name in ("torch", "stable_baselines3"):
+        monkeypatch.setitem(sys.modules, name, None)
+    if command == "iscc-train":
+        code = train_console(["--total-timesteps", "64", "--out", str(tmp_path / "run")], prog=command)
+    else:
+        code = eval_console(["--policies", "ppo,sca", "--episodes", "1", "--max-steps", "2", "--quiet"], prog=command)
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and err.startswith(f"{command}: error: "), err
+    assert "torch" in err and "pip install 'iscc-gym[train]'" in err and "Traceback" not in err
+    assert not (tmp_path / "run").exists()

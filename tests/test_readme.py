@@ -102,3 +102,10 @@ def test_ci_runs_the_readme_commands_in_a_fresh_venv():
     install = commands["tests"].rsplit("&&", 1)[0]
     assert commands["main"].startswith(install) and install.startswith("pip install torch==2.13.0 &&")
     assert "setup-times:start" in README.read_text()
+
+
+def test_readme_rl_zoo3_recipe_says_enjoy_needs_requests():
+    """Issue 34: ``python -m rl_zoo3.enjoy`` needs ``requests``, which ``pip install rl_zoo3`` does not bring."""
+    text = README.read_text()
+    recipe = text[text.index("**rl-zoo3**"):text.index("python -m rl_zoo3.enjoy")]
+    assert "pip install rl_zoo3 requests" in recipe

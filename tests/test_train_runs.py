@@ -183,7 +183,10 @@ def test_resume_of_a_checkpoint_without_hyperparameters_in_its_manifest(run_256,
     (["--set", "n_step=64"], r"'n_step' is not an argument of PPO; did you mean n_steps"),
     (["--set", "policy_kwargs=__import__('os').system('true')"], r"evaluates nothing else"),
     (["--hyperparams", "/nonexistent/hp.yml"], r"No such file"),
-    (["--algo", "a2c"], r"algo = 'a2c'"),
+    (["--algo", "a2c"], r"algo = 'a2c'; use one of ppo, sac, td3, ppo_lstm, ppo-lag$"),  # issue 34: ppo-lag too
+    # issue 34: an unknown env id is named as such, with the ids (not a --vec-env or a YAML entry to change)
+    (["--env", "iscc_gym/ISCC-v9"], r"env_id 'iscc_gym/ISCC-v9' is not a registered env id; use one of "
+                                    r"iscc_gym/ISCC-v0, iscc_gym/ISCC-Urban-v0, iscc_gym/ISCC-Multi-v0"),
     (["--n-envs", "0"], r"n_envs = 0; use an integer >= 1"),
 ])
 def test_console_exits_2_with_one_line_for_a_user_mistake(flags, message, tmp_path, capsys):

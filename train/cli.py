@@ -15,7 +15,7 @@ from iscc_gym.train import train as loop
 from iscc_gym.train.config import FIELD_HELP, Args, expand_algo
 from iscc_gym.train.study import add_study_arguments, run_cli
 
-from iscc_gym.cli import run
+from iscc_gym.cli import invoked_prog, run
 
 __all__ = ["build_parser", "args_from_namespace", "parse_value", "parse_args", "cli", "console", "PICKLE_WARNING"]
 
@@ -30,7 +30,7 @@ def build_parser(prog: str = "python -m train") -> argparse.ArgumentParser:
     ``--optimize``, ``--seeds``.
     """
     ap = argparse.ArgumentParser(
-        prog=prog, description=loop.__doc__.split("\n")[0],
+        prog=invoked_prog(prog), description=loop.__doc__.split("\n")[0],
         epilog="Writes into OUT: model.zip and vecnormalize.pkl (the final model and its statistics), best/ "
                "(the best model on the held-out missions, with its own statistics), checkpoints/step_<N>/ "
                "(for --resume), eval/evaluations.npz, learning_curve.csv/.png, config.yml, summary.yml, tb/. "
@@ -116,6 +116,8 @@ def cli(argv: list[str] | None = None, prog: str = "python -m train") -> dict:
 
 def console(argv: list[str] | None = None, prog: str = "iscc-train") -> int:
     """The ``iscc-train`` / ``python -m train`` entry point: exit code 0 on success, 2 with one line
-    for a user's mistake (:func:`iscc_gym.cli.run`).
+    for a user's mistake (:func:`iscc_gym.cli.run`); ``python -m train`` is named as invoked
+    (:func:`iscc_gym.cli.invoked_prog`: ``python -m iscc_gym.train`` under the installed name).
     """
+    prog = invoked_prog(prog)
     return run(lambda a: cli(a, prog=prog), argv, prog)

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 import yaml
 from iscc_gym.agents.sb3_policy import ALGOS as SB3_ALGOS
@@ -486,9 +487,12 @@ def expand_algo(args: Args) -> Args:
 
 
 def check_args(args: Args) -> None:
+    if args.env_id not in gym.registry:  # before any setting that depends on the env (vec_env, the YAML entry)
+        raise ValueError(f"env_id {args.env_id!r} is not a registered env id; use one of {', '.join(ISCC_ENV_IDS)} "
+                         "(or another registered Gymnasium id, e.g. Pendulum-v1)")
+    if args.algo not in (*ALGOS, "ppo-lag"):
+        raise ValueError(f"algo = {args.algo!r}; use one of {', '.join((*ALGOS, 'ppo-lag'))}")
     args = expand_algo(args)
-    if args.algo not in ALGOS:
-        raise ValueError(f"algo = {args.algo!r}; use one of {ALGOS}")
     if args.vec_env not in VEC_ENVS:
         raise ValueError(f"vec_env = {args.vec_env!r}; use one of {VEC_ENVS}")
     if args.cost_limit is not None:

@@ -30,6 +30,8 @@ from pathlib import Path
 from iscc_gym.agents.shipped import MULTI_DIR
 from iscc_gym.train.config import MULTI_ENV_ID, Args
 
+from iscc_gym.cli import invoked_prog
+
 __all__ = ["MULTI_DIR", "K_VALUES", "MULTI_LAG_LIMITS", "run_args", "train_all", "cli"]
 
 #: Where the multi-drone agents are shipped (``k<K>`` per number of drones).
@@ -71,7 +73,7 @@ def train_all(ks=K_VALUES, total_timesteps: int | None = None, dest: Path = MULT
 
 
 def cli(argv: list[str] | None = None) -> dict:
-    ap = argparse.ArgumentParser(prog="python -m train.multi", description=__doc__.split("\n")[0],
+    ap = argparse.ArgumentParser(prog=invoked_prog("python -m train.multi"), description=__doc__.split("\n")[0],
                                  epilog="Model files and vecnormalize.pkl are pickles: load only files you trust.")
     ap.add_argument("--n-drones", default=",".join(map(str, K_VALUES)),
                     help=f"comma-separated numbers of drones (default: {','.join(map(str, K_VALUES))})")

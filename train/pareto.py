@@ -27,6 +27,7 @@ from pathlib import Path
 from iscc_gym.agents.shipped import PARETO_DIR
 from iscc_gym.train.config import Args
 
+from iscc_gym.cli import invoked_prog
 from iscc_gym.protocol import PARETO_RATE_MIN_BPS
 
 __all__ = ["RUNS", "PARETO_DIR", "STABILITY_LIMIT", "run_args", "train_all", "cli"]
@@ -69,7 +70,7 @@ def train_all(names=None, total_timesteps: int | None = None, dest: Path = PARET
 
 
 def cli(argv: list[str] | None = None) -> dict:
-    ap = argparse.ArgumentParser(prog="python -m train.pareto", description=__doc__.split("\n")[0],
+    ap = argparse.ArgumentParser(prog=invoked_prog("python -m train.pareto"), description=__doc__.split("\n")[0],
                                  epilog="Model files and vecnormalize.pkl are pickles: load only files you trust.")
     ap.add_argument("--only", default=None, help=f"comma-separated runs (default: all of {', '.join(RUNS)})")
     ap.add_argument("--total-timesteps", type=int, default=None, help="env steps per run (default: the YAML's)")

@@ -26,6 +26,7 @@ from iscc_gym.train.runs import recover_unit
 from iscc_gym.train.train import main
 
 from iscc_gym import ENV_ID, URBAN_ENV_ID
+from iscc_gym.cli import invoked_prog
 from iscc_gym.files import atomic_dir, atomic_target
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -131,7 +132,7 @@ def ship_all(runs: dict, quiet: bool = True, **changes) -> dict:
     return out
 
 def cli(argv: list[str] | None = None) -> dict:
-    ap = argparse.ArgumentParser(prog="python -m train.ship", description=__doc__.split("\n")[0],
+    ap = argparse.ArgumentParser(prog=invoked_prog("python -m train.ship"), description=__doc__.split("\n")[0],
                                  epilog="Trains into runs/ship_ppo (runs/ship_ppo_urban; deleting a previous ship run "
                                         "there) and replaces the files of the env's agent folder "
                                         f"({SHIP_DIR.relative_to(ROOT)}, ...). Model files and "

@@ -27,7 +27,7 @@ from iscc_gym.envs.vector import ISCCVectorEnv
 from iscc_gym.scenario import Scenario, make_scenario
 
 __all__ = ["Entry", "evaluate", "summarize", "run_episodes", "mean_ci", "format_table", "markdown_table",
-           "EPISODE_METRICS", "METRIC_RANGES", "PEB_NOTE", "ci_cell", "horizon_slots"]
+           "EPISODE_METRICS", "METRIC_RANGES", "PEB_NOTE", "ci_cell", "ci_bounds", "ci_side", "horizon_slots"]
 
 #: Per-episode metrics (means over the episode's slots unless stated).
 EPISODE_METRICS = {
@@ -172,18 +172,19 @@ def run_episodes(policy, seeds: Sequence[int], scenario: str | Scenario = "paper
     return res
 
 
-def mean_ci(x, confidence: float = 0.95, bounds: tuple[float, float] | None = None) -> tuple[float, list[float]]:
+def mean_ci(x, confidence: float = 0.95,
+            bounds: tuple[float, float] | None = None) -> tuple[float, list[float] | None]:
     """Mean and the Student-t confidence interval of the mean of samples ``x``, clamped to ``bounds``
     (``(low, high)``: the metric's range, e.g. ``(0, 1)`` for a fraction; the t interval of a fraction
-    near 0 would otherwise reach below 0).
+    near 0 would otherwise reach below 0). Fewer than two samples give no interval: None (JSON null;
+    :func:`ci_bounds` writes ``n/a``, :func:`ci_side` draws no conclusion from it).
     """
     x = np.asarray(x, dtype=float)
     m = float(x.mean())
     if x.size < 2:
-        lo, hi = m, m
-    else:
-        half = float(stats.t.ppf(0.5 + confidence / 2, x.size - 1) * x.std(ddof=1) / np.sqrt(x.size))
-        lo, hi = m - half, m + half
+        return m, None
+    half = float(stats.t.ppf(0.5 + confidence / 2, x.size - 1) * x.std(ddof=1) / np.sqrt(x.size))
+    lo, hi = m - half, m + half
     if bounds is not None:
         low, high = bounds
         lo, hi = min(max(lo, low), high), min(max(hi, low), high)
@@ -282,13 +283,40 @@ PEB_NOTE = ("PEB: position error bound, the Cramér–Rao bound on the error of 
             "fraction of missions ended by loss of track. ↑: higher is better, ↓: lower is better.")
 
 
+#: What the tables and sentences say for an interval of one mission (:func:`mean_ci` gives none).
+NO_CI = "n/a: 1 mission"
+
+
+def ci_bounds(ci, fmt: str = "{:.3f}") -> str:
+    """``[low, high]`` of a confidence interval, ``[n/a: 1 mission]`` where there is none (:func:`mean_ci` of one
+    sample): every command's interval goes through this.
+    """
+    if ci_side(ci) is None:
+        return f"[{NO_CI}]"
+    return f"[{fmt.format(ci[0])}, {fmt.format(ci[1])}]"
+
+
+def ci_side(ci) -> int | None:
+    """Where a confidence interval ``(low, high)`` lies: 1 above zero, -1 below, 0 around it; None where there is
+    no interval (None: :func:`mean_ci` of one sample), so that no conclusion is drawn from it.
+    """
+    if ci is None:
+        return None
+    lo, hi = ci
+    return 1 if lo > 0 else -1 if hi < 0 else 0
+
+
 def ci_cell(mean: float, ci, fmt: str = "{:.3f}") -> str:
-    """``mean ±half-width`` of a symmetric interval, ``mean [low, high]`` of one clamped to its metric's range."""
+    """``mean ±half-width`` of a symmetric interval, ``mean [low, high]`` of one clamped to its metric's range,
+    ``mean [n/a: 1 mission]`` without one (:func:`ci_bounds`).
+    """
+    if ci is None:
+        return f"{fmt.format(mean)} {ci_bounds(ci)}"
     lo, hi = ci
     below, above = mean - lo, hi - mean
     if abs(below - above) <= 1e-9 * max(1.0, abs(hi - lo)):
         return f"{fmt.format(mean)} ±{fmt.replace('+', '').format(abs(above))}"
-    return f"{fmt.format(mean)} [{fmt.format(lo)}, {fmt.format(hi)}]"
+    return f"{fmt.format(mean)} {ci_bounds(ci, fmt)}"
 
 
 def _split(p: dict) -> str:
@@ -362,13 +390,14 @@ def oracle_share(res: dict, agent: str = "ppo", oracle: str = "oracle", base: st
 
 def oracle_share_sentence(share: dict) -> str:
     """One sentence of :func:`oracle_share`."""
-    (g, (gl, gh)), (o, (ol, oh)) = share["agent_gain"], share["oracle_gain"]
+    (g, gci), (o, oci) = share["agent_gain"], share["oracle_gain"]
     a, b, base = share["agent"], share["oracle"], share["base"]
-    known = ol > 0.0
+    side = ci_side(oci)
+    why = (f"the {b}'s gain has no interval from one mission" if side is None else
+           f"the {b}'s gain is not distinguishable from zero on these missions")
     return (f"Share of the {b}'s gain over {base} that {a} recovers, ({a} - {base}) / ({b} - {base}): "
-            f"{g:+.1f} [{gl:+.1f}, {gh:+.1f}] / {o:+.1f} [{ol:+.1f}, {oh:+.1f}] = {share['share']:.2f}"
-            + ("." if known else f" (the {b}'s gain is not distinguishable from zero on these missions, so the "
-                                 "ratio measures nothing)."))
+            f"{g:+.1f} {ci_bounds(gci, '{:+.1f}')} / {o:+.1f} {ci_bounds(oci, '{:+.1f}')} = "
+            f"{share['share']:.2f}" + ("." if side == 1 else f" ({why}, so the ratio measures nothing)."))
 
 
 def markdown_table(res: dict, command: str) -> str:
@@ -411,13 +440,16 @@ def markdown_table(res: dict, command: str) -> str:
 
 def _verdict(pair: str, d: dict, metric: str = "reward") -> str:
     """``A is ahead of B by X ±h`` (or behind) for the pair ``A_vs_B`` (``h`` the half-width of the paired 95 %
-    interval ``(low, high)``), with whether the interval excludes zero.
+    interval ``(low, high)``), with whether the interval excludes zero; of one mission, no interval.
     """
     a, b = _pair_name(pair).split(" vs ", 1)
-    m, (lo, hi) = d[f"{metric}_diff_mean"], d[f"{metric}_diff_ci95"]
-    sure = "excludes" if lo > 0 or hi < 0 else "includes"
+    m, ci = d[f"{metric}_diff_mean"], d[f"{metric}_diff_ci95"]
+    side = ci_side(ci)
+    if side is None:
+        return f"{a} is {'ahead of' if m > 0 else 'behind'} {b} by {abs(m):.1f} on one mission (no interval)"
+    lo, hi = ci
     return (f"{a} is {'ahead of' if m > 0 else 'behind'} {b} by {abs(m):.1f} ±{(hi - lo) / 2:.1f} "
-            f"(the interval {sure} zero)")
+            f"(the interval {'includes' if side == 0 else 'excludes'} zero)")
 
 
 def reading_sentences(res: dict) -> str:
@@ -429,6 +461,7 @@ def reading_sentences(res: dict) -> str:
                   if _pair_name(p).split(" vs ", 1)[1] != res.get("reference")})
     if not pairs:
         return ""
-    out = ["In episode reward per mission (paired 95 % intervals):"]
+    one = all(ci_side(d["reward_diff_ci95"]) is None for d in pairs.values())
+    out = ["In episode reward" + (" (one mission: no intervals):" if one else " per mission (paired 95 % intervals):")]
     out.append("; ".join(_verdict(p, d) for p, d in pairs.items()) + ".")
     return " ".join(out)

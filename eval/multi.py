@@ -24,7 +24,7 @@ from pathlib import Path
 
 from iscc_gym.agents.sb3_policy import LAGRANGE_FILE
 from iscc_gym.agents.shipped import multi_agent_dir
-from iscc_gym.eval.evaluate import Entry, ci_cell, evaluate, horizon_slots, markdown_table
+from iscc_gym.eval.evaluate import Entry, ci_bounds, ci_cell, evaluate, horizon_slots, markdown_table
 from iscc_gym.eval.options import (
     PICKLE_WARNING,
     Parser,
@@ -103,10 +103,9 @@ def _advantage_line(k: int, res: dict) -> str:
     cells = []
     for pair, d in fp.items():
         other = pair.split("_vs_", 1)[1]
-        lo, hi = d["tracking_error_m_diff_ci95"]
-        rlo, rhi = d["reward_diff_ci95"]
-        cells.append(f"vs {other}: error {d['tracking_error_m_diff_mean']:+.4f} m [{lo:+.4f}, {hi:+.4f}], reward "
-                     f"{d['reward_diff_mean']:+.1f} [{rlo:+.1f}, {rhi:+.1f}]")
+        cells.append(f"vs {other}: error {d['tracking_error_m_diff_mean']:+.4f} m "
+                     f"{ci_bounds(d['tracking_error_m_diff_ci95'], '{:+.4f}')}, reward "
+                     f"{d['reward_diff_mean']:+.1f} {ci_bounds(d['reward_diff_ci95'], '{:+.1f}')}")
     return f"| {k} | " + "; ".join(cells) + " |"
 
 

@@ -26,7 +26,7 @@ import numpy as np
 from iscc_gym.agents import MarginPolicy, MyopicPolicy
 from iscc_gym.agents.base import SplitPolicy
 from iscc_gym.agents.margin import margin_split, predicted_needs
-from iscc_gym.eval.evaluate import mean_ci, run_episodes
+from iscc_gym.eval.evaluate import ci_bounds, mean_ci, run_episodes
 from iscc_gym.eval.options import (
     Parser,
     docs_command,
@@ -113,7 +113,7 @@ def markdown(rows: list[dict], command: str, seeds) -> str:
              "random numbers; episode reward and the paired difference to the base rule, mean [95 % CI].", "",
              "| probe | episode reward | minus base | base |", "|---|---|---|---|"]
     for r in rows:
-        diff = "" if r["base"] == "-" else f"{r['diff']:+.1f} [{r['ci95'][0]:+.1f}, {r['ci95'][1]:+.1f}]"
+        diff = "" if r["base"] == "-" else f"{r['diff']:+.1f} {ci_bounds(r['ci95'], '{:+.1f}')}"
         lines.append(f"| {r['probe']} | {r['reward']:.1f} | {diff} | {r['base']} |")
     return "\n".join(lines)
 

@@ -21,7 +21,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from iscc_gym.eval.evaluate import evaluate, horizon_slots, mean_ci
+from iscc_gym.eval.evaluate import ci_bounds, evaluate, horizon_slots, mean_ci
 from iscc_gym.eval.options import (
     PICKLE_WARNING,
     Parser,
@@ -100,8 +100,8 @@ def markdown(res: dict, command: str) -> str:
              f"| seed | episode reward | minus {ref} | minus {best} (best scripted) |", "|---|---|---|---|"]
     for r in res["runs"]:
         d, ci = r[f"vs_{ref}"], r[f"vs_{ref}_ci95"]
-        lines.append(f"| {r['seed']} | {r['reward']:.1f} | {d:+.1f} [{ci[0]:+.1f}, {ci[1]:+.1f}] | "
-                     f"{r['vs_best']:+.1f} [{r['vs_best_ci95'][0]:+.1f}, {r['vs_best_ci95'][1]:+.1f}] |")
+        lines.append(f"| {r['seed']} | {r['reward']:.1f} | {d:+.1f} {ci_bounds(ci, '{:+.1f}')} | "
+                     f"{r['vs_best']:+.1f} {ci_bounds(r['vs_best_ci95'], '{:+.1f}')} |")
     return "\n".join(lines)
 
 

@@ -35,7 +35,7 @@ from concurrent.futures import ProcessPoolExecutor
 import numpy as np
 from iscc_gym.agents import LookaheadPolicy, MyopicPolicy
 from iscc_gym.agents.tuned_records import load_tuned, record_name
-from iscc_gym.eval.evaluate import mean_ci, run_episodes
+from iscc_gym.eval.evaluate import ci_bounds, ci_side, mean_ci, run_episodes
 from iscc_gym.eval.options import Parser, docs_command, nonneg_int, positive_int, run_console
 from iscc_gym.eval.tune import tune_model_grid
 from iscc_gym.eval.urban_task import task_stats
@@ -126,8 +126,8 @@ def lever_row(name: str, overrides: dict, missions: int, tune_missions: int = TU
 
 
 def _ci(x) -> str:
-    mean, (lo, hi) = x
-    return f"{mean:+.1f} [{lo:+.1f}, {hi:+.1f}]"
+    mean, ci = x
+    return f"{mean:+.1f} {ci_bounds(ci, '{:+.1f}')}"
 
 
 def markdown(rows: list[dict], command: str) -> str:
@@ -156,9 +156,12 @@ def markdown(rows: list[dict], command: str) -> str:
     lines += ["", "Variants: " + "; ".join(f"**{r['name']}**: {VARIANTS[r['name']][1]}" if r["name"] in VARIANTS
                                            else r["name"] for r in rows) + "."]
     for k in ("mpc", "oracle", "preview"):
-        above = [r["name"] for r in rows if r[k][1][0] > 0.0]
-        below = [r["name"] for r in rows if r[k][1][1] < 0.0]
+        above = [r["name"] for r in rows if ci_side(r[k][1]) == 1]
+        below = [r["name"] for r in rows if ci_side(r[k][1]) == -1]
         pair = "`mpc` over `mpc-hold`" if k == "preview" else f"`{k}` over `myopic`"
+        if all(ci_side(r[k][1]) is None for r in rows):
+            lines.append(f"{pair}: no interval from one mission.")
+            continue
         lines.append(f"{pair}, interval above zero: "
                      f"{', '.join(above) if above else 'no variant'}; interval below zero: "
                      f"{', '.join(below) if below else 'no variant'}.")

@@ -22,7 +22,7 @@ import time
 from concurrent.futures import ProcessPoolExecutor
 
 from iscc_gym.agents.shipped import URBAN_AGENT
-from iscc_gym.eval.evaluate import run_episodes, summarize
+from iscc_gym.eval.evaluate import ci_bounds, ci_side, run_episodes, summarize
 from iscc_gym.eval.options import PICKLE_WARNING, Parser, docs_command, positive_int, run_console
 from iscc_gym.eval.policies import build_policy, policy_name, resolve_specs
 
@@ -60,7 +60,7 @@ def shift_runs(name: str, specs: str, seeds: list[int], max_steps: int | None = 
 
 
 def _ci(mean: float, ci) -> str:
-    return f"{mean:+.1f} [{ci[0]:+.1f}, {ci[1]:+.1f}]"
+    return f"{mean:+.1f} {ci_bounds(ci, '{:+.1f}')}"
 
 
 def markdown(results: dict, focus: str, command: str) -> str:
@@ -79,10 +79,12 @@ def markdown(results: dict, focus: str, command: str) -> str:
         cells = [f"{pol[n]['reward_mean']:.1f}; {_ci(pair[n]['reward_diff_mean'], pair[n]['reward_diff_ci95'])}"
                  for n in others]
         lines.append(f"| {name} | {pol[focus]['reward_mean']:.1f} | " + " | ".join(cells) + " |")
-        worse = [n for n in others if pair[n]["reward_diff_ci95"][1] < 0]
+        worse = [n for n in others if ci_side(pair[n]["reward_diff_ci95"]) == -1]
         if worse:
             behind.append(f"{name} ({', '.join(worse)})")
+    one = len(seeds) < 2  # no interval (mean_ci), so no verdict
     lines += ["", "Shifts: " + "; ".join(f"**{n}**: {SHIFTS[n][1]}" for n in results) + ".",
+              f"`{focus}` behind a baseline: no interval from one mission." if one else
               f"`{focus}` behind a baseline (interval below zero) on: " + ("; ".join(behind) if behind else "no shift")
               + "."]
     return "\n".join(lines)

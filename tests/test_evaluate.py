@@ -267,3 +267,37 @@ def test_the_share_of_the_oracles_gain_is_a_ratio_of_paired_means():
     assert "measures nothing" in oracle_share_sentence(oracle_share(res))
     del res["policies"]["oracle"]
     assert oracle_share(res) is None
+
+
+def test_one_mission_gives_no_interval_and_no_verdict():
+    """Issue 34 item 9: with one mission the tables printed a zero-width "95 % interval" and the sentences said it
+    excluded zero; mean_ci gives no interval, every command writes "n/a: 1 mission" through one function
+    (ci_bounds) and draws no conclusion (ci_side)."""
+    from iscc_gym.eval import urban_levers, urban_shift
+    from iscc_gym.eval.evaluate import ci_bounds, markdown_table, oracle_share, oracle_share_sentence, summarize
+
+    m, ci = mean_ci([3.0], bounds=(0.0, 1.0))
+    assert m == 3.0 and ci is None and ci_bounds(ci) == "[n/a: 1 mission]"  # JSON null, equal across processes
+    eps = {"reward": np.array([-10.0]), "tracking_error_m": np.array([0.5]), "violation": np.array([0.1]),
+           "terminated": np.zeros(1), "peb_m": np.array([0.06]), "rate_comm_mbps": np.array([20.0]),
+           "rate_violation": np.array([0.1]), "stability_violation": np.zeros(1), "alpha_sen": np.array([0.2]),
+           "alpha_ctrl": np.array([0.2]), "alpha_comm": np.array([0.6])}
+    runs = {name: {"episodes": {**eps, "reward": eps["reward"] + d}, "wall_time_s": 0.0, "slots": 3}
+            for name, d in (("myopic", 0.0), ("ppo", 2.0), ("oracle", 5.0))}
+    res = summarize(runs, [10_000], reference="myopic", focus="ppo")
+    text = format_table(res) + markdown_table(res, "python -m eval")
+    assert "-10.0 [n/a: 1 mission]" in text and "±0.0" not in text and "nan" not in text
+    assert "ppo is ahead of myopic by 2.0 on one mission (no interval)" in text
+    assert "zero" not in text and "95 % intervals" not in text
+    share = oracle_share_sentence(oracle_share(res))
+    assert "+2.0 [n/a: 1 mission] / +5.0 [n/a: 1 mission]" in share and "no interval from one mission" in share
+    # the urban commands' tables and verdicts
+    row = {"name": "smooth", "nlos_share": 0.3, "stretch_s_median": 1.0, "stretch_s_p90": 2.0, "myopic": -10.0,
+           "parts": {"tracking": 5.0, "stability": 3.0, "dropped": 2.0, "lost_track": 0.0}, "seeds": [1, 1],
+           "tune_seeds": [2, 2], "lost_track": {}, "myopic_dropped_mbit": 0.0, "mpc_dropped_mbit": 0.0,
+           "oracle_dropped_mbit": 0.0, **{k: mean_ci([1.5]) for k in ("mpc", "oracle", "preview", "knowledge")}}
+    levers = urban_levers.markdown([row], "python -m eval.urban_levers")
+    assert "+1.5 [n/a: 1 mission]" in levers and "interval" not in levers.split("Variants:")[1].replace(
+        "no interval from one mission", "")
+    shifted = urban_shift.markdown({next(iter(urban_shift.SHIFTS)): res}, "ppo", "python -m eval.urban_shift")
+    assert "-10.0; +2.0 [n/a: 1 mission]" in shifted and "interval below zero" not in shifted

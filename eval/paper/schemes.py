@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 from iscc_gym.agents import FixedSplitPolicy, SCAPolicy, evolutionary_search, grid_search
-from iscc_gym.eval.evaluate import Entry, evaluate
+from iscc_gym.eval.evaluate import Entry, ci_bounds, evaluate
 from scipy.optimize import brentq
 
 from iscc_gym.analysis import static_model
@@ -349,10 +349,10 @@ def format_schemes(res: dict) -> str:
     lines += [head, "-" * len(head)]
     for name in SCHEMES:
         r = res["schemes"][name]
-        lo, hi = r["tracking_error_ci95"]
         paper = p["schemes"][name]["tracking_error_m"]
         paper_s = _sig(paper) + (" (div.)" if name == "ignore_loss" else "")
-        lines.append(f"{SCHEME_TITLES[name]:<22}{r['tracking_error_m']:>12.4g}{f'[{lo:.4g}, {hi:.4g}]':>22}"
+        ci = ci_bounds(r["tracking_error_ci95"], "{:.4g}")
+        lines.append(f"{SCHEME_TITLES[name]:<22}{r['tracking_error_m']:>12.4g}{ci:>22}"
                      f"{100 * r['terminated']:>11.0f}%{r['tracking_error_full_horizon_m']:>15.4g}{paper_s:>16}")
     lines.append(f"ISCC / GNSS: {100 * res['iscc_over_gnss']:.2f} % (paper {100 * p['iscc_over_gnss']:.2f} %)")
     wi = res["schemes"]["gnss"]["what_if"]
@@ -394,9 +394,8 @@ def markdown_schemes(res: dict, figure_links: dict[str, str] | None = None) -> s
             "|---|---|---|---|---|"]
     for name in SCHEMES:
         r = res["schemes"][name]
-        lo, hi = r["tracking_error_ci95"]
-        paper = p["schemes"][name]["tracking_error_m"]
-        out.append(f"| {SCHEME_TITLES[name]} | {r['tracking_error_m']:.4g} [{lo:.4g}, {hi:.4g}] | "
+        paper, ci = p["schemes"][name]["tracking_error_m"], ci_bounds(r["tracking_error_ci95"], "{:.4g}")
+        out.append(f"| {SCHEME_TITLES[name]} | {r['tracking_error_m']:.4g} {ci} | "
                    f"{100 * r['terminated']:.0f} % | {r['tracking_error_full_horizon_m']:.4g} | "
                    f"{_sig(paper)}{' (diverges)' if name == 'ignore_loss' else ''} |")
     out.append(f"| ISCC / GNSS | {100 * res['iscc_over_gnss']:.2f} % | | | {100 * p['iscc_over_gnss']:.2f} % |")

@@ -18,7 +18,12 @@ Each maps a batch of observations (n, 23K) to the 3K shares of every env and pla
   constraints separable and the objective convex and decreasing in each sensing share, the KKT point
   is control and data at their bounds and the sensing shares water-filled: equal marginal CRLB
   decrease :math:`-f'_k(\alpha_{k,\mathrm{sen}}) = \mu` (bisection on :math:`\mu`), no
-  linearisation needed (the SCA's iterations would converge to it).
+  linearisation needed (the SCA's iterations would converge to it). Where the drones' bounds do not fit in
+  the band (the problem is infeasible: at K = 8 on the ``paper`` preset the control bounds alone exceed it),
+  control first, every drone's bound, then data scaled into what is left above a total sensing floor,
+  sensing water-filled over the rest (:data:`JointSCA.sensing_floor`, by default the tuned ``margin``'s
+  floor). The fallback used to keep the static design's sensing share (0.54 of the band) and scale the
+  control down into the rest: at K = 4 and 8 it starved the drones' control links and lost track (issue 34).
 * ``margin`` (:class:`MultiMarginPolicy`): the tuned single-drone ``margin`` rule per drone (control
   ``m_ctrl`` times its predicted need, data ``m_comm`` times it), the demands renormalised onto the
   band (control first, then data, above a total sensing floor), sensing the rest split equally.
@@ -123,27 +128,31 @@ class EqualShareSCA(_SlotBounds):
 
 class JointSCA(_SlotBounds):
     """Algorithm 1's per-slot problem over all K drones: bounds, then water-filled sensing (module
-    docstring). Where the drones' bounds do not fit in the band, SCAPolicy's fallback over all drones:
-    control first, the static design's sensing share (split equally), data the rest.
+    docstring). Where the drones' bounds do not fit in the band: control first (every drone's bound, scaled
+    down together only above ``1 - sensing_floor``), data scaled into what is left above the total
+    ``sensing_floor``, sensing water-filled over the rest.
     ``iterations``: bisection steps of the multiplier and of each drone's share.
     """
 
     name = "joint-sca"
 
-    def __init__(self, scenario: Scenario, n_drones: int, iterations: int = 40):
+    def __init__(self, scenario: Scenario, n_drones: int, iterations: int = 40, sensing_floor: float = 0.0345):
         super().__init__(scenario, n_drones)
         self.iterations = int(iterations)
+        floor = float(sensing_floor)
+        if not (np.isfinite(floor) and self.n_drones * MIN_SHARE <= floor < 1.0):
+            raise ValueError(f"sensing_floor = {sensing_floor!r}; use a total sensing share in "
+                             f"[{self.n_drones * MIN_SHARE:g}, 1) (at least {MIN_SHARE:g} per drone)")
+        self.sensing_floor = floor
 
     def shares_batch(self, obs):
         coef, ctrl, comm = self.terms(obs)
         k = self.n_drones
-        fits = ctrl.sum(-1) + comm.sum(-1) <= 1.0 - k * MIN_SHARE
-        rest = np.where(fits, 1.0 - ctrl.sum(-1) - comm.sum(-1), 0.0)  # (n,)
-        sen = self.water_fill(coef, rest)
-        c_fb, m_fb = fit_demands(ctrl, comm, float(self.sca.split[0]))
-        s_fb = (1.0 - c_fb.sum(-1, keepdims=True) - m_fb.sum(-1, keepdims=True)) / k
-        f = fits[:, None]
-        return np.stack([np.where(f, sen, s_fb), np.where(f, ctrl, c_fb), np.where(f, comm, m_fb)], axis=-1)
+        fits = (ctrl.sum(-1) + comm.sum(-1) <= 1.0 - k * MIN_SHARE)[:, None]
+        c_fb, m_fb = fit_demands(ctrl, comm, self.sensing_floor)
+        ctrl, comm = np.where(fits, ctrl, c_fb), np.where(fits, comm, m_fb)
+        sen = self.water_fill(coef, 1.0 - ctrl.sum(-1) - comm.sum(-1))
+        return np.stack([sen, ctrl, comm], axis=-1)
 
     def water_fill(self, coef, total):
         r"""Sensing shares (n, K) summing to ``total`` (n,) with equal :math:`-f'_k`: for a multiplier
@@ -242,7 +251,7 @@ def make_multi_policy(spec: str, scenario: Scenario, n_drones: int):
     if key == "equal-sca":
         return EqualShareSCA(scenario, n_drones)
     if key == "joint-sca":
-        return JointSCA(scenario, n_drones)
+        return JointSCA(scenario, n_drones, sensing_floor=load_tuned("margin")["params"]["sensing_floor"])
     if key == "margin":
         return MultiMarginPolicy.tuned(n_drones)
     if key == "margin-starved":

@@ -26,7 +26,7 @@ from scipy import stats
 from iscc_gym.envs.vector import ISCCVectorEnv
 from iscc_gym.scenario import Scenario, make_scenario
 
-__all__ = ["Entry", "evaluate", "summarize", "run_episodes", "mean_ci", "format_table", "markdown_table",
+__all__ = ["Entry", "evaluate", "summarize", "run_episodes", "Actor", "mean_ci", "format_table", "markdown_table",
            "EPISODE_METRICS", "METRIC_RANGES", "PEB_NOTE", "ci_cell", "ci_bounds", "ci_side", "horizon_slots"]
 
 #: Per-episode metrics (means over the episode's slots unless stated).
@@ -39,6 +39,7 @@ EPISODE_METRICS = {
     "violation": "fraction of slots with either violation",
     "cost": "episode cost (sum of cost_rate + cost_stability)",
     "peb_m": "mean PEB (m)",
+    "peb_median_m": "median PEB over the episode's slots (and drones) (m): a few slots of a lost radar lift the mean",
     "rate_comm_mbps": "mean data rate (Mbit/s)",
     "eps_ctrl": "mean control packet-loss probability",
     "packet_loss": "fraction of control packets lost",
@@ -56,7 +57,8 @@ _NONNEG = (0.0, math.inf)
 #: inside [0, 1], an error's or a count's above 0). Metrics not listed (the reward) are unbounded.
 METRIC_RANGES = {
     "tracking_error_m": _NONNEG, "mse_m2": _NONNEG, "rate_violation": _FRACTION, "stability_violation": _FRACTION,
-    "violation": _FRACTION, "cost": _NONNEG, "peb_m": _NONNEG, "rate_comm_mbps": _NONNEG, "eps_ctrl": _FRACTION,
+    "violation": _FRACTION, "cost": _NONNEG, "peb_m": _NONNEG, "peb_median_m": _NONNEG, "rate_comm_mbps": _NONNEG,
+    "eps_ctrl": _FRACTION,
     "packet_loss": _FRACTION, "terminated": _FRACTION, "length": _NONNEG, "alpha_sen": _FRACTION,
     "alpha_ctrl": _FRACTION, "alpha_comm": _FRACTION, "dropped_mbit": _NONNEG,
 }
@@ -77,6 +79,27 @@ def horizon_slots(scenario: str | Scenario = "paper", max_steps: int | None = No
     """The slots :func:`run_episodes` plays at most per episode: the mission's, or ``max_steps`` if fewer."""
     s = make_scenario(scenario, **overrides)
     return s.n_slots if max_steps is None else min(int(max_steps), s.n_slots)
+
+
+class Actor:
+    """A policy's deterministic actions along ``n_envs`` episodes played from their first slot together: the
+    recurrent state (a ``ppo_lstm`` agent's memory, per-slot SCA's warm start) is carried from slot to slot and
+    ``episode_start`` is True on the first slot only, as SB3's own rollouts call ``predict``. The step of every
+    rollout of the evaluator (:func:`run_episodes`, :func:`iscc_gym.eval.urban_figure.play_mission`), so they
+    play the same policy.
+    """
+
+    def __init__(self, policy, n_envs: int):
+        self.policy = policy
+        self.state = None
+        self.episode_start = np.ones(int(n_envs), dtype=bool)
+
+    def __call__(self, obs) -> np.ndarray:
+        """The action(s) for ``obs`` (a batch of ``n_envs``, or one observation when ``n_envs`` is 1)."""
+        action, self.state = self.policy.predict(obs, state=self.state, episode_start=self.episode_start,
+                                                 deterministic=True)
+        self.episode_start = np.zeros_like(self.episode_start)
+        return action
 
 
 #: The Scenario fields a policy's ``scenario_overrides`` may set (the oracle's view of the same missions).
@@ -122,14 +145,13 @@ def run_episodes(policy, seeds: Sequence[int], scenario: str | Scenario = "paper
     length = np.zeros(k)
     terminated_any = np.zeros(k, dtype=bool)
     traces: dict[str, list] = {"alpha": [], "tracking_error_m": [], "pos": [], "ref_pos": []}
-    state = None
-    episode_start = np.ones(k, dtype=bool)
+    pebs = []  # each slot's PEB (k, drones), NaN once an episode ended: the median's samples
+    act = Actor(policy, k)
     for t in range(horizon):
         if progress is not None and t - reported >= PROGRESS_EVERY:
             progress(t - reported)
             reported = t
-        action, state = policy.predict(obs, state=state, episode_start=episode_start, deterministic=True)
-        episode_start = np.zeros(k, dtype=bool)
+        action = act(obs)
         obs, reward, term, trunc, info = venv.step(np.asarray(action, dtype=np.float32).reshape(k, -1))
         a = alive.astype(float)
         cr, cs, err = info["cost_rate"], info["cost_stability"], info["tracking_error_m"]
@@ -141,6 +163,7 @@ def run_episodes(policy, seeds: Sequence[int], scenario: str | Scenario = "paper
         sums["violation"] += a * drones((cr > 0) | (cs > 0))
         sums["cost"] += a * (drones(cr + cs) * (n_drones or 1))
         sums["peb_m"] += a * drones(info["peb_m"])
+        pebs.append(np.where(alive[:, None], np.asarray(info["peb_m"], dtype=float).reshape(k, -1), np.nan))
         sums["rate_comm_mbps"] += a * drones(info["rate_comm_bps"]) * 1e-6
         sums["eps_ctrl"] += a * drones(info["eps_ctrl"])
         sums["packet_loss"] += a * drones(~info["packet_received"])
@@ -164,6 +187,7 @@ def run_episodes(policy, seeds: Sequence[int], scenario: str | Scenario = "paper
         progress(horizon - reported)
     out = {key: (val if key in ("reward", "cost", "dropped_mbit") else val / np.maximum(length, 1))
            for key, val in sums.items()}
+    out["peb_median_m"] = np.nanmedian(np.stack(pebs, axis=1).reshape(k, -1), axis=1)
     out["terminated"] = terminated_any.astype(float)
     out["length"] = length
     res = {"episodes": out, "seeds": seeds, "wall_time_s": wall, "slots": int(length.sum())}

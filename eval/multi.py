@@ -24,7 +24,7 @@ from pathlib import Path
 
 from iscc_gym.agents.sb3_policy import LAGRANGE_FILE
 from iscc_gym.agents.shipped import multi_agent_dir
-from iscc_gym.eval.evaluate import Entry, ci_bounds, ci_cell, evaluate, horizon_slots, markdown_table
+from iscc_gym.eval.evaluate import Entry, ci_bounds, ci_cell, evaluate, format_table, horizon_slots, markdown_table
 from iscc_gym.eval.options import (
     PICKLE_WARNING,
     Parser,
@@ -49,8 +49,10 @@ __all__ = ["SEED_START", "DEFAULT_POLICIES", "agent_dir", "compare", "scan_table
 #: the rest to data, the policy that buys rate with the radar; issue 23).
 DEFAULT_POLICIES = "equal-sca,joint-sca,margin,margin-starved"
 #: The columns of the K-scan's summary (:func:`scan_table`): metric, title, format.
+#: The median PEB stands beside the mean: a few slots of a lost radar lift a mission's mean PEB (issue 34).
 SCAN_COLUMNS = (("reward", "episode reward ↑", "{:.1f}"), ("tracking_error_m", "tracking error (m) ↓", "{:.4f}"),
-                ("peb_m", "PEB (m) ↓", "{:.4f}"), ("alpha_sen", "sensing share", "{:.3f}"))
+                ("peb_m", "PEB (m) ↓", "{:.4f}"), ("peb_median_m", "median PEB (m) ↓", "{:.4f}"),
+                ("alpha_sen", "sensing share", "{:.3f}"))
 #: The reference of the paired differences.
 REFERENCE = "joint-sca"
 
@@ -98,7 +100,7 @@ def compare(n_drones: int, seeds, policies: str = DEFAULT_POLICIES, agent: str |
                     focus=focus, progress=progress)
 
 
-def _advantage_line(k: int, res: dict) -> str:
+def _advantage_cells(res: dict) -> str:
     fp = res.get("focus_paired") or {}
     cells = []
     for pair, d in fp.items():
@@ -106,20 +108,37 @@ def _advantage_line(k: int, res: dict) -> str:
         cells.append(f"vs {other}: error {d['tracking_error_m_diff_mean']:+.4f} m "
                      f"{ci_bounds(d['tracking_error_m_diff_ci95'], '{:+.4f}')}, reward "
                      f"{d['reward_diff_mean']:+.1f} {ci_bounds(d['reward_diff_ci95'], '{:+.1f}')}")
-    return f"| {k} | " + "; ".join(cells) + " |"
+    return "; ".join(cells)
 
 
-def scan_table(out: dict) -> str:
-    """The K-scan's summary: every policy's episode reward, tracking error, PEB and mean sensing share per K
-    (``out``: the comparison of each K, :func:`compare`), mean ±half-width of the 95 % CI.
+def _advantage_line(k: int, res: dict) -> str:
+    return f"| {k} | {_advantage_cells(res)} |"
+
+
+def _render(titles: list[str], rows: list[list[str]], markdown: bool, align: str) -> str:
+    """A table as markdown (``align``: ``l``/``r`` per column) or as aligned plain text for a terminal."""
+    if markdown:
+        rule = "|" + "|".join("---" if a == "l" else "--:" for a in align) + "|"
+        return "\n".join(["| " + " | ".join(titles) + " |", rule] + ["| " + " | ".join(r) + " |" for r in rows])
+    widths = [max(len(x) for x in col) for col in zip(titles, *rows, strict=True)]
+
+    def line(cells):
+        return "  ".join(c.ljust(w) if a == "l" else c.rjust(w)
+                         for c, w, a in zip(cells, widths, align, strict=True)).rstrip()
+
+    head = line(titles)
+    return "\n".join([head, "-" * len(head)] + [line(r) for r in rows])
+
+
+def scan_table(out: dict, markdown: bool = True) -> str:
+    """The K-scan's summary: every policy's episode reward, tracking error, mean and median PEB and mean
+    sensing share per K (``out``: the comparison of each K, :func:`compare`), mean ±half-width of the 95 % CI;
+    markdown for the docs, else aligned text for a terminal.
     """
-    lines = ["| K | policy | " + " | ".join(title for _, title, _ in SCAN_COLUMNS) + " |",
-             "|--:|---|" + "--:|" * len(SCAN_COLUMNS)]
-    for k, res in out.items():
-        for name, p in res["policies"].items():
-            cells = [ci_cell(p[f"{m}_mean"], p[f"{m}_ci95"], fmt) for m, _, fmt in SCAN_COLUMNS]
-            lines.append(f"| {k} | {name} | " + " | ".join(cells) + " |")
-    return "\n".join(lines)
+    rows = [[str(k), name] + [ci_cell(p[f"{m}_mean"], p[f"{m}_ci95"], fmt) for m, _, fmt in SCAN_COLUMNS]
+            for k, res in out.items() for name, p in res["policies"].items()]
+    titles = ["K", "policy"] + [title for _, title, _ in SCAN_COLUMNS]
+    return _render(titles, rows, markdown, "rl" + "r" * len(SCAN_COLUMNS))
 
 
 def build_parser(prog: str = "python -m eval.multi") -> Parser:
@@ -171,24 +190,23 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.multi") -> d
     out, sections = {}, []
     n_baselines = len([p for p in args.policies.split(",") if p.strip()])
     n_runs = sum(n_baselines + (1 if agents[k] else 0) for k in ks)
-    bar = progress_bar(n_runs * len(seeds) * horizon_slots(args.scenario, args.max_steps), prog, unit="slot",
+    # a run plays its missions side by side: its progress counts the slots of one mission (as python -m eval's)
+    bar = progress_bar(n_runs * horizon_slots(args.scenario, args.max_steps), prog, unit="slot",
                        enabled=show_progress(args.quiet), unit_scale=True)
     for k in ks:
         res = compare(k, seeds, args.policies, agents[k], args.scenario, args.max_steps, progress=bar.update)
         out[k] = res
-        text = markdown_table(res, command).replace(" --write-docs`", "`", 1)
-        print(f"\n{k} drones{' (agent: ' + agents[k] + ')' if agents[k] else ''}:\n{text}")
-        sections.append(f"### {k} drones\n\n" + text)
+        sections.append(f"### {k} drones\n\n" + markdown_table(res, command).replace(" --write-docs`", "`", 1))
+        print(f"\n{k} drones{' (agent: ' + agents[k] + ')' if agents[k] else ''}:\n{format_table(res)}")
     bar.close()
     if len(ks) > 1:
-        summary = scan_table(out)
-        print("\n" + summary)
-        sections.insert(0, "### Reward, tracking error and PEB against K\n\n" + summary)
+        print("\nReward, tracking error and PEB against K:\n" + scan_table(out, markdown=False))
+        sections.insert(0, "### Reward, tracking error and PEB against K\n\n" + scan_table(out))
     if len(ks) > 1 and any(agents.values()):
-        scan = ["| K | trained agent minus each baseline (paired, 95 % CI) |", "|---|---|"]
-        scan += [_advantage_line(k, out[k]) for k in ks if agents[k]]
-        print("\n" + "\n".join(scan))
-        sections.append("### The agent's advantage against K\n\n" + "\n".join(scan))
+        titles = ["K", "trained agent minus each baseline (paired, 95 % CI)"]
+        rows = [[str(k), _advantage_cells(out[k])] for k in ks if agents[k]]
+        print("\n" + _render(titles, rows, False, "rl"))
+        sections.append("### The agent's advantage against K\n\n" + _render(titles, rows, True, "ll"))
     if args.write_docs:
         if len(ks) > 1:
             name, title = "multi_scan", "## Many drones, one base station"

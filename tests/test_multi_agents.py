@@ -114,38 +114,47 @@ def test_the_commands_train_and_compare_on_tiny_budgets(tmp_path, monkeypatch, c
     with pytest.raises(ValueError, match="unknown"):
         EM.main(["--policies", "nope"])
     capsys.readouterr()
-    scan = EM.main(["--k-scan", "1,2", "--episodes", "1", "--max-steps", "5", "--agent", "none",
+    scan = EM.main(["--k-scan", "1,2", "--episodes", "2", "--max-steps", "5", "--agent", "none",
                     "--policies", "margin"])
     captured = capsys.readouterr()
     text = captured.out
-    assert "[python -m eval.multi] done: 10/10 slot" in captured.err  # issue 23: progress without a terminal
-    assert "| K | policy | episode reward ↑ | tracking error (m) ↓ | PEB (m) ↓ | sensing share |" in text
+    # issue 23: progress without a terminal; issue 34: every slot counted once (two missions played side by side
+    # are one run's 5 slots: the bar stopped at half its total)
+    assert "[python -m eval.multi] done: 10/10 slot" in captured.err
+    # issue 34: a terminal gets plain tables, as python -m eval prints them, not the docs' markdown
+    assert "| K |" not in text and "|---" not in text
+    header = next(line for line in text.splitlines() if line.startswith("K  policy"))
+    assert "median PEB (m) ↓" in header  # issue 34: the median PEB beside the mean
     for k in ("1", "2"):  # one row per K and policy, with the comparison's own figures
         p = scan["results"][k]["policies"]["margin"]
-        assert f"| {k} | margin | {p['reward_mean']:.1f} " in text and f" {p['peb_m_mean']:.4f} " in text
+        row = next(line for line in text.splitlines() if line.startswith(f"{k}  margin"))
+        assert f"{p['reward_mean']:.1f} " in row and f" {p['peb_m_mean']:.4f} " in row
+        assert f" {p['peb_median_m_mean']:.4f} " in row
+    assert "| K | policy | episode reward ↑ | tracking error (m) ↓ | PEB (m) ↓ | median PEB (m) ↓ |" in EM.scan_table(
+        {int(k): v for k, v in scan["results"].items()})
 
 
-def test_the_constrained_multi_drone_agent_is_trained_shipped_and_reported_as_ppo_lag(tmp_path, monkeypatch):
-    import yaml
-    from iscc_gym.eval import multi as EM
-    from iscc_gym.train import multi as TM
-
-    monkeypatch.chdir(tmp_path)
-    assert TM.run_args(4, constrained=True).cost_limit == TM.MULTI_LAG_LIMITS == "rate=0.8,stability=0.01"
-    assert TM.run_args(4).cost_limit is None
-    TM.train_all([2], total_timesteps=256, dest=tmp_path / "ship", out_root=str(tmp_path / "runs"), n_envs=4,
-                 overrides={"n_steps": 32, "batch_size": 64}, eval_freq=0, init_envs=2, init_steps=20,
-                 constrained=True)
-    agent = tmp_path / "ship" / "k2_lag"
-    lag = yaml.safe_load((agent / "lagrange.yml").read_text())
-    assert lag["limits"] == {"rate": 0.8, "stability": 0.01}
-    config = yaml.safe_load((agent / "config.yml").read_text())["args"]
-    assert config["env_overrides"] == {"w_rate": 0.0, "w_stab": 0.0, "n_drones": 2}  # the multipliers price the costs
-    assert EM.agent_label(agent) == "ppo-lag" and EM.agent_label(tmp_path) == "ppo"
-    res = EM.main(["--n-drones", "2", "--episodes", "2", "--max-steps", "30", "--agent", str(agent),
-                   "--policies", "margin"])
-    assert set(res["results"]["2"]["policies"]) == {"ppo-lag", "margin"}
-    assert "ppo-lag_vs_margin" in res["results"]["2"]["focus_paired"]
+def test_joint_sca_keeps_every_drones_control_where_the_bounds_do_not_fit():
+    """Issue 34: at K = 8 the drones' control and data bounds exceed the band; joint-sca's fallback kept the static
+    design's sensing share (0.54) and scaled the control links into the rest, which lost every drone (-491,909 per
+    mission). Control first now: every drone's bound, data scaled above the total sensing floor."""
+    for k in (4, 8):
+        s, obs = _observations(k, n_steps=6)
+        pol = make_multi_policy("joint-sca", s, k)
+        o = obs.reshape(-1, k, 23)
+        alpha = pol.shares_batch(o)
+        _, ctrl, comm = pol.terms(o)
+        fallback = ctrl.sum(-1) + comm.sum(-1) > 1 - k * 1e-3
+        room = ctrl.sum(-1) <= 1.0 - pol.sensing_floor
+        assert fallback.any() and (fallback & room).any() == (k == 4) and (fallback & ~room).any() == (k == 8)
+        np.testing.assert_allclose(alpha.sum((1, 2)), 1.0, atol=1e-9)
+        np.testing.assert_allclose(alpha[room][..., 1], ctrl[room], rtol=1e-12)  # every control bound met
+        sen = alpha[fallback][..., 0].sum(-1)  # the floor (data took the rest, up to its bounds)
+        np.testing.assert_allclose(sen, np.maximum(pol.sensing_floor, 1.0 - (ctrl + comm)[fallback].sum(-1)))
+        np.testing.assert_allclose(alpha[fallback & ~room][..., 1].sum(-1), 1.0 - pol.sensing_floor)
+        assert (alpha[..., 0] > 0).all()
+    with pytest.raises(ValueError, match="sensing_floor"):
+        JointSCA(s, 8, sensing_floor=0.001)
 
 
 def _rewards(policy, k, n_envs=2, steps=200, seed=500000):

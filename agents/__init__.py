@@ -54,6 +54,7 @@ __all__ = [
     "grid_search",
     "evolutionary_search",
     "make_policy",
+    "tuned_record",
     "POLICY_SPECS",
 ]
 
@@ -64,7 +65,22 @@ POLICY_SPECS = ("sca", "sca-per-slot", "sca-ignore-loss", "equal", "fixed:A_SEN,
 URBAN_SPECS = ("dpp", "mpc", "mpc-hold", "oracle")
 
 
-def make_policy(spec: str, scenario: Scenario | str = "paper", seed: int = 0):
+def tuned_record(spec: str, scenario: Scenario | str = "paper") -> str | None:
+    """The tuning record (``agents/tuned/<name>.yml``) whose ``params`` :func:`make_policy` reads for ``spec`` on
+    ``scenario``, or None for a spec that reads none (a fixed split, ``dpp:V``, the static SCA, ...).
+    """
+    s = make_scenario(scenario) if isinstance(scenario, str) else scenario
+    key, task = str(spec).strip().lower(), task_of(s)
+    if key == "myopic":
+        return None if task == "paper" else record_name("myopic", task)
+    if key in ("margin", "dpp"):
+        return record_name(key, task)
+    if key in ("mpc", "mpc-hold", "oracle"):
+        return record_name("mpc", task)
+    return "sca-per-slot" if key == "sca-per-slot" else None
+
+
+def make_policy(spec: str, scenario: Scenario | str = "paper", seed: int = 0, tuned: dict | None = None):
     """A policy from a spec string.
 
     Parameters
@@ -86,16 +102,29 @@ def make_policy(spec: str, scenario: Scenario | str = "paper", seed: int = 0):
         The scenario (or preset name) the model-based policies design for.
     seed : int
         Seed of the evolutionary search.
+    tuned : dict, optional
+        The tuned parameters to play instead of those of the spec's record (:func:`tuned_record`): a residual
+        agent's base plays the ones recorded with the agent. Only for a spec that reads a record.
 
     Raises
     ------
     ValueError
-        Unknown spec (the message lists the valid ones) or a malformed fixed split.
+        Unknown spec (the message lists the valid ones), a malformed fixed split, ``tuned`` for a spec that
+        reads no record or not a mapping of numbers (one of other names fails as the policy's constructor does).
     """
     if not isinstance(spec, str):
         raise ValueError(f"spec must be a string, one of {list(POLICY_SPECS)}; got {spec!r}")
     s = make_scenario(scenario) if isinstance(scenario, str) else scenario
     key = spec.strip().lower()
+    record = tuned_record(key, s)
+    if tuned is not None:
+        if record is None:
+            raise ValueError(f"tuned = {tuned!r} for spec {spec!r}, which reads no tuned parameters; pass none")
+        if not isinstance(tuned, dict) or not all(isinstance(k, str) and isinstance(v, int | float)
+                                                  and not isinstance(v, bool) for k, v in tuned.items()):
+            raise ValueError(f"tuned = {tuned!r} for spec {spec!r}: expected a mapping of names to numbers, as "
+                             f"agents/tuned/{record}.yml's params")
+    params = (lambda: dict(tuned)) if tuned is not None else (lambda: load_tuned(record)["params"])
     if key == "equal":
         return EqualSplitPolicy()
     if key.startswith("fixed:"):
@@ -107,7 +136,8 @@ def make_policy(spec: str, scenario: Scenario | str = "paper", seed: int = 0):
         return FixedSplitPolicy(validate_split(split, f"spec {spec!r}"), name=key)
     task = task_of(s)
     if key == "margin":
-        return MarginPolicy.tuned(record_name("margin", task))
+        p = params()
+        return MarginPolicy(p["m_ctrl"], p["m_comm"], p["sensing_floor"])
     if key.startswith("margin:"):
         parts = key[len("margin:"):].split(",")
         try:
@@ -116,12 +146,12 @@ def make_policy(spec: str, scenario: Scenario | str = "paper", seed: int = 0):
             raise ValueError(f"spec {spec!r}: 'margin:' takes two numbers m_ctrl,m_comm, e.g. 'margin:4,1.3'") from None
         return MarginPolicy(m_ctrl, m_comm, name=key)
     if key == "myopic":
-        return _myopic(s)
+        return _myopic(s, None if record is None else tuple(sorted(params().items())))
     if key in URBAN_SPECS and task != "urban":
         raise ValueError(f"spec {spec!r} plans over the urban task's data queue and preview; use it with the "
                          "'urban' scenario (iscc_gym/ISCC-Urban-v0)")
     if key == "dpp":
-        return DriftPlusPenaltyPolicy(s, **load_tuned(record_name("dpp", task))["params"])
+        return DriftPlusPenaltyPolicy(s, **params())
     if key.startswith("dpp:"):
         try:
             v = float(key[len("dpp:"):])
@@ -129,18 +159,18 @@ def make_policy(spec: str, scenario: Scenario | str = "paper", seed: int = 0):
             raise ValueError(f"spec {spec!r}: 'dpp:' takes one number V > 0, e.g. 'dpp:2'") from None
         return DriftPlusPenaltyPolicy(s, v=v)
     if key in ("mpc", "mpc-hold", "oracle"):  # one planner, its tuned parameters
-        params = load_tuned(record_name("mpc", task))["params"]
+        p = params()
         if key == "mpc":
-            return LookaheadPolicy(s, **params)
+            return LookaheadPolicy(s, **p)
         if key == "mpc-hold":
-            return LookaheadPolicy(s, preview="hold", name="mpc-hold", **params)
-        oracle = LookaheadPolicy(s.replace(preview_source="truth"), name="oracle", **params)
+            return LookaheadPolicy(s, preview="hold", name="mpc-hold", **p)
+        oracle = LookaheadPolicy(s.replace(preview_source="truth"), name="oracle", **p)
         oracle.scenario_overrides = {"preview_source": "truth"}
         return oracle
     if key == "sca":
         return SCAPolicy(s, mode="static")
     if key == "sca-per-slot":
-        return SCAPolicy(s, mode="per_slot")
+        return SCAPolicy(s, mode="per_slot", loss_design_fraction=float(params()["loss_design_fraction"]))
     if key == "sca-ignore-loss":
         return SCAPolicy(s, mode="static", ignore_loss=True)
     if key == "grid":
@@ -158,9 +188,8 @@ def _searched(s: Scenario, method: str, seed: int) -> FixedSplitPolicy:
 
 
 @functools.lru_cache(maxsize=4)
-def _myopic(s: Scenario) -> MyopicPolicy:
+def _myopic(s: Scenario, params: tuple | None) -> MyopicPolicy:
     """The myopic policy of a scenario (stateless; its tables are built once, so cached); on the urban task its
-    data weight is the one tuned there (the queue's greedy price, ``myopic-urban``).
+    data weight is the one tuned there (the queue's greedy price, ``myopic-urban``), ``params`` (its items).
     """
-    task = task_of(s)
-    return MyopicPolicy(s) if task == "paper" else MyopicPolicy(s, **load_tuned(record_name("myopic", task))["params"])
+    return MyopicPolicy(s) if params is None else MyopicPolicy(s, **dict(params))

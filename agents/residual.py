@@ -12,18 +12,37 @@ starts at the base's level (PPO's action head starts near zero) and keeps what i
 
 ``python -m train`` trains one with ``residual: SPEC`` (an :func:`agents.make_policy` spec) and
 ``residual_scale`` in its settings (``--residual``, ``--residual-scale``): :class:`ResidualVecEnv` sits
-between the env and VecNormalize, so the base sees raw observations. The run's manifest records both,
-so :meth:`agents.sb3_policy.SB3Policy.load` returns the :class:`ResidualPolicy` that plays it.
+between the env and VecNormalize, so the base sees raw observations.
+
+The agent is its correction *and* its base: every model ``.zip`` of a residual run holds, beside SB3's own
+entries (which SB3 ignores it among), its :func:`residual_record` (:data:`RECORD_ENTRY`): the base's spec, the
+scale, the scenario the base was built for and the base's tuned parameters as trained (:func:`residual_record`
+resolves them once, when the run starts; the run's manifest records the same). So the agent loads as the
+:class:`ResidualPolicy` it was trained as however it is loaded (a run directory, a checkpoint, a bare model
+``.zip``), and its base plays the recorded parameters even after ``python -m eval.tune`` re-tunes the spec.
 """
 
 from __future__ import annotations
 
 import math
+import shutil
+import warnings
+import zipfile
+from pathlib import Path
 
 import numpy as np
+import yaml
 from stable_baselines3.common.vec_env import VecEnvWrapper
 
-__all__ = ["ResidualVecEnv", "ResidualPolicy", "residual_action", "check_scale"]
+__all__ = ["ResidualVecEnv", "ResidualPolicy", "residual_action", "check_scale", "RECORD_ENTRY", "RECORD_KEYS",
+           "RECORD_FIX", "residual_record", "write_record", "add_record", "read_record", "check_record", "base_policy"]
+
+#: The entry of a residual agent's model ``.zip`` that holds its :func:`residual_record`.
+RECORD_ENTRY = "residual.yml"
+#: The fix of a damaged record (it came with the model file).
+RECORD_FIX = "the model file is damaged: use the run's own copy, or retrain"
+#: What a residual record holds: the run settings (as a run's manifest names them) that make the base policy.
+RECORD_KEYS = ("residual", "residual_scale", "scenario", "env_overrides", "residual_params")
 
 
 def check_scale(scale) -> float:
@@ -124,3 +143,142 @@ class ResidualPolicy:
 
     def __repr__(self) -> str:
         return f"ResidualPolicy(base={self.spec!r}, scale={self.scale})"
+
+
+def residual_record(spec: str, scale: float, scenario: str = "paper", env_overrides: dict | None = None) -> dict:
+    """The record of a residual agent on base ``spec`` at ``scale``, the base built for preset ``scenario`` with
+    ``env_overrides``: :data:`RECORD_KEYS`, ``residual_params`` the tuned parameters the base reads now
+    (:func:`agents.tuned_record`'s record; None for a spec that reads none). Resolved once per run, it is what the
+    base is built from (:func:`base_policy`) in training and at every load.
+    """
+    from iscc_gym.agents import tuned_record
+    from iscc_gym.agents.tuned_records import load_tuned
+
+    from iscc_gym import make_scenario
+
+    overrides = dict(env_overrides or {})
+    name = tuned_record(spec, make_scenario(scenario, **overrides))
+    params = dict(load_tuned(name)["params"]) if name is not None else None
+    return yaml.safe_load(yaml.safe_dump({"residual": str(spec), "residual_scale": check_scale(scale),
+                                          "scenario": str(scenario), "env_overrides": overrides,
+                                          "residual_params": params}))
+
+
+def write_record(model_path: str | Path, record: dict) -> None:
+    """Add ``record`` to the model ``.zip`` at ``model_path`` as its :data:`RECORD_ENTRY` (call it on the file
+    before it is renamed into place, as :func:`train.runs.save_unit` does).
+    """
+    with zipfile.ZipFile(model_path, "a") as z:
+        if RECORD_ENTRY in z.namelist():
+            raise ValueError(f"{model_path}: holds a {RECORD_ENTRY} already")
+        z.writestr(RECORD_ENTRY, yaml.safe_dump({k: record[k] for k in RECORD_KEYS}, sort_keys=False))
+
+
+def add_record(model_path: str | Path, record: dict) -> Path:
+    """:func:`write_record` into a model ``.zip`` in place, atomically (a copy is written, then renamed onto it):
+    a residual agent saved before models held their record. SB3's own entries are left byte for byte.
+    """
+    from iscc_gym.files import atomic_target
+
+    with atomic_target(model_path) as tmp:
+        shutil.copyfile(model_path, tmp)
+        write_record(tmp, record)
+    return Path(model_path)
+
+
+def read_record(model_path: str | Path) -> dict | None:
+    """The residual record a model ``.zip`` holds (None: not a residual agent's, or one saved before models held
+    their record), its fields checked (:func:`check_record`).
+
+    Raises
+    ------
+    ValueError
+        Naming the file and the field: a record that is not valid YAML, not a mapping or with a bad field.
+    """
+    try:
+        with zipfile.ZipFile(model_path) as z:
+            if RECORD_ENTRY not in z.namelist():
+                return None
+            text = z.read(RECORD_ENTRY).decode()
+    except (zipfile.BadZipFile, EOFError, OSError, UnicodeDecodeError) as e:
+        raise ValueError(f"{model_path}: not a complete SB3 model file (truncated or corrupt: {e})") from None
+    where = f"{model_path} (its {RECORD_ENTRY})"
+    try:
+        record = yaml.safe_load(text)
+    except yaml.YAMLError as e:
+        raise ValueError(f"{where}: not valid YAML ({str(e).splitlines()[0]}); {RECORD_FIX}") from None
+    if not isinstance(record, dict) or set(record) != set(RECORD_KEYS):
+        raise ValueError(f"{where}: {record!r}; expected the mapping of {', '.join(RECORD_KEYS)}; {RECORD_FIX}")
+    check_record(record, where, RECORD_FIX)
+    return record
+
+
+def check_record(run: dict, where: str, fix: str, prefix: str = "") -> None:
+    """Check the residual fields of a run's settings (``run``: a record, a manifest's ``run``, a config's
+    ``args``): ``ValueError`` ``"{where}: {prefix}FIELD = VALUE; what it must be ({fix})"`` for a bad one.
+    """
+    from iscc_gym import SCENARIOS
+
+    def fail(key, want):
+        raise ValueError(f"{where}: {prefix}{key} = {run.get(key)!r}; expected {want} ({fix})")
+
+    if not isinstance(run.get("residual"), str) or not run["residual"].strip():
+        fail("residual", "the base policy's spec (an agents.make_policy spec, e.g. myopic)")
+    try:
+        check_scale(run.get("residual_scale"))
+    except ValueError:
+        fail("residual_scale", "a number in (0, 2]")
+    if "scenario" in run and run["scenario"] not in SCENARIOS:
+        fail("scenario", f"a preset, one of {sorted(SCENARIOS)}")
+    if "env_overrides" in run and not isinstance(run["env_overrides"], dict):
+        fail("env_overrides", "a mapping of Scenario fields")
+    params = run.get("residual_params")
+    if params is not None and not (isinstance(params, dict) and all(
+            isinstance(k, str) and isinstance(v, int | float) and not isinstance(v, bool) for k, v in params.items())):
+        fail("residual_params", "null or the base's tuned parameters, a mapping of names to numbers")
+
+
+def base_policy(run: dict, where: str = "the run", fix: str = "retrain", prefix: str = "", obs_shape=None):
+    """The base policy of a residual run's settings ``run`` (:func:`check_record` first): ``run["residual"]`` built
+    for the run's scenario with the recorded ``residual_params`` (a run recorded before they were: the spec's
+    tuning record now). A recorded base whose tuning record has been re-tuned since plays the recorded
+    parameters, with a warning. ``obs_shape``: the agent's observations, which the scenario's must be.
+
+    Raises
+    ------
+    ValueError
+        ``"{where}: {prefix}FIELD = VALUE; ... ({fix})"`` for a field that does not build a base (or a scenario of
+        other observations than ``obs_shape``).
+    """
+    from iscc_gym.agents import make_policy, tuned_record
+    from iscc_gym.agents.tuned_records import TUNED_DIR, load_tuned
+
+    from iscc_gym import make_scenario
+    from iscc_gym.sim.schema import obs_size
+
+    check_record(run, where, fix, prefix)
+    try:
+        scenario = make_scenario(run.get("scenario") or "paper", **(run.get("env_overrides") or {}))
+    except (ValueError, TypeError) as e:
+        raise ValueError(f"{where}: {prefix}scenario = {run.get('scenario')!r} with env_overrides = "
+                         f"{run.get('env_overrides')!r} does not build the base's scenario ({e}) ({fix})") from None
+    if obs_shape is not None and (obs_size(scenario),) != tuple(obs_shape):
+        raise ValueError(f"{where}: {prefix}scenario = {run.get('scenario')!r} (env_overrides "
+                         f"{run.get('env_overrides') or {}}) gives observations of size {obs_size(scenario)}, the "
+                         f"agent takes {tuple(obs_shape)} ({fix})")
+    field = "residual"
+    try:
+        name = tuned_record(run["residual"], scenario)
+        params = run.get("residual_params")
+        if params is not None:
+            field = "residual_params"
+            now = load_tuned(name)["params"] if name is not None and (TUNED_DIR / f"{name}.yml").exists() else None
+            if now is not None and now != params:
+                warnings.warn(f"{where}: its base {run['residual']!r} plays the parameters it was trained with "
+                              f"({params}), not {TUNED_DIR / name}.yml's {now} (re-tuned since)", UserWarning,
+                              stacklevel=3)
+        base = make_policy(run["residual"], scenario, tuned=params)
+    except (ValueError, TypeError, KeyError, FileNotFoundError) as e:
+        raise ValueError(f"{where}: {prefix}{field} = {run.get(field)!r} does not build the base policy "
+                         f"({type(e).__name__}: {e}) ({fix})") from None
+    return base

@@ -65,6 +65,10 @@ def _digest(path: Path) -> str:
     return h.hexdigest()
 
 
+#: The fix of a manifest whose file list is damaged (its digests cannot be rebuilt from the files they check).
+_RESTORE = "restore it from a copy of the run, or retrain"
+
+
 def write_manifest(directory: str | Path, files: list[str], **meta) -> Path:
     """Write ``directory/manifest.yml`` (atomically) listing ``files`` (names in ``directory``) with
     their sizes and SHA-256, and ``meta``; call it after every listed file is written.
@@ -92,9 +96,14 @@ def read_manifest(directory: str | Path) -> dict:
         raise FileNotFoundError(f"{d}: no {MANIFEST} (incomplete: interrupted while being written)")
     try:
         manifest = yaml.safe_load(path.read_text())
-        files = manifest["files"]
-    except (yaml.YAMLError, KeyError, TypeError):
-        raise ValueError(f"{path}: not a manifest written by python -m train") from None
+    except (yaml.YAMLError, UnicodeDecodeError) as e:
+        raise ValueError(f"{path}: not valid YAML ({str(e).splitlines()[0]}): a damaged manifest; {_RESTORE}") from None
+    files = manifest.get("files") if isinstance(manifest, dict) else None
+    if not isinstance(files, dict) or not files or not all(
+            isinstance(v, dict) and isinstance(v.get("bytes"), int) and isinstance(v.get("sha256"), str)
+            for v in files.values()):
+        raise ValueError(f"{path}: files = {files!r}; not a manifest written by python -m train (empty or "
+                         f"damaged: it must list each file of the unit with its bytes and sha256); {_RESTORE}")
     for name, want in files.items():
         p = d / name
         if not p.exists():
@@ -219,13 +228,18 @@ class SB3Policy:
 
         ``check_env``: the env id whose observation size the model must have (None: no check).
 
+        A residual agent's model holds its residual record (:mod:`agents.residual`): it loads as the
+        :class:`~agents.residual.ResidualPolicy` it was trained as, its base built from the record, however it is
+        loaded; the run's manifest (or config) must agree with the record.
+
         Raises
         ------
         FileNotFoundError
             No model at the path.
         ValueError
-            A truncated or corrupt file, a unit whose files do not match its manifest, an unknown
-            algorithm in the run's config, a model of another observation size.
+            A truncated or corrupt file, a unit whose files do not match its manifest, a damaged setting of
+            the run's manifest or config (naming the file, the field and the fix), a model of another
+            observation size.
         """
         p = Path(path)
         if p.is_dir():
@@ -235,27 +249,51 @@ class SB3Policy:
             unit, model_path = p.parent, p
         if not model_path.exists():
             raise FileNotFoundError(f"no SB3 model at {model_path}; train one with `python -m train --out DIR`")
-        manifest = None
+        manifest, where, prefix = None, None, "run."
+        run = {}
         if (unit / MANIFEST).exists():
             manifest = read_manifest(unit)
+            where = unit / MANIFEST
             if model_path.name not in manifest["files"]:
-                raise ValueError(f"{model_path}: not listed in {unit / MANIFEST}; load the unit's own model")
-        run = dict((manifest or {}).get("run") or {})
+                raise ValueError(f"{model_path}: not listed in {where}; load the unit's own model")
+            run = manifest.get("run")
+            if run is not None and not isinstance(run, dict):
+                raise ValueError(f"{where}: run = {run!r}; expected the mapping of the run's settings python -m "
+                                 f"train writes (a damaged manifest; {_RESTORE})")
+            run = dict(run or {})
         if not run:
             for cfg in (unit / "config.yml", unit.parent / "config.yml"):
                 if cfg.exists():
                     try:
                         args = yaml.safe_load(cfg.read_text())["args"]
                         run = {"algo": args["algo"], "normalize": args.get("normalize")}
-                        if args.get("residual") not in (None, "none"):  # a residual run: its base and reach
-                            run.update({k: args.get(k) for k in ("residual", "residual_scale", "scenario",
-                                                                 "env_overrides")})
+                        residual = args.get("residual")
+                        run["residual"] = None if residual in (None, "none") else residual
+                        if run["residual"] is not None:  # a residual run: its base and reach
+                            run.update({k: args.get(k) for k in ("residual_scale", "scenario", "env_overrides")})
                     except (yaml.YAMLError, KeyError, TypeError):
                         raise ValueError(f"{cfg}: not a config.yml written by python -m train") from None
+                    where, prefix = cfg, "args."
                     break
+        fix = "" if where is None else (
+            f"a damaged {where.name}: set it back to what the run was trained with"
+            + (" (the same field under args in the run's config.yml)" if where.name == MANIFEST else "")
+            + ", or retrain")
+        from iscc_gym.agents.residual import RECORD_ENTRY, RECORD_FIX, ResidualPolicy, base_policy, read_record
+
+        record = read_record(model_path)
+        if record is not None:  # the agent's own record of its base: what the run's files say must agree
+            for key, value in record.items():
+                if where is not None and key in run and run[key] != value:
+                    raise ValueError(f"{where}: {prefix}{key} = {run[key]!r}, but {model_path.name} is a residual "
+                                     f"agent recorded with {key} = {value!r}: a damaged {where.name}; set it back "
+                                     f"to {value!r}")
+            run.update(record)
         algo = run.get("algo") or "ppo"
         if algo not in ALGOS:
-            raise ValueError(f"{unit}: the run's algo is {algo!r}; SB3Policy loads {', '.join(ALGOS)}")
+            raise ValueError(f"{where or unit}: {prefix}algo = {algo!r}; expected one of {', '.join(ALGOS)} ({fix})")
+        if run.get("normalize") is not None and not isinstance(run["normalize"], bool):
+            raise ValueError(f"{where}: {prefix}normalize = {run['normalize']!r}; expected true or false ({fix})")
         vn_path = unit / "vecnormalize.pkl"
         if manifest is not None:
             has_vn = "vecnormalize.pkl" in manifest["files"]
@@ -276,7 +314,14 @@ class SB3Policy:
             raise ValueError(f"{unit}: the run was trained with VecNormalize but {unit} holds no statistics for "
                              f"{model_path.name} (older python -m train runs kept none in best/): load the run's "
                              "final model.zip instead")
-        model = _load_model(algo, model_path)
+        try:
+            model = _load_model(algo, model_path)
+        except AttributeError as e:  # another algorithm's policy (SB3 looks up the attribute its own one has)
+            if where is None:
+                raise ValueError(f"{model_path}: does not load as a {algo} model ({e}); a model .zip without its "
+                                 "run's manifest.yml or config.yml loads as PPO: load its run directory") from None
+            raise ValueError(f"{where}: {prefix}algo = {algo!r} is not the algorithm {model_path.name} was trained "
+                             f"with (it does not load as a {algo} model: {e}) ({fix})") from None
         vecnormalize = read_vecnormalize(vn_path) if has_vn else None
         policy = cls(model, vecnormalize)
         if check_env is not None:
@@ -284,8 +329,11 @@ class SB3Policy:
             if want is not None and tuple(want) != policy.obs_shape:
                 raise ValueError(f"{model_path}: the model takes observations of shape {policy.obs_shape}, "
                                  f"{check_env} gives {tuple(want)}: it was trained on another env")
-        if run.get("residual"):
-            return residual_policy(policy, run)
+        if run.get("residual"):  # the record, where the model holds one: it agrees with the run's files (above)
+            source, field_prefix, source_fix = ((f"{model_path} (its {RECORD_ENTRY})", "", RECORD_FIX)
+                                                if record is not None else (where, prefix, fix))
+            base = base_policy(run, str(source), source_fix, field_prefix, policy.obs_shape)
+            return ResidualPolicy(base, policy, run["residual_scale"], run["residual"])
         return policy
 
     def predict(self, obs, state=None, episode_start=None, deterministic: bool = True):
@@ -301,15 +349,13 @@ class SB3Policy:
 
 def residual_policy(agent: SB3Policy, run: dict):
     """The :class:`agents.residual.ResidualPolicy` of a residual run's trained ``agent``: its base policy
-    (``run["residual"]``) built for the run's scenario, corrected by ``agent`` at ``run["residual_scale"]``.
+    (``run["residual"]``, with the recorded ``residual_params``) built for the run's scenario, corrected by
+    ``agent`` at ``run["residual_scale"]``.
     """
-    from iscc_gym.agents import make_policy
-    from iscc_gym.agents.residual import ResidualPolicy
+    from iscc_gym.agents.residual import ResidualPolicy, base_policy
 
-    from iscc_gym import make_scenario
-
-    scenario = make_scenario(run.get("scenario") or "paper", **(run.get("env_overrides") or {}))
-    return ResidualPolicy(make_policy(run["residual"], scenario), agent, run["residual_scale"], run["residual"])
+    base = base_policy(run, "the run", obs_shape=agent.obs_shape)
+    return ResidualPolicy(base, agent, run["residual_scale"], run["residual"])
 
 
 def _obs_shape(env_id: str):

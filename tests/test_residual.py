@@ -1,11 +1,17 @@
 """Residual learning (agents/residual.py) and training on the urban task (python -m train --env ISCC-Urban-v0)."""
 
+import shutil
+import zipfile
+
 import numpy as np
 import pytest
+import yaml
 from iscc_gym.agents import make_policy
-from iscc_gym.agents.residual import ResidualPolicy, ResidualVecEnv, residual_action
+from iscc_gym.agents.residual import ResidualPolicy, ResidualVecEnv, read_record, residual_action
 from iscc_gym.agents.sb3_policy import SB3Policy
 from iscc_gym.agents.sb3_vec_env import ISCCBatchedVecEnv
+from iscc_gym.agents.shipped import URBAN_AGENT
+from iscc_gym.agents.tuned_records import load_tuned
 from iscc_gym.train import Args
 from iscc_gym.train.cli import parse_args
 from iscc_gym.train.config import resolve_args
@@ -64,6 +70,8 @@ def test_a_residual_run_saves_what_loads_as_base_plus_correction(tmp_path):
                    quiet=True))
     policy = SB3Policy.load(out)
     assert isinstance(policy, ResidualPolicy) and policy.spec == BASE and policy.scale == 0.4
+    assert read_record(out / "model.zip") == {"residual": BASE, "residual_scale": 0.4, "scenario": "paper",
+                                              "env_overrides": {}, "residual_params": None}  # the model's own
     agent = SB3Policy.load(out, check_env=None)
     assert not isinstance(agent, ResidualPolicy) or agent.agent is not None
     obs = ISCCBatchedVecEnv(4).reset()
@@ -138,6 +146,9 @@ def test_recurrent_ppo_trains_a_residual_agent_that_carries_its_memory(tmp_path)
                    overrides={"n_steps": 16, "batch_size": 16, "n_epochs": 1}, residual="margin", quiet=True))
     policy = SB3Policy.load(out, check_env=URBAN_ENV_ID)
     assert isinstance(policy, ResidualPolicy) and type(policy.model).__name__ == "RecurrentPPO"
+    recorded = load_tuned("margin-urban")["params"]  # the base's parameters as trained, in the model and manifest
+    assert read_record(out / "model.zip")["residual_params"] == recorded
+    assert yaml.safe_load((out / "manifest.yml").read_text())["run"]["residual_params"] == recorded
     venv = ISCCBatchedVecEnv(2, scenario="urban")
     venv.seed(3)
     obs = venv.reset()
@@ -204,3 +215,115 @@ def test_randomised_training_refuses_fewer_envs_than_mission_sets(tmp_path):
     with pytest.raises(ValueError, match="n_envs = 4.*--n-envs 5 or more"):
         main(tiny_args(tmp_path / "few", env_id=URBAN_ENV_ID, randomize="urban-shifts", n_envs=4))
     assert not (tmp_path / "few").exists()
+
+
+def _obs_urban(n=6, seed=5):
+    venv = ISCCBatchedVecEnv(n, scenario="urban")
+    venv.seed(seed)
+    return venv.reset()
+
+
+@pytest.fixture(scope="module")
+def shipped_urban():
+    """The shipped urban agent (a residual agent on myopic) and its actions on a few urban observations."""
+    policy = SB3Policy.load(URBAN_AGENT, check_env=URBAN_ENV_ID)
+    obs = _obs_urban()
+    return policy, obs, policy.predict(obs)[0]
+
+
+def test_a_residual_model_loads_as_the_residual_agent_without_its_run_files(tmp_path, shipped_urban):
+    """Issue 34.6: model.zip with vecnormalize.pkl beside it (SB3's convention), no manifest or config: the model's
+    own record makes it the residual agent, not a plain one whose actions are off by up to 1.
+    """
+    policy, obs, actions = shipped_urban
+    for name in ("model.zip", "vecnormalize.pkl"):
+        shutil.copy(URBAN_AGENT / name, tmp_path / name)
+    bare = SB3Policy.load(tmp_path / "model.zip", check_env=URBAN_ENV_ID)
+    assert isinstance(bare, ResidualPolicy) and (bare.spec, bare.scale) == ("myopic", 0.5)
+    np.testing.assert_array_equal(bare.predict(obs)[0], actions)
+    # a run whose manifest lost its residual entries: the same agent
+    d = tmp_path / "unit"
+    shutil.copytree(URBAN_AGENT, d)
+    m = yaml.safe_load((d / "manifest.yml").read_text())
+    m["run"] = {k: v for k, v in m["run"].items() if not k.startswith("residual")}
+    (d / "manifest.yml").write_text(yaml.safe_dump(m))
+    np.testing.assert_array_equal(SB3Policy.load(d, check_env=URBAN_ENV_ID).predict(obs)[0], actions)
+
+
+def test_the_shipped_urban_agent_plays_the_base_parameters_it_was_trained_with(tmp_path, monkeypatch, shipped_urban):
+    """Issue 34.7: re-tuning myopic on the urban task (another agents/tuned/myopic-urban.yml) leaves the shipped
+    agent's base as trained (rate_weight 0.3, myopic-urban.yml at its ship commit 6de79c4), with a warning.
+    """
+    import iscc_gym.agents.tuned_records as records
+    from iscc_gym.train.runs import run_identity
+
+    policy, obs, actions = shipped_urban
+    assert read_record(URBAN_AGENT / "model.zip")["residual_params"] == {"rate_weight": 0.3}
+    retuned = tmp_path / "tuned"
+    shutil.copytree(records.TUNED_DIR, retuned)
+    record = yaml.safe_load((retuned / "myopic-urban.yml").read_text())
+    record["params"]["rate_weight"] = 2.0
+    (retuned / "myopic-urban.yml").write_text(yaml.safe_dump(record))
+    monkeypatch.setattr(records, "TUNED_DIR", retuned)
+    assert make_policy("myopic", "urban").rate_weight == 2.0  # what the spec plays now
+    with pytest.warns(UserWarning, match=r"trained with \(\{'rate_weight': 0.3\}\), not .*myopic-urban.yml's "
+                                         r"\{'rate_weight': 2.0\}"):
+        again = SB3Policy.load(URBAN_AGENT, check_env=URBAN_ENV_ID)
+    assert again.base.rate_weight == 0.3
+    np.testing.assert_array_equal(again.predict(obs)[0], actions)
+    # a run resumed from a checkpoint keeps the parameters its checkpoint recorded
+    args, _ = resolve_args(parse_args(["--env", URBAN_ENV_ID]))
+    assert run_identity(args)["residual_params"] == {"rate_weight": 2.0}
+    assert run_identity(args, None, {"run": {"residual_params": {"rate_weight": 0.3}}})["residual_params"] == {
+        "rate_weight": 0.3}
+
+
+def _unit(tmp_path, name, record=True):
+    """A copy of the shipped urban agent's unit in ``tmp_path/name``; ``record=False``: its model without the
+    residual record (a residual run saved before models held one), its manifest rewritten to match.
+    """
+    from iscc_gym.agents.sb3_policy import read_manifest, write_manifest
+
+    d = tmp_path / name
+    shutil.copytree(URBAN_AGENT, d)
+    if not record:
+        with zipfile.ZipFile(URBAN_AGENT / "model.zip") as src, zipfile.ZipFile(d / "model.zip", "w") as dst:
+            for item in src.infolist():
+                if item.filename != "residual.yml":
+                    dst.writestr(item, src.read(item.filename))
+        m = read_manifest(URBAN_AGENT)
+        m["run"].pop("residual_params")
+        write_manifest(d, list(m.pop("files")), **m)
+    return d
+
+
+#: Damaged manifests (issue 34.16): (the damage, the field the error names, the unit has the model's record).
+DAMAGED = [
+    (lambda m: m.update(run=3), "run = 3", True),
+    (lambda m: m.update(files=["model.zip"]), "files = ", True),
+    (lambda m: m["run"].update(residual_scale=0.25), "run.residual_scale = 0.25, .*set it back to 0.5", True),
+    (lambda m: m["run"].update(scenario="paper"), "run.scenario = 'paper', .*set it back to 'urban'", True),
+    (lambda m: m["run"].update(residual=None), "run.residual = None, .*set it back to 'myopic'", True),
+    (lambda m: m["run"].update(algo="ppox"), "run.algo = 'ppox'; expected one of", True),
+    (lambda m: m["run"].update(algo="sac"), "run.algo = 'sac' is not the algorithm", True),
+    (lambda m: m["run"].update(normalize="yes"), "run.normalize = 'yes'; expected true or false", True),
+    (lambda m: m["run"].pop("residual_scale"), "run.residual_scale = None; expected a number", False),
+    (lambda m: m["run"].update(residual_scale="x"), "run.residual_scale = 'x'; expected a number", False),
+    (lambda m: m["run"].update(scenario="paper"), "run.scenario = 'paper' .*gives observations of size", False),
+    (lambda m: m["run"].update(residual="myopix"), "run.residual = 'myopix' does not build", False),
+    (lambda m: m["run"].update(env_overrides=[1]), "run.env_overrides = \\[1\\]; expected a mapping", False),
+]
+
+
+@pytest.mark.parametrize("damage,field,record", DAMAGED)
+def test_a_damaged_manifest_is_named_with_its_field_and_the_fix(tmp_path, damage, field, record):
+    """Issue 34.16: each damage of a residual unit's manifest.yml is a ValueError naming the file, the field and
+    the fix, never a KeyError, an AttributeError, a plain agent or a shape error at the first step.
+    """
+    d = _unit(tmp_path, "unit", record)
+    m = yaml.safe_load((d / "manifest.yml").read_text())
+    damage(m)
+    (d / "manifest.yml").write_text(yaml.safe_dump(m))
+    with pytest.raises(ValueError, match=f"manifest\\.yml: {field}") as e:
+        SB3Policy.load(d, check_env=None)
+    assert any(fix in str(e.value) for fix in ("set it back", "restore it", "retrain"))

@@ -32,12 +32,16 @@ IDENTITY = ("env_id", "algo", "scenario", "env_overrides", "normalize", "eval_ep
 RESUME_FILE = "resume.yml"
 
 
-def run_identity(args: Args, hyperparams: dict | None = None) -> dict:
+def run_identity(args: Args, hyperparams: dict | None = None, resumed: dict | None = None) -> dict:
     """The settings of :data:`IDENTITY` of resolved ``args``, as written into every unit's manifest, and
     the constraints (``cost_limit`` as a mapping of limits, ``lagrange_lr``; None for an unconstrained
     run); with ``hyperparams`` (the algorithm's resolved keyword arguments), those too: a resumed model
     keeps the hyperparameters saved in its checkpoint, so a resume that changes them is refused rather
     than silently ignored.
+
+    A residual run's ``residual_params`` are its base's tuned parameters, read once here
+    (:func:`agents.residual.residual_record`); a run resumed from checkpoint manifest ``resumed`` keeps the
+    ones it recorded.
     """
     from .lagrangian import parse_cost_limits
 
@@ -49,6 +53,13 @@ def run_identity(args: Args, hyperparams: dict | None = None) -> dict:
     # a residual agent's base policy and reach (agents/residual.py; SB3Policy.load plays them); None otherwise
     ident["residual"] = str(args.residual) if has_residual(args) else None
     ident["residual_scale"] = float(args.residual_scale) if has_residual(args) else None
+    ident["residual_params"] = None
+    if has_residual(args):
+        from iscc_gym.agents.residual import residual_record
+
+        was = (resumed or {}).get("run") or {}
+        ident["residual_params"] = was["residual_params"] if "residual_params" in was else residual_record(
+            args.residual, args.residual_scale, args.scenario, args.env_overrides)["residual_params"]
     ident["randomize"] = str(args.randomize) if randomized(args) else None
     if hyperparams is not None:
         ident["hyperparams"] = hyperparams
@@ -62,7 +73,9 @@ def save_unit(directory: str | os.PathLike, model, vecnormalize=None, *, model_n
 
     Every file goes to a temporary name and is renamed (:func:`iscc_gym.files.atomic_target`); the
     manifest (:func:`iscc_gym.agents.sb3_policy.write_manifest`, sizes and SHA-256, plus ``meta``)
-    is written last, so a unit interrupted anywhere is recognised as incomplete.
+    is written last, so a unit interrupted anywhere is recognised as incomplete. A residual run's model
+    (``meta["run"]``, :func:`run_identity`, names a ``residual``) holds its residual record
+    (:func:`agents.residual.write_record`).
     """
     d = Path(directory)
     d.mkdir(parents=True, exist_ok=True)
@@ -78,8 +91,13 @@ def save_unit(directory: str | os.PathLike, model, vecnormalize=None, *, model_n
         with atomic_target(d / "replay_buffer.pkl") as tmp:
             model.save_replay_buffer(tmp)
         files.append("replay_buffer.pkl")
+    run = meta.get("run") or {}
     with atomic_target(d / model_name) as tmp:
         model.save(tmp)
+        if run.get("residual"):
+            from iscc_gym.agents.residual import write_record
+
+            write_record(tmp, run)
     files.append(model_name)
     write_manifest(d, files, **meta)
     return d
@@ -141,22 +159,11 @@ def read_unit(directory: str | os.PathLike, need: tuple[str, ...] = ()) -> dict:
         missing or not matching it.
     """
     d = Path(directory)
-    path = d / MANIFEST
-    if path.is_file():
-        try:
-            doc = yaml.safe_load(path.read_text())
-        except (yaml.YAMLError, UnicodeDecodeError) as e:
-            raise ValueError(f"{path}: not valid YAML ({str(e).splitlines()[0]}): a damaged manifest") from None
-        files = doc.get("files") if isinstance(doc, dict) else None
-        if not isinstance(files, dict) or not files or not all(
-                isinstance(v, dict) and isinstance(v.get("bytes"), int) and isinstance(v.get("sha256"), str)
-                for v in files.values()):
-            raise ValueError(f"{path}: files = {files!r}; not a manifest written by python -m train (empty or "
-                             "damaged: it must list each file of the unit with its bytes and sha256)")
-        missing = [n for n in need if n not in files]
-        if missing:
-            raise ValueError(f"{path}: lists no {', '.join(missing)} (a damaged manifest)")
-    return read_manifest(d)
+    manifest = read_manifest(d)  # the layout first: valid YAML, files of bytes and sha256
+    missing = [n for n in need if n not in manifest["files"]]
+    if missing:
+        raise ValueError(f"{d / MANIFEST}: lists no {', '.join(missing)} (a damaged manifest)")
+    return manifest
 
 
 def latest_checkpoint(ckpt_dir: str | os.PathLike) -> tuple[Path | None, dict | None, list[str]]:
@@ -231,9 +238,11 @@ def prepare_out(args: Args, hyperparams: dict | None = None) -> tuple[Path | Non
             raise ValueError(f"{ckpt / MANIFEST}: run = {was!r}; not a manifest written by python -m train")
         # a checkpoint of an older python -m train records no hyperparameters (or constraints): nothing to
         # compare them with (its multipliers then come from lagrange.yml, which must be there)
-        now = run_identity(args, hyperparams if "hyperparams" in was else None)
+        now = run_identity(args, hyperparams if "hyperparams" in was else None, manifest)
         if "cost_limit" not in was:
             now = {k: v for k, v in now.items() if k not in ("cost_limit", "lagrange_lr")}
+        if "residual_params" not in was:  # an older checkpoint: its base reads its tuning record, as it did
+            now.pop("residual_params")
         was, now = _flat_identity(was), _flat_identity(now)
         diff = [f"{k} {was.get(k)!r} -> {now.get(k)!r}" for k in dict.fromkeys([*now, *was])
                 if was.get(k) != now.get(k)]

@@ -99,8 +99,10 @@ def make_env(env_id: str, **kwargs):
     return gym.make(env_id, **kwargs)
 
 
-def make_train_env(args: Args):
-    """The training VecEnv, with episode statistics (Monitor / VecMonitor) for the logs."""
+def make_train_env(args: Args, residual: dict | None = None):
+    """The training VecEnv, with episode statistics (Monitor / VecMonitor) for the logs; a residual run's base
+    built from its record ``residual`` (:func:`with_residual`).
+    """
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecMonitor
 
@@ -118,28 +120,28 @@ def make_train_env(args: Args):
         else:
             venv = ISCCBatchedVecEnv(args.n_envs, scenario=args.scenario, info_keys=keys, **batched_kwargs(args))
         venv.seed(args.seed)
-        return VecMonitor(with_residual(venv, args))
+        return VecMonitor(with_residual(venv, args, residual))
     kwargs = {"scenario": args.scenario, **args.env_overrides} if args.env_id in ISCC_ENV_IDS else {}
     kwargs["env_id"] = args.env_id  # made by make_env, which a subproc worker imports iscc_gym for
     cls = SubprocVecEnv if args.vec_env == "subproc" else DummyVecEnv
     # make_vec_env wraps each env in a Monitor already (below the residual: it records the env's rewards)
     return with_residual(make_vec_env(make_env, n_envs=args.n_envs, seed=args.seed, vec_env_cls=cls,
-                                      env_kwargs=kwargs), args)
+                                      env_kwargs=kwargs), args, residual)
 
 
-def with_residual(venv, args: Args):
+def with_residual(venv, args: Args, residual: dict | None = None):
     """``venv`` as a residual agent's env (:class:`agents.residual.ResidualVecEnv` on ``args.residual``, built
-    for the run's scenario), or unchanged without a residual.
+    for the run's scenario with the tuned parameters of the run's record ``residual``, by default
+    :func:`agents.residual.residual_record` now), or unchanged without a residual.
     """
     if not has_residual(args):
         return venv
-    from iscc_gym.agents import make_policy
-    from iscc_gym.agents.residual import ResidualVecEnv
+    from iscc_gym.agents.residual import ResidualVecEnv, base_policy, residual_record
 
-    from iscc_gym import make_scenario
-
-    base = make_policy(args.residual, make_scenario(args.scenario, **args.env_overrides))
-    return ResidualVecEnv(venv, base, args.residual_scale)
+    if residual is None:
+        residual = residual_record(args.residual, args.residual_scale, args.scenario, args.env_overrides)
+    base = base_policy(residual)
+    return ResidualVecEnv(venv, base, residual["residual_scale"])
 
 
 def batched_kwargs(args: Args) -> dict:
@@ -154,8 +156,10 @@ def batched_kwargs(args: Args) -> dict:
     return kw
 
 
-def make_eval_env(args: Args):
-    """Held-out evaluation episodes: seeds CALLBACK_EVAL_SEED_START + i, one sub-env per episode."""
+def make_eval_env(args: Args, residual: dict | None = None):
+    """Held-out evaluation episodes: seeds CALLBACK_EVAL_SEED_START + i, one sub-env per episode (a residual run's
+    base built from its record ``residual``).
+    """
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import DummyVecEnv, VecMonitor
 
@@ -166,7 +170,7 @@ def make_eval_env(args: Args):
         if args.eval_max_steps < venv.venv.max_steps:
             venv.venv.max_steps = args.eval_max_steps
         venv.seed(CALLBACK_EVAL_SEED_START)
-        return VecMonitor(with_residual(venv, args))
+        return VecMonitor(with_residual(venv, args, residual))
     venv = make_vec_env(args.env_id, n_envs=args.eval_episodes, vec_env_cls=DummyVecEnv)
     venv.seed(CALLBACK_EVAL_SEED_START)
     return venv
@@ -498,7 +502,10 @@ def main(args: Args, callback_after_eval=None) -> dict:
     kw = check_hyperparams(args.algo, resolve_policy_kwargs(hp))
     check_resolved(args, kw)
     ckpt, manifest = prepare_out(args, hp)
-    identity = run_identity(args, hp)
+    identity = run_identity(args, hp, manifest)
+    # the residual base's record, resolved once: the base trains on it and every saved model holds it
+    residual = {k: identity[k] for k in ("residual", "residual_scale", "scenario", "env_overrides",
+                                         "residual_params")} if identity["residual"] else None
     out = Path(args.out)
     resumed = _resume(args, out, ckpt, manifest)
     say((f"resuming {out} from {ckpt} (step {int(manifest['timesteps']):,})" if ckpt is not None else
@@ -511,7 +518,7 @@ def main(args: Args, callback_after_eval=None) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     algo_cls = algo_class(args.algo)
     off_policy = args.algo in ("sac", "td3")
-    venv = make_train_env(args)
+    venv = make_train_env(args, residual)
     lagrange = None
     if args.cost_limit:
         from .lagrangian import LagrangianVecEnv, parse_cost_limits
@@ -594,7 +601,7 @@ def main(args: Args, callback_after_eval=None) -> dict:
         callbacks.append(lagrange_cb := LagrangeCallback(
             lagrange, args.lagrange_lr, out, history=resumed["lagrange"]["history"] if resumed["lagrange"] else None))
     if args.eval_freq > 0:
-        eval_env = make_eval_env(args)
+        eval_env = make_eval_env(args, residual)
         if args.normalize:
             eval_env = VecNormalize(eval_env, training=False, norm_reward=False)
         eval_cb = _eval_callback(eval_env, args, out, identity, resumed, evaluated, callback_after_eval)

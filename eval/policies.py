@@ -24,8 +24,14 @@ SHIPPED_AGENT = PPO_AGENT
 _KNOWN_SPECS = ("sca", "sca-per-slot", "sca-ignore-loss", "grid", "evolutionary", "myopic")
 
 
-def build_policy(item: str, scenario: str = "paper"):
-    """``(name, policy)`` of one ``NAME=PATH`` (a trained agent) or :func:`agents.make_policy` spec."""
+#: What a trained agent of another env's observations is told to do (``python -m eval`` has ``--env``).
+ENV_FIX = "compare it with --env set to the env it was trained on"
+
+
+def build_policy(item: str, scenario: str = "paper", fix: str = ENV_FIX):
+    """``(name, policy)`` of one ``NAME=PATH`` (a trained agent) or :func:`agents.make_policy` spec; ``fix`` ends
+    the error for an agent of another env's observations (the option of the calling command that fixes it).
+    """
     from iscc_gym.agents import make_policy
 
     if "=" in item:
@@ -37,7 +43,7 @@ def build_policy(item: str, scenario: str = "paper"):
         if policy.obs_shape != want:
             raise ValueError(f"--policies {item!r}: the model takes observations of shape {policy.obs_shape}, the "
                              f"{scenario if isinstance(scenario, str) else 'given'} scenario's env gives {want}: it "
-                             "was trained on another env; compare it with --env set to the env it was trained on")
+                             f"was trained on another env; {fix}")
         return name, policy
     return item, make_policy(item, scenario)
 

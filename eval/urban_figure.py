@@ -17,18 +17,20 @@ from pathlib import Path
 
 import numpy as np
 from iscc_gym.agents.shipped import URBAN_AGENT
+from iscc_gym.eval.evaluate import Actor
 from iscc_gym.eval.figures import new_figure, save_figure
 from iscc_gym.eval.options import PICKLE_WARNING, Parser, check_writable_file, docs_command, nonneg_int, run_console
-from iscc_gym.eval.policies import build_policy, policy_name, resolve_specs, split_specs
+from iscc_gym.eval.policies import build_policy, resolve_specs
 from iscc_gym.eval.urban_task import mission_stats
 
+from iscc_gym import URBAN_ENV_ID
 from iscc_gym.docs import RESULTS_PATH, docs_path, write_section
 from iscc_gym.envs.env import ISCCEnv
 from iscc_gym.protocol import URBAN_SEED_START
 from iscc_gym.scenario import make_scenario
 from iscc_gym.sim.mission import MC
 
-__all__ = ["play_mission", "draw", "main", "pick_mission", "FIGURE", "BLOCKED_SHARE"]
+__all__ = ["play_mission", "mission_policies", "draw", "main", "pick_mission", "FIGURE", "BLOCKED_SHARE"]
 
 #: The figure's file name under docs/figures (``--write-docs``).
 FIGURE = "urban_mission.png"
@@ -47,20 +49,34 @@ def pick_mission(scenario="urban", share: float = BLOCKED_SHARE, tries: int = 20
     raise ValueError(f"no mission of the first {tries} from {URBAN_SEED_START} is {share:.0%} blocked")
 
 
-def play_mission(spec: str, seed: int, scenario="urban") -> dict:
-    """One mission of policy ``spec`` (a scripted spec, ``ppo`` for the shipped urban agent or ``NAME=PATH``) on
-    the single env: per slot the split, the backlog, the dropped bits, the tracking error, and the mission's rows
-    (reference and channel).
+#: What an agent of another env's observations is told here (these commands have no ``--env``).
+URBAN_FIX = f"these commands play {URBAN_ENV_ID} only: give --policies an agent trained on it"
+
+
+def mission_policies(specs: str) -> dict:
+    """``{name: policy}`` of a ``--policies`` value (``ppo``: the shipped urban agent), every one built, so checked,
+    before any mission is played.
+    """
+    return dict(build_policy(item, "urban", fix=URBAN_FIX) for item in resolve_specs(specs, URBAN_AGENT))
+
+
+def play_mission(policy, seed: int, scenario="urban") -> dict:
+    """One mission of ``policy`` (a built one, or a spec: scripted, ``ppo`` for the shipped urban agent or
+    ``NAME=PATH``) on the single env, played as :func:`iscc_gym.eval.evaluate.run_episodes` plays it (its
+    :class:`~iscc_gym.eval.evaluate.Actor`: a recurrent agent keeps its memory): per slot the split, the backlog,
+    the dropped bits, the tracking error, and the mission's rows (reference and channel).
     """
     s = make_scenario(scenario)
-    _, policy = build_policy(resolve_specs(spec, URBAN_AGENT)[0], s)
+    if isinstance(policy, str):
+        _, policy = build_policy(resolve_specs(policy, URBAN_AGENT)[0], s, fix=URBAN_FIX)
     env = ISCCEnv(s.replace(**getattr(policy, "scenario_overrides", {})))
     obs, _ = env.reset(seed=int(seed))
     rows = env._state.ref[0].copy()
     out = {k: [] for k in ("alpha", "backlog_bits", "bits_dropped", "tracking_error_m", "slot_reward")}
     reward = 0.0
+    act = Actor(policy, 1)
     for _ in range(s.n_slots):
-        action, _ = policy.predict(obs, deterministic=True)
+        action = act(obs)
         obs, r, term, trunc, info = env.step(np.asarray(action, dtype=np.float32))
         reward += r
         out["slot_reward"].append(r)
@@ -142,8 +158,9 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.urban_figure
     else:
         out = Path(args.out)
     check_writable_file(out, "--out")
+    policies = mission_policies(args.policies)
     seed = pick_mission() if args.seed is None else args.seed
-    runs = {policy_name(spec): play_mission(spec, seed) for spec in split_specs(args.policies)}
+    runs = {name: play_mission(policy, seed) for name, policy in policies.items()}
     print(f"mission {seed}")
     path = draw(runs, out)
     print(f"wrote {path}")

@@ -26,8 +26,7 @@ from iscc_gym.eval.options import (
     positive_int,
     run_console,
 )
-from iscc_gym.eval.policies import policy_name, split_specs
-from iscc_gym.eval.urban_figure import pick_mission, play_mission
+from iscc_gym.eval.urban_figure import mission_policies, pick_mission, play_mission
 
 from iscc_gym.protocol import EVAL_SEED_START
 from iscc_gym.scenario import make_scenario
@@ -136,8 +135,8 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.urban_learne
     s = make_scenario("urban")
     window = max(1, int(round(args.window_s / s.dt_s)))
     seeds = list(range(EVAL_SEED_START, EVAL_SEED_START + args.missions))
-    specs = split_specs(args.policies)
-    runs = {policy_name(spec): [play_mission(spec, seed) for seed in seeds] for spec in specs}
+    policies = mission_policies(args.policies)  # all built (and checked) before any is played
+    runs = {name: [play_mission(policy, seed) for seed in seeds] for name, policy in policies.items()}
     table = phase_table(runs, window)
     text = markdown(table, seeds, docs_command(prog, argv), args.window_s)
     print(text)
@@ -145,7 +144,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.urban_learne
         from iscc_gym.eval.urban_figure import draw
 
         seed = pick_mission() if args.figure_seed is None else args.figure_seed
-        one = {policy_name(spec): play_mission(spec, seed) for spec in specs}
+        one = {name: play_mission(policy, seed) for name, policy in policies.items()}
         path = docs_path("docs/figures/urban_learned.png") if args.write_docs else "runs/urban_learned.png"
         draw(one, path)
         print(f"wrote {path} (mission {seed})")

@@ -236,3 +236,47 @@ def test_the_phases_of_a_mission_against_its_blocked_stretches():
                                                    "after", "clear", "clear", "clear"]
     assert list(phases(np.array([1, 0, 1], dtype=bool), 5)) == [1, 2, 3]  # ahead wins over after only where both
     assert list(phases(np.array([0, 1, 0], dtype=bool), 1)) == [2, 1, 2]
+
+
+class _Recurrent:
+    """A policy with memory: its split follows the slots it has counted since its episode started (its state)."""
+
+    def predict(self, obs, state=None, episode_start=None, deterministic=True):
+        n = len(np.atleast_2d(obs))
+        count = np.zeros(n) if state is None else np.asarray(state, dtype=float)
+        if episode_start is not None:
+            count = np.where(np.broadcast_to(np.asarray(episode_start, dtype=bool), (n,)), 0.0, count)
+        action = np.stack([np.cos(count / 7.0), np.sin(count / 5.0), np.full(n, -0.2)], axis=1).astype(np.float32)
+        return (action[0] if np.ndim(obs) == 1 else action), count + 1.0
+
+
+def test_a_mission_is_played_as_python_m_eval_plays_it_memory_included():
+    """Issue 34.5: play_mission (eval.urban_figure, eval.urban_learned) carries a recurrent policy's state and
+    episode start as the evaluator's rollout does, so it plays the policy python -m eval scores."""
+    from iscc_gym.eval.evaluate import run_episodes
+    from iscc_gym.eval.urban_figure import play_mission
+
+    seed, short = 1_500_024, U.replace(mission_duration_s=U.mission_duration_s / 10)  # 120 slots
+    run = play_mission(_Recurrent(), seed, short)
+    assert np.ptp(run["alpha"][:20, 0]) > 0.1  # its memory moves the split
+    scored = run_episodes(_Recurrent(), [seed], short)["episodes"]
+    assert run["reward"] == pytest.approx(scored["reward"][0], rel=1e-12)
+    assert len(run["alpha"]) == scored["length"][0]
+
+
+def test_the_urban_commands_build_every_policy_before_playing_any(tmp_path, monkeypatch):
+    """Issue 34.16: eval.urban_learned and eval.urban_figure refuse a bad policy before playing the ones before it,
+    and tell an agent of another env to change --policies (they have no --env)."""
+    from iscc_gym.agents.shipped import PPO_AGENT
+    from iscc_gym.eval import urban_figure, urban_learned
+
+    played = []
+    for module in (urban_figure, urban_learned):
+        monkeypatch.setattr(module, "play_mission", lambda *a, **k: played.append(a))
+    with pytest.raises(ValueError, match="unknown policy spec 'nope'"):
+        urban_learned.main(["--policies", "myopic,nope", "--missions", "1"])
+    with pytest.raises(ValueError, match="trained on another env; .* give --policies an agent trained on it") as e:
+        urban_figure.main(["--policies", f"myopic,paper={PPO_AGENT}", "--seed", "1500024",
+                           "--out", str(tmp_path / "m.png")])
+    assert "--env" not in str(e.value) and not played
+

@@ -204,6 +204,22 @@ def run_parallel(specs: str, seeds, scenario: str = "paper", max_steps=None, rec
     return dict(results)
 
 
+def pool_map(fn, *iterables, workers: int) -> list:
+    """``list(map(fn, *iterables))`` in a pool of ``workers`` processes. An error, or Ctrl-C (SIGINT, a
+    ``KeyboardInterrupt`` here), stops the pool at once (:func:`_stop`) instead of waiting for the calls
+    still running, and is raised.
+    """
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(workers) as pool:
+        futures = [pool.submit(fn, *args) for args in zip(*iterables, strict=True)]
+        try:
+            return [f.result() for f in futures]
+        except BaseException:
+            _stop(pool)
+            raise
+
+
 def _stop(pool) -> None:
     """Cancel what a pool has not started and end its worker processes (Python 3.14's ``terminate_workers``,
     else each process of the pool).

@@ -30,13 +30,13 @@ from __future__ import annotations
 import functools
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 from iscc_gym.agents import LookaheadPolicy, MyopicPolicy
 from iscc_gym.agents.tuned_records import load_tuned, record_name
 from iscc_gym.eval.evaluate import ci_bounds, ci_side, mean_ci, run_episodes
 from iscc_gym.eval.options import Parser, docs_command, nonneg_int, positive_int, run_console
+from iscc_gym.eval.policies import pool_map
 from iscc_gym.eval.tune import tune_model_grid
 from iscc_gym.eval.urban_task import task_stats
 
@@ -210,8 +210,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.urban_levers
                             max_steps=args.max_steps, skip=args.skip)
     overrides = [VARIANTS[n][0] for n in names]
     if args.jobs > 1:  # one variant per process; each row is seeded, so the table is the same as with one
-        with ProcessPoolExecutor(min(args.jobs, len(names))) as pool:
-            rows = list(pool.map(row, names, overrides))
+        rows = pool_map(row, names, overrides, workers=min(args.jobs, len(names)))  # Ctrl-C stops the workers
     else:
         rows = list(map(row, names, overrides))
     table = markdown(rows, docs_command(prog, argv))

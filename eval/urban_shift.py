@@ -19,12 +19,11 @@ from __future__ import annotations
 import functools
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 
 from iscc_gym.agents.shipped import URBAN_AGENT
 from iscc_gym.eval.evaluate import ci_bounds, ci_side, run_episodes, summarize
 from iscc_gym.eval.options import PICKLE_WARNING, Parser, docs_command, positive_int, run_console
-from iscc_gym.eval.policies import build_policy, policy_name, resolve_specs
+from iscc_gym.eval.policies import build_policy, policy_name, pool_map, resolve_specs
 
 from iscc_gym.protocol import EVAL_SEED_START
 from iscc_gym.scenario import URBAN_SHIFTS, make_scenario
@@ -131,8 +130,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.urban_shift"
     job = functools.partial(shift_runs, specs=args.policies, seeds=seeds, max_steps=args.max_steps)
     t0 = time.perf_counter()
     if args.jobs > 1 and len(names) > 1:  # one shift per process; every run is seeded, so the same table
-        with ProcessPoolExecutor(min(args.jobs, len(names))) as pool:
-            runs = list(pool.map(job, names))
+        runs = pool_map(job, names, workers=min(args.jobs, len(names)))  # Ctrl-C stops the workers
     else:
         runs = [job(n) for n in names]
     results = {n: summarize(r, seeds, focus=args.focus) for n, r in zip(names, runs, strict=True)}

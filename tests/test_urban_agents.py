@@ -280,3 +280,39 @@ def test_the_urban_commands_build_every_policy_before_playing_any(tmp_path, monk
                            "--out", str(tmp_path / "m.png")])
     assert "--env" not in str(e.value) and not played
 
+
+
+@pytest.mark.parametrize("command, argv", [
+    ("urban_shift", ["--shifts", "umi_av,map error 0.8", "--policies", "myopic", "--focus", "myopic", "--episodes",
+                     "1"]),
+    ("urban_levers", ["--variants", "urban,smooth", "--missions", "1"]),
+])
+def test_ctrl_c_stops_the_urban_commands_jobs_at_once(command, argv, monkeypatch):
+    """Issue 34.16: Ctrl-C (SIGINT) while ``--jobs 2`` plays two variants: the command stops within a couple of
+    seconds, its worker processes ended, instead of waiting for the variants still being played (up to 90 s)."""
+    import importlib
+    import multiprocessing
+    import os
+    import signal
+    import threading
+    import time
+
+    from iscc_gym.eval import policies
+
+    module = importlib.import_module(f"iscc_gym.eval.{command}")
+    ctrl_c = threading.Timer(0.5, os.kill, (os.getpid(), signal.SIGINT))
+
+    def sleeping(fn, *iterables, workers):  # the command's pool, each variant played for 30 s
+        ctrl_c.start()
+        return policies.pool_map(time.sleep, [30.0] * len(iterables[0]), workers=workers)
+
+    monkeypatch.setattr(module, "pool_map", sleeping)
+    t0 = time.perf_counter()
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            module.main(argv + ["--jobs", "2"])
+    finally:
+        ctrl_c.cancel()
+    for worker in multiprocessing.active_children():  # ended (SIGTERM), not left playing
+        worker.join(timeout=2.0)
+    assert time.perf_counter() - t0 < 3.0 and not multiprocessing.active_children()

@@ -281,7 +281,6 @@ def test_the_urban_commands_build_every_policy_before_playing_any(tmp_path, monk
     assert "--env" not in str(e.value) and not played
 
 
-
 @pytest.mark.parametrize("command, argv", [
     ("urban_shift", ["--shifts", "umi_av,map error 0.8", "--policies", "myopic", "--focus", "myopic", "--episodes",
                      "1"]),

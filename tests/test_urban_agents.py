@@ -299,7 +299,7 @@ def test_ctrl_c_stops_the_urban_commands_jobs_at_once(command, argv, monkeypatch
     from iscc_gym.eval import policies
 
     module = importlib.import_module(f"iscc_gym.eval.{command}")
-    ctrl_c = threading.Timer(0.5, os.kill, (os.getpid(), signal.SIGINT))
+    ctrl_c = threading.Timer(0.25, os.kill, (os.getpid(), signal.SIGINT))
 
     def sleeping(fn, *iterables, workers):  # the command's pool, each variant played for 30 s
         ctrl_c.start()

@@ -18,3 +18,14 @@ def _library_folders_in_pytest_tmp(tmp_path_factory):
             os.environ.pop(k, None)
         else:
             os.environ[k] = v
+
+
+# ISCC_TEST_ULP_NUMPY=1 python -m pytest tests/test_x.py: the tests run as on a CPU whose numpy transcendentals
+# differ from libm's in the last bit (AVX-512), in this process and in the Python subprocesses the tests start
+# (tests/ulp_numpy.py): a test comparing numba's or math's results with numpy's bit for bit fails (issue 34)
+if os.environ.get("ISCC_TEST_ULP_NUMPY") == "1":
+    import ulp_numpy
+
+    ulp_numpy.install()
+    site = os.path.join(os.path.dirname(os.path.abspath(__file__)), "ulp_site")
+    os.environ["PYTHONPATH"] = os.pathsep.join([site] + [p for p in [os.environ.get("PYTHONPATH")] if p])

@@ -46,6 +46,7 @@ from iscc_gym.eval.options import (
     check_writable_dir,
     check_writable_file,
     docs_command,
+    env_scenario,
     nonneg_int,
     parse_seeds,
     positive_int,
@@ -204,8 +205,7 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> dict:
     if args.env not in (ENV_ID, URBAN_ENV_ID):
         raise ValueError(f"--env {args.env!r}: use {ENV_ID}, {URBAN_ENV_ID} or {MULTI_ENV_ID}")
     urban = args.env == URBAN_ENV_ID
-    if args.scenario is None:
-        args.scenario = "urban" if urban else "paper"
+    args.scenario = env_scenario(args.env, args.scenario, args.write_docs)  # the env's own, or a variant of its task
     if args.policies is None:
         args.policies = URBAN_POLICIES if urban else DEFAULT_POLICIES
     from iscc_gym import make_scenario

@@ -20,7 +20,7 @@ from iscc_gym.files import destination
 
 __all__ = ["Parser", "PICKLE_WARNING", "positive_int", "nonneg_int", "parse_seeds", "check_writable_file",
            "check_writable_dir", "show_progress", "progress_bar", "LineProgress", "Stages", "run_console",
-           "docs_command"]
+           "docs_command", "env_scenario"]
 
 #: Said in ``--help`` wherever a path to a trained model is accepted.
 PICKLE_WARNING = ("A model .zip and its vecnormalize.pkl are pickles: loading them executes code they contain, so "
@@ -92,6 +92,42 @@ def _probe_dir(directory: Path, flag: str, path: Path) -> None:
             pass
     except OSError as e:
         raise OSError(f"{flag} {path}: cannot write in {directory} ({e.strerror or e})") from None
+
+
+def env_scenario(env: str, scenario: str | None, write_docs: bool = False) -> str:
+    """The scenario preset a command plays on env id ``env``: ``--scenario``, by default the one ``env`` is
+    registered with (``urban`` for ``iscc_gym/ISCC-Urban-v0``, else ``paper``).
+
+    Raises
+    ------
+    ValueError
+        An unknown preset; a preset of another task than ``env``'s (:func:`iscc_gym.agents.tuned_records.task_of`:
+        the command would play that task's missions under ``env``'s policies, reference, shipped agent and docs
+        section), naming both and the fix; with ``write_docs``, any preset but ``env``'s own (the docs sections
+        are of it). A variant of the same task (``literal`` on ``iscc_gym/ISCC-v0``) passes.
+    """
+    from iscc_gym.agents.tuned_records import task_of
+
+    from iscc_gym.envs.env import ENV_ID, URBAN_ENV_ID, registered_scenario
+    from iscc_gym.scenario import make_scenario
+
+    own = registered_scenario(env)
+    if scenario is None:
+        return own
+    try:
+        task = task_of(make_scenario(scenario))
+    except (ValueError, TypeError) as e:
+        raise ValueError(f"--scenario {scenario!r}: {e.args[0] if e.args else e}") from None
+    env_task = task_of(make_scenario(own))
+    if task != env_task:
+        other = next(e for e in (ENV_ID, URBAN_ENV_ID) if task_of(make_scenario(registered_scenario(e))) == task)
+        raise ValueError(f"--scenario {scenario!r} is the {task} task, but --env {env} is the {env_task} task (its "
+                         f"policies, reference, shipped agent and docs section): use --env {other} for "
+                         f"{scenario!r}, or drop --scenario to play {env}'s own {own!r}")
+    if write_docs and scenario != own:
+        raise ValueError(f"--write-docs writes the docs of --env {env}, whose scenario is {own!r}: drop --scenario "
+                         f"{scenario!r} or --write-docs")
+    return scenario
 
 
 def check_writable_file(path: str | os.PathLike, flag: str) -> Path:

@@ -27,6 +27,7 @@ from iscc_gym.eval.options import (
     Parser,
     check_writable_file,
     docs_command,
+    env_scenario,
     nonneg_int,
     positive_int,
     progress_bar,
@@ -132,8 +133,8 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.seeds") -> d
     args = build_parser(prog).parse_args(argv)
     if args.episodes < 2:
         raise ValueError(f"--episodes {args.episodes}: use at least 2 (a confidence interval needs two missions)")
-    scenario, scripted, reference, section, title = TASKS[args.env]
-    args.scenario = args.scenario or scenario
+    _, scripted, reference, section, title = TASKS[args.env]
+    args.scenario = env_scenario(args.env, args.scenario, args.write_docs)  # TASKS' scenario, or a variant of it
     runs = seed_runs(args.root)  # FileNotFoundError with one line: the exit code 2 of iscc_gym.cli.run
     from iscc_gym.eval.policies import check_specs
 

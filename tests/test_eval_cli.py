@@ -395,3 +395,22 @@ def test_commands_that_load_agents_say_they_are_pickles(command, capsys):
     from iscc_gym.eval.options import PICKLE_WARNING
 
     assert " ".join(PICKLE_WARNING.split()) in " ".join(_help(command, capsys).split())
+
+
+def test_a_scenario_of_another_task_than_the_env_is_refused(no_episodes, tmp_path):
+    """Issue 34 item 8: ``--env iscc_gym/ISCC-Urban-v0 --scenario paper`` played paper missions under the urban
+    task's policies, labels and docs section; now refused naming both and the fix, also by eval.seeds. A variant
+    of the env's own task (``literal`` on ISCC-v0) still plays, but not into the docs of the env's own preset."""
+    urban, paper = "iscc_gym/ISCC-Urban-v0", "iscc_gym/ISCC-v0"
+    with pytest.raises(ValueError, match=rf"--scenario 'paper' is the paper task, but --env {urban} is the urban "
+                                         rf"task .*: use --env {paper} for 'paper', or drop --scenario"):
+        cli.main(["--env", urban, "--scenario", "paper", "--policies", "myopic,margin", "--write-docs", "--quiet"])
+    with pytest.raises(ValueError, match=rf"--scenario 'urban' is the urban task, but --env {paper} is the paper"):
+        cli.main(["--scenario", "urban", "--quiet"])
+    with pytest.raises(ValueError, match=rf"--write-docs writes the docs of --env {paper}, whose scenario is 'paper'"):
+        cli.main(["--scenario", "literal", "--write-docs", "--quiet"])
+    with pytest.raises(ValueError, match=rf"--scenario 'paper' is the paper task, but --env {urban}"):
+        seeds.main([str(tmp_path), "--env", urban, "--scenario", "paper", "--quiet"])
+    from iscc_gym.eval.options import env_scenario
+
+    assert env_scenario(paper, "literal") == "literal" and env_scenario(urban, None) == "urban"

@@ -198,3 +198,25 @@ def test_subproc_workers_import_iscc_gym_to_make_their_envs(monkeypatch):
     env = make()
     assert env.spec.id == "iscc_gym/ISCC-v0" and env.unwrapped.scenario.rate_min_bps == 2e6
     env.close()
+
+
+def test_a_scenario_of_another_task_than_the_env_is_refused(tmp_path, monkeypatch):
+    """Issue 34 item 8: ``python -m train --env iscc_gym/ISCC-Urban-v0 --scenario paper`` trained a paper agent
+    under the urban task's hyperparameters and name; now refused before any work, naming both and the fix. A
+    variant of the env's own task (``literal`` on ISCC-v0) passes."""
+    from iscc_gym.train import train as loop
+    from iscc_gym.train.cli import cli
+    from iscc_gym.train.config import check_args
+
+    def work(*a, **k):
+        raise AssertionError("the run started before the mistake was reported")
+
+    monkeypatch.setattr(loop, "prepare_out", work)
+    out = tmp_path / "run"
+    with pytest.raises(ValueError, match=r"scenario = 'paper' is the paper task, but iscc_gym/ISCC-Urban-v0 is the "
+                                         r"urban task .*use --env iscc_gym/ISCC-v0 for 'paper', or drop --scenario"):
+        cli(["--env", "iscc_gym/ISCC-Urban-v0", "--scenario", "paper", "--out", str(out), "--quiet"])
+    assert not out.exists()
+    with pytest.raises(ValueError, match="'urban' is the urban task, but iscc_gym/ISCC-v0 is the paper task"):
+        check_args(Args(scenario="urban"))
+    check_args(Args(scenario="literal"))

@@ -18,6 +18,7 @@ from iscc_gym.agents.sb3_policy import ALGOS as SB3_ALGOS
 from iscc_gym.agents.sb3_policy import algo_class
 
 from iscc_gym import ENV_ID, MULTI_ENV_ID, URBAN_ENV_ID
+from iscc_gym.envs.env import registered_scenario
 from iscc_gym.protocol import INIT_SEED_START, check_outside_evaluation
 from iscc_gym.scenario import URBAN_SHIFTS
 
@@ -306,19 +307,6 @@ def resolve_args(args: Args) -> tuple[Args, dict]:
     return dataclasses.replace(args, **filled), hp
 
 
-def registered_scenario(env_id: str) -> str:
-    """The Scenario preset ``env_id`` is registered with (``iscc_gym/ISCC-Urban-v0``: ``urban``), ``paper``
-    for an env registered without one.
-    """
-    import gymnasium as gym
-
-    try:
-        kwargs = gym.spec(env_id).kwargs or {}
-    except gym.error.Error:
-        return "paper"
-    return str(kwargs.get("scenario", "paper"))
-
-
 def _closed(lo, hi):
     return f"in [{lo}, {hi}]", lambda v: lo <= v <= hi
 
@@ -515,6 +503,8 @@ def check_args(args: Args) -> None:
             raise ValueError(f"{name} = {getattr(args, name)}; use an integer >= 0 (0: none)")
     if not 0 <= args.seed < 2**32:
         raise ValueError(f"seed = {args.seed}; use an integer in [0, 2**32)")
+    if args.scenario is not None and args.env_id in ISCC_ENV_IDS:
+        check_task(args.env_id, args.scenario)
     if has_residual(args):
         if args.env_id not in (ENV_ID, URBAN_ENV_ID):
             raise ValueError(f"residual = {args.residual!r}: a scripted base policy plays {ENV_ID} and {URBAN_ENV_ID} "
@@ -534,6 +524,32 @@ def check_args(args: Args) -> None:
         check_scale(args.residual_scale)
     if args.init_log_std is not None and not math.isfinite(args.init_log_std):
         raise ValueError(f"init_log_std = {args.init_log_std}; use a finite number (a log standard deviation)")
+
+
+def check_task(env_id: str, scenario: str) -> None:
+    """Refuse a Scenario preset of another task than ``env_id``'s (its hyperparameters, evaluation and shipped agent
+    are its registered preset's task, :func:`iscc_gym.agents.tuned_records.task_of`): ``--env
+    iscc_gym/ISCC-Urban-v0 --scenario paper`` trained a paper agent under the urban task's name. A variant of the
+    same task (``literal`` on ``iscc_gym/ISCC-v0``) passes.
+
+    Raises
+    ------
+    ValueError
+        Naming both, the env id of the scenario's task and the env id's own preset.
+    """
+    from iscc_gym.agents.tuned_records import task_of
+
+    from iscc_gym.scenario import make_scenario
+
+    own = registered_scenario(env_id)
+    task, env_task = task_of(make_scenario(scenario)), task_of(make_scenario(own))
+    if task != env_task:
+        other = next((e for e in (ENV_ID, URBAN_ENV_ID) if task_of(make_scenario(registered_scenario(e))) == task),
+                     None)
+        raise ValueError(f"scenario = {scenario!r} is the {task} task, but {env_id} is the {env_task} task (its "
+                         "hyperparameters, evaluation and shipped agent): "
+                         + (f"use --env {other} for {scenario!r}, or " if other else "")
+                         + f"drop --scenario to train on {env_id}'s own {own!r}")
 
 
 def _in_use(setting) -> bool:

@@ -20,7 +20,7 @@ from iscc_gym.sim.functional import env_step, observe, reset_info_arrays, step_i
 from iscc_gym.sim.schema import COL, OBS_BOUND, obs_size
 
 __all__ = ["ISCCEnv", "ENV_ID", "URBAN_ENV_ID", "REGISTERED_MAX_EPISODE_STEPS", "check_seed", "check_keywords",
-           "real_array", "warn_time_limit", "TimeLimitCheck"]
+           "real_array", "warn_time_limit", "TimeLimitCheck", "registered_scenario"]
 
 #: Reward, terminated and truncated from a step's output row.
 _read_end = operator.itemgetter(COL["reward"], COL["terminated"], COL["truncated"])
@@ -88,6 +88,17 @@ ENV_ID = "iscc_gym/ISCC-v0"
 URBAN_ENV_ID = "iscc_gym/ISCC-Urban-v0"
 #: The registered ``max_episode_steps`` of ``iscc_gym/ISCC-v0`` (the paper's mission: 500 s / 0.1 s).
 REGISTERED_MAX_EPISODE_STEPS = 5000
+
+
+def registered_scenario(env_id: str) -> str:
+    """The Scenario preset ``env_id`` is registered with (``iscc_gym/ISCC-Urban-v0``: ``urban``), ``paper``
+    for an env registered without one.
+    """
+    try:
+        kwargs = gym.spec(env_id).kwargs or {}
+    except gym.error.Error:
+        return "paper"
+    return str(kwargs.get("scenario", "paper"))
 
 
 def warn_time_limit(s: Scenario, env_id: str, steps: int | None = None) -> None:

@@ -97,9 +97,15 @@ def test_the_commands_train_and_compare_on_tiny_budgets(tmp_path, monkeypatch, c
 
     monkeypatch.chdir(tmp_path)
     TM.train_all([2], total_timesteps=256, dest=tmp_path / "ship", out_root=str(tmp_path / "runs"), n_envs=4,
-                 overrides={"n_steps": 32, "batch_size": 64}, eval_freq=0, init_envs=2, init_steps=20)
+                 overrides={"n_steps": 32, "batch_size": 64}, eval_freq=0, init_envs=2, init_steps=20,
+                 norm_reward=False)
     agent = tmp_path / "ship" / "k2"
     assert (agent / "model.zip").is_file()
+    # issue 34: --no-norm-reward trains with VecNormalize's reward scaling off (K = 8's setting, TM.K_SETTINGS)
+    import pickle
+
+    assert pickle.loads((agent / "vecnormalize.pkl").read_bytes()).norm_reward is False
+    assert TM.run_args(8).norm_reward is False and TM.run_args(4).norm_reward is None
     summary = __import__("yaml").safe_load((agent / "summary.yml").read_text())
     assert summary["warm_start"]["policy"] == "margin"  # the multi-drone margin rule cloned first
     res = EM.main(["--n-drones", "2", "--episodes", "2", "--max-steps", "40", "--agent", str(agent)])

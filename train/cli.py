@@ -43,7 +43,7 @@ def build_parser(prog: str = "python -m train") -> argparse.ArgumentParser:
         flags = (flag, "--env") if f.name == "env_id" else (flag,)  # --env: python -m eval's name of it
         default = getattr(defaults, f.name)
         help_ = FIELD_HELP[f.name]
-        if isinstance(default, bool) or f.name in ("normalize", "progress_bar"):
+        if isinstance(default, bool) or f.name in ("normalize", "norm_reward", "progress_bar"):
             ap.add_argument(*flags, action=argparse.BooleanOptionalAction, default=default, help=help_)
         elif default is None:  # a run setting the YAML fills (RUN_KEYS), or numba's default
             kind = {"init_policy": str, "init_log_std": float, "cost_limit": str, "scenario": str, "residual": str,

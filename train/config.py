@@ -53,6 +53,9 @@ class Args:
     hyperparams: str = str(HYPERPARAMS)
     overrides: dict = field(default_factory=dict)  # hyperparameter overrides, e.g. {"n_steps": 64}
     normalize: bool | None = None  # VecNormalize of observations and rewards (None: the YAML's, else True)
+    # VecNormalize's reward scaling with normalize on (None: the YAML's settings, else True); off where a rare
+    # huge penalty (a lost drone) inflates the return statistics until every slot's reward vanishes
+    norm_reward: bool | None = None
     # warm start by behaviour cloning of a scripted policy (agents.make_policy spec; train/pretrain.py);
     # None: the YAML's init_policy / init_envs / init_steps (steps per env) / init_log_std
     init_policy: str | None = None
@@ -98,6 +101,8 @@ FIELD_HELP = {
     "out": "run directory; must be empty or new unless --resume or --overwrite",
     "hyperparams": "hyperparameter YAML in rl-zoo3's layout (env id -> hyperparameters; see train/hyperparams.yml)",
     "normalize": "VecNormalize observations and rewards (default: the YAML entry's normalize, else on)",
+    "norm_reward": "with --normalize, scale the rewards too (VecNormalize's norm_reward; default: the YAML's, else "
+                   "on); --no-norm-reward where rare huge penalties (a lost drone) swamp the return statistics",
     "init_policy": "warm start: behaviour-clone this scripted policy (agents.make_policy spec, e.g. myopic; "
                    "none: no warm start; default: the YAML's)",
     "init_envs": "envs the scripted policy plays during the warm start (default: the YAML's, else 16)",
@@ -134,10 +139,10 @@ FIELD_HELP = {
 RUN_KEYS = {"n_timesteps": "total_timesteps", "n_envs": "n_envs", "normalize": "normalize",
             "init_policy": "init_policy", "init_envs": "init_envs", "init_steps": "init_steps",
             "init_log_std": "init_log_std", "residual": "residual", "residual_scale": "residual_scale",
-            "randomize": "randomize"}
+            "randomize": "randomize", "norm_reward": "norm_reward"}
 RUN_DEFAULTS = {"total_timesteps": 200_000, "n_envs": 4, "normalize": True, "init_policy": None, "init_envs": 16,
                 "init_steps": 5000, "init_log_std": None, "residual": None, "residual_scale": 0.5,
-                "randomize": None}
+                "randomize": None, "norm_reward": True}
 
 
 def _to_int(v):
@@ -155,7 +160,7 @@ def _to_bool(v):
 
 _RUN_TYPES = {"total_timesteps": _to_int, "n_envs": _to_int, "normalize": _to_bool, "init_policy": str,
               "init_envs": _to_int, "init_steps": _to_int, "init_log_std": float, "residual": str,
-              "residual_scale": float, "randomize": str}
+              "residual_scale": float, "randomize": str, "norm_reward": _to_bool}
 
 #: The key of a hyperparameter file that only python -m train reads (rl-zoo3 reads the entry of its env id).
 OWN_SECTION = "iscc_gym.train"
@@ -294,7 +299,8 @@ def resolve_args(args: Args) -> tuple[Args, dict]:
             try:
                 filled[name] = _RUN_TYPES[name](value)
             except (TypeError, ValueError):
-                kind = {"normalize": "true or false", "init_policy": "a policy spec", "residual": "a policy spec",
+                kind = {"normalize": "true or false", "norm_reward": "true or false", "init_policy": "a policy spec",
+                        "residual": "a policy spec",
                         "init_log_std": "a number", "residual_scale": "a number"}.get(name, "an integer")
                 raise ValueError(f"{key} = {value!r} in {args.hyperparams} or --set; use {kind}") from None
     env_kwargs = hp.pop("env_kwargs", None) or {}
@@ -588,6 +594,8 @@ def run_settings(args: Args) -> dict:
         out.update(residual=str(args.residual), residual_scale=float(args.residual_scale))
     if randomized(args):
         out["randomize"] = str(args.randomize)
+    if args.normalize and args.norm_reward is False:
+        out["norm_reward"] = False
     return out
 
 

@@ -32,13 +32,19 @@ from iscc_gym.train.config import MULTI_ENV_ID, Args
 
 from iscc_gym.cli import invoked_prog
 
-__all__ = ["MULTI_DIR", "K_VALUES", "MULTI_LAG_LIMITS", "run_args", "train_all", "cli"]
+__all__ = ["MULTI_DIR", "K_VALUES", "MULTI_LAG_LIMITS", "K_SETTINGS", "run_args", "train_all", "cli"]
 
 #: Where the multi-drone agents are shipped (``k<K>`` per number of drones).
 #: The numbers of drones trained by default.
 K_VALUES = (2, 4, 8)
 #: Outage limits of the constrained agents (``--constrained``; see the module).
 MULTI_LAG_LIMITS = "rate=0.8,stability=0.01"
+#: Run settings of one K beside the env's YAML entry (:class:`Args` fields). At K = 8 the control bounds exceed the
+#: band, the cloned rule and PPO lose drones in training, and each loss (the penalty of e_max per slot left, up to
+#: ~500,000) drove VecNormalize's return statistics to sigma ~2,550 against a slot reward of ~1.6: every slot's reward
+#: reached PPO as ~0.0006 and the losses clipped at 10, so the agent shipped before issue 34 lost 4 of 20 missions.
+#: Without reward scaling it keeps every drone (docs/learning.md, "Many drones").
+K_SETTINGS = {8: {"norm_reward": False}}
 
 
 def agent_name(n_drones: int, constrained: bool = False) -> str:
@@ -56,7 +62,7 @@ def run_args(n_drones: int, seed: int = 0, total_timesteps: int | None = None, o
     k = check_n_drones(n_drones)
     return Args(env_id=MULTI_ENV_ID, env_overrides={"n_drones": k}, seed=seed, total_timesteps=total_timesteps,
                 out=f"{out_root}/{agent_name(k, constrained)}", checkpoint_freq=0, tensorboard=False, overwrite=True,
-                cost_limit=MULTI_LAG_LIMITS if constrained else None)
+                cost_limit=MULTI_LAG_LIMITS if constrained else None, **K_SETTINGS.get(k, {}))
 
 
 def train_all(ks=K_VALUES, total_timesteps: int | None = None, dest: Path = MULTI_DIR, out_root: str = "runs/multi",

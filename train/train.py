@@ -534,7 +534,7 @@ def main(args: Args, callback_after_eval=None) -> dict:
             venv = load_vecnormalize(ckpt / "vecnormalize.pkl", venv)
             venv.training = True
         else:
-            venv = VecNormalize(venv, gamma=kw.get("gamma", 0.99))
+            venv = VecNormalize(venv, gamma=kw.get("gamma", 0.99), norm_reward=bool(args.norm_reward))
     tb = str(out / "tb") if args.tensorboard else None
     if ckpt is not None:
         model = _load_model(algo_cls, ckpt / "model.zip", env=venv, device="cpu", tensorboard_log=tb)

@@ -213,3 +213,20 @@ def test_the_shipped_agent_keeps_its_radar():
 
     agent = SB3Policy.load(agent_dir(4), check_env=None)
     assert _rewards(agent, 4, steps=100)[0] > _rewards(ScaledSensing(agent, 4, 0.1), 4, steps=100)[0] + 0.03
+
+
+def test_the_shipped_k8_agent_was_trained_to_keep_every_drone():
+    """Issue 34: the K = 8 agent shipped before lost track in training (evaluations -40,748 to -274,188 per mission)
+    and on 4 of 20 held-out missions: VecNormalize's reward scaling, inflated by the lost drones, hid every slot's
+    reward from PPO. Retrained without it (train.multi.K_SETTINGS), no evaluation of its run lost a drone (a loss
+    half-way costs the 8-mission mean about 31,000; margin scores about -8,100 at K = 8)."""
+    import pickle
+
+    import yaml
+    from iscc_gym.eval.multi import agent_dir
+
+    d = agent_dir(8)
+    assert pickle.loads((d / "vecnormalize.pkl").read_bytes()).norm_reward is False
+    evaluations = yaml.safe_load((d / "summary.yml").read_text())["evaluations"]
+    assert len(evaluations) == 8 and all(mean > -10_000 for _, mean in evaluations)
+

@@ -97,7 +97,9 @@ def start_readme_blocks():
           "probes": PROBES.get(b["section"], [])} for b in order]))
     (work / "run_blocks.py").write_text(RUNNER)
     path = [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p and pathlib.Path(p).resolve() != ROOT]
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join(path), "ISCC_GYM_QUIET": "1"}
+    # one thread for its torch, numpy and numba pools: it runs beside the suite on the other core
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(path), "ISCC_GYM_QUIET": "1", "OMP_NUM_THREADS": "1",
+           "MKL_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1"}
     with open(work / "output.txt", "w") as output:  # a file, not a pipe that nobody reads until the module runs
         _run.update(folder=folder, proc=subprocess.Popen(
             [sys.executable, "run_blocks.py", "blocks.json", "results.json"], cwd=work, env=env,

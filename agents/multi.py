@@ -20,9 +20,10 @@ Each maps a batch of observations (n, 23K) to the 3K shares of every env and pla
   decrease :math:`-f'_k(\alpha_{k,\mathrm{sen}}) = \mu` (bisection on :math:`\mu`), no
   linearisation needed (the SCA's iterations would converge to it). Where the drones' bounds do not fit in
   the band (the problem is infeasible: at K = 8 on the ``paper`` preset the control bounds alone exceed it),
-  control first, every drone's bound, then data scaled into what is left above a total sensing floor,
-  sensing water-filled over the rest (:data:`JointSCA.sensing_floor`, by default the tuned ``margin``'s
-  floor). The fallback used to keep the static design's sensing share (0.54 of the band) and scale the
+  control first, every drone's bound (where they exceed the band, the largest cut to a common level, so
+  that as many drones as possible meet theirs), then data scaled into what is left above a total sensing
+  floor, sensing water-filled over the rest (:data:`JointSCA.sensing_floor`, by default the tuned
+  ``margin``'s floor). The fallback used to keep the static design's sensing share (0.54 of the band) and scale the
   control down into the rest: at K = 4 and 8 it starved the drones' control links and lost track (issue 34).
 * ``margin`` (:class:`MultiMarginPolicy`): the tuned single-drone ``margin`` rule per drone (control
   ``m_ctrl`` times its predicted need, data ``m_comm`` times it), the demands renormalised onto the
@@ -49,7 +50,7 @@ from .sca_slot import SCAPolicy
 from .tuned_records import load_tuned
 
 __all__ = ["MultiSharePolicy", "EqualShareSCA", "JointSCA", "MultiMarginPolicy", "ScaledSensing", "fit_demands",
-           "make_multi_policy", "MULTI_POLICY_SPECS", "STARVED_SCALE"]
+           "level_cap", "make_multi_policy", "MULTI_POLICY_SPECS", "STARVED_SCALE"]
 
 #: The spec names of :func:`make_multi_policy`.
 MULTI_POLICY_SPECS = ("equal-sca", "joint-sca", "margin", "margin-starved", "equal")
@@ -79,18 +80,35 @@ class MultiSharePolicy:
         return (action[0] if single else action), state
 
 
-def fit_demands(ctrl, comm, floor: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+def fit_demands(ctrl, comm, floor: float = 0.0, level: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Control and data shares (n, K) fitted onto the band above a total sensing ``floor``: control
-    first (scaled down together if the drones' control demands exceed ``1 - floor``), then data in
-    what is left (scaled down together).
+    first (scaled down together if the drones' control demands exceed ``1 - floor``; with ``level``, cut to a
+    common level instead, :func:`level_cap`), then data in what is left (scaled down together).
     """
     room = 1.0 - floor
     c_tot = ctrl.sum(-1, keepdims=True)
-    ctrl = ctrl * np.minimum(1.0, room / np.maximum(c_tot, 1e-300))
+    if level:
+        ctrl = level_cap(ctrl, room)
+    else:
+        ctrl = ctrl * np.minimum(1.0, room / np.maximum(c_tot, 1e-300))
     left = room - ctrl.sum(-1, keepdims=True)
     m_tot = comm.sum(-1, keepdims=True)
     comm = comm * np.minimum(1.0, np.maximum(left, 0.0) / np.maximum(m_tot, 1e-300))
     return ctrl, comm
+
+
+def level_cap(x, total: float) -> np.ndarray:
+    r"""Demands ``x`` (n, K) cut to a common level where they exceed ``total``: :math:`\min(x_k, \lambda)` with
+    :math:`\sum_k \min(x_k, \lambda) = ` ``total`` (rows within it unchanged). Every demand up to the level is met
+    in full, so as many drones as the band allows meet theirs; only the largest are cut, equally.
+    """
+    x = np.asarray(x, dtype=float)
+    n, k = x.shape
+    s = np.sort(x, axis=-1)
+    below = np.concatenate([np.zeros((n, 1)), np.cumsum(s, axis=-1)[:, :-1]], axis=-1)
+    lam = (total - below) / (k - np.arange(k))  # the level if the j smallest demands are met in full
+    level = lam[np.arange(n), np.argmax(lam <= s, axis=-1)]
+    return np.where((s.sum(-1) > total)[:, None], np.minimum(x, level[:, None]), x)
 
 
 class _SlotBounds(MultiSharePolicy):
@@ -128,9 +146,9 @@ class EqualShareSCA(_SlotBounds):
 
 class JointSCA(_SlotBounds):
     """Algorithm 1's per-slot problem over all K drones: bounds, then water-filled sensing (module
-    docstring). Where the drones' bounds do not fit in the band: control first (every drone's bound, scaled
-    down together only above ``1 - sensing_floor``), data scaled into what is left above the total
-    ``sensing_floor``, sensing water-filled over the rest.
+    docstring). Where the drones' bounds do not fit in the band: control first (every drone's bound; above
+    ``1 - sensing_floor`` the largest bounds cut to a common level, :func:`level_cap`), data scaled into what is left
+    above the total ``sensing_floor``, sensing water-filled over the rest.
     ``iterations``: bisection steps of the multiplier and of each drone's share.
     """
 
@@ -149,7 +167,7 @@ class JointSCA(_SlotBounds):
         coef, ctrl, comm = self.terms(obs)
         k = self.n_drones
         fits = (ctrl.sum(-1) + comm.sum(-1) <= 1.0 - k * MIN_SHARE)[:, None]
-        c_fb, m_fb = fit_demands(ctrl, comm, self.sensing_floor)
+        c_fb, m_fb = fit_demands(ctrl, comm, self.sensing_floor, level=True)
         ctrl, comm = np.where(fits, ctrl, c_fb), np.where(fits, comm, m_fb)
         sen = self.water_fill(coef, 1.0 - ctrl.sum(-1) - comm.sum(-1))
         return np.stack([sen, ctrl, comm], axis=-1)

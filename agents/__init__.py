@@ -35,7 +35,7 @@ from .myopic import MyopicPolicy
 from .sca import SCAResult, sca_allocation, solve_sca
 from .sca_slot import SCAPolicy
 from .search import SearchResult, evolutionary_search, grid_search
-from .tuned_records import load_tuned, record_name, task_of
+from .tuned_records import is_params, load_tuned, record_name, task_of
 
 __all__ = [
     "Policy",
@@ -120,8 +120,7 @@ def make_policy(spec: str, scenario: Scenario | str = "paper", seed: int = 0, tu
     if tuned is not None:
         if record is None:
             raise ValueError(f"tuned = {tuned!r} for spec {spec!r}, which reads no tuned parameters; pass none")
-        if not isinstance(tuned, dict) or not all(isinstance(k, str) and isinstance(v, int | float)
-                                                  and not isinstance(v, bool) for k, v in tuned.items()):
+        if not is_params(tuned):
             raise ValueError(f"tuned = {tuned!r} for spec {spec!r}: expected a mapping of names to numbers, as "
                              f"agents/tuned/{record}.yml's params")
     params = (lambda: dict(tuned)) if tuned is not None else (lambda: load_tuned(record)["params"])

@@ -217,6 +217,8 @@ def check_record(run: dict, where: str, fix: str, prefix: str = "") -> None:
     """Check the residual fields of a run's settings (``run``: a record, a manifest's ``run``, a config's
     ``args``): ``ValueError`` ``"{where}: {prefix}FIELD = VALUE; what it must be ({fix})"`` for a bad one.
     """
+    from iscc_gym.agents.tuned_records import is_params
+
     from iscc_gym import SCENARIOS
 
     def fail(key, want):
@@ -232,9 +234,7 @@ def check_record(run: dict, where: str, fix: str, prefix: str = "") -> None:
         fail("scenario", f"a preset, one of {sorted(SCENARIOS)}")
     if "env_overrides" in run and not isinstance(run["env_overrides"], dict):
         fail("env_overrides", "a mapping of Scenario fields")
-    params = run.get("residual_params")
-    if params is not None and not (isinstance(params, dict) and all(
-            isinstance(k, str) and isinstance(v, int | float) and not isinstance(v, bool) for k, v in params.items())):
+    if run.get("residual_params") is not None and not is_params(run["residual_params"]):
         fail("residual_params", "null or the base's tuned parameters, a mapping of names to numbers")
 
 

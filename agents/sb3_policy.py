@@ -279,7 +279,7 @@ class SB3Policy:
             f"a damaged {where.name}: set it back to what the run was trained with"
             + (" (the same field under args in the run's config.yml)" if where.name == MANIFEST else "")
             + ", or retrain")
-        from iscc_gym.agents.residual import RECORD_ENTRY, RECORD_FIX, ResidualPolicy, base_policy, read_record
+        from iscc_gym.agents.residual import RECORD_ENTRY, RECORD_FIX, read_record
 
         record = read_record(model_path)
         if record is not None:  # the agent's own record of its base: what the run's files say must agree
@@ -330,10 +330,9 @@ class SB3Policy:
                 raise ValueError(f"{model_path}: the model takes observations of shape {policy.obs_shape}, "
                                  f"{check_env} gives {tuple(want)}: it was trained on another env")
         if run.get("residual"):  # the record, where the model holds one: it agrees with the run's files (above)
-            source, field_prefix, source_fix = ((f"{model_path} (its {RECORD_ENTRY})", "", RECORD_FIX)
-                                                if record is not None else (where, prefix, fix))
-            base = base_policy(run, str(source), source_fix, field_prefix, policy.obs_shape)
-            return ResidualPolicy(base, policy, run["residual_scale"], run["residual"])
+            if record is not None:
+                return residual_policy(policy, run, f"{model_path} (its {RECORD_ENTRY})", RECORD_FIX)
+            return residual_policy(policy, run, str(where), fix, prefix)
         return policy
 
     def predict(self, obs, state=None, episode_start=None, deterministic: bool = True):
@@ -347,14 +346,15 @@ class SB3Policy:
         return self.model.predict(o, state=state, episode_start=episode_start, deterministic=deterministic)
 
 
-def residual_policy(agent: SB3Policy, run: dict):
+def residual_policy(agent: SB3Policy, run: dict, where: str = "the run", fix: str = "retrain", prefix: str = ""):
     """The :class:`agents.residual.ResidualPolicy` of a residual run's trained ``agent``: its base policy
     (``run["residual"]``, with the recorded ``residual_params``) built for the run's scenario, corrected by
-    ``agent`` at ``run["residual_scale"]``.
+    ``agent`` at ``run["residual_scale"]``. ``where``, ``fix``, ``prefix``: what a bad field's error names
+    (:func:`agents.residual.base_policy`).
     """
     from iscc_gym.agents.residual import ResidualPolicy, base_policy
 
-    base = base_policy(run, "the run", obs_shape=agent.obs_shape)
+    base = base_policy(run, where, fix, prefix, agent.obs_shape)
     return ResidualPolicy(base, agent, run["residual_scale"], run["residual"])
 
 

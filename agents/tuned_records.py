@@ -12,7 +12,7 @@ from iscc_gym.agents.shipped import TUNED_DIR
 
 from iscc_gym.files import write_atomic
 
-__all__ = ["TUNED_DIR", "load_tuned", "save_tuned", "task_of", "record_name"]
+__all__ = ["TUNED_DIR", "load_tuned", "save_tuned", "task_of", "task_mismatch", "is_params", "record_name"]
 
 
 def task_of(s) -> str:
@@ -21,6 +21,29 @@ def task_of(s) -> str:
     ``"urban"`` with blocked line of sight or a data queue (issue 25), else ``"paper"``.
     """
     return "urban" if (s.blockage != "none" or s.queue_slots > 0) else "paper"
+
+
+def task_mismatch(env_id: str, scenario: str) -> tuple[str, str, str | None, str] | None:
+    """Where preset ``scenario`` poses another task (:func:`task_of`) than the preset ``env_id`` is registered with:
+    ``(its task, env_id's task, the iscc_gym env id of its task or None, env_id's own preset)``; None where the
+    task is the same (a variant such as ``literal`` on ``iscc_gym/ISCC-v0``). An unknown preset raises as
+    :func:`iscc_gym.scenario.make_scenario` does.
+    """
+    from iscc_gym.envs.env import ENV_ID, URBAN_ENV_ID, registered_scenario
+    from iscc_gym.scenario import make_scenario
+
+    own = registered_scenario(env_id)
+    task, env_task = task_of(make_scenario(scenario)), task_of(make_scenario(own))
+    if task == env_task:
+        return None
+    other = next((e for e in (ENV_ID, URBAN_ENV_ID) if task_of(make_scenario(registered_scenario(e))) == task), None)
+    return task, env_task, other, own
+
+
+def is_params(params) -> bool:
+    """Whether ``params`` is a tuning record's ``params``: a mapping of names to numbers (not booleans)."""
+    return isinstance(params, dict) and all(isinstance(k, str) and isinstance(v, int | float)
+                                            and not isinstance(v, bool) for k, v in params.items())
 
 
 def record_name(policy: str, task: str) -> str:

@@ -111,10 +111,6 @@ def _advantage_cells(res: dict) -> str:
     return "; ".join(cells)
 
 
-def _advantage_line(k: int, res: dict) -> str:
-    return f"| {k} | {_advantage_cells(res)} |"
-
-
 def _render(titles: list[str], rows: list[list[str]], markdown: bool, align: str) -> str:
     """A table as markdown (``align``: ``l``/``r`` per column) or as aligned plain text for a terminal."""
     if markdown:

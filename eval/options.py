@@ -106,21 +106,19 @@ def env_scenario(env: str, scenario: str | None, write_docs: bool = False) -> st
         section), naming both and the fix; with ``write_docs``, any preset but ``env``'s own (the docs sections
         are of it). A variant of the same task (``literal`` on ``iscc_gym/ISCC-v0``) passes.
     """
-    from iscc_gym.agents.tuned_records import task_of
+    from iscc_gym.agents.tuned_records import task_mismatch
 
-    from iscc_gym.envs.env import ENV_ID, URBAN_ENV_ID, registered_scenario
-    from iscc_gym.scenario import make_scenario
+    from iscc_gym.envs.env import registered_scenario
 
     own = registered_scenario(env)
     if scenario is None:
         return own
     try:
-        task = task_of(make_scenario(scenario))
+        mismatch = task_mismatch(env, scenario)
     except (ValueError, TypeError) as e:
         raise ValueError(f"--scenario {scenario!r}: {e.args[0] if e.args else e}") from None
-    env_task = task_of(make_scenario(own))
-    if task != env_task:
-        other = next(e for e in (ENV_ID, URBAN_ENV_ID) if task_of(make_scenario(registered_scenario(e))) == task)
+    if mismatch is not None:
+        task, env_task, other, _ = mismatch
         raise ValueError(f"--scenario {scenario!r} is the {task} task, but --env {env} is the {env_task} task (its "
                          f"policies, reference, shipped agent and docs section): use --env {other} for "
                          f"{scenario!r}, or drop --scenario to play {env}'s own {own!r}")

@@ -543,15 +543,11 @@ def check_task(env_id: str, scenario: str) -> None:
     ValueError
         Naming both, the env id of the scenario's task and the env id's own preset.
     """
-    from iscc_gym.agents.tuned_records import task_of
+    from iscc_gym.agents.tuned_records import task_mismatch
 
-    from iscc_gym.scenario import make_scenario
-
-    own = registered_scenario(env_id)
-    task, env_task = task_of(make_scenario(scenario)), task_of(make_scenario(own))
-    if task != env_task:
-        other = next((e for e in (ENV_ID, URBAN_ENV_ID) if task_of(make_scenario(registered_scenario(e))) == task),
-                     None)
+    mismatch = task_mismatch(env_id, scenario)
+    if mismatch is not None:
+        task, env_task, other, own = mismatch
         raise ValueError(f"scenario = {scenario!r} is the {task} task, but {env_id} is the {env_task} task (its "
                          "hyperparameters, evaluation and shipped agent): "
                          + (f"use --env {other} for {scenario!r}, or " if other else "")

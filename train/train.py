@@ -41,6 +41,7 @@ from pathlib import Path
 
 import numpy as np
 import yaml
+from iscc_gym.agents.residual import RECORD_KEYS
 from iscc_gym.agents.sb3_logging import stdout_logger
 from iscc_gym.agents.sb3_policy import LAGRANGE_FILE
 
@@ -504,8 +505,7 @@ def main(args: Args, callback_after_eval=None) -> dict:
     ckpt, manifest = prepare_out(args, hp)
     identity = run_identity(args, hp, manifest)
     # the residual base's record, resolved once: the base trains on it and every saved model holds it
-    residual = {k: identity[k] for k in ("residual", "residual_scale", "scenario", "env_overrides",
-                                         "residual_params")} if identity["residual"] else None
+    residual = {k: identity[k] for k in RECORD_KEYS} if identity["residual"] else None
     out = Path(args.out)
     resumed = _resume(args, out, ckpt, manifest)
     say((f"resuming {out} from {ckpt} (step {int(manifest['timesteps']):,})" if ckpt is not None else

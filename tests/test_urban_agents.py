@@ -281,6 +281,18 @@ def test_the_urban_commands_build_every_policy_before_playing_any(tmp_path, monk
     assert "--env" not in str(e.value) and not played
 
 
+def _ctrl_c_then_sleep(i):
+    """A variant played for 30 s; the first one presses Ctrl-C (SIGINT to the command) as it starts."""
+    import os
+    import signal
+    import time
+
+    if i == 0:
+        time.sleep(0.1)  # the other call started too
+        os.kill(os.getppid(), signal.SIGINT)
+    time.sleep(30.0)
+
+
 @pytest.mark.parametrize("command, argv", [
     ("urban_shift", ["--shifts", "umi_av,map error 0.8", "--policies", "myopic", "--focus", "myopic", "--episodes",
                      "1"]),
@@ -291,27 +303,21 @@ def test_ctrl_c_stops_the_urban_commands_jobs_at_once(command, argv, monkeypatch
     seconds, its worker processes ended, instead of waiting for the variants still being played (up to 90 s)."""
     import importlib
     import multiprocessing
-    import os
-    import signal
-    import threading
     import time
 
     from iscc_gym.eval import policies
 
     module = importlib.import_module(f"iscc_gym.eval.{command}")
-    ctrl_c = threading.Timer(0.25, os.kill, (os.getpid(), signal.SIGINT))
 
     def sleeping(fn, *iterables, workers):  # the command's pool, each variant played for 30 s
-        ctrl_c.start()
-        return policies.pool_map(time.sleep, [30.0] * len(iterables[0]), workers=workers)
+        return policies.pool_map(_ctrl_c_then_sleep, range(len(iterables[0])), workers=workers)
 
     monkeypatch.setattr(module, "pool_map", sleeping)
     t0 = time.perf_counter()
-    try:
-        with pytest.raises(KeyboardInterrupt):
-            module.main(argv + ["--jobs", "2"])
-    finally:
-        ctrl_c.cancel()
-    for worker in multiprocessing.active_children():  # ended (SIGTERM), not left playing
-        worker.join(timeout=2.0)
+    with pytest.raises(KeyboardInterrupt):  # Ctrl-C once the pool's calls run (not while it starts its workers)
+        module.main(argv + ["--jobs", "2"])
+    # ended (SIGTERM), not left playing; the executor's manager thread may reap a terminated worker a moment later
+    deadline = time.perf_counter() + 2.0
+    while multiprocessing.active_children() and time.perf_counter() < deadline:
+        time.sleep(0.02)
     assert time.perf_counter() - t0 < 3.0 and not multiprocessing.active_children()

@@ -1,7 +1,8 @@
 """Where the shipped agents and tuning records live (package data of ``iscc_gym.agents``), written once.
 
 ``agents/trained/ppo_iscc`` (:data:`PPO_AGENT`, ``python -m train.ship``), ``agents/trained/ppo_urban``
-(:data:`URBAN_AGENT`, ``python -m train.ship --env iscc_gym/ISCC-Urban-v0``), ``agents/trained/multi/k<K>``
+(:data:`URBAN_AGENT`, ``python -m train.ship --env iscc_gym/ISCC-Urban-v0``; which agent each task ships:
+:data:`iscc_gym.agents.tasks.TASK_POLICIES`), ``agents/trained/multi/k<K>``
 (:func:`multi_agent_dir`, ``python -m train.multi``), ``agents/trained/pareto/<family>/<label>``
 (:data:`PARETO_DIR`, ``python -m train.pareto``) and ``agents/tuned/<name>.yml`` (:data:`TUNED_DIR`,
 ``python -m eval.tune``).
@@ -11,9 +12,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from iscc_gym import ENV_ID, URBAN_ENV_ID
-
-__all__ = ["TRAINED_DIR", "PPO_AGENT", "URBAN_AGENT", "SHIPPED_AGENTS", "MULTI_DIR", "PARETO_DIR", "TUNED_DIR",
+__all__ = ["TRAINED_DIR", "PPO_AGENT", "URBAN_AGENT", "MULTI_DIR", "PARETO_DIR", "TUNED_DIR",
            "multi_agent_dir"]
 
 #: The folder of the trained agents.
@@ -22,8 +21,6 @@ TRAINED_DIR = Path(__file__).resolve().parent / "trained"
 PPO_AGENT = TRAINED_DIR / "ppo_iscc"
 #: The trained PPO agent of ``iscc_gym/ISCC-Urban-v0`` (``python -m eval --env iscc_gym/ISCC-Urban-v0``'s ``ppo``).
 URBAN_AGENT = TRAINED_DIR / "ppo_urban"
-#: The shipped PPO agent of each env id (``python -m train.ship --env ENV``; ``python -m eval --env ENV``'s ``ppo``).
-SHIPPED_AGENTS = {ENV_ID: PPO_AGENT, URBAN_ENV_ID: URBAN_AGENT}
 #: The multi-drone agents, one folder per drone count (``k4``, ``k4_lag``, ...).
 MULTI_DIR = TRAINED_DIR / "multi"
 #: The Pareto study's learned operating points, ``<family>/<label>``.

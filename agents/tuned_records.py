@@ -29,14 +29,16 @@ def task_mismatch(env_id: str, scenario: str) -> tuple[str, str, str | None, str
     task is the same (a variant such as ``literal`` on ``iscc_gym/ISCC-v0``). An unknown preset raises as
     :func:`iscc_gym.scenario.make_scenario` does.
     """
-    from iscc_gym.envs.env import ENV_ID, URBAN_ENV_ID, registered_scenario
+    from iscc_gym.envs.env import registered_scenario
     from iscc_gym.scenario import make_scenario
+    from iscc_gym.tasks import TASKS
 
     own = registered_scenario(env_id)
     task, env_task = task_of(make_scenario(scenario)), task_of(make_scenario(own))
     if task == env_task:
         return None
-    other = next((e for e in (ENV_ID, URBAN_ENV_ID) if task_of(make_scenario(registered_scenario(e))) == task), None)
+    other = next((e for e, t in TASKS.items() if t.entry_point == TASKS[env_id].entry_point
+                  and task_of(make_scenario(t.preset)) == task), None) if env_id in TASKS else None
     return task, env_task, other, own
 
 

@@ -30,7 +30,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from iscc_gym.agents.shipped import SHIPPED_AGENTS
+from iscc_gym.agents.tasks import TASK_POLICIES, task_policies
 from iscc_gym.eval.evaluate import (  # noqa: F401
     evaluate,
     format_table,
@@ -70,10 +70,10 @@ from iscc_gym.cli import invoked_prog, run
 from iscc_gym.docs import README_PATH, RESULTS_PATH, docs_path, publish, save_json, write_section
 from iscc_gym.protocol import EVAL_SEED_START
 
-DEFAULT_POLICIES = "ppo,sca,sca-per-slot,margin,myopic,equal"
-#: The default comparison on the urban task (``--env iscc_gym/ISCC-Urban-v0``): the shipped urban agent, the
-#: per-slot rules, the queue's drift-plus-penalty, the look-ahead planner and its oracle bound.
-URBAN_POLICIES = "ppo,myopic,margin,dpp,mpc,oracle"
+#: The default comparison on the paper's task (each task's: :data:`iscc_gym.agents.tasks.TASK_POLICIES`).
+DEFAULT_POLICIES = TASK_POLICIES[ENV_ID].policies
+#: The default comparison on the urban task (``--env iscc_gym/ISCC-Urban-v0``).
+URBAN_POLICIES = TASK_POLICIES[URBAN_ENV_ID].policies
 PROG = "python -m eval"
 
 
@@ -136,8 +136,9 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
     ap = Parser(prog=prog, description=__doc__.split("\n")[0], epilog=PICKLE_WARNING)
     ap.add_argument("--env", default=ENV_ID, metavar="ID",
                     help=f"env id (default: iscc_gym/ISCC-v0); {URBAN_ENV_ID}: the urban task (scenario 'urban', "
-                         f"policies {URBAN_POLICIES}, reference myopic); iscc_gym/ISCC-Multi-v0 runs python -m "
-                         "eval.multi with the other flags (--n-drones K, --k-scan, ...: python -m eval.multi --help)")
+                         f"policies {URBAN_POLICIES}, reference {TASK_POLICIES[URBAN_ENV_ID].reference}); "
+                         "iscc_gym/ISCC-Multi-v0 runs python -m eval.multi with the other flags (--n-drones K, "
+                         "--k-scan, ...: python -m eval.multi --help)")
     ap.add_argument("--policies", default=None, metavar="LIST",
                     help="comma-separated policies: NAME=PATH (a trained agent: a run directory of python -m train "
                          "or a model .zip; loads that directory's vecnormalize.pkl too, both pickles: only files "
@@ -154,8 +155,8 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
     ap.add_argument("--scenario", default=None,
                     help="scenario preset (default: paper; urban with --env iscc_gym/ISCC-Urban-v0)")
     ap.add_argument("--reference", metavar="NAME",
-                    help="policy the paired differences are taken against (default: sca, if evaluated; myopic on "
-                         "the urban task)")
+                    help="policy the paired differences are taken against (default: the task's reference, if "
+                         f"evaluated: {', '.join(f'{t.reference} on {e}' for e, t in TASK_POLICIES.items())})")
     ap.add_argument("--focus", metavar="NAME",
                     help="policy whose paired differences to every other policy are reported too (default: ppo, "
                          "if evaluated)")
@@ -204,10 +205,10 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> dict:
     args = build_parser(prog).parse_args(argv)
     if args.env not in (ENV_ID, URBAN_ENV_ID):
         raise ValueError(f"--env {args.env!r}: use {ENV_ID}, {URBAN_ENV_ID} or {MULTI_ENV_ID}")
-    urban = args.env == URBAN_ENV_ID
+    task = task_policies(args.env)
     args.scenario = env_scenario(args.env, args.scenario, args.write_docs)  # the env's own, or a variant of its task
     if args.policies is None:
-        args.policies = URBAN_POLICIES if urban else DEFAULT_POLICIES
+        args.policies = task.policies
     from iscc_gym import make_scenario
 
     try:
@@ -216,13 +217,13 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> dict:
         raise ValueError(f"--scenario {args.scenario!r}: {e.args[0] if e.args else e}") from None
     seeds = (parse_seeds(args.seeds) if args.seeds is not None
              else list(range(args.seed_start, args.seed_start + args.episodes)))
-    items = resolve_specs(args.policies, SHIPPED_AGENTS[args.env])
+    items = resolve_specs(args.policies, task.shipped_agent())
     if args.train_steps > 0:
         items = [it for it in items if policy_name(it) != "ppo"]
         items.insert(0, f"ppo={args.train_out}")
     names = [policy_name(it) for it in items]
-    reference = _pick(args.reference, "myopic" if urban else "sca", names, "--reference")
-    focus = _pick(args.focus, "ppo", names, "--focus")
+    reference = _pick(args.reference, task.reference, names, "--reference")
+    focus = _pick(args.focus, task.focus, names, "--focus")
     check_specs([it for it in items if not (args.train_steps > 0 and policy_name(it) == "ppo")], args.scenario)
     # every output is checked before the (long) run
     if args.train_steps > 0:
@@ -266,7 +267,7 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> dict:
     finally:
         bar.close()
     print(format_table(res))
-    share = oracle_share(res) if urban else None
+    share = oracle_share(res)
     if share is not None:
         res["oracle_share"] = share
         print(oracle_share_sentence(share))
@@ -277,13 +278,12 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> dict:
         res.pop("traces")
     if args.write_docs:
         cmd = docs_command("python -m eval", argv)
-        if urban:
-            text = markdown_table(res, cmd) + (f"\n\n{oracle_share_sentence(share)}" if share is not None else "")
-            write_section(docs_path(RESULTS_PATH), "urban-comparison",
-                          "## The urban task: the learned agent, look-ahead and per-slot policies\n\n" + text)
-            print(f"wrote {docs_path(RESULTS_PATH)}")
+        text = markdown_table(res, cmd) + (f"\n\n{oracle_share_sentence(share)}" if share is not None else "")
+        if task.readme:
+            publish(task.results_section, task.results_title, text)
         else:
-            publish("comparison", "Learned vs scripted allocation", markdown_table(res, cmd))
+            write_section(docs_path(RESULTS_PATH), task.results_section, f"## {task.results_title}\n\n" + text)
+            print(f"wrote {docs_path(RESULTS_PATH)}")
     if args.json:
         save_json(args.json, res)
     return res

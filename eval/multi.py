@@ -23,7 +23,7 @@ import sys
 from pathlib import Path
 
 from iscc_gym.agents.sb3_policy import LAGRANGE_FILE
-from iscc_gym.agents.shipped import multi_agent_dir
+from iscc_gym.agents.tasks import TASK_POLICIES
 from iscc_gym.eval.evaluate import Entry, ci_bounds, ci_cell, evaluate, format_table, horizon_slots, markdown_table
 from iscc_gym.eval.options import (
     PICKLE_WARNING,
@@ -36,6 +36,7 @@ from iscc_gym.eval.options import (
     show_progress,
 )
 
+from iscc_gym import MULTI_ENV_ID
 from iscc_gym.docs import RESULTS_PATH, docs_path, write_section
 from iscc_gym.protocol import MULTI_SEED_START as SEED_START
 from iscc_gym.protocol import held_out_seeds
@@ -47,19 +48,19 @@ __all__ = ["SEED_START", "DEFAULT_POLICIES", "agent_dir", "compare", "scan_table
 #: First held-out mission of this command (inside the evaluation range, apart from the others).
 #: The scripted baselines played by default (``margin-starved``: ``margin`` with a tenth of its sensing,
 #: the rest to data, the policy that buys rate with the radar; issue 23).
-DEFAULT_POLICIES = "equal-sca,joint-sca,margin,margin-starved"
+DEFAULT_POLICIES = TASK_POLICIES[MULTI_ENV_ID].policies
 #: The columns of the K-scan's summary (:func:`scan_table`): metric, title, format.
 #: The median PEB stands beside the mean: a few slots of a lost radar lift a mission's mean PEB (issue 34).
 SCAN_COLUMNS = (("reward", "episode reward ↑", "{:.1f}"), ("tracking_error_m", "tracking error (m) ↓", "{:.4f}"),
                 ("peb_m", "PEB (m) ↓", "{:.4f}"), ("peb_median_m", "median PEB (m) ↓", "{:.4f}"),
                 ("alpha_sen", "sensing share", "{:.3f}"))
 #: The reference of the paired differences.
-REFERENCE = "joint-sca"
+REFERENCE = TASK_POLICIES[MULTI_ENV_ID].reference
 
 
 def agent_dir(n_drones: int) -> Path:
     """Where ``python -m train.multi`` ships the agent for ``n_drones`` drones."""
-    return multi_agent_dir(n_drones)
+    return TASK_POLICIES[MULTI_ENV_ID].shipped_agent(n_drones)
 
 
 def _load_agent(path, n_drones: int):

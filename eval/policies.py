@@ -60,7 +60,7 @@ def policy_name(item: str) -> str:
 
 def resolve_specs(specs: str, agent: Path = SHIPPED_AGENT) -> list[str]:
     """The items of a ``--policies`` value: a bare ``ppo`` becomes the shipped ``agent`` (``ppo=`` its path;
-    by default the paper env's, :data:`iscc_gym.agents.shipped.SHIPPED_AGENTS` holds each env's);
+    by default the paper env's, :data:`iscc_gym.agents.tasks.TASK_POLICIES` holds each task's);
     ``ValueError`` if it is empty or names a policy twice (results are keyed by name).
     """
     items = [p.strip() for p in split_specs(specs) if p.strip()]

@@ -2,8 +2,9 @@
 
 Evaluates every run of ``python -m train --seeds 0,1,2,3,4 --out DIR`` (the ``DIR/seed_<s>``
 directories) beside the scripted baselines on the same held-out missions (common random numbers)
-and reports, per seed, the paired difference of episode reward to a reference (static SCA; on the urban
-task, ``--env iscc_gym/ISCC-Urban-v0``, the look-ahead planner ``mpc``) and to the best scripted policy
+and reports, per seed, the paired difference of episode reward to the task's reference (static SCA; on the urban
+task, ``--env iscc_gym/ISCC-Urban-v0``, ``myopic``: :data:`iscc_gym.agents.tasks.TASK_POLICIES`, or ``--reference``)
+and to the best scripted policy
 (the scripted policy with the highest mean reward on these missions), each with its 95 % CI.
 
 Example::
@@ -11,7 +12,7 @@ Example::
     python -m train --seeds 0,1,2,3,4 --out runs/seeds
     python -m eval.seeds runs/seeds --write-docs
     python -m train --env iscc_gym/ISCC-Urban-v0 --seeds 0,1,2,3,4 --out runs/urban_seeds
-    python -m eval.seeds runs/urban_seeds --env iscc_gym/ISCC-Urban-v0 --write-docs   # each against mpc
+    python -m eval.seeds runs/urban_seeds --env iscc_gym/ISCC-Urban-v0 --write-docs   # each against myopic
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from iscc_gym.agents.tasks import task_policies
 from iscc_gym.eval.evaluate import ci_bounds, evaluate, horizon_slots, mean_ci
 from iscc_gym.eval.options import (
     PICKLE_WARNING,
@@ -38,12 +40,11 @@ from iscc_gym.eval.options import (
 from iscc_gym import ENV_ID, URBAN_ENV_ID
 from iscc_gym.protocol import EVAL_SEED_START
 
-#: Scripted policies every seed is compared with.
-SCRIPTED = ("sca", "margin", "myopic")
-#: Per env id: (scenario, scripted policies, the reference column, the docs section and its title).
-TASKS = {ENV_ID: ("paper", SCRIPTED, "sca", "seeds", "The shipped configuration over 5 training seeds"),
-         URBAN_ENV_ID: ("urban", ("myopic", "margin", "dpp", "mpc"), "mpc", "urban-seeds",
-                        "The urban task's shipped configuration over 5 training seeds")}
+#: Scripted policies every seed is compared with on the paper's task (each task's: ``TaskPolicies.scripted``).
+SCRIPTED = task_policies(ENV_ID).scripted
+#: The env ids whose training configuration is studied, with their docs section and its title.
+SECTIONS = {ENV_ID: ("seeds", "The shipped configuration over 5 training seeds"),
+            URBAN_ENV_ID: ("urban-seeds", "The urban task's shipped configuration over 5 training seeds")}
 
 
 def seed_runs(root: str | Path) -> dict[int, Path]:
@@ -114,9 +115,13 @@ def build_parser(prog: str = "python -m eval.seeds") -> Parser:
                     help="held-out missions, >= 2 (default: 20)")
     ap.add_argument("--seed-start", type=nonneg_int, default=EVAL_SEED_START, metavar="SEED",
                     help="seed of the first mission (default: 10000)")
-    ap.add_argument("--env", default=ENV_ID, choices=list(TASKS),
+    urban = task_policies(URBAN_ENV_ID)
+    ap.add_argument("--env", default=ENV_ID, choices=list(SECTIONS),
                     help=f"the env the runs were trained on (default: {ENV_ID}); {URBAN_ENV_ID}: scenario urban, "
-                         f"compared with {', '.join(TASKS[URBAN_ENV_ID][1])} (minus {TASKS[URBAN_ENV_ID][2]})")
+                         f"compared with {', '.join(urban.scripted)} (minus {urban.reference})")
+    ap.add_argument("--reference", metavar="NAME",
+                    help="the scripted policy of the per-seed differences (default: the task's reference, sca on "
+                         f"{ENV_ID}, {urban.reference} on {URBAN_ENV_ID})")
     ap.add_argument("--scenario", default=None, help="scenario preset (default: the env's, paper or urban)")
     ap.add_argument("--max-steps", type=positive_int, metavar="N",
                     help="slots per mission, >= 1 (default: the whole mission)")
@@ -133,8 +138,13 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.seeds") -> d
     args = build_parser(prog).parse_args(argv)
     if args.episodes < 2:
         raise ValueError(f"--episodes {args.episodes}: use at least 2 (a confidence interval needs two missions)")
-    _, scripted, reference, section, title = TASKS[args.env]
-    args.scenario = env_scenario(args.env, args.scenario, args.write_docs)  # TASKS' scenario, or a variant of it
+    task = task_policies(args.env)
+    scripted, reference = task.scripted, args.reference or task.reference
+    if reference not in scripted:
+        raise ValueError(f"--reference {reference!r} is not one of the scripted policies compared: "
+                         f"{', '.join(scripted)}")
+    section, title = SECTIONS[args.env]
+    args.scenario = env_scenario(args.env, args.scenario, args.write_docs)  # the task's scenario, or a variant of it
     runs = seed_runs(args.root)  # FileNotFoundError with one line: the exit code 2 of iscc_gym.cli.run
     from iscc_gym.eval.policies import check_specs
 

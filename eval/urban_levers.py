@@ -42,33 +42,16 @@ from iscc_gym.eval.urban_task import task_stats
 
 from iscc_gym.protocol import TUNE_SEED_START
 from iscc_gym.scenario import make_scenario
+from iscc_gym.tasks import TASKS, URBAN_ENV_ID
 
 __all__ = ["VARIANTS", "RATE_WEIGHT_GRID", "TUNE_MISSIONS", "lever_row", "markdown", "main"]
 
-#: The variants of ``urban``: name -> (Scenario overrides, why the value is physical).
-VARIANTS: dict[str, tuple[dict, str]] = {
-    "urban": ({}, "the preset (TR 38.901's exponential LoS field, 1 s deadline, 5 Mbit/s, w_rate 1)"),
-    "smooth": ({"los_field_kernel": "gaussian"},
-               "smooth LoS field, the same 50 m correlation distance: building-scale blocked stretches"),
-    "smooth w_rate=5": ({"los_field_kernel": "gaussian", "w_rate": 5.0},
-                         "a dropped slot of data costs 5 m-slots of tracking error"),
-    "smooth deadline=3s": ({"los_field_kernel": "gaussian", "queue_deadline_s": 3.0},
-                             "a buffered video stream's latency budget"),
-    "smooth 15Mbps": ({"los_field_kernel": "gaussian", "queue_arrival_bps": 15e6},
-                          "a 4K video downlink"),
-    "w_rate=5": ({"w_rate": 5.0}, "the preset, data worth 5x"),
-    "map_error=0.8": ({"map_error_std": 0.8}, "a coarse map (correlation 0.6 with the truth)"),
-    "smooth 40Mbps deadline=5s": ({"los_field_kernel": "gaussian", "queue_arrival_bps": 40e6, "queue_deadline_s": 5.0},
-                                  "data scarce while the link is clear (about 3/4 of a clear link's capacity), a 5 s "
-                                  "buffer"),
-    "calm smooth 20Mbps deadline=3s": ({"process_noise_pos": 0.005, "process_noise_vel": 0.05,
-                                        "los_field_kernel": "gaussian", "queue_arrival_bps": 20e6,
-                                        "queue_deadline_s": 3.0},
-                                       "light wind: process noise 5 mm and 0.05 m/s per slot (the diagonal of a "
-                                       "white-noise acceleration model, 0.5-1 m/s^2), so that tracking depends on "
-                                       "sensing while the link is clear; the paper's R_min 20 Mbit/s, a 3 s buffer"),
-    "umi_av": ({"blockage": "umi_av"}, "TR 36.777 UMi-AV: more of the path blocked"),
-}
+#: The variants of ``urban`` played here, by name: the urban task's variants (:data:`iscc_gym.tasks.TASKS`).
+LEVERS = ("urban", "smooth", "smooth w_rate=5", "smooth deadline=3s", "smooth 15Mbps", "w_rate=5", "map_error=0.8",
+          "smooth 40Mbps deadline=5s", "calm smooth 20Mbps deadline=3s", "umi_av")
+#: name -> (Scenario overrides, why the value is physical).
+VARIANTS: dict[str, tuple[dict, str]] = {name: (dict(TASKS[URBAN_ENV_ID].variants[name].overrides),
+                                                TASKS[URBAN_ENV_ID].variants[name].why) for name in LEVERS}
 
 #: ``myopic``'s data weight is tuned among these multiples of the variant's ``w_rate``.
 RATE_WEIGHT_GRID = (0.1, 0.3, 1.0, 3.0)

@@ -26,20 +26,16 @@ from iscc_gym.eval.options import PICKLE_WARNING, Parser, docs_command, positive
 from iscc_gym.eval.policies import build_policy, policy_name, pool_map, resolve_specs
 
 from iscc_gym.protocol import EVAL_SEED_START
-from iscc_gym.scenario import URBAN_SHIFTS, make_scenario
+from iscc_gym.scenario import make_scenario
+from iscc_gym.tasks import TASKS, URBAN_ENV_ID
 
 __all__ = ["SHIFTS", "POLICIES", "shift_runs", "markdown", "main"]
 
-#: The shifts: name -> (Scenario overrides of the ``urban`` preset, what changes); the overrides are
-#: :data:`iscc_gym.scenario.URBAN_SHIFTS` (which ``python -m train --randomize urban-shifts`` trains over).
-SHIFTS: dict[str, tuple[dict, str]] = {
-    "none": ({}, "the preset's missions (UMa-AV, 30-60 m, 5 Mbit/s within 1 s, map error 0.4)"),
-    **{name: (URBAN_SHIFTS[name], what) for name, what in (
-        ("umi_av", "TR 36.777 UMi-AV instead of UMa-AV: more of the path blocked"),
-        ("altitude 60-100 m", "higher flights (UMa-AV's LoS probability rises with height)"),
-        ("10 Mbit/s within 2 s", "twice the data, twice the deadline"),
-        ("map error 0.8", "the channel map's error doubled"))},
-}
+#: The shifts: name -> (Scenario overrides of the ``urban`` preset, what changes): the urban task's
+#: :attr:`~iscc_gym.tasks.Task.shifts` (which ``python -m train --randomize urban-shifts`` trains over).
+SHIFTS: dict[str, tuple[dict, str]] = {name: (dict(TASKS[URBAN_ENV_ID].variants[name].overrides),
+                                              TASKS[URBAN_ENV_ID].variants[name].why)
+                                       for name in TASKS[URBAN_ENV_ID].shifts}
 #: The policies compared on each shift: the shipped urban agent and every scripted policy of the urban task.
 POLICIES = "ppo,myopic,margin,dpp,mpc"
 

@@ -16,28 +16,19 @@ The repository's ``agents/``, ``train/`` and ``eval/`` folders install as ``iscc
 import gymnasium as _gym
 
 from iscc_gym import compile_note as _compile_note  # noqa: F401 (a note on stderr when the kernels are first built)
-from iscc_gym.envs.env import ENV_ID, REGISTERED_MAX_EPISODE_STEPS, URBAN_ENV_ID, ISCCEnv
-from iscc_gym.envs.multi import MULTI_ENV_ID
+from iscc_gym.envs.env import ISCCEnv
 from iscc_gym.scenario import SCENARIOS, Scenario, make_scenario
 from iscc_gym.sim.fleet import N_DRONES
 from iscc_gym.sim.task import action_to_split, split_to_action
+from iscc_gym.tasks import ENV_ID, MULTI_ENV_ID, TASKS, URBAN_ENV_ID
 
 __all__ = ["Scenario", "SCENARIOS", "make_scenario", "ISCCEnv", "action_to_split", "split_to_action",
-           "ENV_ID", "URBAN_ENV_ID", "MULTI_ENV_ID", "parallel_env"]
+           "ENV_ID", "URBAN_ENV_ID", "MULTI_ENV_ID", "TASKS", "parallel_env"]
 
-assert SCENARIOS["paper"].n_slots == REGISTERED_MAX_EPISODE_STEPS
-if ENV_ID not in _gym.registry:
-    _gym.register(id=ENV_ID, entry_point="iscc_gym.envs.env:ISCCEnv",
-                  vector_entry_point="iscc_gym.envs.vector:ISCCVectorEnv",
-                  max_episode_steps=REGISTERED_MAX_EPISODE_STEPS)
-if URBAN_ENV_ID not in _gym.registry:
-    _gym.register(id=URBAN_ENV_ID, entry_point="iscc_gym.envs.env:ISCCEnv",
-                  vector_entry_point="iscc_gym.envs.vector:ISCCVectorEnv",
-                  max_episode_steps=SCENARIOS["urban"].n_slots, kwargs={"scenario": "urban"})
-if MULTI_ENV_ID not in _gym.registry:
-    _gym.register(id=MULTI_ENV_ID, entry_point="iscc_gym.envs.multi:ISCCMultiEnv",
-                  vector_entry_point="iscc_gym.envs.vector:ISCCMultiVectorEnv",
-                  max_episode_steps=REGISTERED_MAX_EPISODE_STEPS)
+for _task in TASKS.values():  # every env id from the one task table (iscc_gym.tasks)
+    if _task.env_id not in _gym.registry:
+        _gym.register(id=_task.env_id, entry_point=_task.entry_point, vector_entry_point=_task.vector_entry_point,
+                      max_episode_steps=_task.max_episode_steps, kwargs=_task.kwargs)
 __version__ = "0.1.0"
 
 

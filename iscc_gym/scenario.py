@@ -391,17 +391,6 @@ URBAN_OVERRIDES: dict[str, Any] = {
     "preview_stride_slots": 5,      # 10 points over the next 5 s
 }
 
-#: The urban task's missions drawn with other statistics, as overrides of the ``urban`` preset: the other 3GPP
-#: scenario, a higher altitude band, twice the data with twice the deadline, the map's error doubled
-#: (``python -m eval.urban_shift`` plays policies tuned on the preset there; ``python -m train --randomize
-#: urban-shifts`` trains over the preset and these).
-URBAN_SHIFTS: dict[str, dict[str, Any]] = {
-    "umi_av": {"blockage": "umi_av"},
-    "altitude 60-100 m": {"altitude_min_m": 60.0, "altitude_max_m": 100.0},
-    "10 Mbit/s within 2 s": {"queue_arrival_bps": 10e6, "queue_deadline_s": 2.0},
-    "map error 0.8": {"map_error_std": 0.8},
-}
-
 SCENARIOS: dict[str, Scenario] = {
     "paper": Scenario(),
     "literal": Scenario(**LITERAL_OVERRIDES),

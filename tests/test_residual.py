@@ -124,7 +124,8 @@ def test_the_shipped_urban_agent_is_the_urban_entrys_residual_on_myopic():
 
 
 def test_each_env_ships_its_own_agent():
-    from iscc_gym.agents.shipped import PPO_AGENT, SHIPPED_AGENTS, URBAN_AGENT
+    from iscc_gym.agents.shipped import PPO_AGENT, URBAN_AGENT
+    from iscc_gym.agents.tasks import SHIPPED_AGENTS
     from iscc_gym.train.ship import SHIP_ARGS, ship_args
 
     from iscc_gym import ENV_ID
@@ -190,14 +191,14 @@ def test_concatenated_envs_play_each_part_as_it_would_alone():
 def test_randomised_training_splits_the_envs_between_the_preset_and_its_shifts(tmp_path):
     from iscc_gym.train.train import make_train_env
 
-    from iscc_gym.scenario import URBAN_SHIFTS
+    from iscc_gym.tasks import TASKS, URBAN_ENV_ID
 
     args, _ = resolve_args(parse_args(["--env", URBAN_ENV_ID, "--randomize", "urban-shifts", "--n-envs", "7"]))
     venv = make_train_env(args)
     parts = venv.venv.venv.venvs  # VecMonitor(ResidualVecEnv(ConcatVecEnv))
     assert [p.num_envs for p in parts] == [2, 2, 1, 1, 1]
     assert parts[0].venv.scenario.blockage == "uma_av" and parts[1].venv.scenario.blockage == "umi_av"
-    for part, shift in zip(parts[1:], URBAN_SHIFTS.values(), strict=True):
+    for part, shift in zip(parts[1:], TASKS[URBAN_ENV_ID].shift_overrides().values(), strict=True):
         assert all(getattr(part.venv.scenario, k) == v for k, v in shift.items())
     out = tmp_path / "rand"
     main(tiny_args(out, env_id=URBAN_ENV_ID, randomize="urban-shifts", n_envs=5, residual="margin", eval_freq=0,

@@ -20,7 +20,7 @@ from iscc_gym.agents.sb3_policy import algo_class
 from iscc_gym import ENV_ID, MULTI_ENV_ID, URBAN_ENV_ID
 from iscc_gym.envs.env import registered_scenario
 from iscc_gym.protocol import INIT_SEED_START, check_outside_evaluation
-from iscc_gym.scenario import URBAN_SHIFTS
+from iscc_gym.tasks import TASKS
 
 HYPERPARAMS = Path(__file__).with_name("hyperparams.yml")
 ALGOS = SB3_ALGOS  # ppo, sac, td3 and ppo_lstm (sb3-contrib's RecurrentPPO, rl-zoo3's name for it)
@@ -30,7 +30,7 @@ VEC_ENVS = ("dummy", "subproc", "batched")
 #: The ids the native batched env serves (the paper's env, the urban task, the multi-drone env).
 ISCC_ENV_IDS = (ENV_ID, URBAN_ENV_ID, MULTI_ENV_ID)
 #: ``--randomize NAME``: the shifted statistics a randomised run trains over, beside the env's own.
-RANDOMIZE = {"urban-shifts": URBAN_SHIFTS}
+RANDOMIZE = {"urban-shifts": TASKS[URBAN_ENV_ID].shift_overrides()}
 #: ``--algo ppo-lag``: PPO with the Lagrangian of train/lagrangian.py, at these limits unless
 #: ``--cost-limit`` gives others.
 PPO_LAG_LIMITS = "rate=0.05,stability=0.0"
@@ -67,7 +67,7 @@ class Args:
     residual: str | None = None
     residual_scale: float | None = None
     # training over randomised missions: "urban-shifts" splits the envs between the urban preset and each of
-    # iscc_gym.scenario.URBAN_SHIFTS (None: the YAML's, else the env's own missions only)
+    # the urban task's shifts (iscc_gym.tasks) (None: the YAML's, else the env's own missions only)
     randomize: str | None = None
     eval_freq: int = 500_000  # env steps between evaluations (0: none)
     eval_episodes: int = 8
@@ -113,7 +113,8 @@ FIELD_HELP = {
     "residual_scale": "reach of the residual agent's correction in action units, in (0, 2] (default: the YAML's, "
                       "else 0.5)",
     "randomize": "train over randomised missions: urban-shifts (the urban preset and each of its shifted "
-                 "statistics, iscc_gym.scenario.URBAN_SHIFTS, on equal shares of the envs: n_envs >= 5); none: "
+                 "statistics, the urban task's shifts in iscc_gym.tasks, on equal shares of the envs: n_envs >= 5); "
+                 "none: "
                  "the env's own",
     "eval_freq": "env steps between held-out evaluations (0: none); the best model goes to OUT/best/",
     "eval_episodes": "held-out missions per evaluation (seeds from 1,000,000)",

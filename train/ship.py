@@ -5,7 +5,7 @@ Trains with :data:`SHIP_ARGS` (for the urban task :func:`ship_args`), which is `
 no flags but ``--env`` (the configuration of ``train/hyperparams.yml``: env count, warm start,
 hyperparameters, step budget) into ``runs/ship_ppo`` (``runs/ship_ppo_urban``) with seed 0, copies the
 small artifacts (policy weights, VecNormalize statistics, resolved config, summary, learning curve) into a
-new folder swapped in whole for the agent's folder (:data:`iscc_gym.agents.shipped.SHIPPED_AGENTS`) and
+new folder swapped in whole for the agent's folder (:data:`iscc_gym.agents.tasks.SHIPPED_AGENTS`) and
 records the training time, steps and curve in ``docs/results.md`` (section ``agent``, for the urban task
 ``urban-agent``).
 """
@@ -20,12 +20,13 @@ from pathlib import Path
 
 import yaml
 from iscc_gym.agents.sb3_policy import LAGRANGE_FILE
-from iscc_gym.agents.shipped import PPO_AGENT, SHIPPED_AGENTS
+from iscc_gym.agents.shipped import PPO_AGENT
+from iscc_gym.agents.tasks import SHIPPED_AGENTS, task_policies
 from iscc_gym.train.config import Args, has_residual, resolve_args
 from iscc_gym.train.runs import recover_unit
 from iscc_gym.train.train import main
 
-from iscc_gym import ENV_ID, URBAN_ENV_ID
+from iscc_gym import ENV_ID
 from iscc_gym.cli import invoked_prog
 from iscc_gym.files import atomic_dir, atomic_target
 
@@ -33,9 +34,6 @@ ROOT = Path(__file__).resolve().parent.parent
 SHIP_DIR = PPO_AGENT
 # overwrite: every ship trains afresh into runs/ship_ppo
 SHIP_ARGS = Args(seed=0, out="runs/ship_ppo", checkpoint_freq=0, tensorboard=False, overwrite=True)
-#: The results section and figure name of each env's shipped agent.
-_DOCS = {ENV_ID: ("agent", "The shipped PPO agent", "ppo_learning_curve.png"),
-         URBAN_ENV_ID: ("urban-agent", "The shipped PPO agent of the urban task", "ppo_urban_learning_curve.png")}
 ARTIFACTS = ("model.zip", "vecnormalize.pkl", "manifest.yml", "config.yml", "summary.yml", "learning_curve.csv",
              "learning_curve.png")
 #: Copied too where the run wrote them (a constrained run's multipliers).
@@ -82,7 +80,7 @@ def publish(args: Args, summary: dict, dest: Path | None = None, write_docs: boo
     if write_docs:
         from iscc_gym.docs import RESULTS_PATH, write_section
 
-        section, title, figure = _DOCS[args.env_id]
+        section, title, figure = task_policies(args.env_id).agent_docs
         flag = "" if args.env_id == ENV_ID else f" --env {args.env_id}"
         figures = ROOT / "docs" / "figures"
         figures.mkdir(parents=True, exist_ok=True)

@@ -26,11 +26,10 @@ from iscc_gym.sim.fleet import (
 )
 from iscc_gym.sim.functional import observe, step_info
 from iscc_gym.sim.schema import COL, OBS_BOUND, OBS_NAMES
+from iscc_gym.tasks import MULTI_ENV_ID
 
 __all__ = ["ISCCMultiEnv", "MULTI_ENV_ID"]
 
-#: The registered id of the multi-drone env.
-MULTI_ENV_ID = "iscc_gym/ISCC-Multi-v0"
 
 
 class ISCCMultiEnv(TimeLimitCheck, gym.Env):

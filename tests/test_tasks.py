@@ -1,0 +1,58 @@
+"""The task table (issue 35 point 1): each env id's settings written once and read by every command."""
+
+import gymnasium as gym
+import pytest
+
+import iscc_gym
+from iscc_gym.agents.tasks import SHIPPED_AGENTS, TASK_POLICIES, task_policies
+from iscc_gym.scenario import SCENARIOS
+from iscc_gym.tasks import TASKS, URBAN_ENV_ID, Task, Variant, get_task, variant_scenario
+
+
+@pytest.mark.parametrize("env_id", list(TASKS))
+def test_every_task_is_registered_as_its_entry_says(env_id):
+    task, spec = TASKS[env_id], gym.spec(env_id)
+    assert (spec.entry_point, spec.vector_entry_point) == (task.entry_point, task.vector_entry_point)
+    assert spec.max_episode_steps == task.max_episode_steps == SCENARIOS[task.preset].n_slots
+    assert dict(spec.kwargs or {}) == task.kwargs
+    assert iscc_gym.envs.env.registered_scenario(env_id) == task.preset
+
+
+@pytest.mark.parametrize("env_id", list(TASKS))
+def test_every_task_has_its_policies_and_every_variant_is_a_valid_scenario(env_id):
+    pol = task_policies(env_id)
+    assert pol.task is TASKS[env_id]
+    names = pol.policies.split(",")
+    assert pol.reference in names and set(pol.scripted) <= set(names) | {"dpp", "mpc"}
+    for name in TASKS[env_id].variants:
+        assert variant_scenario(env_id, name).n_slots > 0
+    if pol.ships_agent:
+        assert SHIPPED_AGENTS[env_id] == pol.shipped_agent() and (pol.shipped_agent() / "model.zip").is_file()
+
+
+def test_a_task_refuses_an_unknown_preset_a_shift_outside_its_variants_and_an_unknown_id():
+    with pytest.raises(ValueError, match="preset 'nope'"):
+        Task("x/Y-v0", "nope", "a:B", "a:C", "t", "p")
+    with pytest.raises(ValueError, match=r"shifts \['b'\]"):
+        Task("x/Y-v0", "paper", "a:B", "a:C", "t", "p", {"a": Variant({}, "why")}, shifts=("b",))
+    with pytest.raises(ValueError, match="not a registered env id; use one of iscc_gym/ISCC-v0"):
+        get_task("iscc_gym/ISCC-v9")
+    with pytest.raises(ValueError, match="variant 'nope' is not one of iscc_gym/ISCC-Urban-v0's"):
+        variant_scenario(URBAN_ENV_ID, "nope")
+    with pytest.raises(TypeError):
+        TASKS[URBAN_ENV_ID].variants["new"] = Variant({}, "x")  # read-only
+
+
+def test_every_command_reads_the_tasks_reference_and_shifts_from_the_table():
+    """The urban task's reference was myopic in python -m eval and mpc in python -m eval.seeds (issue 35)."""
+    from iscc_gym.eval.__main__ import build_parser
+    from iscc_gym.eval.seeds import build_parser as seeds_parser
+    from iscc_gym.eval.urban_shift import SHIFTS
+    from iscc_gym.train.config import RANDOMIZE
+
+    urban = TASK_POLICIES[URBAN_ENV_ID]
+    assert f"reference {urban.reference}" in " ".join(build_parser().format_help().split())
+    assert f"(minus {urban.reference})" in " ".join(seeds_parser().format_help().split())
+    assert list(SHIFTS) == list(TASKS[URBAN_ENV_ID].shifts)
+    assert RANDOMIZE["urban-shifts"] == TASKS[URBAN_ENV_ID].shift_overrides()
+    assert list(RANDOMIZE["urban-shifts"]) == [s for s in TASKS[URBAN_ENV_ID].shifts if s != "none"]

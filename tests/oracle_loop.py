@@ -22,6 +22,7 @@ from iscc_gym.physics.channel import (
 )
 from iscc_gym.physics.dynamics import model_matrices
 from iscc_gym.physics.fbl import min_shares, q_func, slot_link
+from iscc_gym.physics.queue import arrival_sigma, queue_step
 from iscc_gym.physics.stability import scenario_eps_star
 from iscc_gym.scenario import Scenario
 from iscc_gym.sim import loop
@@ -37,12 +38,14 @@ from iscc_gym.sim.schema import (
     REF_ACC_SCALE,
     REF_VEL_SCALE,
     SNR_SCALE,
+    Z_ARRIVAL,
     Z_DROP,
     Z_FADE_COMM,
     Z_FADE_SEN,
     Z_MEAS,
     Z_PROC,
     Z_SHADOW,
+    n_draws,
 )
 
 _MEAS, _DROP, _PROC, _SHAD = slice(Z_MEAS, Z_MEAS + 6), Z_DROP, slice(Z_PROC, Z_PROC + 6), Z_SHADOW
@@ -61,7 +64,7 @@ def step_reference(s: Scenario, state: LoopState, alpha, rng=None, z=None):
     rng : Generator, or a sequence of B Generators for a batch, optional
         Draw the slot's normals from it; default: the episode stream of the state's key
         (:func:`slot_noise`).
-    z : ndarray (N_DRAWS,) or (B, N_DRAWS), optional
+    z : ndarray (n_draws(s),) or (B, n_draws(s)), optional
         The slot's standard normals, drawn already (then ``rng`` is not used).
 
     Returns
@@ -86,7 +89,7 @@ def step_reference(s: Scenario, state: LoopState, alpha, rng=None, z=None):
     check_step(s, state, alpha)
     n = state.n
     if z is None:
-        z = slot_noise(state, rng)
+        z = slot_noise(state, rng, n_draws(s))
     ref_n = reference_rows(state.ref, n)
     pos = x[..., :3]
     a_sen, a_ctrl, a_comm = alpha[..., 0], alpha[..., 1], alpha[..., 2]
@@ -149,7 +152,20 @@ def step_reference(s: Scenario, state: LoopState, alpha, rng=None, z=None):
         "rate_ctrl_bps": rate_ctrl,
         "diverged": ~(err <= s.max_tracking_error_m),  # also catches NaN
     }
-    new_state = state._replace(x=x_next, x_hat=x_hat_next, p=p_next, shadow=shadow_next, n=n_next)
+    # --- the data queue: the slot's arrivals, served by the data share (physics.queue)
+    q_next = state.queue
+    zero = np.zeros(x.shape[:-1])
+    arrived = served = dropped = backlog = zero
+    if s.queue_slots > 0:
+        sigma = arrival_sigma(s.queue_arrival_cv)
+        arrived = s.queue_arrival_bps * s.dt_s * np.exp(sigma * z[..., Z_ARRIVAL] - 0.5 * sigma * sigma)
+        capacity = np.where(np.isnan(rate_comm), 0.0, rate_comm * s.dt_s)
+        q_next, served, dropped = queue_step(state.queue.reshape(-1, s.queue_slots), arrived, capacity)
+        q_next, served, dropped = q_next.reshape(state.queue.shape), served.reshape(zero.shape), \
+            dropped.reshape(zero.shape)
+        backlog = q_next.sum(axis=-1)
+    metrics.update(bits_arrived=arrived, bits_served=served, bits_dropped=dropped, backlog_bits=backlog)
+    new_state = state._replace(x=x_next, x_hat=x_hat_next, p=p_next, shadow=shadow_next, n=n_next, queue=q_next)
     return new_state, metrics
 
 
@@ -206,7 +222,6 @@ def env_step_reference(s: Scenario, state: loop.LoopState, actions, z):
     obs, evaluable = _observe_and_check(s, new, cols[COL["packet_received"]], cols[COL["peb_m"]])
     costs = reward_and_costs(s, m, new.n, evaluable)
     cols += [alpha[:, 0], alpha[:, 1], alpha[:, 2]] + [np.asarray(v, dtype=float) for v in costs]
-    cols += [np.zeros(len(alpha))] * 4  # the queue's columns: no queue in these scenarios
     out = np.stack(cols, axis=-1)
     return new, out, obs
 

@@ -16,7 +16,7 @@ from iscc_gym.envs.env import ISCCEnv
 from iscc_gym.physics.blockage import los_probability
 from iscc_gym.sim import functional, loop
 from iscc_gym.sim.mission import MC, mission_rows
-from iscc_gym.sim.schema import OBS, obs_names, obs_size
+from iscc_gym.sim.schema import OBS, n_draws, obs_names, obs_size
 from iscc_gym.trajectory import sample_reference
 
 U = SCENARIOS["urban"]
@@ -197,3 +197,33 @@ def test_a_longer_mission_warns_of_the_urban_ids_own_time_limit(recwarn):
                         mission_duration_s=300.0, max_episode_steps=3000)  # the fix: the vector env knows it
     ISCCEnv("urban", mission_duration_s=300.0)  # no TimeLimit without gymnasium.make
     assert venv.max_steps == 3000 and not [w for w in recwarn if "TimeLimit" in str(w.message)]
+
+
+@pytest.mark.parametrize("noise", ["stream", "generator"])
+def test_loop_step_advances_the_queue_as_the_env_does(noise):
+    """loop.step is the whole slot transition: stepped from the env's state with the env's split, it gives the env's
+    next state bit for bit, the data queue included (the queue once advanced only inside the env's kernel, so
+    loop.step left the backlog as it was), and reports the queue's columns as the env's info does."""
+    from iscc_gym.sim.task import action_to_split
+
+    env = ISCCEnv(SHORT)
+    env.reset(seed=11)
+    state = env._state
+    rng = np.random.default_rng(5)
+    backlog_seen = 0.0
+    for n in range(80):
+        a = np.array([rng.uniform(-1, 1), rng.uniform(-1, 1), -0.95 if n < 40 else 1.0], np.float32)
+        if noise == "stream":
+            state, m = loop.step(SHORT, state, action_to_split(a.astype(float)[None]))
+            _, _, _, _, info = env.step(a)
+        else:  # the slot's normals from a Generator: as the env step given the same normals
+            z = loop.slot_noise(state, np.random.default_rng(1000 + n), n_draws(SHORT))
+            state, m = loop.step(SHORT, state, action_to_split(a.astype(float)[None]), np.random.default_rng(1000 + n))
+            env._state, out, _ = functional.env_step(SHORT, env._state, a[None].astype(float), normals=z)
+            info = functional.step_info(out[0].tolist(), int(env._state.n[0]))
+        for field in ("x", "x_hat", "p", "shadow", "n", "queue"):
+            assert np.array_equal(getattr(state, field), getattr(env._state, field)), (n, field)
+        for key in ("bits_arrived", "bits_served", "bits_dropped", "backlog_bits"):
+            assert float(np.asarray(m[key]).reshape(-1)[0]) == info[key], (n, key)
+        backlog_seen = max(backlog_seen, info["backlog_bits"])
+    assert backlog_seen > U.queue_arrival_bps * U.dt_s  # the data share starved: bits waited

@@ -28,6 +28,7 @@ from iscc_gym.sim.schema import (
     PREVIEW_OBS_NAMES,
     SNR_SCALE,
     STEP_COLUMNS,
+    n_draws,
     obs_size,
 )
 
@@ -153,7 +154,7 @@ def env_step(s: Scenario, state: loop.LoopState, actions: ArrayLike, normals: Ar
         z = _NO_NORMALS
     else:
         z = normals
-        draws = N_DRAWS + (1 if s.queue_slots > 0 else 0)
+        draws = n_draws(s)
         if z.shape != (nb, draws):
             raise ValueError(f"normals must have shape ({nb}, {draws}) (the slot's draws"
                              f"{', and the queue arrivals' if draws > N_DRAWS else ''}), got {z.shape}")

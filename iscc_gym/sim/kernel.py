@@ -1,10 +1,11 @@
 """The env's step, compiled: action map, slot, reward and costs, next observation, as one loop over
-the batch (numba), composed of the compiled slot (:func:`iscc_gym.sim.loop.step_one`) and the physics
+the batch (numba), composed of the compiled slot (:func:`iscc_gym.sim.loop.slot_one`) and the physics
 modules' scalar forms.
 
 Every equation of the slot is written once, in the module that owns it (``channel.*_one``,
-``fbl.*_one``, ``sensing.*_one``, ``kalman.*_one``, ``dynamics.*_one``), and composed by
-:func:`iscc_gym.sim.loop.step_one`; this module adds the env's own pieces, also written once: the action
+``fbl.*_one``, ``sensing.*_one``, ``kalman.*_one``, ``dynamics.*_one``, ``queue.*_one``), and composed by
+:func:`iscc_gym.sim.loop.slot_one` (the whole slot transition, which :func:`iscc_gym.sim.loop.step` runs too);
+this module adds the env's own pieces, also written once: the action
 map (:func:`split_one`), the reward and costs (:func:`reward_one`) and the observation
 (:func:`observe_one`). ``tests/test_kernel.py`` checks it against the numpy oracle
 (``tests/oracle_loop.py``, to ~1e-9 relative) on random states and whole episodes. Each slot draws
@@ -25,9 +26,9 @@ from numba import njit, prange, vectorize
 
 from iscc_gym.physics.channel import beam_gain_one, direction_one, link_snr_one
 from iscc_gym.physics.fbl import link_terms_one, min_comm_share_one, min_ctrl_share_one
-from iscc_gym.physics.queue import arrival_bits_one, oldest_age_one, queue_step_one
+from iscc_gym.physics.queue import oldest_age_one
 from iscc_gym.physics.sensing import echo_amplitude_one
-from iscc_gym.sim.loop import channel_state_one, new_outputs, step_one, work_space
+from iscc_gym.sim.loop import channel_state_one, new_outputs, slot_one, work_space
 from iscc_gym.sim.mission import MC
 from iscc_gym.sim.noise import fill_slot_normals
 from iscc_gym.sim.schema import (
@@ -45,7 +46,6 @@ from iscc_gym.sim.schema import (
     REF_ACC_SCALE,
     REF_VEL_SCALE,
     SNR_SCALE,
-    Z_ARRIVAL,
 )
 
 __all__ = ["env_step_batch", "env_step_batch_parallel", "observe_batch",
@@ -63,8 +63,7 @@ _O_POS, _O_REF, _O_STD, _O_SNR, _O_RANGE = OBS["pos_err_x"], OBS["ref_vel_x"], O
 _O_SIN_EL, _O_COS_AZ, _O_SIN_AZ = OBS["sin_elevation"], OBS["cos_azimuth"], OBS["sin_azimuth"]
 _O_CTRL, _O_COMM, _O_RX, _O_PEB, _O_TIME = (OBS[k] for k in ("alpha_ctrl_min", "alpha_comm_min", "last_packet_received",
                                                            "last_peb", "time_left"))
-_ARRIVED, _SERVED, _DROPPED, _BACKLOG = (COL[k] for k in ("bits_arrived", "bits_served", "bits_dropped",
-                                                          "backlog_bits"))
+_DROPPED = COL["bits_dropped"]
 _MC_P, _MC_LOS, _MC_SNR_TRUE, _MC_ECHO_TRUE = MC["p_los_map"], MC["los"], MC["snr_true_db"], MC["echo_true_db"]
 _N_PREVIEW_DB = 4  # the preview point's dB columns, after p_los_map's shadow_map_unit (sim.mission.CHANNEL_COLUMNS)
 _MC_DB = MC["snr_los_map_db"]
@@ -256,8 +255,7 @@ def _env_rows(cp, mats, x, x_hat, p, shadow, n, ref, key, queue, action, budget,
     work = work_space()
     draw = z.shape[0] == 0
     whole = budget.shape[0] == 0
-    has_queue = c.queue_slots > 0.0
-    zbuf = np.empty(N_DRAWS + (1 if has_queue else 0))
+    zbuf = np.empty(N_DRAWS + (1 if c.queue_slots > 0.0 else 0))
     for i in range(lo, hi):
         if not active[i]:
             x_next[i], x_hat_next[i], p_next[i], shadow_next[i] = x[i], x_hat[i], p[i], shadow[i]
@@ -275,25 +273,15 @@ def _env_rows(cp, mats, x, x_hat, p, shadow, n, ref, key, queue, action, budget,
             zi = zbuf
         else:
             zi = z[i]
-        shadow_next[i] = step_one(c, mats, x[i], x_hat[i], p[i], shadow[i], n[i], ref[i], a0, a1, a2,
-                                  zi, x_next[i], x_hat_next[i], p_next[i], mt, work, blocked)
-        qn = queue_next[i]
-        qn[:] = queue[i]
-        if has_queue:  # the slot's arrivals, served by its data share (physics.queue)
-            arrived = arrival_bits_one(c.arrival_mean_bits, c.arrival_sigma, zi[Z_ARRIVAL])
-            capacity = mt[_RATE_COMM] * c.dt_s
-            served, dropped = queue_step_one(qn, arrived, capacity if capacity == capacity else 0.0)
-            backlog = 0.0
-            for j in range(qn.shape[0]):
-                backlog += qn[j]
-        else:
-            arrived = served = dropped = backlog = 0.0
-        mt[_ARRIVED], mt[_SERVED], mt[_DROPPED], mt[_BACKLOG] = arrived, served, dropped, backlog
+        # the slot transition, data queue included (iscc_gym.sim.loop.slot_one, as loop.step runs it)
+        shadow_next[i] = slot_one(c, mats, x[i], x_hat[i], p[i], shadow[i], n[i], ref[i], queue[i], a0, a1, a2,
+                                  zi, x_next[i], x_hat_next[i], p_next[i], queue_next[i], mt, work, blocked)
         n_next = n[i] + 1
-        evaluable = observe_one(c, x_hat_next[i], p_next[i], shadow_next[i], n_next, ref[i], qn, mt[_RX], mt[_PEB],
-                                obs[i])
+        evaluable = observe_one(c, x_hat_next[i], p_next[i], shadow_next[i], n_next, ref[i], queue_next[i], mt[_RX],
+                                mt[_PEB], obs[i])
         terminated = mt[_DIVERGED] == 1.0 or not evaluable
-        cost_rate, cost_stab, reward = reward_one(c, mt[_ERR], mt[_RATE_COMM], mt[_EPS], dropped, terminated, n_next)
+        cost_rate, cost_stab, reward = reward_one(c, mt[_ERR], mt[_RATE_COMM], mt[_EPS], mt[_DROPPED], terminated,
+                                                  n_next)
         mt[_ALPHA], mt[_ALPHA + 1], mt[_ALPHA + 2] = a0, a1, a2
         mt[_COST_RATE], mt[_COST_STAB], mt[_REWARD] = cost_rate, cost_stab, reward
         mt[_TERM] = 1.0 if terminated else 0.0
@@ -304,11 +292,11 @@ def _env_rows(cp, mats, x, x_hat, p, shadow, n, ref, key, queue, action, budget,
 def env_step_batch(c, mats, x, x_hat, p, shadow, n, ref, key, queue, action, budget, z, active,
                    x_next, x_hat_next, p_next, shadow_next, queue_next, out, obs, blocked=None):
     """One env step of a batch: action -> split (:func:`split_one`), slot transition
-    (:func:`iscc_gym.sim.loop.step_one`), reward and costs (:func:`reward_one`), next observation (:func:`observe_one`),
-    written into the outputs: next x, x_hat, p, shadow, ``out`` (B, N_ENV_COLUMNS) and ``obs``
-    (B, 23) float32. ``budget`` (B,) scales loop i's split to its share of the band (the multi-drone
-    env, :mod:`iscc_gym.envs.multi`), or has no rows: the whole band (the single env). ``z`` holds the
-    slot's normals (B, N_DRAWS), or has no rows: then each loop draws its own from its episode key
+    (:func:`iscc_gym.sim.loop.slot_one`, the data queue included), reward and costs (:func:`reward_one`), next
+    observation (:func:`observe_one`), written into the outputs: next x, x_hat, p, shadow, queue, ``out``
+    (B, N_ENV_COLUMNS) and ``obs`` (B, obs_size) float32. ``budget`` (B,) scales loop i's split to its share of
+    the band (the multi-drone env, :mod:`iscc_gym.envs.multi`), or has no rows: the whole band (the single env).
+    ``z`` holds the slot's normals (B, n_draws), or has no rows: then each loop draws its own from its episode key
     (noise.slot_normals(key[i], n[i])). Loops with ``active[i]`` False are left as they are (state
     copied, zero outputs). ``blocked``: None without blockage (the default), True with
     (:func:`iscc_gym.sim.loop.step_one`'s compile-time switch).

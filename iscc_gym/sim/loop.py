@@ -2,10 +2,13 @@
 
 ``step(scenario, state, alpha, rng) -> (state, metrics)`` advances a batch of B independent
 drones by one slot: sense (CRLB-limited ISAC or GNSS) -> Kalman update -> LQG command ->
-finite-blocklength delivery (Bernoulli drop) -> drone dynamics -> Kalman prediction. The single env
-and the vector env both call it; nothing here keeps state between calls.
+finite-blocklength delivery (Bernoulli drop) -> drone dynamics -> Kalman prediction, and with a data queue
+the slot's arrivals served by its data share (:mod:`iscc_gym.physics.queue`). The compiled slot
+(:func:`slot_one`) is the whole transition: :func:`step` and the env's kernel (:mod:`iscc_gym.sim.kernel`) both
+run it, so neither advances any part of the state the other does not; nothing here keeps state between calls.
 
-Randomness: each slot uses exactly :data:`N_DRAWS` standard normals per drone. By default they are
+Randomness: each slot uses exactly :func:`iscc_gym.sim.schema.n_draws` standard normals per drone
+(:data:`N_DRAWS`, one more with a queue: the arrivals). By default they are
 the episode's stream (:func:`iscc_gym.sim.noise.slot_normals` of the key the state carries, drawn at
 :func:`init_state`), so the transition is a pure function of the state; or they are drawn from a
 Generator passed in (one shared, or one per drone: then drone i's draws depend only on its own
@@ -34,6 +37,7 @@ from iscc_gym.physics.channel import (
 from iscc_gym.physics.dynamics import input_one, lqg_command_one, propagate_one
 from iscc_gym.physics.fbl import ctrl_bler_one, delivered_one, link_terms_one, rate_one
 from iscc_gym.physics.kalman import kf_predict_one, kf_update_whitened_one
+from iscc_gym.physics.queue import arrival_bits_one, queue_step_one
 from iscc_gym.physics.sensing import crlb_local_one, whitened_rows_one
 from iscc_gym.scenario import Scenario
 from iscc_gym.sim.mission import MC, mission_columns, mission_rows
@@ -45,19 +49,21 @@ from iscc_gym.sim.schema import (
     N_DRAWS,
     N_METRICS,
     N_OBS,
+    Z_ARRIVAL,
     Z_DROP,
     Z_FADE_COMM,
     Z_FADE_SEN,
     Z_MEAS,
     Z_PROC,
     Z_SHADOW,
+    n_draws,
 )
 from iscc_gym.trajectory import Reference, sample_reference
 
 __all__ = ["LoopState", "N_DRAWS", "init_state", "step", "reference_at",
            "standard_normals", "stack_references", "reference_array", "slot_noise", "step_one", "reference_rows",
            "vector_norm", "check_step", "channel_state_one", "init_mission", "blocked_switch",
-           "step_batch", "new_outputs"]
+           "step_batch", "new_outputs", "slot_one", "queue_slot_one"]
 
 
 class LoopState(NamedTuple):
@@ -117,13 +123,14 @@ class LoopState(NamedTuple):
         return None if self.x.ndim == 1 else self.x.shape[0]
 
 
-def slot_noise(state: LoopState, rng: np.random.Generator = None) -> np.ndarray:
-    """The slot's :data:`N_DRAWS` standard normals, (N_DRAWS,) or (B, N_DRAWS): the episode stream
-    of the state's key at its slot (``rng`` None), else drawn from ``rng`` (:func:`standard_normals`).
+def slot_noise(state: LoopState, rng: np.random.Generator = None, k: int = N_DRAWS) -> np.ndarray:
+    """The slot's ``k`` standard normals, (k,) or (B, k): the episode stream of the state's key at its slot
+    (``rng`` None), else drawn from ``rng`` (:func:`standard_normals`). ``k``: :data:`N_DRAWS`, or a scenario's
+    :func:`iscc_gym.sim.schema.n_draws` (one more with a queue; the first N_DRAWS are the same either way).
     """
     if rng is None:
-        return slot_normals(state.key, state.n)
-    return standard_normals(rng, state.batch_size)
+        return slot_normals(state.key, state.n, k)
+    return standard_normals(rng, state.batch_size, k)
 
 
 def stack_references(refs: Sequence[Reference]):
@@ -234,33 +241,35 @@ def step(s: Scenario, state: LoopState, alpha: ArrayLike, rng: np.random.Generat
         ``estimation_error_m`` (||p_hat_n - p_n||), ``snr_db`` (the slot's SNR with fading),
         ``snr_large_scale_db``, ``peb_m``, ``veb_mps``, ``eps_ctrl``, ``packet_received`` (bool),
         ``rate_comm_bps``, ``rate_ctrl_bps``, ``diverged`` (bool: tracking error above
-        ``max_tracking_error_m`` or non-finite).
+        ``max_tracking_error_m`` or non-finite); the data queue's ``bits_arrived``, ``bits_served``,
+        ``bits_dropped`` and ``backlog_bits`` (after the slot; all 0 without a queue).
 
     Notes
     -----
-    Evaluated by the compiled slot (:func:`step_batch`, :func:`step_one`) one drone at a time, so drone
-    i of a batch reproduces the unbatched loop bit for bit. ``tests/oracle_loop.py`` holds the same
+    Evaluated by the compiled slot (:func:`step_batch`, :func:`slot_one`) one drone at a time, so drone
+    i of a batch reproduces the unbatched loop bit for bit, and the env's step (which runs the same
+    :func:`slot_one`) from the same state, split and normals bit for bit. ``tests/oracle_loop.py`` holds the same
     transition in numpy (``step_reference``), the test oracle it is checked against.
     """
     alpha = np.asarray(alpha, dtype=float)
     x = state.x
     batch = None if x.ndim == 1 else x.shape[0]
     check_step(s, state, alpha)
-    z = slot_noise(state, rng)
+    z = slot_noise(state, rng, n_draws(s))
     nb = 1 if batch is None else batch
-    x_n, xh_n, p_n, sh_n, _, met, _ = new_outputs(nb, N_METRICS)
+    x_n, xh_n, p_n, sh_n, q_n, met, _ = new_outputs(nb, N_METRICS, queue_slots=s.queue_slots)
     blocked = blocked_switch(s)
     if batch is None:  # a batch of one, squeezed back
         step_batch(*slot_params(s), x[None], state.x_hat[None], state.p[None], state.shadow[None], state.n[None],
-                   state.ref[None], alpha[None], z[None], x_n, xh_n, p_n, sh_n, met, blocked)
-        x_n, xh_n, p_n, sh_n, met = x_n[0], xh_n[0], p_n[0], sh_n[0], met[0]
+                   state.ref[None], state.queue[None], alpha[None], z[None], x_n, xh_n, p_n, sh_n, q_n, met, blocked)
+        x_n, xh_n, p_n, sh_n, q_n, met = x_n[0], xh_n[0], p_n[0], sh_n[0], q_n[0], met[0]
     else:
-        step_batch(*slot_params(s), x, state.x_hat, state.p, state.shadow, state.n, state.ref, alpha, z,
-                   x_n, xh_n, p_n, sh_n, met, blocked)
+        step_batch(*slot_params(s), x, state.x_hat, state.p, state.shadow, state.n, state.ref, state.queue, alpha, z,
+                   x_n, xh_n, p_n, sh_n, q_n, met, blocked)
     metrics = dict(zip(METRIC_NAMES, met.T, strict=True))
     metrics["packet_received"] = metrics["packet_received"] > 0.5
     metrics["diverged"] = metrics["diverged"] > 0.5
-    return state._replace(x=x_n, x_hat=xh_n, p=p_n, shadow=sh_n, n=state.n + 1), metrics
+    return state._replace(x=x_n, x_hat=xh_n, p=p_n, shadow=sh_n, n=state.n + 1, queue=q_n), metrics
 
 
 def check_step(s: Scenario, state: LoopState, alpha: np.ndarray) -> None:
@@ -281,8 +290,8 @@ def check_step(s: Scenario, state: LoopState, alpha: np.ndarray) -> None:
 
 _A, _B, _K, _SIGMA_W, _DIAGS = MATS["a"], MATS["b"], MATS["k"], MATS["sigma_w"], MATS["diags"]
 _MC_LOS, _MC_SHADOW = MC["los"], MC["shadow_unit"]
-(_ERR, _EST, _SNR, _SNR_LS, _PEB, _VEB, _EPS, _RX, _RATE_COMM, _RATE_CTRL, _DIVERGED) = (
-    COL[name] for name in METRIC_NAMES)
+(_ERR, _EST, _SNR, _SNR_LS, _PEB, _VEB, _EPS, _RX, _RATE_COMM, _RATE_CTRL, _DIVERGED,
+ _ARRIVED, _SERVED, _DROPPED, _BACKLOG) = (COL[name] for name in METRIC_NAMES)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -397,6 +406,44 @@ def step_one(c, mats, xi, x_hat, p, shadow, ni, ref, a_sen, a_ctrl, a_comm, zi,
 
 
 @njit(cache=True, error_model="numpy")
+def queue_slot_one(c, q, zi, mt, q_next):
+    """The data queue's part of a slot (:mod:`iscc_gym.physics.queue`), after :func:`step_one` has written the
+    slot's data rate into ``mt``: the slot's arrivals (:func:`iscc_gym.physics.queue.arrival_bits_one` of the
+    draw ``zi[Z_ARRIVAL]``) join ``q`` and the data share serves ``rate_comm_bps`` x dt bits (none at a NaN rate);
+    writes the next buffer into ``q_next`` (``q`` unchanged) and the queue's metrics columns of ``mt``. Without a
+    queue (no buffer) the columns are 0. Compiled apart from :func:`step_one` (no fastmath: the bits add up as
+    written).
+    """
+    for j in range(q.shape[0]):
+        q_next[j] = q[j]
+    if c.queue_slots > 0.0:
+        arrived = arrival_bits_one(c.arrival_mean_bits, c.arrival_sigma, zi[Z_ARRIVAL])
+        capacity = mt[_RATE_COMM] * c.dt_s
+        served, dropped = queue_step_one(q_next, arrived, capacity if capacity == capacity else 0.0)
+        backlog = 0.0
+        for j in range(q_next.shape[0]):
+            backlog += q_next[j]
+    else:
+        arrived = served = dropped = backlog = 0.0
+    mt[_ARRIVED], mt[_SERVED], mt[_DROPPED], mt[_BACKLOG] = arrived, served, dropped, backlog
+
+
+@njit(cache=True, error_model="numpy")
+def slot_one(c, mats, xi, x_hat, p, shadow, ni, ref, q, a_sen, a_ctrl, a_comm, zi,
+             x_next, x_hat_next, p_next, q_next, mt, work, blocked=None):
+    """One slot of one loop, the whole transition: the closed loop (:func:`step_one`), then the data queue
+    served by the slot's data share (:func:`queue_slot_one`). Writes the next state (x, x_hat, p, queue) and the
+    metrics row ``mt`` (:data:`iscc_gym.sim.schema.METRIC_NAMES`; a row of the env's columns also fits: they
+    start with them); returns the next shadowing state. ``zi``: the slot's normals
+    (:func:`iscc_gym.sim.schema.n_draws`); ``work``: :func:`work_space`, scratch reused from loop to loop.
+    """
+    shadow_next = step_one(c, mats, xi, x_hat, p, shadow, ni, ref, a_sen, a_ctrl, a_comm, zi,
+                           x_next, x_hat_next, p_next, mt, work, blocked)
+    queue_slot_one(c, q, zi, mt, q_next)
+    return shadow_next
+
+
+@njit(cache=True, error_model="numpy")
 def work_space():
     """Scratch space of one drone's slot, carved out of one allocation (zeros where only some
     entries are written: the observation matrices).
@@ -408,18 +455,18 @@ def work_space():
 
 
 @njit(cache=True, error_model="numpy")
-def step_batch(cp, mats, x, x_hat, p, shadow, n, ref, alpha, z, x_next, x_hat_next, p_next, shadow_next, metrics,
-               blocked=None):
-    """:func:`step_one` over a batch, written into the output arrays (next x, x_hat, p, shadow and the
+def step_batch(cp, mats, x, x_hat, p, shadow, n, ref, queue, alpha, z, x_next, x_hat_next, p_next, shadow_next,
+               queue_next, metrics, blocked=None):
+    """:func:`slot_one` over a batch, written into the output arrays (next x, x_hat, p, shadow, queue and the
     metrics (B, N_METRICS)); outputs are passed in because returning fresh arrays from compiled code
     costs more than the slot itself at small batches. ``cp``: the parameter record array (1,).
     """
     c = cp[0]
     work = work_space()
     for i in range(x.shape[0]):
-        shadow_next[i] = step_one(c, mats, x[i], x_hat[i], p[i], shadow[i], n[i], ref[i], alpha[i, 0],
+        shadow_next[i] = slot_one(c, mats, x[i], x_hat[i], p[i], shadow[i], n[i], ref[i], queue[i], alpha[i, 0],
                                   alpha[i, 1], alpha[i, 2], z[i], x_next[i], x_hat_next[i], p_next[i],
-                                  metrics[i], work, blocked)
+                                  queue_next[i], metrics[i], work, blocked)
 
 
 def new_outputs(nb: int, columns: int, n_obs: int = N_OBS, queue_slots: int = 0):

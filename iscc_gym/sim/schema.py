@@ -11,15 +11,19 @@ from __future__ import annotations
 
 __all__ = ["obs_names", "obs_size", "QUEUE_OBS_NAMES", "PREVIEW_OBS_NAMES", "BLOCKAGE_OBS_NAMES",
            "METRIC_NAMES", "ENV_COLUMNS", "STEP_COLUMNS", "COL", "N_METRICS", "N_STEP_COLUMNS", "OBS_NAMES",
-           "OBS", "N_OBS", "OBS_BOUND", "OBS_SCALING", "N_DRAWS", "DRAWS", "ERR_SCALE", "REF_VEL_SCALE",
+           "OBS", "N_OBS", "OBS_BOUND", "OBS_SCALING", "N_DRAWS", "DRAWS", "n_draws", "Z_ARRIVAL", "ERR_SCALE",
+           "REF_VEL_SCALE",
            "REF_ACC_SCALE", "SNR_SCALE", "CTRL_SHARE_SCALE", "PEB_SCALE"]
 
-#: Columns of a slot's metrics (:func:`iscc_gym.sim.loop.step`), in order.
+#: Columns of a slot's metrics (:func:`iscc_gym.sim.loop.step`), in order: the closed loop's, then the data
+#: queue's (:mod:`iscc_gym.physics.queue`: the slot's arrivals, the bits served and dropped, the backlog after the
+#: slot; 0 without a queue).
 METRIC_NAMES = ("tracking_error_m", "estimation_error_m", "snr_db", "snr_large_scale_db", "peb_m",
-                "veb_mps", "eps_ctrl", "packet_received", "rate_comm_bps", "rate_ctrl_bps", "diverged")
+                "veb_mps", "eps_ctrl", "packet_received", "rate_comm_bps", "rate_ctrl_bps", "diverged",
+                "bits_arrived", "bits_served", "bits_dropped", "backlog_bits")
 #: Columns an env step adds after :data:`METRIC_NAMES`: the applied split, costs, reward, episode end (0/1).
 ENV_COLUMNS = ("alpha_sen", "alpha_ctrl", "alpha_comm", "cost_rate", "cost_stability", "reward",
-               "terminated", "truncated", "bits_arrived", "bits_served", "bits_dropped", "backlog_bits")
+               "terminated", "truncated")
 #: Columns of the per-loop output array of an env step (:func:`iscc_gym.sim.functional.env_step`).
 STEP_COLUMNS = METRIC_NAMES + ENV_COLUMNS
 #: Position of each column of :data:`STEP_COLUMNS` by name.
@@ -117,3 +121,8 @@ Z_SHADOW = DRAWS["shadowing"][0]
 #: N_DRAWS normals are the same with and without).
 Z_ARRIVAL = N_DRAWS
 assert sum(n for _, n in DRAWS.values()) == N_DRAWS
+
+
+def n_draws(s) -> int:
+    """Standard normals per loop per slot for a scenario: :data:`N_DRAWS`, and :data:`Z_ARRIVAL` with a queue."""
+    return N_DRAWS + (1 if s.queue_slots > 0 else 0)

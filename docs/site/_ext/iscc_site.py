@@ -134,6 +134,10 @@ def _scaling(entry) -> str:
     return {"range": "x / coverage radius", "time_left": "1 - n / n_slots"}.get(kind, kind)
 
 
+def _cell(value) -> str:
+    return f"{value:g}" if isinstance(value, float) else str(value)
+
+
 def observation_rows(scenario: str) -> tuple[list[str], list[list[str]]]:
     """Header and rows of a preset's observation table, generated from the schema."""
     from iscc_gym.scenario import SCENARIOS
@@ -144,9 +148,11 @@ def observation_rows(scenario: str) -> tuple[list[str], list[list[str]]]:
     if table is not None:
         rows = list(table(s))
         if rows and isinstance(rows[0], dict):
-            header = list(rows[0])
-            return header, [[str(r[k]) for k in header] for r in rows]
-        return [], [[str(c) for c in r] for r in rows]
+            keys = list(rows[0])
+            labels = {"index": "Num"}
+            return ([labels.get(k, k[:1].upper() + k[1:]) for k in keys],
+                    [[_cell(r[k]) for k in keys] for r in rows])
+        return [], [[_cell(c) for c in r] for r in rows]
     # until the schema writes the table itself: names from obs_names, scalings from OBS_SCALING
     extra = {
         "backlog": "ln(1 + B / (arrival rate x dt))", "oldest_age": "age / deadline",
@@ -197,7 +203,7 @@ class ObsTable(Directive):
         from iscc_gym.sim import schema
 
         header, rows = observation_rows(self.arguments[0])
-        col = header.index("Name") if "Name" in header else None
+        col = next((j for j, h in enumerate(header) if h.lower() == "name"), None)
         preset = self.arguments[0]
         intro = nodes.paragraph("", "", nodes.Text(
             f"Box(-{schema.OBS_BOUND:g}, {schema.OBS_BOUND:g}, ({len(rows)},), float32), generated from "

@@ -4,6 +4,7 @@ echo, the LoS frequency against TR 36.777 Table B-1, the map's calibration, the 
 from __future__ import annotations
 
 import math
+import re
 
 import gymnasium as gym
 import numpy as np
@@ -14,7 +15,7 @@ import iscc_gym
 from iscc_gym import SCENARIOS
 from iscc_gym.envs.env import ISCCEnv
 from iscc_gym.physics.blockage import los_probability
-from iscc_gym.sim import functional, loop
+from iscc_gym.sim import functional, loop, schema
 from iscc_gym.sim.mission import MC, mission_rows
 from iscc_gym.sim.schema import OBS, n_draws, obs_names, obs_size
 from iscc_gym.trajectory import sample_reference
@@ -227,3 +228,66 @@ def test_loop_step_advances_the_queue_as_the_env_does(noise):
             assert float(np.asarray(m[key]).reshape(-1)[0]) == info[key], (n, key)
         backlog_seen = max(backlog_seen, info["backlog_bits"])
     assert backlog_seen > U.queue_arrival_bps * U.dt_s  # the data share starved: bits waited
+
+
+def _docstring_rows(doc: str, s) -> dict[int, tuple[float, float]]:
+    """The env docstring's observation tables as {entry: (min, max)} (``26 + 5(k-1)`` expanded for every point)."""
+    rows = {}
+    for line in doc.splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if len(cells) < 5 or not cells[0][:1].isdigit():
+            continue
+        lo, hi = float(cells[-2]), float(cells[-1])
+        for part in cells[0].split(","):
+            part = part.strip()
+            if "(k-1)" in part:
+                base, step = (int(v) for v in re.fullmatch(r"(\d+) \+ (\d+)\(k-1\)", part).groups())
+                rows.update({base + step * k: (lo, hi) for k in range(s.preview_slots)})
+            elif "-" in part:
+                a, b = (int(v) for v in part.split("-"))
+                rows.update({j: (lo, hi) for j in range(a, b + 1)})
+            else:
+                rows[int(part)] = (lo, hi)
+    return rows
+
+
+@pytest.mark.parametrize("preset", ["paper", "urban"])
+def test_the_observation_table_is_the_layout_the_env_writes(preset):
+    """schema.observation_table (the docs' per-task table) lists every entry in the env's order, with bounds that the
+    entries keep over a mission and that the env's docstring table states; the optional blocks start where
+    schema.obs_offsets says, and decode_observation reads them back."""
+    s = SCENARIOS[preset].replace(mission_duration_s=30.0)
+    table = schema.observation_table(s)
+    assert [r["index"] for r in table] == list(range(obs_size(s)))
+    assert tuple(r["name"] for r in table) == obs_names(s)
+    assert all(set(r) == {"index", "name", "unit", "scaling", "min", "max", "description"} for r in table)
+    doc = _docstring_rows(ISCCEnv.__doc__, SCENARIOS[preset])
+    assert {j: (r["min"], r["max"]) for j, r in enumerate(schema.observation_table(SCENARIOS[preset]))} == \
+        {j: doc[j] for j in range(obs_size(SCENARIOS[preset]))}
+    at = schema.obs_offsets(s)
+    names = obs_names(s)
+    for block, entries in schema.OBS_BLOCKS.items():
+        if at[block] >= 0:
+            assert names[at[block]].startswith(entries[0].name)
+    env = ISCCEnv(s)
+    obs, _ = env.reset(seed=2)
+    lo, hi = np.array([r["min"] for r in table]), np.array([r["max"] for r in table])
+    seen = [obs]
+    for n in range(s.n_slots):
+        obs, _, term, trunc, info = env.step(np.array([0.0, 0.3, -0.9 if n < 100 else 1.0], np.float32))
+        seen.append(obs)
+        if term or trunc:
+            break
+        if n == 150 and s.queue_slots:
+            d = functional.decode_observation(obs, s)
+            assert d["backlog_bits"] == pytest.approx(info["backlog_bits"], rel=1e-5)
+            assert d["oldest_age_slots"] == pytest.approx(loop_oldest(env._state.queue[0]), abs=1e-4)
+            assert d["p_los_ahead"].shape == d["echo_nlos_ahead_db"].shape == (s.preview_slots,)
+    seen = np.array(seen)
+    assert np.all(seen >= lo) and np.all(seen <= hi)
+
+
+def loop_oldest(q):
+    """Slots the oldest waiting bit has waited."""
+    nz = np.flatnonzero(q > 0)
+    return float(nz[-1]) if nz.size else 0.0

@@ -178,7 +178,10 @@ class ISCCEnv(TimeLimitCheck, gym.Env):
 
     ``Box(-10, 10, (23,), float32)``: what the GBS knows before it allocates the slot; the slot's
     small-scale fading is drawn after the allocation. symlog(x, c) = sign(x) ln(1 + |x|/c); every
-    entry is clipped to [-10, 10].
+    entry is clipped to [-10, 10]. The entries, their scalings, bounds and order are defined once in
+    :data:`iscc_gym.sim.schema.OBS_BLOCKS`; :func:`iscc_gym.sim.schema.observation_table` gives a scenario's
+    table (the tables below are it, written out; ``tests/test_urban.py`` checks they agree) and
+    :func:`iscc_gym.sim.functional.decode_observation` the physical values.
 
     | Num | Observation | Unit / scaling | Min | Max |
     |-----|-------------|----------------|-----|-----|

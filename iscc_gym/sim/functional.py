@@ -23,12 +23,10 @@ from iscc_gym.sim.params import slot_params
 from iscc_gym.sim.schema import (
     COL,
     N_DRAWS,
-    OBS_NAMES,
-    OBS_SCALING,
-    PREVIEW_OBS_NAMES,
-    SNR_SCALE,
     STEP_COLUMNS,
+    ObsEntry,
     n_draws,
+    obs_entries,
     obs_size,
 )
 
@@ -55,59 +53,51 @@ def observe(s: Scenario, state: loop.LoopState, last_received: ArrayLike, last_p
 
 def decode_observation(obs: ArrayLike, s: Scenario) -> dict:
     """Named physical values of observations (any leading batch shape), inverting the scalings of
-    :data:`iscc_gym.sim.schema.OBS_SCALING` (the table of :class:`ISCCEnv`).
+    :data:`iscc_gym.sim.schema.OBS_BLOCKS` (:func:`iscc_gym.sim.schema.observation_table`).
 
     Entries at the clip bound (+-``OBS_BOUND``) decode to the bound's value, not the true one.
 
     Returns
     -------
     dict of ndarray
-        ``pos_err_m``, ``vel_err_mps`` (predicted estimate minus reference), ``ref_vel_mps``,
-        ``ref_acc_mps2`` (shape (..., 3)); ``est_pos_std_m``, ``snr_db`` (predicted large-scale SNR),
-        ``range_m``, ``sin_elevation``, ``cos_azimuth``, ``sin_azimuth``, ``alpha_ctrl_min``,
-        ``alpha_comm_min``, ``last_packet_received`` (bool), ``last_peb_m``, ``slot`` (the slot index
-        n, float) (shape (...)).
+        Keyed by each entry's ``decoded`` name (:class:`iscc_gym.sim.schema.ObsEntry`): ``pos_err_m``,
+        ``vel_err_mps`` (predicted estimate minus reference), ``ref_vel_mps``, ``ref_acc_mps2`` (shape (..., 3));
+        ``est_pos_std_m``, ``snr_db`` (predicted large-scale SNR), ``range_m``, ``sin_elevation``, ``cos_azimuth``,
+        ``sin_azimuth``, ``alpha_ctrl_min``, ``alpha_comm_min``, ``last_packet_received`` (bool), ``last_peb_m``,
+        ``slot`` (the slot index n, float) (shape (...)); with a queue ``backlog_bits``, ``oldest_age_slots``; with
+        blockage ``echo_snr_db``; with a preview ``p_los_ahead``, ``snr_los_ahead_db``, ``snr_nlos_ahead_db``,
+        ``echo_los_ahead_db``, ``echo_nlos_ahead_db`` (shape (..., H), point k at k - 1).
     """
     o = np.asarray(obs, dtype=float)
     if o.shape[-1] != obs_size(s):
         raise ValueError(f"obs must have {obs_size(s)} entries along the last axis for this scenario, got shape "
                          f"{o.shape}")
-    val = {}
-    for j, name in enumerate(OBS_NAMES):
-        kind, k = OBS_SCALING[name]
-        y = o[..., j]
-        if kind == "symlog":
-            val[name] = np.sign(y) * k * np.expm1(np.abs(y))
-        elif kind == "linear":
-            val[name] = y / k
-        elif kind == "range":
-            val[name] = y * s.coverage_radius_m
-        else:  # time_left = 1 - n / n_slots
-            val[name] = (1.0 - y) * s.n_slots
+    groups: dict[str, list] = {}
+    stacked = set()
+    for j, (_, e, k) in enumerate(obs_entries(s)):
+        groups.setdefault(e.decoded, []).append(_decode_entry(e, o[..., j], s))
+        if k:
+            stacked.add(e.decoded)
+    return {key: (np.stack(vals, -1) if len(vals) > 1 or key in stacked else vals[0]) for key, vals in groups.items()}
 
-    def vec(prefix):
-        return np.stack([val[prefix + ax] for ax in "xyz"], -1)
 
-    out = {"pos_err_m": vec("pos_err_"), "vel_err_mps": vec("vel_err_"), "ref_vel_mps": vec("ref_vel_"),
-           "ref_acc_mps2": vec("ref_acc_"), "est_pos_std_m": val["est_pos_std"], "snr_db": val["snr_db"],
-           "range_m": val["range"], "sin_elevation": val["sin_elevation"], "cos_azimuth": val["cos_azimuth"],
-           "sin_azimuth": val["sin_azimuth"], "alpha_ctrl_min": val["alpha_ctrl_min"],
-           "alpha_comm_min": val["alpha_comm_min"], "last_packet_received": val["last_packet_received"] > 0.5,
-           "last_peb_m": val["last_peb"], "slot": val["time_left"]}
-    k = len(OBS_NAMES)
-    if s.queue_slots > 0:  # ln(1 + B / A), age / D
-        out["backlog_bits"] = np.expm1(o[..., k]) * s.queue_arrival_bps * s.dt_s
-        out["oldest_age_slots"] = o[..., k + 1] * s.queue_slots
-        k += 2
-    if s.blockage != "none":
-        out["echo_snr_db"] = o[..., k] / SNR_SCALE
-        k += 1
-    if s.preview_slots > 0:  # (..., H) each
-        ahead = o[..., k:].reshape(o.shape[:-1] + (s.preview_slots, len(PREVIEW_OBS_NAMES)))
-        out["p_los_ahead"] = ahead[..., 0]
-        for j, name in enumerate(PREVIEW_OBS_NAMES[1:], start=1):
-            out[name] = ahead[..., j] / SNR_SCALE
-    return out
+def _decode_entry(e: ObsEntry, y: np.ndarray, s: Scenario):
+    """The physical value of entry ``e`` from its observed values ``y`` (:class:`iscc_gym.sim.schema.ObsEntry`)."""
+    if e.scaling == "symlog":
+        return np.sign(y) * e.scale * np.expm1(np.abs(y))
+    if e.scaling == "linear":
+        return y / e.scale
+    if e.scaling == "flag":
+        return y > 0.5
+    if e.scaling == "range":
+        return y * s.coverage_radius_m
+    if e.scaling == "time_left":  # 1 - n / n_slots
+        return (1.0 - y) * s.n_slots
+    if e.scaling == "log_arrivals":  # ln(1 + B / A)
+        return np.expm1(y) * s.queue_arrival_bps * s.dt_s
+    if e.scaling == "per_deadline":  # age / D
+        return y * s.queue_slots
+    raise ValueError(f"unknown scaling {e.scaling!r} of observation entry {e.name!r}")
 
 
 #: Smaller batches are always stepped serially; larger ones on all cores only when the parallel kernel

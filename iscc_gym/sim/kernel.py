@@ -38,8 +38,15 @@ from iscc_gym.sim.schema import (
     ERR_SCALE,
     METRIC_NAMES,
     N_DRAWS,
-    N_OBS,
+    N_PREVIEW_OBS,
     N_STEP_COLUMNS,
+    O_BACKLOG,
+    O_ECHO_LOS_AHEAD,
+    O_ECHO_NLOS_AHEAD,
+    O_OLDEST_AGE,
+    O_P_LOS_AHEAD,
+    O_SNR_LOS_AHEAD,
+    O_SNR_NLOS_AHEAD,
     OBS,
     OBS_BOUND,
     PEB_SCALE,
@@ -67,8 +74,10 @@ _DROPPED = COL["bits_dropped"]
 _MC_P, _MC_LOS, _MC_SNR_TRUE, _MC_ECHO_TRUE = MC["p_los_map"], MC["los"], MC["snr_true_db"], MC["echo_true_db"]
 _N_PREVIEW_DB = 4  # the preview point's dB columns, after p_los_map's shadow_map_unit (sim.mission.CHANNEL_COLUMNS)
 _MC_DB = MC["snr_los_map_db"]
+# the map's four dB columns are the preview point's four dB entries, in the same order
 assert tuple(MC[k] - _MC_DB for k in ("snr_los_map_db", "snr_nlos_map_db", "echo_los_map_db",
                                       "echo_nlos_map_db")) == (0, 1, 2, 3)
+assert (O_SNR_NLOS_AHEAD, O_ECHO_LOS_AHEAD, O_ECHO_NLOS_AHEAD) == tuple(O_SNR_LOS_AHEAD + m for m in (1, 2, 3))
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -80,10 +89,10 @@ def _symlog(x, scale):
 
 @njit(cache=True, error_model="numpy")
 def observe_one(c, x_hat, p, shadow, n, ref, q, last_received, last_peb, out):
-    """The observation of one loop (table of :class:`iscc_gym.envs.env.ISCCEnv`, scalings
-    :data:`iscc_gym.sim.schema.OBS_SCALING`), written into ``out`` (:func:`iscc_gym.sim.schema.obs_size`
-    entries: with a queue and a preview, their entries follow the 23); returns False where an entry could not
-    be evaluated (NaN, written as 0) or the estimate is not finite.
+    """The observation of one loop (the entries, scalings and layout of :data:`iscc_gym.sim.schema.OBS_BLOCKS`,
+    :func:`iscc_gym.sim.schema.observation_table`), written into ``out`` (:func:`iscc_gym.sim.schema.obs_size`
+    entries: the optional blocks at :func:`iscc_gym.sim.schema.obs_offsets`, passed in the record); returns False
+    where an entry could not be evaluated (NaN, written as 0) or the estimate is not finite.
     """
     dist, gx, gy, gz, ct, st, cp, sp = direction_one(c.gbs_height_m, x_hat[0], x_hat[1], x_hat[2])
     shadow_db, extra_db = channel_state_one(c, ref[n], x_hat[2], dist, shadow)
@@ -116,28 +125,28 @@ def observe_one(c, x_hat, p, shadow, n, ref, q, last_received, last_peb, out):
     out[_O_RX] = last_received
     out[_O_PEB] = _symlog(last_peb, PEB_SCALE)
     out[_O_TIME] = 1.0 - n * (1.0 / c.n_slots)
-    k = N_OBS
-    if c.queue_slots > 0.0:
-        out[k] = math.log1p(backlog / max(c.arrival_mean_bits, 1e-300))
-        out[k + 1] = oldest_age_one(q) / c.queue_slots
-        k += 2
-    if c.blockage != 0.0:
+    # the optional blocks where the schema lays them out (schema.obs_offsets, via the record; -1: absent)
+    if c.obs_queue_at >= 0.0:
+        k = int(c.obs_queue_at)
+        out[k + O_BACKLOG] = math.log1p(backlog / max(c.arrival_mean_bits, 1e-300))
+        out[k + O_OLDEST_AGE] = oldest_age_one(q) / c.queue_slots
+    if c.obs_echo_at >= 0.0:
         echo = echo_amplitude_one(c, dist, shadow_db + 2.0 * extra_db, 1.0) / c.sen_noise_w
-        out[k] = 10.0 * math.log10(echo) * SNR_SCALE
-        k += 1
+        out[int(c.obs_echo_at)] = 10.0 * math.log10(echo) * SNR_SCALE
     last = int(c.n_slots)
     stride = int(c.preview_stride_slots)
+    k = int(c.obs_preview_at)
     for j in range(1, int(c.preview_slots) + 1):
         r = min(n + j * stride, last)
         if c.preview_truth == 1.0:  # the oracle's preview: the realised state, both states' entries its SNRs
-            out[k] = ref[r, _MC_LOS]
-            out[k + 1] = out[k + 2] = ref[r, _MC_SNR_TRUE] * SNR_SCALE
-            out[k + 3] = out[k + 4] = ref[r, _MC_ECHO_TRUE] * SNR_SCALE
+            out[k + O_P_LOS_AHEAD] = ref[r, _MC_LOS]
+            out[k + O_SNR_LOS_AHEAD] = out[k + O_SNR_NLOS_AHEAD] = ref[r, _MC_SNR_TRUE] * SNR_SCALE
+            out[k + O_ECHO_LOS_AHEAD] = out[k + O_ECHO_NLOS_AHEAD] = ref[r, _MC_ECHO_TRUE] * SNR_SCALE
         else:
-            out[k] = ref[r, _MC_P]
+            out[k + O_P_LOS_AHEAD] = ref[r, _MC_P]
             for m in range(_N_PREVIEW_DB):
-                out[k + 1 + m] = ref[r, _MC_DB + m] * SNR_SCALE
-        k += 1 + _N_PREVIEW_DB
+                out[k + O_SNR_LOS_AHEAD + m] = ref[r, _MC_DB + m] * SNR_SCALE
+        k += N_PREVIEW_OBS
     ok = math.isfinite(shadow)
     for j in range(6):
         ok = ok and math.isfinite(x_hat[j])

@@ -52,7 +52,7 @@ class DriftPlusPenaltyPolicy(MyopicPolicy):
 
     def __init__(self, scenario: Scenario | str = "urban", v: float = 1.0, **kwargs):
         super().__init__(scenario, rate_weight=1.0, **kwargs)
-        if self.scenario.queue_slots == 0:
+        if self.scenario.queue_deadline_slots == 0:
             raise ValueError("DriftPlusPenaltyPolicy needs a data queue: the scenario's queue_deadline_s must be > 0 "
                              "(e.g. the 'urban' preset)")
         if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not (

@@ -108,7 +108,7 @@ class LookaheadPolicy(SplitPolicy):
         s = make_scenario(scenario) if isinstance(scenario, str) else scenario
         if not isinstance(s, Scenario):
             raise ValueError(f"scenario must be a Scenario or a preset name, got {type(scenario).__name__}")
-        if s.queue_slots == 0 or s.preview_slots == 0:
+        if s.queue_deadline_slots == 0 or s.preview_slots == 0:
             raise ValueError("LookaheadPolicy plans over a data queue and a preview: the scenario needs "
                              "queue_deadline_s > 0 and preview_slots > 0 (e.g. the 'urban' preset)")
         if not (math.isfinite(float(terminal_weight)) and float(terminal_weight) >= 0.0):
@@ -125,8 +125,9 @@ class LookaheadPolicy(SplitPolicy):
         self.scenario = s
         self.slot = MyopicPolicy(s, rate_weight=0.0, sensing_floor=sensing_floor, ctrl_floor=ctrl_floor)
         self.terminal_weight = float(terminal_weight)
-        if not (math.isfinite(float(deadline_margin)) and 0.0 <= float(deadline_margin) < s.queue_slots - 1):
-            raise ValueError(f"deadline_margin = {deadline_margin!r} is invalid: must be in [0, {s.queue_slots - 1}) "
+        top = s.queue_deadline_slots - 1  # the deadline D less the slot the service takes
+        if not (math.isfinite(float(deadline_margin)) and 0.0 <= float(deadline_margin) < top):
+            raise ValueError(f"deadline_margin = {deadline_margin!r} is invalid: must be in [0, {top}) "
                              "slots (the queue's deadline minus one)")
         self.deadline_margin = float(deadline_margin)
         if not (math.isfinite(float(holding_cost)) and float(holding_cost) >= 0.0):
@@ -138,7 +139,7 @@ class LookaheadPolicy(SplitPolicy):
             raise ValueError(f"rate_weight = {rate_weight!r} is invalid: must be a finite number >= 0")
         self.rate_weight = float(rw)
         #: The planner's largest backlog (units of A): the deadline less one slot and the margin.
-        self.top = s.queue_slots - 1.0 - self.deadline_margin
+        self.top = s.queue_deadline_slots - 1.0 - self.deadline_margin
         self.data_grid = grid
         self.ctrl_grid = np.geomspace(ctrl_floor, 1.0 - sensing_floor, int(ctrl_points))
         self.levels = int(levels)

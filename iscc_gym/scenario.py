@@ -212,8 +212,8 @@ class Scenario:
         (0: the map is the truth; 1: the map knows only the 3GPP prior). Default 0.4 (correlation 0.92).
     queue_deadline_s : float
         Downlink data queue (:mod:`iscc_gym.physics.queue`): bits not delivered within this time are
-        dropped; rounded to whole slots. 0 (the paper): no queue, the data link's per-slot rate
-        requirement ``rate_min_bps`` instead.
+        dropped; rounded to whole slots (:attr:`queue_deadline_slots`, the one conversion). 0 (the paper): no
+        queue, the data link's per-slot rate requirement ``rate_min_bps`` instead.
     queue_arrival_bps : float
         Mean arrival rate of the queue's data, bit/s.
     queue_arrival_cv : float
@@ -326,9 +326,18 @@ class Scenario:
         return max(1, int(round(self.gnss_update_period_s / self.dt_s)))
 
     @property
-    def queue_slots(self) -> int:
-        """The queue's deadline in slots (``queue_deadline_s / dt_s`` rounded, at least 1), 0 without a queue."""
+    def queue_deadline_slots(self) -> int:
+        """The data queue's deadline D in slots: ``queue_deadline_s / dt_s`` rounded, at least 1; 0 without a queue.
+
+        The one conversion of the deadline: ``queue_deadline_s`` is its only field, and every reader in slots (the
+        queue's buffer, the compiled slot's record, the observation's age scaling, the planners) reads this.
+        """
         return 0 if self.queue_deadline_s == 0.0 else max(1, int(round(self.queue_deadline_s / self.dt_s)))
+
+    @property
+    def queue_slots(self) -> int:
+        """The former name of :attr:`queue_deadline_slots` (the same value), kept for readers above the core."""
+        return self.queue_deadline_slots
 
     @property
     def n_slots(self) -> int:

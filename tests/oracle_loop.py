@@ -156,11 +156,11 @@ def step_reference(s: Scenario, state: LoopState, alpha, rng=None, z=None):
     q_next = state.queue
     zero = np.zeros(x.shape[:-1])
     arrived = served = dropped = backlog = zero
-    if s.queue_slots > 0:
+    if s.queue_deadline_slots > 0:
         sigma = arrival_sigma(s.queue_arrival_cv)
         arrived = s.queue_arrival_bps * s.dt_s * np.exp(sigma * z[..., Z_ARRIVAL] - 0.5 * sigma * sigma)
         capacity = np.where(np.isnan(rate_comm), 0.0, rate_comm * s.dt_s)
-        q_next, served, dropped = queue_step(state.queue.reshape(-1, s.queue_slots), arrived, capacity)
+        q_next, served, dropped = queue_step(state.queue.reshape(-1, s.queue_deadline_slots), arrived, capacity)
         q_next, served, dropped = q_next.reshape(state.queue.shape), served.reshape(zero.shape), \
             dropped.reshape(zero.shape)
         backlog = q_next.sum(axis=-1)

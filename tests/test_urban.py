@@ -278,7 +278,7 @@ def test_the_observation_table_is_the_layout_the_env_writes(preset):
         seen.append(obs)
         if term or trunc:
             break
-        if n == 150 and s.queue_slots:
+        if n == 150 and s.queue_deadline_slots:
             d = functional.decode_observation(obs, s)
             assert d["backlog_bits"] == pytest.approx(info["backlog_bits"], rel=1e-5)
             assert d["oldest_age_slots"] == pytest.approx(loop_oldest(env._state.queue[0]), abs=1e-4)
@@ -291,3 +291,55 @@ def loop_oldest(q):
     """Slots the oldest waiting bit has waited."""
     nz = np.flatnonzero(q > 0)
     return float(nz[-1]) if nz.size else 0.0
+
+
+def test_a_task_composes_its_effects_from_one_record():
+    """sim.effects.task_effects decides once what a task adds to the paper's slot; the compiled slot's switches, the
+    observation's blocks, the slot's draws, the mission's columns and the loop's buffer all follow it."""
+    from iscc_gym.sim.effects import task_effects
+    from iscc_gym.sim.mission import mission_columns
+    from iscc_gym.sim.params import slot_params
+
+    paper, urban = task_effects(SCENARIOS["paper"]), task_effects(U)
+    assert paper.paper_task and not (paper.blockage or paper.queue or paper.preview_points)
+    assert (urban.blockage, urban.queue, urban.queue_deadline_slots, urban.preview_points,
+            urban.preview_stride_slots, urban.preview_truth) == (True, True, 10, 10, 5, False)
+    for s in (SCENARIOS["paper"], U, U.replace(preview_source="truth"), U.replace(queue_deadline_s=0.0),
+              SCENARIOS["paper"].replace(observation_source="gnss", reference_feedforward=True)):
+        fx, c = task_effects(s), slot_params(s)[0][0]
+        assert (c["queue"], c["gnss"], c["feedforward"], c["open_loop"], c["preview_truth"]) == \
+            (fx.queue, fx.gnss, fx.feedforward, fx.open_loop, fx.preview_truth)
+        assert (c["blockage"] != 0.0) == fx.blockage and c["queue_deadline_slots"] == fx.queue_deadline_slots
+        assert n_draws(s) == loop.N_DRAWS + fx.queue
+        assert {b for b, _, _ in schema.obs_blocks(s)} == \
+            {"base"} | {b for b, on in (("queue", fx.queue), ("blockage", fx.blockage),
+                                        ("preview", fx.preview_points)) if on}
+        assert mission_columns(s) == (19 if fx.blockage else 9)
+        state = loop.init_mission(s, np.random.default_rng(0))
+        assert state.queue.shape == (1, fx.queue_deadline_slots)
+
+
+def test_the_data_deadline_has_one_form():
+    """queue_deadline_s is the deadline's only field; Scenario.queue_deadline_slots its one conversion to slots,
+    which the slot record, the observation's age scaling and the planners read; no module of the package converts
+    the seconds itself."""
+    from pathlib import Path
+
+    from iscc_gym.agents import LookaheadPolicy
+
+    from iscc_gym.sim.params import slot_params
+
+    assert _deadline_slots(0.26) == 3 and _deadline_slots(0.0) == 0 and _deadline_slots(0.06) == 1  # >= 1 slot
+    s = U.replace(queue_deadline_s=2.0)
+    assert s.queue_deadline_slots == 20 and slot_params(s)[0][0]["queue_deadline_slots"] == 20
+    row = [r for r in schema.observation_table(s) if r["name"] == "oldest_age"][0]
+    assert row["scaling"].startswith("x / 20 ")
+    assert LookaheadPolicy(s, deadline_margin=2.0).top == 20 - 1.0 - 2.0
+    root = Path(iscc_gym.__file__).parent
+    converting = [str(p.relative_to(root)) for p in root.rglob("*.py") if p.name != "scenario.py"
+                  and re.search(r"queue_deadline_s\s*[/*]|/\s*s\.dt_s.*queue|queue.*/\s*s\.dt_s", p.read_text())]
+    assert converting == []
+
+
+def _deadline_slots(deadline_s):
+    return U.replace(queue_deadline_s=deadline_s).queue_deadline_slots

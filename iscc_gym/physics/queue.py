@@ -1,7 +1,8 @@
 r"""The drone's downlink data queue: bursty arrivals, FIFO service by the data share, a delivery deadline.
 
 The buffer holds bits by the number of slots they have waited: ``q[j]`` bits arrived j slots ago,
-j = 0 .. D-1, with D = ``queue_deadline_s / dt_s`` slots (rounded, at least 1). A slot:
+j = 0 .. D-1, with D the deadline in slots (:attr:`iscc_gym.scenario.Scenario.queue_deadline_slots`, the one
+conversion of the scenario's ``queue_deadline_s``). A slot:
 
 1. the slot's arrivals join at age 0, :math:`A_n = \lambda\,\Delta t\; e^{\sigma z_n - \sigma^2/2}`
    (log-normal burstiness: mean :math:`\lambda\Delta t`, coefficient of variation

@@ -24,6 +24,7 @@ from numpy.typing import ArrayLike
 
 from iscc_gym.scenario import Scenario
 from iscc_gym.sim import kernel, loop
+from iscc_gym.sim.effects import task_effects
 from iscc_gym.sim.functional import INFO_COLUMNS, env_step, reset_info_arrays
 from iscc_gym.sim.schema import COL, OBS_NAMES
 from iscc_gym.sim.task import action_to_split, check_split, split_to_action
@@ -51,7 +52,8 @@ def drone_scenario(s: Scenario, n_drones: int, rate_min_per_drone_bps: float | N
     the whole band; docs/model.md, section 5).
     """
     k = check_n_drones(n_drones)
-    if s.blockage != "none" or s.queue_slots > 0:
+    fx = task_effects(s)
+    if fx.blockage or fx.queue:
         raise ValueError(f"the multi-drone env flies the paper's task only (blockage = 'none', queue_deadline_s = 0), "
                          f"got blockage = {s.blockage!r}, queue_deadline_s = {s.queue_deadline_s!r}: use the single or "
                          f"vector env for the urban task")

@@ -19,6 +19,7 @@ from numpy.typing import ArrayLike
 from iscc_gym import threads
 from iscc_gym.scenario import Scenario, per_scenario
 from iscc_gym.sim import kernel, loop
+from iscc_gym.sim.effects import task_effects
 from iscc_gym.sim.params import slot_params
 from iscc_gym.sim.schema import (
     COL,
@@ -96,7 +97,7 @@ def _decode_entry(e: ObsEntry, y: np.ndarray, s: Scenario):
     if e.scaling == "log_arrivals":  # ln(1 + B / A)
         return np.expm1(y) * s.queue_arrival_bps * s.dt_s
     if e.scaling == "per_deadline":  # age / D
-        return y * s.queue_slots
+        return y * s.queue_deadline_slots
     raise ValueError(f"unknown scaling {e.scaling!r} of observation entry {e.name!r}")
 
 
@@ -138,8 +139,8 @@ def env_step(s: Scenario, state: loop.LoopState, actions: ArrayLike, normals: Ar
     if all_active:
         active = _all_active(nb)
     c, mats = slot_params(s)
-    n_obs, queue_slots = _output_sizes(s)
-    x, x_hat, p, shadow, queue, out, obs = outputs = kernel.new_outputs(nb, len(STEP_COLUMNS), n_obs, queue_slots)
+    n_obs, deadline_slots, blocked = _output_sizes(s)
+    x, x_hat, p, shadow, queue, out, obs = outputs = kernel.new_outputs(nb, len(STEP_COLUMNS), n_obs, deadline_slots)
     if normals is None:
         z = _NO_NORMALS
     else:
@@ -152,8 +153,6 @@ def env_step(s: Scenario, state: loop.LoopState, actions: ArrayLike, normals: Ar
     args = (c, mats, state.x, state.x_hat, state.p, state.shadow, state.n, state.ref, state.key, state.queue, actions,
             b, z, active)
     # numba.get_num_threads() costs ~0.5 us: asked only for a batch the parallel kernel could take
-    # without blockage the argument is left out: the kernel's default (None) compiles the paper's slot
-    blocked = () if s.blockage == "none" else (loop.blocked_switch(s),)
     if nb >= PARALLEL_MIN_BATCH and threads.use_parallel(nb, numba.get_num_threads()):
         kernel.env_step_batch_parallel(*args, *outputs, kernel.parallel_chunk(nb), *blocked)
     else:
@@ -163,9 +162,13 @@ def env_step(s: Scenario, state: loop.LoopState, actions: ArrayLike, normals: Ar
 
 
 @per_scenario
-def _output_sizes(s: Scenario) -> tuple[int, int]:
-    """The observation's length and the queue's slots of a scenario (cached: asked at every step)."""
-    return obs_size(s), s.queue_slots
+def _output_sizes(s: Scenario) -> tuple[int, int, tuple]:
+    """The observation's length, the queue's slots and the compiled step's trailing ``blocked`` argument of a
+    scenario (cached: asked at every step). Without blockage the argument is left out: the kernel's default (None)
+    compiles the paper's slot (:func:`iscc_gym.sim.loop.blocked_switch`).
+    """
+    fx = task_effects(s)
+    return obs_size(s), fx.queue_deadline_slots, ((loop.blocked_switch(s),) if fx.blockage else ())
 
 
 _ALL_ACTIVE: dict[int, np.ndarray] = {}

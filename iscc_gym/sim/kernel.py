@@ -101,7 +101,7 @@ def observe_one(c, x_hat, p, shadow, n, ref, q, last_received, last_peb, out):
     snr = link_snr_one(c.snr_k, beam_gain_one(c, ct, st, cp, sp), dist, shadow_comm)
     cap, sqrt_v = link_terms_one(snr)
     ctrl_min = min_ctrl_share_one(cap, sqrt_v, c.bits_per_hz, c.q_back)
-    if c.queue_slots > 0.0:  # the share that would clear the backlog and a slot's mean arrivals
+    if c.queue == 1.0:  # the share that would clear the backlog and a slot's mean arrivals
         backlog = 0.0
         for j in range(q.shape[0]):
             backlog += q[j]
@@ -129,7 +129,7 @@ def observe_one(c, x_hat, p, shadow, n, ref, q, last_received, last_peb, out):
     if c.obs_queue_at >= 0.0:
         k = int(c.obs_queue_at)
         out[k + O_BACKLOG] = math.log1p(backlog / max(c.arrival_mean_bits, 1e-300))
-        out[k + O_OLDEST_AGE] = oldest_age_one(q) / c.queue_slots
+        out[k + O_OLDEST_AGE] = oldest_age_one(q) / c.queue_deadline_slots
     if c.obs_echo_at >= 0.0:
         echo = echo_amplitude_one(c, dist, shadow_db + 2.0 * extra_db, 1.0) / c.sen_noise_w
         out[int(c.obs_echo_at)] = 10.0 * math.log10(echo) * SNR_SCALE
@@ -229,7 +229,7 @@ def reward_one(c, err, rate, eps, dropped, terminated, n_next):
     """
     max_err = c.max_tracking_error_m
     rate_min = c.rate_min_bps
-    if c.queue_slots > 0.0:
+    if c.queue == 1.0:
         cost_rate = 1.0 if (dropped > 0.0 or dropped != dropped) else 0.0
         rate_term = dropped / max(c.arrival_mean_bits, 1e-300)
     else:
@@ -264,7 +264,7 @@ def _env_rows(cp, mats, x, x_hat, p, shadow, n, ref, key, queue, action, budget,
     work = work_space()
     draw = z.shape[0] == 0
     whole = budget.shape[0] == 0
-    zbuf = np.empty(N_DRAWS + (1 if c.queue_slots > 0.0 else 0))
+    zbuf = np.empty(N_DRAWS + (1 if c.queue == 1.0 else 0))
     for i in range(lo, hi):
         if not active[i]:
             x_next[i], x_hat_next[i], p_next[i], shadow_next[i] = x[i], x_hat[i], p[i], shadow[i]

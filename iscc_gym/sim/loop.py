@@ -40,6 +40,7 @@ from iscc_gym.physics.kalman import kf_predict_one, kf_update_whitened_one
 from iscc_gym.physics.queue import arrival_bits_one, queue_step_one
 from iscc_gym.physics.sensing import crlb_local_one, whitened_rows_one
 from iscc_gym.scenario import Scenario
+from iscc_gym.sim.effects import task_effects
 from iscc_gym.sim.mission import MC, mission_columns, mission_rows
 from iscc_gym.sim.noise import draw_keys, slot_normals, standard_normals
 from iscc_gym.sim.params import MATS, slot_params
@@ -182,14 +183,14 @@ def init_state(s: Scenario, refs: ArrayLike, rng: np.random.Generator) -> LoopSt
     p0 = np.broadcast_to(np.diag(std0**2), shape + (6, 6)).copy()
     return LoopState(x=x_ref0 + std0 * z[..., :6], x_hat=x_ref0.copy(), p=p0,
                      shadow=np.array(z[..., 6]), n=np.zeros(shape, dtype=np.int64), ref=ref, key=key,
-                     queue=np.zeros(shape + (s.queue_slots,)))
+                     queue=np.zeros(shape + (task_effects(s).queue_deadline_slots,)))
 
 
 def blocked_switch(s: Scenario):
     """The compiled slot's ``blocked`` argument for a scenario: None without blockage (the paper's machine code),
     True with (:func:`step_one`).
     """
-    return None if s.blockage == "none" else True
+    return True if task_effects(s).blockage else None
 
 
 def init_mission(s: Scenario, rng: np.random.Generator) -> LoopState:
@@ -257,7 +258,8 @@ def step(s: Scenario, state: LoopState, alpha: ArrayLike, rng: np.random.Generat
     check_step(s, state, alpha)
     z = slot_noise(state, rng, n_draws(s))
     nb = 1 if batch is None else batch
-    x_n, xh_n, p_n, sh_n, q_n, met, _ = new_outputs(nb, N_METRICS, queue_slots=s.queue_slots)
+    x_n, xh_n, p_n, sh_n, q_n, met, _ = new_outputs(nb, N_METRICS,
+                                                    queue_deadline_slots=task_effects(s).queue_deadline_slots)
     blocked = blocked_switch(s)
     if batch is None:  # a batch of one, squeezed back
         step_batch(*slot_params(s), x[None], state.x_hat[None], state.p[None], state.shadow[None], state.n[None],
@@ -416,7 +418,7 @@ def queue_slot_one(c, q, zi, mt, q_next):
     """
     for j in range(q.shape[0]):
         q_next[j] = q[j]
-    if c.queue_slots > 0.0:
+    if c.queue == 1.0:
         arrived = arrival_bits_one(c.arrival_mean_bits, c.arrival_sigma, zi[Z_ARRIVAL])
         capacity = mt[_RATE_COMM] * c.dt_s
         served, dropped = queue_step_one(q_next, arrived, capacity if capacity == capacity else 0.0)
@@ -469,9 +471,9 @@ def step_batch(cp, mats, x, x_hat, p, shadow, n, ref, queue, alpha, z, x_next, x
                                   queue_next[i], metrics[i], work, blocked)
 
 
-def new_outputs(nb: int, columns: int, n_obs: int = N_OBS, queue_slots: int = 0):
-    """Fresh output arrays for the compiled batch functions: next x, x_hat, p, shadow, queue (nb, queue_slots),
-    the columns array, and the float32 observation (nb, n_obs).
+def new_outputs(nb: int, columns: int, n_obs: int = N_OBS, queue_deadline_slots: int = 0):
+    """Fresh output arrays for the compiled batch functions: next x, x_hat, p, shadow, the queue's buffer
+    (nb, queue_deadline_slots), the columns array, and the float32 observation (nb, n_obs).
     """
-    return (np.empty((nb, 6)), np.empty((nb, 6)), np.empty((nb, 6, 6)), np.empty(nb), np.empty((nb, queue_slots)),
-            np.empty((nb, columns)), np.empty((nb, n_obs), np.float32))
+    return (np.empty((nb, 6)), np.empty((nb, 6)), np.empty((nb, 6, 6)), np.empty(nb),
+            np.empty((nb, queue_deadline_slots)), np.empty((nb, columns)), np.empty((nb, n_obs), np.float32))

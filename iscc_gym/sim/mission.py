@@ -30,6 +30,7 @@ from iscc_gym.physics.blockage import (
 from iscc_gym.physics.channel import beam_gain, direction_trig, geometry, link_snr
 from iscc_gym.physics.sensing import echo_amplitude_sq, sensing_noise_var_w
 from iscc_gym.scenario import Scenario
+from iscc_gym.sim.effects import task_effects
 
 __all__ = ["REFERENCE_COLUMNS", "CHANNEL_COLUMNS", "MC", "mission_columns", "channel_along", "mission_rows"]
 
@@ -49,7 +50,7 @@ MC = {name: REFERENCE_COLUMNS + j for j, name in enumerate(CHANNEL_COLUMNS)}
 
 def mission_columns(s: Scenario) -> int:
     """Columns of a mission row: 9, or 9 + len(CHANNEL_COLUMNS) with blockage."""
-    return REFERENCE_COLUMNS + (len(CHANNEL_COLUMNS) if s.blockage != "none" else 0)
+    return REFERENCE_COLUMNS + (len(CHANNEL_COLUMNS) if task_effects(s).blockage else 0)
 
 
 def _state_snr_db(s: Scenario, dist, h, gain, los, shadow_unit):
@@ -74,7 +75,7 @@ def channel_along(s: Scenario, ref: np.ndarray, rng: np.random.Generator) -> np.
     (``map_error_std`` = :math:`\sigma_e`), LoS where it is below :math:`\Phi^{-1}(P_\mathrm{LoS})` (TR 36.777
     Table B-1 at the reference's height and horizontal distance to the GBS).
     """
-    if s.blockage == "none":
+    if not task_effects(s).blockage:
         raise ValueError("channel_along needs Scenario.blockage 'uma_av' or 'umi_av'")
     fields = [draw_field(rng, d, kernel=k) for d, k in ((s.los_correlation_m, s.los_field_kernel),
                                                         (s.los_correlation_m, s.los_field_kernel),
@@ -103,6 +104,6 @@ def mission_rows(s: Scenario, reference: np.ndarray, rng: np.random.Generator) -
     """A mission's rows (N+1, :func:`mission_columns`): the reference (N+1, 9) as it is without blockage, else
     with :func:`channel_along` drawn from ``rng`` appended.
     """
-    if s.blockage == "none":
+    if not task_effects(s).blockage:
         return reference
     return np.concatenate([reference, channel_along(s, reference, rng)], axis=1)

@@ -20,6 +20,7 @@ from iscc_gym.physics.queue import arrival_sigma
 from iscc_gym.physics.sensing import SENSING_PARAMS, sensing_noise_var_w, sensing_params
 from iscc_gym.physics.stability import scenario_eps_star
 from iscc_gym.scenario import Scenario, per_scenario
+from iscc_gym.sim.effects import task_effects
 from iscc_gym.sim.schema import obs_offsets
 
 __all__ = ["SLOT_PARAMS", "slot_params", "MATS"]
@@ -32,14 +33,14 @@ _OWN_FIELDS = (
     "ric_los", "ric_scat",  # channel.rician_constants
     "snr_k", "beam_g",      # channel.snr_constant, channel.matched_gain
     "max_tracking_error_m", "rate_min_bps", "coverage_radius_m", "n_slots",
-    "gnss", "open_loop", "feedforward",  # flags
+    "gnss", "open_loop", "feedforward", "queue",  # the task's switches (sim.effects.TaskEffects), 0/1
     "eps_star",        # stability.scenario_eps_star
     "q_back",          # Q^-1(eps*) / sqrt(L_ctrl): control-share bound of the observation (fbl.min_shares)
     "w_rate", "w_stab",
     "gnss_every",      # slots between GNSS fixes
     "blockage",        # physics.blockage.BLOCKAGE_MODELS code: 0 none (the paper), 1 UMa-AV, 2 UMi-AV
     "carrier_freq_ghz",
-    "queue_slots",     # the queue's deadline D in slots, 0 without a queue
+    "queue_deadline_slots",  # the queue's deadline D in slots (Scenario.queue_deadline_slots), 0 without a queue
     "arrival_mean_bits", "arrival_sigma",  # mean arrivals per slot (bits), log-normal sigma (physics.queue)
     "dt_s",
     "preview_slots", "preview_stride_slots",
@@ -76,22 +77,21 @@ def slot_params(s: Scenario):
     r["snr_k"], r["beam_g"] = snr_constant(s), matched_gain(s)
     r["max_tracking_error_m"], r["rate_min_bps"] = s.max_tracking_error_m, s.rate_min_bps
     r["coverage_radius_m"], r["n_slots"] = s.coverage_radius_m, s.n_slots
-    r["gnss"] = float(s.observation_source == "gnss")
-    r["open_loop"] = float(s.control_mode == "open_loop")
-    r["feedforward"] = float(s.reference_feedforward)
+    fx = task_effects(s)
+    r["gnss"], r["open_loop"], r["feedforward"], r["queue"] = fx.gnss, fx.open_loop, fx.feedforward, fx.queue
     r["eps_star"] = eps_star
     r["q_back"] = float(q_inv(eps_star)) / link_constants(s)[3]
     r["w_rate"], r["w_stab"] = s.w_rate, s.w_stab
     r["gnss_every"] = s.gnss_update_slots
     r["blockage"] = BLOCKAGE_MODELS[s.blockage]
     r["carrier_freq_ghz"] = s.carrier_freq_ghz
-    r["queue_slots"] = s.queue_slots
+    r["queue_deadline_slots"] = fx.queue_deadline_slots
     r["arrival_mean_bits"] = s.queue_arrival_bps * s.dt_s
     r["arrival_sigma"] = arrival_sigma(s.queue_arrival_cv)
     r["dt_s"] = s.dt_s
-    r["preview_slots"], r["preview_stride_slots"] = s.preview_slots, s.preview_stride_slots
+    r["preview_slots"], r["preview_stride_slots"] = fx.preview_points, fx.preview_stride_slots
     r["sen_noise_w"] = sensing_noise_var_w(s)
-    r["preview_truth"] = float(s.preview_source == "truth")
+    r["preview_truth"] = fx.preview_truth
     at = obs_offsets(s)
     r["obs_queue_at"], r["obs_echo_at"], r["obs_preview_at"] = at["queue"], at["blockage"], at["preview"]
     mats = np.zeros((5, 6, 6))

@@ -2,14 +2,16 @@
 
 Everything that names or positions a number crossing the step boundary is defined here once and
 read by the compiled kernel (:mod:`iscc_gym.sim.kernel`), the numpy transition (:mod:`iscc_gym.sim.loop`),
-the single env, the vector env and the agents. Plain Python: the module imports nothing from the
-package, so every layer can use it (the integer positions are module constants numba freezes at
-compile time).
+the single env, the vector env and the agents. Plain Python: the module imports only the task's effects
+(:mod:`iscc_gym.sim.effects`, which decide the observation's blocks and the slot's draws), so every layer can
+use it (the integer positions are module constants numba freezes at compile time).
 """
 
 from __future__ import annotations
 
 from typing import NamedTuple
+
+from iscc_gym.sim.effects import task_effects
 
 __all__ = ["obs_names", "obs_size", "obs_entries", "obs_blocks", "obs_offsets", "observation_table", "ObsEntry",
            "OBS_BLOCKS", "BASE_OBS", "QUEUE_OBS", "BLOCKAGE_OBS", "PREVIEW_OBS", "N_PREVIEW_OBS", "O_BACKLOG",
@@ -155,8 +157,8 @@ def obs_blocks(s) -> tuple[tuple[str, int, int], ...]:
     (:data:`OBS_BLOCKS`): the base entries; the queue's with a queue (``queue_deadline_s`` > 0); the echo's with
     blockage; the preview's, once per point (``preview_slots`` > 0). The one place the layout is decided.
     """
-    counts = {"base": 1, "queue": 1 if s.queue_slots > 0 else 0, "blockage": 1 if s.blockage != "none" else 0,
-              "preview": s.preview_slots}
+    fx = task_effects(s)
+    counts = {"base": 1, "queue": int(fx.queue), "blockage": int(fx.blockage), "preview": fx.preview_points}
     blocks, at = [], 0
     for name, entries in OBS_BLOCKS.items():
         if counts[name] > 0:
@@ -211,7 +213,7 @@ def _scaling_text(e: ObsEntry, s) -> str:
     if e.scaling == "log_arrivals":
         return f"ln(1 + x / {s.queue_arrival_bps * s.dt_s:g} bit) (a slot's mean arrivals)"
     if e.scaling == "per_deadline":
-        return f"x / {s.queue_slots} (the deadline in slots)"
+        return f"x / {s.queue_deadline_slots} (the deadline in slots)"
     raise ValueError(f"unknown scaling {e.scaling!r}")
 
 
@@ -259,4 +261,4 @@ assert sum(n for _, n in DRAWS.values()) == N_DRAWS
 
 def n_draws(s) -> int:
     """Standard normals per loop per slot for a scenario: :data:`N_DRAWS`, and :data:`Z_ARRIVAL` with a queue."""
-    return N_DRAWS + (1 if s.queue_slots > 0 else 0)
+    return N_DRAWS + (1 if task_effects(s).queue else 0)

@@ -31,6 +31,7 @@ from pathlib import Path
 
 import numpy as np
 from iscc_gym.agents.tasks import TASK_POLICIES, task_policies
+from iscc_gym.eval.engine import compare, runs_items, worlds
 from iscc_gym.eval.evaluate import (  # noqa: F401
     evaluate,
     format_table,
@@ -69,6 +70,7 @@ from iscc_gym import ENV_ID, MULTI_ENV_ID, URBAN_ENV_ID
 from iscc_gym.cli import invoked_prog, run
 from iscc_gym.docs import README_PATH, RESULTS_PATH, docs_path, publish, save_json, write_section
 from iscc_gym.protocol import EVAL_SEED_START
+from iscc_gym.tasks import TASKS
 
 #: The default comparison on the paper's task (each task's: :data:`iscc_gym.agents.tasks.TASK_POLICIES`).
 DEFAULT_POLICIES = TASK_POLICIES[ENV_ID].policies
@@ -160,6 +162,13 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
     ap.add_argument("--focus", metavar="NAME",
                     help="policy whose paired differences to every other policy are reported too (default: ppo, "
                          "if evaluated)")
+    ap.add_argument("--variants", metavar="LIST",
+                    help="play the policies (built for the task's preset) on these variants of the task's missions "
+                         "too, one table each: comma-separated names of the task's variants (iscc_gym.tasks), or "
+                         "'shifts' (the urban task's: " + ", ".join(TASKS[URBAN_ENV_ID].shifts) + ")")
+    ap.add_argument("--runs", metavar="DIR",
+                    help="add every seed's agent of python -m train --seeds ... --out DIR (DIR/seed_<s>, named "
+                         "seed_<s>) to the policies")
     ap.add_argument("--max-steps", type=positive_int, metavar="N",
                     help="slots per episode, >= 1 (default: the whole mission)")
     ap.add_argument("--json", metavar="PATH", help="write the results as JSON to PATH (checked before the run)")
@@ -218,6 +227,13 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> dict:
     seeds = (parse_seeds(args.seeds) if args.seeds is not None
              else list(range(args.seed_start, args.seed_start + args.episodes)))
     items = resolve_specs(args.policies, task.shipped_agent())
+    if args.runs is not None:
+        items = resolve_specs(",".join(items + runs_items(args.runs)))  # FileNotFoundError naming the fix
+    played = worlds(args.env, args.variants, args.scenario)  # ValueError naming the task's variants
+    if args.variants is not None and (args.write_docs or args.plots):
+        raise ValueError("--variants compares on several missions' variants; --write-docs and --plots take the "
+                         "task's own missions (leave --variants out), the shifted-mission study writes its own "
+                         "table (python -m eval.urban_shift)")
     if args.train_steps > 0:
         items = [it for it in items if policy_name(it) != "ppo"]
         items.insert(0, f"ppo={args.train_out}")
@@ -244,46 +260,44 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> dict:
         summary = run_training(["--env", args.env, "--total-timesteps", args.train_steps, "--scenario", args.scenario],
                                args.train_out, quiet=not show)["summary"]
         print(f"trained PPO: {summary['timesteps']} steps in {summary['wall_time_s']:.0f} s -> {args.train_out}")
-    specs = ",".join(items)
     t0 = time.perf_counter()
     record = 1 if args.plots else 0
-    bar = progress_bar(len(items) * horizon_slots(scenario, args.max_steps), "evaluating", unit="slot",
-                       enabled=show, unit_scale=True)
-    progress = bar.update if show else None
+    bar = progress_bar(len(items) * sum(horizon_slots(w, args.max_steps) for w in played.values()), "evaluating",
+                       unit="slot", enabled=show, unit_scale=True)
     try:
-        if args.workers > 1 and len(items) > 1:
-            learned = any("=" in it for it in items)  # else the workers need not import torch
-            runs = run_parallel(specs, seeds, args.scenario, args.max_steps, record, args.workers,
-                                args.torch_threads if learned else 0, progress=progress)
-            res = summarize(runs, seeds, reference, focus)
-        else:
-            if any("=" in it for it in items):
-                import torch
-
-                torch.set_num_threads(args.torch_threads)
-            policies = build_policies(specs, args.scenario)
-            res = evaluate(policies, seeds, scenario=args.scenario, reference=reference, max_steps=args.max_steps,
-                           record=record, focus=focus, progress=progress)
+        results = compare(args.env, items, seeds, variants=args.variants, scenario=args.scenario, reference=reference,
+                          focus=focus, max_steps=args.max_steps, record=record,
+                          workers=args.workers if len(items) * len(played) > 1 else 1,
+                          torch_threads=args.torch_threads, progress=bar.update if show else None, check=False)
     finally:
         bar.close()
-    print(format_table(res))
-    share = oracle_share(res)
-    if share is not None:
-        res["oracle_share"] = share
-        print(oracle_share_sentence(share))
-    print(f"evaluated {len(res['policies'])} policies x {len(seeds)} episodes in {time.perf_counter() - t0:.1f} s")
+    variants = task.task.variants if args.variants is not None else {}
+    for name, res in results.items():
+        if variants:
+            print(f"\nmissions: {name} ({variants[name].why})")
+        print(format_table(res))
+        share = oracle_share(res)
+        if share is not None:
+            res["oracle_share"] = share
+            print(oracle_share_sentence(share))
+    res = next(iter(results.values()))
+    print(f"evaluated {len(res['policies'])} policies x {len(seeds)} episodes"
+          + (f" x {len(results)} variants" if variants else "") + f" in {time.perf_counter() - t0:.1f} s")
     if args.plots:
         for p in save_plots(res, args.plots, scenario.dt_s):
             print(f"wrote {p}")
         res.pop("traces")
     if args.write_docs:
         cmd = docs_command("python -m eval", argv)
+        share = res.get("oracle_share")
         text = markdown_table(res, cmd) + (f"\n\n{oracle_share_sentence(share)}" if share is not None else "")
         if task.readme:
             publish(task.results_section, task.results_title, text)
         else:
             write_section(docs_path(RESULTS_PATH), task.results_section, f"## {task.results_title}\n\n" + text)
             print(f"wrote {docs_path(RESULTS_PATH)}")
+    if variants:
+        res = results
     if args.json:
         save_json(args.json, res)
     return res

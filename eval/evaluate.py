@@ -108,7 +108,7 @@ SHOWN_OVERRIDES = frozenset({"preview_source"})
 
 def run_episodes(policy, seeds: Sequence[int], scenario: str | Scenario = "paper", max_steps: int | None = None,
                  record: int = 0, progress: Callable[[int], None] | None = None, n_drones: int | None = None,
-                 **overrides) -> dict:
+                 trace_info: Sequence[str] = (), **overrides) -> dict:
     """Play one episode per seed, all at once on the batched env, with ``policy.predict``
     (deterministic). Returns per-episode metric arrays (:data:`EPISODE_METRICS`), the wall time,
     and, if ``record`` > 0, the slot-by-slot traces of the first ``record`` episodes.
@@ -118,6 +118,9 @@ def run_episodes(policy, seeds: Sequence[int], scenario: str | Scenario = "paper
     ended early). A policy's ``scenario_overrides`` attribute (the ``oracle``'s ``preview_source="truth"``)
     is applied to the scenario: only fields of :data:`SHOWN_OVERRIDES`, which change what the env shows, not
     the missions or their draws (common random numbers hold).
+
+    ``trace_info``: info keys (any of the env's, and ``"reward"``) traced slot by slot too for the first ``record``
+    episodes; with ``record``, ``missions`` holds those episodes' mission rows (the vector env's ``missions``).
     """
     seeds = [int(s) for s in seeds]
     if not seeds:
@@ -137,6 +140,7 @@ def run_episodes(policy, seeds: Sequence[int], scenario: str | Scenario = "paper
     reported = 0
     t0 = time.perf_counter()
     obs, _ = venv.reset(seed=seeds)
+    missions = venv.missions(record) if record else None
     alive = np.ones(k, dtype=bool)
     sums = {key: np.zeros(k) for key in ("reward", "tracking_error_m", "mse_m2", "rate_violation",
                                          "stability_violation", "violation", "cost", "peb_m", "rate_comm_mbps",
@@ -145,6 +149,8 @@ def run_episodes(policy, seeds: Sequence[int], scenario: str | Scenario = "paper
     length = np.zeros(k)
     terminated_any = np.zeros(k, dtype=bool)
     traces: dict[str, list] = {"alpha": [], "tracking_error_m": [], "pos": [], "ref_pos": []}
+    extra = [key for key in dict.fromkeys(trace_info) if key not in traces]  # the others are traced anyway
+    traces.update({key: [] for key in extra})
     pebs = []  # each slot's PEB (k, drones), NaN once an episode ended: the median's samples
     act = Actor(policy, k)
     for t in range(horizon):
@@ -178,6 +184,8 @@ def run_episodes(policy, seeds: Sequence[int], scenario: str | Scenario = "paper
             pos, ref_pos = venv.positions(record)
             traces["pos"].append(pos)
             traces["ref_pos"].append(ref_pos)
+            for key in extra:
+                traces[key].append(np.array(reward if key == "reward" else info[key])[:record])
         terminated_any |= term & alive
         alive &= ~(term | trunc)
         if not alive.any():
@@ -193,6 +201,7 @@ def run_episodes(policy, seeds: Sequence[int], scenario: str | Scenario = "paper
     res = {"episodes": out, "seeds": seeds, "wall_time_s": wall, "slots": int(length.sum())}
     if record:
         res["traces"] = {key: np.array(v) for key, v in traces.items()}
+        res["missions"] = missions
     return res
 
 

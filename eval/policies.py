@@ -14,7 +14,7 @@ from iscc_gym.eval.evaluate import run_episodes
 from iscc_gym.scenario import make_scenario
 from iscc_gym.sim.schema import obs_size
 
-__all__ = ["build_policy", "build_policies", "run_parallel", "resolve_specs", "check_specs", "policy_name",
+__all__ = ["build_policy", "build_policies", "play", "run_parallel", "resolve_specs", "check_specs", "policy_name",
            "SLOW_SPECS", "SHIPPED_AGENT"]
 
 #: The trained PPO agent shipped with the package (``agents/trained/ppo_iscc``; produced by ``python -m train.ship``).
@@ -128,7 +128,7 @@ def _worker_init(torch_threads: int, progress_queue=None) -> None:
         progress_queue.cancel_join_thread()  # a report still in the pipe never holds up the worker's exit
 
 
-def _run_item(index: int, item: str, seeds, scenario: str, max_steps, record: int):
+def _run_item(index: int, item: str, seeds, scenario: str, max_steps, record: int, world=None):
     name, policy = build_policy(item, scenario)
     progress = None
     if _PROGRESS is not None:
@@ -138,17 +138,20 @@ def _run_item(index: int, item: str, seeds, scenario: str, max_steps, record: in
             done[0] += n
             _PROGRESS.put((index, done[0]))
 
-    return name, run_episodes(policy, seeds, scenario, max_steps, record, progress=progress)
+    return name, run_episodes(policy, seeds, scenario if world is None else world, max_steps, record,
+                              progress=progress)
 
 
-def run_parallel(specs: str, seeds, scenario: str = "paper", max_steps=None, record: int = 0, workers: int = 2,
-                 torch_threads: int = 1, progress=None) -> dict:
-    """``{name: run_episodes result}`` of every policy of ``specs``, in ``workers`` processes (spawned,
-    one numba thread each); every policy plays the same seeds, so the results are those of one process.
+def play(items: list[str], seeds, scenario: str = "paper", worlds: dict | None = None, max_steps=None,
+         record: int = 0, workers: int = 2, torch_threads: int = 1, progress=None) -> dict:
+    """``{world: {name: run_episodes result}}``: every policy item (built for preset ``scenario``) played on each
+    of ``worlds`` (``{name: Scenario or preset}``; default ``{scenario: scenario}``) on the same seeds, in
+    ``workers`` processes (spawned, one numba thread each; 1: in this process). Every run is seeded, so the results
+    are those of one process.
 
     ``progress(n)``, if given, is called in this process with the slots played since its last call (the
-    workers report through a queue; a policy's calls add up to its horizon when it finishes). The first
-    error of a worker is raised as soon as it happens (the policies not started are cancelled).
+    workers report through a queue; a run's calls add up to its horizon when it finishes). The first
+    error of a worker is raised as soon as it happens (the runs not started are cancelled).
     """
     import multiprocessing
     from concurrent.futures import FIRST_EXCEPTION, ProcessPoolExecutor, wait
@@ -156,12 +159,24 @@ def run_parallel(specs: str, seeds, scenario: str = "paper", max_steps=None, rec
 
     from iscc_gym.eval.evaluate import horizon_slots
 
-    items = resolve_specs(specs)
-    order = sorted(range(len(items)), key=lambda i: items[i].split("=")[0] not in SLOW_SPECS)
+    worlds = {scenario: scenario} if worlds is None else dict(worlds)
+    seeds = list(seeds)
+    # (world, item) jobs, the slow policies first
+    jobs = [(w, it) for it in sorted(items, key=lambda it: it.split("=")[0] not in SLOW_SPECS) for w in worlds]
+    horizons = [horizon_slots(worlds[w], max_steps) for w, _ in jobs]
+    if workers <= 1 or len(jobs) <= 1:
+        if torch_threads and any("=" in it for it in items):
+            import torch
+
+            torch.set_num_threads(torch_threads)
+        out: dict = {w: {} for w in worlds}
+        for w, it in jobs:
+            name, policy = build_policy(it, scenario)
+            out[w][name] = run_episodes(policy, seeds, worlds[w], max_steps, record, progress=progress)
+        return {w: {policy_name(it): out[w][policy_name(it)] for it in items} for w in worlds}
     ctx = multiprocessing.get_context("spawn")
     queue = ctx.Queue() if progress is not None else None
-    horizon = horizon_slots(scenario, max_steps) if progress is not None else 0
-    done = [0] * len(items)
+    done = [0] * len(jobs)
     reported = 0
 
     def report(block: bool) -> None:
@@ -170,13 +185,13 @@ def run_parallel(specs: str, seeds, scenario: str = "paper", max_steps=None, rec
         try:
             i, n = queue.get(timeout=0.2) if block else queue.get_nowait()
             while True:
-                done[i] = max(done[i], min(n, horizon))
+                done[i] = max(done[i], min(n, horizons[i]))
                 i, n = queue.get_nowait()
         except Empty:
             pass
         for i, f in futures.items():
             if f.done() and not f.cancelled() and f.exception() is None:
-                done[i] = horizon
+                done[i] = horizons[i]
         total = sum(done)
         if total > reported:
             progress(total - reported)
@@ -184,7 +199,8 @@ def run_parallel(specs: str, seeds, scenario: str = "paper", max_steps=None, rec
 
     with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init,
                              initargs=(torch_threads, queue)) as pool:
-        futures = {i: pool.submit(_run_item, i, items[i], list(seeds), scenario, max_steps, record) for i in order}
+        futures = {i: pool.submit(_run_item, i, it, seeds, scenario, max_steps, record, worlds[w])
+                   for i, (w, it) in enumerate(jobs)}
         pending = set(futures.values())
         try:
             while pending:
@@ -196,12 +212,23 @@ def run_parallel(specs: str, seeds, scenario: str = "paper", max_steps=None, rec
                 if queue is not None:
                     report(block=bool(pending))
         except BaseException:
-            _stop(pool)  # the error is reported now, not after the policies still being played
+            _stop(pool)  # the error is reported now, not after the runs still being played
             raise
-        results = [futures[i].result() for i in range(len(items))]
+        results = {i: futures[i].result() for i in futures}
     if queue is not None:
         queue.close()
-    return dict(results)
+    by_world: dict = {w: {} for w in worlds}
+    for i, (w, _) in enumerate(jobs):
+        name, run = results[i]
+        by_world[w][name] = run
+    return {w: {policy_name(it): by_world[w][policy_name(it)] for it in items} for w in worlds}
+
+
+def run_parallel(specs: str, seeds, scenario: str = "paper", max_steps=None, record: int = 0, workers: int = 2,
+                 torch_threads: int = 1, progress=None) -> dict:
+    """``{name: run_episodes result}`` of every policy of ``specs`` on ``scenario`` (:func:`play`, one world)."""
+    return play(resolve_specs(specs), seeds, scenario, None, max_steps, record, workers, torch_threads,
+                progress)[scenario]
 
 
 def pool_map(fn, *iterables, workers: int) -> list:

@@ -17,13 +17,12 @@ Example::
 
 from __future__ import annotations
 
-import re
 import sys
-from pathlib import Path
 
 import numpy as np
 from iscc_gym.agents.tasks import task_policies
-from iscc_gym.eval.evaluate import ci_bounds, evaluate, horizon_slots, mean_ci
+from iscc_gym.eval.engine import compare, runs_items, seed_runs
+from iscc_gym.eval.evaluate import ci_bounds, horizon_slots, mean_ci
 from iscc_gym.eval.options import (
     PICKLE_WARNING,
     Parser,
@@ -47,38 +46,17 @@ SECTIONS = {ENV_ID: ("seeds", "The shipped configuration over 5 training seeds")
             URBAN_ENV_ID: ("urban-seeds", "The urban task's shipped configuration over 5 training seeds")}
 
 
-def seed_runs(root: str | Path) -> dict[int, Path]:
-    """``{seed: run directory}`` of the ``seed_<s>`` directories under ``root`` holding a model."""
-    root = Path(root)
-    if not root.is_dir():
-        raise FileNotFoundError(f"{root} is not a directory; train with `python -m train --seeds 0,1,2 --out {root}`")
-    runs = {}
-    for p in sorted(root.iterdir()):
-        m = re.fullmatch(r"seed_(\d+)", p.name)
-        if m and (p / "model.zip").exists():
-            runs[int(m.group(1))] = p
-    if not runs:
-        raise FileNotFoundError(f"no seed_<s>/model.zip under {root}; train with "
-                                f"`python -m train --seeds 0,1,2 --out {root}`")
-    return runs
-
-
 def compare_seeds(root, seeds, scenario: str = "paper", scripted=SCRIPTED, max_steps: int | None = None,
-                  progress=None, reference: str = "sca") -> dict:
-    """Evaluate every seed's agent and the scripted policies on ``seeds``; per-seed paired differences
-    against ``reference`` (one of ``scripted``; the row's ``vs_<reference>``) and the best scripted policy.
-    ``progress(n)``: slots played, as in :func:`iscc_gym.eval.evaluate.evaluate`.
+                  progress=None, reference: str = "sca", env_id: str = ENV_ID) -> dict:
+    """Evaluate every seed's agent and the scripted policies on ``seeds`` (the engine,
+    :func:`iscc_gym.eval.engine.compare`); per-seed paired differences against ``reference`` (one of ``scripted``;
+    the row's ``vs_<reference>``) and the best scripted policy. ``progress(n)``: slots played.
     """
-    import torch
-    from iscc_gym.agents import make_policy
-    from iscc_gym.eval.policies import build_policy
-
-    torch.set_num_threads(1)
     runs = seed_runs(root)
-    policies = {name: make_policy(name, scenario) for name in scripted}
-    # each agent checked against the env it is compared on (build_policy: the scenario's observation size)
-    policies.update(dict(build_policy(f"seed_{s}={p}", scenario) for s, p in runs.items()))
-    res = evaluate(policies, seeds, scenario=scenario, max_steps=max_steps, progress=progress)
+    # each agent checked against the env it is compared on (check_specs: the scenario's observation size)
+    res = compare(env_id, [*scripted, *runs_items(root)], seeds, scenario=scenario, max_steps=max_steps,
+                  reference=reference, progress=progress, torch_threads=1)
+    res = next(iter(res.values()))
     eps = {name: np.asarray(p["episodes"]["reward"]) for name, p in res["policies"].items()}
     best = max(scripted, key=lambda n: eps[n].mean())
     rows = []
@@ -148,7 +126,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.seeds") -> d
     runs = seed_runs(args.root)  # FileNotFoundError with one line: the exit code 2 of iscc_gym.cli.run
     from iscc_gym.eval.policies import check_specs
 
-    check_specs([f"seed_{s}={p}" for s, p in runs.items()], args.scenario)  # torch and SB3 installed
+    check_specs(runs_items(args.root), args.scenario)  # torch and SB3 installed, before the outputs are checked
     from iscc_gym.docs import RESULTS_PATH, docs_path
 
     if args.json:
@@ -161,7 +139,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.seeds") -> d
                       unit="slot", enabled=show, unit_scale=True) as bar:
         res = compare_seeds(args.root, range(args.seed_start, args.seed_start + args.episodes), args.scenario,
                             scripted, max_steps=args.max_steps, progress=bar.update if show else None,
-                            reference=reference)
+                            reference=reference, env_id=args.env)
     cmd = docs_command("python -m eval.seeds", argv)
     table = markdown(res, cmd)
     print(table)

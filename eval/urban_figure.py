@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 from iscc_gym.agents.shipped import URBAN_AGENT
-from iscc_gym.eval.evaluate import Actor
+from iscc_gym.eval.evaluate import run_episodes
 from iscc_gym.eval.figures import new_figure, save_figure
 from iscc_gym.eval.options import PICKLE_WARNING, Parser, check_writable_file, docs_command, nonneg_int, run_console
 from iscc_gym.eval.policies import build_policy, resolve_specs
@@ -25,7 +25,6 @@ from iscc_gym.eval.urban_task import mission_stats
 
 from iscc_gym import URBAN_ENV_ID
 from iscc_gym.docs import RESULTS_PATH, docs_path, write_section
-from iscc_gym.envs.env import ISCCEnv
 from iscc_gym.protocol import URBAN_SEED_START
 from iscc_gym.scenario import make_scenario
 from iscc_gym.sim.mission import MC
@@ -60,31 +59,23 @@ def mission_policies(specs: str) -> dict:
     return dict(build_policy(item, "urban", fix=URBAN_FIX) for item in resolve_specs(specs, URBAN_AGENT))
 
 
+#: The info keys a mission's figure traces slot by slot (and the slot's reward).
+TRACED = ("alpha", "backlog_bits", "bits_dropped", "tracking_error_m", "reward")
+
+
 def play_mission(policy, seed: int, scenario="urban") -> dict:
     """One mission of ``policy`` (a built one, or a spec: scripted, ``ppo`` for the shipped urban agent or
-    ``NAME=PATH``) on the single env, played as :func:`iscc_gym.eval.evaluate.run_episodes` plays it (its
-    :class:`~iscc_gym.eval.evaluate.Actor`: a recurrent agent keeps its memory): per slot the split, the backlog,
-    the dropped bits, the tracking error, and the mission's rows (reference and channel).
+    ``NAME=PATH``): per slot the split, the backlog, the dropped bits, the tracking error and the reward
+    (:data:`TRACED`), and the mission's rows (reference and channel): one mission of
+    :func:`~iscc_gym.eval.evaluate.run_episodes`, the one rollout loop (a recurrent agent keeps its memory).
     """
     s = make_scenario(scenario)
     if isinstance(policy, str):
         _, policy = build_policy(resolve_specs(policy, URBAN_AGENT)[0], s, fix=URBAN_FIX)
-    env = ISCCEnv(s.replace(**getattr(policy, "scenario_overrides", {})))
-    obs, _ = env.reset(seed=int(seed))
-    rows = env._state.ref[0].copy()
-    out = {k: [] for k in ("alpha", "backlog_bits", "bits_dropped", "tracking_error_m", "slot_reward")}
-    reward = 0.0
-    act = Actor(policy, 1)
-    for _ in range(s.n_slots):
-        action = act(obs)
-        obs, r, term, trunc, info = env.step(np.asarray(action, dtype=np.float32))
-        reward += r
-        out["slot_reward"].append(r)
-        for k in ("alpha", "backlog_bits", "bits_dropped", "tracking_error_m"):
-            out[k].append(info[k])
-        if term or trunc:
-            break
-    return {**{k: np.asarray(v) for k, v in out.items()}, "rows": rows, "dt_s": s.dt_s, "reward": reward}
+    res = run_episodes(policy, [int(seed)], s, record=1, trace_info=TRACED)
+    out = {k: res["traces"][k][:, 0] for k in TRACED}
+    out["slot_reward"] = out.pop("reward")
+    return {**out, "rows": res["missions"][0], "dt_s": s.dt_s, "reward": float(res["episodes"]["reward"][0])}
 
 
 def draw(runs: dict, path: str | Path) -> Path:

@@ -16,20 +16,20 @@ Examples::
 
 from __future__ import annotations
 
-import functools
 import sys
 import time
 
 from iscc_gym.agents.shipped import URBAN_AGENT
-from iscc_gym.eval.evaluate import ci_bounds, ci_side, run_episodes, summarize
+from iscc_gym.agents.tasks import TASK_POLICIES
+from iscc_gym.eval.engine import compare
+from iscc_gym.eval.evaluate import ci_bounds, ci_side
 from iscc_gym.eval.options import PICKLE_WARNING, Parser, docs_command, positive_int, run_console
-from iscc_gym.eval.policies import build_policy, policy_name, pool_map, resolve_specs
+from iscc_gym.eval.policies import policy_name, resolve_specs
 
 from iscc_gym.protocol import EVAL_SEED_START
-from iscc_gym.scenario import make_scenario
 from iscc_gym.tasks import TASKS, URBAN_ENV_ID
 
-__all__ = ["SHIFTS", "POLICIES", "shift_runs", "markdown", "main"]
+__all__ = ["SHIFTS", "POLICIES", "markdown", "main"]
 
 #: The shifts: name -> (Scenario overrides of the ``urban`` preset, what changes): the urban task's
 #: :attr:`~iscc_gym.tasks.Task.shifts` (which ``python -m train --randomize urban-shifts`` trains over).
@@ -37,21 +37,7 @@ SHIFTS: dict[str, tuple[dict, str]] = {name: (dict(TASKS[URBAN_ENV_ID].variants[
                                               TASKS[URBAN_ENV_ID].variants[name].why)
                                        for name in TASKS[URBAN_ENV_ID].shifts}
 #: The policies compared on each shift: the shipped urban agent and every scripted policy of the urban task.
-POLICIES = "ppo,myopic,margin,dpp,mpc"
-
-
-def shift_runs(name: str, specs: str, seeds: list[int], max_steps: int | None = None, torch_threads: int = 1) -> dict:
-    """Every policy of ``specs`` (built for the ``urban`` preset) on the missions of shift ``name``: the
-    per-policy runs of :func:`iscc_gym.eval.evaluate.run_episodes`, keyed by policy name.
-    """
-    items = resolve_specs(specs, URBAN_AGENT)
-    if any("=" in it for it in items):
-        import torch
-
-        torch.set_num_threads(torch_threads)
-    policies = dict(build_policy(it, "urban") for it in items)
-    shifted = make_scenario("urban", **SHIFTS[name][0])
-    return {k: run_episodes(p, seeds, shifted, max_steps=max_steps) for k, p in policies.items()}
+POLICIES = ",".join(["ppo", *TASK_POLICIES[URBAN_ENV_ID].scripted])
 
 
 def _ci(mean: float, ci) -> str:
@@ -95,7 +81,7 @@ def build_parser(prog: str = "python -m eval.urban_shift") -> Parser:
     ap.add_argument("--episodes", type=positive_int, default=20, metavar="N",
                     help=f"held-out missions per shift, seeds from {EVAL_SEED_START} (default: 20)")
     ap.add_argument("--jobs", type=positive_int, default=1, metavar="N",
-                    help="shifts run at once in N processes (default: 1; each single-threaded)")
+                    help="runs (a policy on a shift) played at once in N processes (default: 1; each single-threaded)")
     ap.add_argument("--max-steps", type=positive_int, default=None, metavar="N",
                     help="cut every mission after N slots (smoke runs)")
     ap.add_argument("--write-docs", action="store_true",
@@ -123,13 +109,10 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.urban_shift"
 
         check_writable_file(docs_path(RESULTS_PATH), "--write-docs")
     seeds = list(range(EVAL_SEED_START, EVAL_SEED_START + args.episodes))
-    job = functools.partial(shift_runs, specs=args.policies, seeds=seeds, max_steps=args.max_steps)
     t0 = time.perf_counter()
-    if args.jobs > 1 and len(names) > 1:  # one shift per process; every run is seeded, so the same table
-        runs = pool_map(job, names, workers=min(args.jobs, len(names)))  # Ctrl-C stops the workers
-    else:
-        runs = [job(n) for n in names]
-    results = {n: summarize(r, seeds, focus=args.focus) for n, r in zip(names, runs, strict=True)}
+    # the engine: every policy built for the preset, played on each shift's missions (seeded: any --jobs, one table)
+    results = compare(URBAN_ENV_ID, items, seeds, variants=names, focus=args.focus, max_steps=args.max_steps,
+                      workers=args.jobs, check=False)
     table = markdown(results, args.focus, docs_command(prog, argv))
     print(table)
     print(f"evaluated {len(names)} shifts in {time.perf_counter() - t0:.0f} s")

@@ -2,9 +2,9 @@
 
 import gymnasium as gym
 import pytest
+from iscc_gym.agents.tasks import SHIPPED_AGENTS, TASK_POLICIES, task_policies
 
 import iscc_gym
-from iscc_gym.agents.tasks import SHIPPED_AGENTS, TASK_POLICIES, task_policies
 from iscc_gym.scenario import SCENARIOS
 from iscc_gym.tasks import TASKS, URBAN_ENV_ID, Task, Variant, get_task, variant_scenario
 

@@ -206,21 +206,21 @@ def test_shifted_missions_change_the_env_and_leave_the_policies_as_tuned(monkeyp
     """``eval.urban_shift``: every policy is built for the urban preset, only the env's missions are shifted; the
     table pairs the focus with every other policy on each shift.
     """
-    from iscc_gym.eval import urban_shift
+    from iscc_gym.eval import policies, urban_shift
 
     seen = []
-    real = urban_shift.run_episodes
+    real = policies.run_episodes
 
-    def spy(policy, seeds, scenario, **kw):
+    def spy(policy, seeds, scenario, *args, **kw):
         seen.append((getattr(policy, "scenario", U), scenario))
-        return real(policy, seeds, scenario, **kw)
+        return real(policy, seeds, scenario, *args, **kw)
 
-    monkeypatch.setattr(urban_shift, "run_episodes", spy)
+    monkeypatch.setattr(policies, "run_episodes", spy)  # the engine's one rollout loop (iscc_gym.eval.engine)
     res = urban_shift.main(["--shifts", "none,umi_av", "--policies", "myopic,margin", "--focus", "myopic",
                             "--episodes", "2", "--max-steps", "5"])
     assert list(res) == ["none", "umi_av"] and set(res["umi_av"]["focus_paired"]) == {"myopic_vs_margin"}
     assert seen[0][0] == U and all(built == U for built, _ in seen)  # myopic designed for the preset
-    assert [env.blockage for _, env in seen] == ["uma_av", "uma_av", "umi_av", "umi_av"]
+    assert sorted(env.blockage for _, env in seen) == ["uma_av", "uma_av", "umi_av", "umi_av"]
     for bad, match in ((["--shifts", "nope"], "unknown"),
                        (["--policies", "myopic,margin", "--focus", "dpp"], "--focus")):
         with pytest.raises(ValueError, match=match):
@@ -293,6 +293,11 @@ def _ctrl_c_then_sleep(i):
     time.sleep(30.0)
 
 
+def _run_item_ctrl_c_then_sleep(index, *args):
+    """The engine's worker call (:func:`iscc_gym.eval.policies._run_item`), each run played for 30 s."""
+    _ctrl_c_then_sleep(index)
+
+
 @pytest.mark.parametrize("command, argv", [
     ("urban_shift", ["--shifts", "umi_av,map error 0.8", "--policies", "myopic", "--focus", "myopic", "--episodes",
                      "1"]),
@@ -300,24 +305,38 @@ def _ctrl_c_then_sleep(i):
 ])
 def test_ctrl_c_stops_the_urban_commands_jobs_at_once(command, argv, monkeypatch):
     """Issue 34.16: Ctrl-C (SIGINT) while ``--jobs 2`` plays two variants: the command stops within a couple of
-    seconds, its worker processes ended, instead of waiting for the variants still being played (up to 90 s)."""
+    seconds, its worker processes ended, instead of waiting for the variants still being played (up to 90 s).
+    urban_shift plays through the engine's pool (:func:`iscc_gym.eval.policies.play`, spawned workers), urban_levers
+    through :func:`iscc_gym.eval.policies.pool_map`."""
     import importlib
     import multiprocessing
+    import signal
     import time
 
     from iscc_gym.eval import policies
 
     module = importlib.import_module(f"iscc_gym.eval.{command}")
+    if command == "urban_shift":
+        monkeypatch.setattr(policies, "_run_item", _run_item_ctrl_c_then_sleep)
+    else:
+        def sleeping(fn, *iterables, workers):  # the command's pool, each variant played for 30 s
+            return policies.pool_map(_ctrl_c_then_sleep, range(len(iterables[0])), workers=workers)
 
-    def sleeping(fn, *iterables, workers):  # the command's pool, each variant played for 30 s
-        return policies.pool_map(_ctrl_c_then_sleep, range(len(iterables[0])), workers=workers)
+        monkeypatch.setattr(module, "pool_map", sleeping)
+    pressed = []
 
-    monkeypatch.setattr(module, "pool_map", sleeping)
-    t0 = time.perf_counter()
-    with pytest.raises(KeyboardInterrupt):  # Ctrl-C once the pool's calls run (not while it starts its workers)
-        module.main(argv + ["--jobs", "2"])
+    def on_sigint(signum, frame):  # Python's own handler, noting when Ctrl-C came
+        pressed.append(time.perf_counter())
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGINT, on_sigint)
+    try:
+        with pytest.raises(KeyboardInterrupt):  # Ctrl-C once the pool's calls run (not while it starts its workers)
+            module.main(argv + ["--jobs", "2"])
+    finally:
+        signal.signal(signal.SIGINT, previous)
     # ended (SIGTERM), not left playing; the executor's manager thread may reap a terminated worker a moment later
     deadline = time.perf_counter() + 2.0
     while multiprocessing.active_children() and time.perf_counter() < deadline:
         time.sleep(0.02)
-    assert time.perf_counter() - t0 < 3.0 and not multiprocessing.active_children()
+    assert pressed and time.perf_counter() - pressed[0] < 3.0 and not multiprocessing.active_children()

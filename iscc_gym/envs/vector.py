@@ -214,6 +214,23 @@ class ISCCVectorEnv(TimeLimitCheck, VectorEnv):
             return pos, ref
         return pos.reshape(-1, self._k, 3), ref.reshape(-1, self._k, 3)
 
+    def missions(self, rows: int | None = None) -> np.ndarray:
+        """The missions being flown by the first ``rows`` sub-envs (all by default): a copy of each loop's
+        per-slot rows (reference position, velocity, acceleration, then the channel's columns of
+        :data:`iscc_gym.sim.mission.CHANNEL_COLUMNS` where the task has them), shape (rows, slots, columns), or
+        (rows, K, slots, columns) with ``n_drones``. For figures; the policy sees only the observation.
+
+        Raises
+        ------
+        RuntimeError
+            Before the first ``reset``.
+        """
+        if self._state is None:
+            raise RuntimeError("call reset() before missions()")
+        m = (self.num_envs if rows is None else max(0, min(int(rows), self.num_envs))) * self._k
+        ref = self._state.ref[:m].copy()
+        return ref if self.n_drones is None else ref.reshape(-1, self._k, *ref.shape[1:])
+
     def _reset_info(self, mask: np.ndarray) -> dict:
         """A step's info keys at reset (:func:`iscc_gym.sim.functional.reset_info_arrays`), masked to the sub-envs
         reset.

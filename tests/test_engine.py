@@ -1,0 +1,54 @@
+"""The comparison engine (issue 35 point 2): policies x variants x seeds, one rollout loop, common random numbers."""
+
+import numpy as np
+import pytest
+from iscc_gym.eval.__main__ import main as eval_main
+from iscc_gym.eval.engine import compare, worlds
+
+from iscc_gym.tasks import ENV_ID, URBAN_ENV_ID
+
+SEEDS = [10000, 10001]
+
+
+def test_variants_change_the_missions_only_and_every_process_count_gives_one_result():
+    kw = dict(seeds=SEEDS, max_steps=6)
+    one = compare(URBAN_ENV_ID, "myopic,margin", variants=["none", "umi_av"], **kw)
+    two = compare(URBAN_ENV_ID, "myopic,margin", variants=["none", "umi_av"], workers=2, **kw)
+    plain = compare(URBAN_ENV_ID, "myopic,margin", **kw)
+    assert list(one) == ["none", "umi_av"] and list(plain) == ["urban"]
+    for name in one:
+        for pol in ("myopic", "margin"):
+            assert one[name]["policies"][pol]["episodes"] == two[name]["policies"][pol]["episodes"]
+    # "none" is the preset's own missions: the same numbers as without variants; umi_av's differ
+    assert one["none"]["policies"]["margin"]["episodes"] == plain["urban"]["policies"]["margin"]["episodes"]
+    assert one["umi_av"]["policies"]["margin"]["episodes"] != one["none"]["policies"]["margin"]["episodes"]
+    # the task's reference (myopic) is paired with every other policy on every variant
+    assert one["umi_av"]["reference"] == "myopic" and set(one["umi_av"]["paired"]) == {"margin_vs_myopic"}
+
+
+def test_worlds_are_the_tasks_variants_and_unknown_names_are_refused():
+    assert list(worlds(URBAN_ENV_ID, "shifts")) == ["none", "umi_av", "altitude 60-100 m", "10 Mbit/s within 2 s",
+                                                    "map error 0.8"]
+    assert worlds(URBAN_ENV_ID, ["umi_av"])["umi_av"].blockage == "umi_av"
+    assert list(worlds(ENV_ID, None, "literal")) == ["literal"]
+    with pytest.raises(ValueError, match="variant 'nope' is not one of iscc_gym/ISCC-Urban-v0's"):
+        worlds(URBAN_ENV_ID, "umi_av,nope")
+    with pytest.raises(ValueError, match="iscc_gym/ISCC-v0's: it has none"):
+        worlds(ENV_ID, "umi_av")
+    with pytest.raises(ValueError, match="--reference 'sca' is not one of the policies played"):
+        compare(URBAN_ENV_ID, "myopic", SEEDS, reference="sca")
+
+
+def test_the_command_line_plays_variants_and_seed_runs_and_refuses_what_it_cannot_write(tmp_path, capsys):
+    res = eval_main(["--env", URBAN_ENV_ID, "--policies", "myopic,margin", "--variants", "none,umi_av",
+                     "--episodes", "2", "--max-steps", "5", "--workers", "1", "--quiet"])
+    out = capsys.readouterr().out
+    assert list(res) == ["none", "umi_av"] and "missions: umi_av (TR 36.777 UMi-AV" in out
+    assert "x 2 variants" in out
+    np.testing.assert_array_equal(res["umi_av"]["policies"]["myopic"]["episodes"]["reward"],
+                                  compare(URBAN_ENV_ID, "myopic", SEEDS, variants=["umi_av"], max_steps=5)
+                                  ["umi_av"]["policies"]["myopic"]["episodes"]["reward"])
+    with pytest.raises(ValueError, match="--variants compares on several"):
+        eval_main(["--env", URBAN_ENV_ID, "--policies", "myopic", "--variants", "umi_av", "--write-docs"])
+    with pytest.raises(FileNotFoundError, match="no seed_<s>/model.zip under .*python -m train --seeds"):
+        eval_main(["--policies", "myopic", "--runs", str(tmp_path)])

@@ -33,7 +33,7 @@ Three readings are needed to make this well posed (``docs/model.md`` Sec. 3.2):
 * **Trust.** Whatever the reading, the threshold is at least the analytic evaluator's trust edge
   (every sampled position's loss rate at most 0.4 eps*, ``iscc_gym.analysis.TRUST_LOSS_FRACTION``;
   ``enforce_trust=False`` drops it): below it the env loses track on some missions although the
-  loop is mean-square stable on paper (``eval.paper.fading``).
+  loop is mean-square stable on paper (``experiments.paper.fading``).
 * **L(b)** (eq:Lb) is degenerate as printed (``rate_cost_determinant="printed"`` gives 0 bits); with
   the pseudo-determinant it is below 2 bits per slot against :math:`10^5` bits per slot that even the
   smallest stable control share carries, so cons:rate_cost never binds. It is kept as written.

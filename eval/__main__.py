@@ -233,7 +233,7 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> dict:
     if args.variants is not None and (args.write_docs or args.plots):
         raise ValueError("--variants compares on several missions' variants; --write-docs and --plots take the "
                          "task's own missions (leave --variants out), the shifted-mission study writes its own "
-                         "table (python -m eval.urban_shift)")
+                         "table (python -m experiments.urban_shift)")
     if args.train_steps > 0:
         items = [it for it in items if policy_name(it) != "ppo"]
         items.insert(0, f"ppo={args.train_out}")

@@ -85,7 +85,7 @@ class Actor:
     """A policy's deterministic actions along ``n_envs`` episodes played from their first slot together: the
     recurrent state (a ``ppo_lstm`` agent's memory, per-slot SCA's warm start) is carried from slot to slot and
     ``episode_start`` is True on the first slot only, as SB3's own rollouts call ``predict``. The step of every
-    rollout of the evaluator (:func:`run_episodes`, :func:`iscc_gym.eval.urban_figure.play_mission`), so they
+    rollout of the evaluator (:func:`run_episodes`, :func:`experiments.urban_figure.play_mission`), so they
     play the same policy.
     """
 

@@ -1,10 +1,10 @@
-"""PNG figures of the scheme level of ``python -m eval.paper.reproduce`` (matplotlib, Agg canvas; no display
+"""PNG figures of the scheme level of ``python -m experiments.paper.reproduce`` (matplotlib, Agg canvas; no display
 needed), and the helpers every reproduce figure uses (:func:`new_figure`, :func:`save_figure`).
 
 * ``fig9a_schemes_trajectories_3d.png``: 3-D flight of the four schemes of the paper's Fig. 9 on one mission;
 * ``fig9b_schemes_tracking_error.png``: their tracking error over time (Fig. 9(b)).
 
-The paper's Figs. 3-8 are drawn by :mod:`iscc_gym.eval.paper.paper_figures`.
+The paper's Figs. 3-8 are drawn by :mod:`experiments.paper.paper_figures`.
 """
 
 from __future__ import annotations
@@ -117,8 +117,8 @@ def write_all(out_dir: str | Path, s: Scenario, model: StaticModel, traces: dict
 
     ``traces``: per scheme (``open_loop``, ``gnss``, ``ignore_loss``, ``iscc``) the ``traces`` of
     :func:`iscc_gym.eval.evaluate.evaluate` with ``record=1``. ``model``, ``splits`` (the Table II
-    allocations) and ``quick`` are accepted for :mod:`iscc_gym.eval.paper.schemes`' call and not used: the
-    allocation maps are the paper's Figs. 5-6 in :mod:`iscc_gym.eval.paper.paper_figures`.
+    allocations) and ``quick`` are accepted for :mod:`experiments.paper.schemes`' call and not used: the
+    allocation maps are the paper's Figs. 5-6 in :mod:`experiments.paper.paper_figures`.
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

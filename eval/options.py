@@ -29,8 +29,8 @@ PICKLE_WARNING = ("A model .zip and its vecnormalize.pkl are pickles: loading th
 
 class Parser(argparse.ArgumentParser):
     """An ``ArgumentParser`` whose errors are one line, ``PROG: error: MESSAGE (see --help)``, exit code 2, and
-    whose ``prog`` is the command as invoked (:func:`iscc_gym.cli.invoked_prog`: ``python -m iscc_gym.eval.seeds``
-    for ``python -m eval.seeds`` when run under the installed name).
+    whose ``prog`` is the command as invoked (:func:`iscc_gym.cli.invoked_prog`: ``python -m experiments.seeds``
+    for ``python -m experiments.seeds`` when run under the installed name).
     """
 
     def __init__(self, *args, prog: str | None = None, **kwargs):
@@ -305,8 +305,8 @@ def run_console(main, argv: list[str] | None, prog: str) -> int:
 
 def claims_parser(prog: str, description: str, *, missions: int, quick_missions: int, seed_base: int,
                   figures_default: str) -> Parser:
-    """The parser of a measurement command that states claims (``eval.paper.fading``, ``eval.paper.sensitivity``):
-    ``--quick``, ``--seed``, ``--json``, ``--figures``, ``--no-figures``.
+    """The parser of a measurement command that states claims (``experiments.paper.fading``,
+    ``experiments.paper.sensitivity``): ``--quick``, ``--seed``, ``--json``, ``--figures``, ``--no-figures``.
     """
     p = Parser(prog=prog, description=description)
     p.add_argument("--quick", action="store_true",

@@ -109,7 +109,8 @@ def build_parser(prog: str = "python -m eval.outage") -> Parser:
     ap.add_argument("--scenario", default="paper", help="scenario preset (default: paper)")
     ap.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
     ap.add_argument("--rate-min-mbps", type=float, default=None,
-                    help="the rate requirement R_min in Mbps (default: the scenario's; python -m eval.pareto uses 12)")
+                    help="the rate requirement R_min in Mbps (default: the scenario's; python -m experiments.pareto "
+                         "uses 12)")
     return ap
 
 

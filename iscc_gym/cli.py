@@ -26,7 +26,7 @@ EXTRAS = {"torch": "train", "stable_baselines3": "train", "sb3_contrib": "train"
 
 
 def invoked_prog(prog: str) -> str:
-    """``prog`` (``python -m eval.seeds``) as this process was invoked: ``python -m iscc_gym.eval.seeds`` when run
+    """``prog`` (``python -m eval.tune``) as this process was invoked: ``python -m iscc_gym.eval.tune`` when run
     as that module (the installed name), else ``prog`` unchanged (a console script, a test, another module).
     """
     module = prog.split()[2] if prog.startswith("python -m ") and len(prog.split()) == 3 else None

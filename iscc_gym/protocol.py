@@ -25,17 +25,18 @@ __all__ = ["EVAL_SEED_RANGES", "EVAL_SEED_START", "CALLBACK_EVAL_SEED_START", "I
 
 #: The held-out evaluation seeds, each range [start, stop). Training and tuning seeds must avoid them.
 EVAL_SEED_RANGES = ((10_000, 11_000), (1_000_000, 2_000_000))
-#: First mission of ``python -m eval`` (and ``eval.seeds``): the comparisons' held-out missions.
+#: First mission of ``python -m eval`` (and ``experiments.seeds``): the comparisons' held-out missions.
 EVAL_SEED_START = 10_000
 #: Seeds of the training run's EvalCallback episodes start here (its held-out missions, ``best/``).
 CALLBACK_EVAL_SEED_START = 1_000_000
 #: The behaviour-cloning warm start's missions: ``INIT_SEED_START + 1000 * seed + i`` (training seeds).
 INIT_SEED_START = 200_000
-#: First tuning seed (training seeds for the scripted baselines, ``eval.tune``, ``eval.outage``, ``eval.pareto``).
+#: First tuning seed (training seeds for the scripted baselines: ``eval.tune``, ``eval.outage``,
+#: ``experiments.pareto``).
 TUNE_SEED_START = 500_000
 #: Default tuning seeds.
 TUNE_SEEDS = tuple(range(TUNE_SEED_START, TUNE_SEED_START + 40))
-#: The reproduction's calibration missions (``eval.paper.reproduce``): training seeds.
+#: The reproduction's calibration missions (``experiments.paper.reproduce``): training seeds.
 CALIBRATION_SEED_START = 600_000
 #: The held-out missions of the studies, ``start + 1000 * run_seed + i`` inside the upper evaluation range.
 FADING_SEED_START = 1_100_000
@@ -44,8 +45,8 @@ PARETO_SEED_START = 1_300_000
 MULTI_SEED_START = 1_400_000
 URBAN_SEED_START = 1_500_000
 #: The Pareto study's data-rate requirement R_min (bit/s): the learned operating points (``train.pareto``) are
-#: trained and compared (``eval.pareto``) at this value; at the ``paper`` preset's 20 Mbps no split meets a 5 % or
-#: 10 % rate-outage target (docs/model.md 4.6).
+#: trained and compared (``experiments.pareto``) at this value; at the ``paper`` preset's 20 Mbps no split meets a
+#: 5 % or 10 % rate-outage target (docs/model.md 4.6).
 PARETO_RATE_MIN_BPS = 12e6
 
 

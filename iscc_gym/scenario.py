@@ -88,12 +88,12 @@ class Scenario:
     comm_snr_offset_db : float
         Calibration offset added to the communication SNR in dB (0 = Table I's link budget). The
         ``paper`` preset sets it so the link carries the paper's 35 Mbps at alpha_comm = 1
-        (``python -m eval.paper.reproduce`` prints the calibration).
+        (``python -m experiments.paper.reproduce`` prints the calibration).
     sensing_snr_offset_db : float
         Calibration offset added to the echo SNR in dB (0 = Table I's link budget). Table I's budget
         puts the PEB at hundreds of metres; the ``paper`` preset sets it so the env's slot-mean PEB at
         Table II's SCA split (20 / 20 / 60 %) is Table II's 0.0635 m (103.23 dB, solved on 1024
-        calibration missions by ``eval.paper.reproduce.calibrate_sensing_offset``; docs/model.md Sec. 2.4).
+        calibration missions by ``experiments.paper.reproduce.calibrate_sensing_offset``; docs/model.md Sec. 2.4).
     snr_convention : str
         ``"total_power"``: gamma = P_t beta G / (N_0 B) (eq. of gamma as printed);
         ``"per_subcarrier_power"``: gamma = P_k beta G / (N_0 B) with P_k = P_t / K, the received
@@ -385,7 +385,7 @@ LITERAL_OVERRIDES: dict[str, Any] = {
 
 #: Overrides turning the ``paper`` preset into the low-altitude urban task (``docs/model.md`` Sec. 6).
 URBAN_OVERRIDES: dict[str, Any] = {
-    # UMa-AV below 100 m: blocked stretches on most missions (python -m eval.urban_task), the link in NLoS
+    # UMa-AV below 100 m: blocked stretches on most missions (python -m experiments.urban_task), the link in NLoS
     # weaker but alive (UMi-AV blocks more of it and loses track on some missions: the harder variant)
     "blockage": "uma_av",
     "altitude_min_m": 30.0,         # low-altitude flights, above the 22.5 m where Tables B-1/B-2 start

@@ -10,11 +10,12 @@ from pathlib import Path
 
 import pytest
 from iscc_gym.eval import __main__ as cli
-from iscc_gym.eval import bench, probes, seeds, tune
+from iscc_gym.eval import bench, tune
 from iscc_gym.eval.options import parse_seeds, show_progress
-from iscc_gym.eval.paper import evaluator_check, reproduce
 from iscc_gym.eval.policies import SHIPPED_AGENT, check_specs, resolve_specs
 
+from experiments import probes, seeds
+from experiments.paper import evaluator_check, reproduce
 from iscc_gym import docs
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -303,8 +304,8 @@ def test_docs_quote_the_command_without_its_output_flags():
 
     assert docs_command("python -m eval", ["--json", "/tmp/x.json", "--write-docs", "--episodes", "20",
                                            "--plots=figs", "--quiet"]) == "python -m eval --episodes 20"
-    seeds = docs_command("python -m eval.seeds", ["runs/seeds", "--json=/tmp/s.json"])
-    assert seeds == "python -m eval.seeds runs/seeds"
+    seeds = docs_command("python -m experiments.seeds", ["runs/seeds", "--json=/tmp/s.json"])
+    assert seeds == "python -m experiments.seeds runs/seeds"
 
 
 def test_an_agent_is_checked_against_the_env_it_is_compared_on(tmp_path):
@@ -327,18 +328,23 @@ def test_an_agent_is_checked_against_the_env_it_is_compared_on(tmp_path):
 
 # --- issue 34: every command's --help, named as invoked; progress estimates; pickles -----------------------------
 
-#: Every ``python -m`` command of the checkout (installed under ``iscc_gym.``): ``main`` / ``cli`` called with --help.
-COMMANDS = ["eval", "eval.bench", "eval.multi", "eval.outage", "eval.pareto", "eval.probes", "eval.seeds", "eval.tune",
-            "eval.urban_figure", "eval.urban_learned", "eval.urban_levers", "eval.urban_shift", "eval.urban_task",
-            "eval.paper.evaluator_check", "eval.paper.fading", "eval.paper.reproduce", "eval.paper.sensitivity",
-            "train", "train.multi", "train.pareto", "train.ship"]
+#: Every installed ``python -m`` command (under ``iscc_gym.``): ``main`` / ``cli`` called with --help.
+INSTALLED = ["eval", "eval.bench", "eval.multi", "eval.outage", "eval.tune", "train", "train.multi", "train.pareto",
+             "train.ship"]
+#: The studies that regenerate this repository's docs, run from a checkout (``experiments/``, not installed).
+EXPERIMENTS = ["experiments.pareto", "experiments.probes", "experiments.seeds", "experiments.urban_figure",
+               "experiments.urban_learned", "experiments.urban_levers", "experiments.urban_shift",
+               "experiments.urban_task", "experiments.paper.evaluator_check", "experiments.paper.fading",
+               "experiments.paper.reproduce", "experiments.paper.sensitivity"]
+COMMANDS = INSTALLED + EXPERIMENTS
 
 
 def _help(command: str, capsys) -> str:
     """``python -m COMMAND --help``, in process: the command's ``main``/``cli`` prints the help and exits 0."""
     import importlib
 
-    name = {"eval": "iscc_gym.eval.__main__", "train": "iscc_gym.train.cli"}.get(command, f"iscc_gym.{command}")
+    name = {"eval": "iscc_gym.eval.__main__", "train": "iscc_gym.train.cli"}.get(
+        command, command if command.startswith("experiments.") else f"iscc_gym.{command}")
     module = importlib.import_module(name)
     entry = module.cli if command.startswith("train") else module.main
     with pytest.raises(SystemExit) as e:
@@ -349,11 +355,12 @@ def _help(command: str, capsys) -> str:
 
 @pytest.mark.parametrize("command", COMMANDS)
 def test_every_commands_help_prints(command, capsys):
-    """``python -m eval.urban_figure --help`` crashed: a ``10%`` in a help string (argparse formats help with %)."""
+    """``python -m experiments.urban_figure --help`` crashed: a ``10%`` in a help string (argparse formats help with
+    %)."""
     assert _help(command, capsys).startswith(f"usage: python -m {command} ")
 
 
-@pytest.mark.parametrize("command", COMMANDS)
+@pytest.mark.parametrize("command", INSTALLED)
 def test_usage_names_the_command_as_invoked(command, capsys, monkeypatch):
     """``python -m iscc_gym.eval --help`` showed ``usage: python -m eval``: run under the installed name (what
     ``runpy`` sets as ``__main__``), every command's usage says that name."""
@@ -387,11 +394,11 @@ def test_line_progress_estimates_from_the_work_after_start_up():
         assert abs(left - true_left) <= 0.2 * true_left + 1, (done, left, true_left)
 
 
-@pytest.mark.parametrize("command", ["eval", "eval.seeds", "eval.multi", "eval.urban_shift", "eval.urban_learned",
-                                     "eval.urban_figure"])
+@pytest.mark.parametrize("command", ["eval", "experiments.seeds", "eval.multi", "experiments.urban_shift",
+                                     "experiments.urban_learned", "experiments.urban_figure"])
 def test_commands_that_load_agents_say_they_are_pickles(command, capsys):
     """Every command that loads a trained agent (``NAME=PATH``, ``--agent``) says so in its --help, in the one
-    wording of :data:`iscc_gym.eval.options.PICKLE_WARNING` (eval.urban_levers plays scripted policies only)."""
+    wording of :data:`iscc_gym.eval.options.PICKLE_WARNING` (experiments.urban_levers plays scripted policies only)."""
     from iscc_gym.eval.options import PICKLE_WARNING
 
     assert " ".join(PICKLE_WARNING.split()) in " ".join(_help(command, capsys).split())
@@ -399,7 +406,7 @@ def test_commands_that_load_agents_say_they_are_pickles(command, capsys):
 
 def test_a_scenario_of_another_task_than_the_env_is_refused(no_episodes, tmp_path):
     """Issue 34 item 8: ``--env iscc_gym/ISCC-Urban-v0 --scenario paper`` played paper missions under the urban
-    task's policies, labels and docs section; now refused naming both and the fix, also by eval.seeds. A variant
+    task's policies, labels and docs section; now refused naming both and the fix, also by experiments.seeds. A variant
     of the env's own task (``literal`` on ISCC-v0) still plays, but not into the docs of the env's own preset."""
     urban, paper = "iscc_gym/ISCC-Urban-v0", "iscc_gym/ISCC-v0"
     with pytest.raises(ValueError, match=rf"--scenario 'paper' is the paper task, but --env {urban} is the urban "

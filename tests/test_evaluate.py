@@ -273,8 +273,9 @@ def test_one_mission_gives_no_interval_and_no_verdict():
     """Issue 34 item 9: with one mission the tables printed a zero-width "95 % interval" and the sentences said it
     excluded zero; mean_ci gives no interval, every command writes "n/a: 1 mission" through one function
     (ci_bounds) and draws no conclusion (ci_side)."""
-    from iscc_gym.eval import urban_levers, urban_shift
     from iscc_gym.eval.evaluate import ci_bounds, markdown_table, oracle_share, oracle_share_sentence, summarize
+
+    from experiments import urban_levers, urban_shift
 
     m, ci = mean_ci([3.0], bounds=(0.0, 1.0))
     assert m == 3.0 and ci is None and ci_bounds(ci) == "[n/a: 1 mission]"  # JSON null, equal across processes
@@ -296,8 +297,8 @@ def test_one_mission_gives_no_interval_and_no_verdict():
            "parts": {"tracking": 5.0, "stability": 3.0, "dropped": 2.0, "lost_track": 0.0}, "seeds": [1, 1],
            "tune_seeds": [2, 2], "lost_track": {}, "myopic_dropped_mbit": 0.0, "mpc_dropped_mbit": 0.0,
            "oracle_dropped_mbit": 0.0, **{k: mean_ci([1.5]) for k in ("mpc", "oracle", "preview", "knowledge")}}
-    levers = urban_levers.markdown([row], "python -m eval.urban_levers")
+    levers = urban_levers.markdown([row], "python -m experiments.urban_levers")
     assert "+1.5 [n/a: 1 mission]" in levers and "interval" not in levers.split("Variants:")[1].replace(
         "no interval from one mission", "")
-    shifted = urban_shift.markdown({next(iter(urban_shift.SHIFTS)): res}, "ppo", "python -m eval.urban_shift")
+    shifted = urban_shift.markdown({next(iter(urban_shift.SHIFTS)): res}, "ppo", "python -m experiments.urban_shift")
     assert "-10.0; +2.0 [n/a: 1 mission]" in shifted and "interval below zero" not in shifted

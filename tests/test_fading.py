@@ -1,4 +1,4 @@
-"""Tests of eval.paper.fading: the stability rule under fading and the analytic evaluator's trust bound.
+"""Tests of experiments.paper.fading: the stability rule under fading and the analytic evaluator's trust bound.
 
 Oracles: env rollouts (the evaluator's trust bound must hold in the env), scipy's Wilson interval,
 and the project's seed ranges (eval.tune)."""
@@ -7,10 +7,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from iscc_gym.eval.paper import fading
 from iscc_gym.eval.tune import TUNE_SEEDS, check_tuning_seeds
 from scipy.stats import binomtest
 
+from experiments.paper import fading
 from iscc_gym import SCENARIOS, analysis
 
 S = SCENARIOS["paper"]

@@ -24,9 +24,9 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 #: folder -> the package it installs as (pyproject's package-dir)
 FOLDERS = {ROOT / "iscc_gym": "iscc_gym", ROOT / "agents": "iscc_gym.agents", ROOT / "train": "iscc_gym.train",
-           ROOT / "eval": "iscc_gym.eval"}
+           ROOT / "eval": "iscc_gym.eval", ROOT / "experiments": "experiments"}
 OUTSIDE_CORE = ("iscc_gym.agents", "iscc_gym.train", "iscc_gym.eval", "iscc_gym.protocol", "agents", "train", "eval",
-                "torch", "stable_baselines3", "sb3_contrib", "optuna")
+                "experiments", "torch", "stable_baselines3", "sb3_contrib", "optuna")
 SUBPACKAGES = ("physics", "sim", "envs", "analysis")
 #: layer -> names its modules must not import
 RULES = {
@@ -37,9 +37,11 @@ RULES = {
     "analysis": ("iscc_gym.envs",) + OUTSIDE_CORE,
     "face": OUTSIDE_CORE,
     "protocol": tuple(f"iscc_gym.{p}" for p in SUBPACKAGES) + ("iscc_gym.agents", "iscc_gym.train", "iscc_gym.eval"),
-    "agents": ("iscc_gym.train", "iscc_gym.eval", "train", "eval"),
-    "train": ("iscc_gym.eval", "eval"),
-    "eval": ("iscc_gym.train", "train"),
+    "agents": ("iscc_gym.train", "iscc_gym.eval", "train", "eval", "experiments"),
+    "train": ("iscc_gym.eval", "eval", "experiments"),
+    "eval": ("iscc_gym.train", "train", "experiments"),
+    # the studies of this repository's docs (not installed): on top of everything, imported by nothing installed
+    "experiments": (),
 }
 
 
@@ -61,6 +63,8 @@ def layer(name: str) -> str:
     parts = name.split(".")
     if name == "iscc_gym":
         return "face"
+    if parts[0] == "experiments":
+        return "experiments"
     if parts[1] in ("agents", "train", "eval"):
         return parts[1]
     if parts[1] == "protocol":

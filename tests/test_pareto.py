@@ -4,7 +4,8 @@ import time
 
 import numpy as np
 import pytest
-from iscc_gym.eval import pareto as P
+
+from experiments import pareto as P
 
 
 def _pt(fam, knob, outage, err, per):
@@ -45,7 +46,7 @@ def test_operating_points_are_chosen_on_training_seeds_then_played_held_out(tmp_
     assert "non-dominated" in out and "At 95 % outage" in out and "Learned points against the scripted ones" in out
     # issue 23 item 5: a line per point and per target stage on stderr, also without a terminal
     n = len(P.KNOBS["sca"]) + 1 + 2
-    assert f"[python -m eval.pareto] 0/{n} stage (sca " in captured.err
+    assert f"[python -m experiments.pareto] 0/{n} stage (sca " in captured.err
     assert "stage (ppo/shipped)" in captured.err and "stage (target 0.95: held out)" in captured.err
     assert f"done: {n}/{n} stage" in captured.err
 

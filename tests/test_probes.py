@@ -1,9 +1,9 @@
-"""eval.probes: the variants of the margin rule do what they say."""
+"""experiments.probes: the variants of the margin rule do what they say."""
 
 import numpy as np
 from iscc_gym.agents import MarginPolicy
-from iscc_gym.eval.probes import MarginVariant, markdown
 
+from experiments.probes import MarginVariant, markdown
 from iscc_gym.envs.vector import ISCCVectorEnv
 from iscc_gym.sim.task import action_to_split
 
@@ -42,5 +42,5 @@ def test_burst_sensing_and_lost_command_boost():
 def test_markdown_lists_every_probe():
     rows = [{"probe": "margin (tuned)", "base": "-", "reward": -1.0, "diff": 0.0, "ci95": [0, 0]},
             {"probe": "x", "base": "margin", "reward": -2.0, "diff": -1.0, "ci95": [-1.5, -0.5]}]
-    text = markdown(rows, "python -m eval.probes", [500000, 500001])
+    text = markdown(rows, "python -m experiments.probes", [500000, 500001])
     assert "| x | -2.0 | -1.0 [-1.5, -0.5] | margin |" in text

@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 from iscc_gym.eval.figures import FIGURES
-from iscc_gym.eval.paper import paper_figures, reproduce
-from iscc_gym.eval.paper.paper_mc import fly_splits
 
+from experiments.paper import paper_figures, reproduce
+from experiments.paper.paper_mc import fly_splits
 from iscc_gym import SCENARIOS
 from iscc_gym.analysis import static_model
 
@@ -192,7 +192,7 @@ def test_format_prints_paper_beside_ours(quick_paper):
 def test_evaluator_check_rows_and_table():
     """The evaluator-vs-env table (tiny budget): env and evaluator errors side by side; the
     evaluator flags a control share below the stability threshold."""
-    from iscc_gym.eval.paper import evaluator_check
+    from experiments.paper import evaluator_check
 
     rows = evaluator_check.run(seeds=range(1000, 1002), splits=((0.2, 0.2, 0.6), (0.2, 0.05, 0.75)),
                                max_steps=30)
@@ -305,7 +305,7 @@ def test_claims_follow_the_measurements(quick_paper):
 
 def test_other_modules_are_merged(tmp_path, monkeypatch):
     """A module of OTHER_MODULES that exists runs; its claims and figures join the command's."""
-    mod = types.ModuleType("iscc_gym.eval.paper.fake_study")
+    mod = types.ModuleType("experiments.paper.fake_study")
     mod.run = lambda quick=False, seed=0: {"claims": [{"id": "fake-1", "figure": "Fig. 4(b)", "paper": "p",
                                                         "ours": "o", "holds": False, "why": "w"}], "x": 1}
 
@@ -315,13 +315,14 @@ def test_other_modules_are_merged(tmp_path, monkeypatch):
         return {"fake.png": str(path)}
 
     mod.draw = draw
-    monkeypatch.setitem(sys.modules, "iscc_gym.eval.paper.fake_study", mod)
+    monkeypatch.setitem(sys.modules, "experiments.paper.fake_study", mod)
     monkeypatch.setattr(reproduce, "OTHER_MODULES", ("fake_study", "no_such_module"))
     monkeypatch.setattr(reproduce.paper_figures, "run", lambda *a, **k: {"claims": [], "sources": {}})
     monkeypatch.setattr(reproduce.paper_figures, "draw", lambda res, d: {})
     monkeypatch.setattr(reproduce, "calibrate", lambda *a, **k: {"comm_snr_offset_db": 0.0})  # timed elsewhere
     res = reproduce.run("paper", quick=True, schemes=False, paper_figs=True, figures_dir=tmp_path)
-    assert [c["id"] for c in res["claims"]] == ["fake-1"] and res["claims"][0]["module"] == "eval.paper.fake_study"
+    assert [c["id"] for c in res["claims"]] == ["fake-1"]
+    assert res["claims"][0]["module"] == "experiments.paper.fake_study"
     assert res["figures"] == {"fake.png": str(tmp_path / "fake.png")} and res["other_modules"]["fake_study"]["x"] == 1
     assert res["claims_holding"] == 0
 
@@ -329,7 +330,7 @@ def test_other_modules_are_merged(tmp_path, monkeypatch):
 def test_sensing_calibration_is_computed_once_per_scenario_and_budget(monkeypatch):
     """--write-docs runs both presets, each calibrating the paper preset the same way: the second call reuses
     the first's rollouts, and a caller editing its result cannot change what the next one gets."""
-    from iscc_gym.eval.paper import fading
+    from experiments.paper import fading
 
     calls = []
     target = reproduce.PAPER["peb_m_table2_sca"]

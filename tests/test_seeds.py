@@ -1,10 +1,11 @@
-"""eval.seeds: per-seed paired differences of trained agents against the scripted baselines."""
+"""experiments.seeds: per-seed paired differences of trained agents against the scripted baselines."""
 
 import numpy as np
 import pytest
-from iscc_gym.eval import seeds as eval_seeds
 from iscc_gym.eval.evaluate import evaluate, mean_ci
 from iscc_gym.train import Args, main
+
+from experiments import seeds as eval_seeds
 
 
 @pytest.fixture(scope="module")
@@ -32,7 +33,7 @@ def test_per_seed_differences_are_paired_against_an_independent_evaluation(root)
     row = res["runs"][1]
     assert row["vs_sca"] == pytest.approx(mean_ci(eps["a"] - eps["sca"])[0])
     assert row["vs_best_ci95"] == pytest.approx(mean_ci(eps["a"] - eps[best])[1])
-    assert "| 1 |" in eval_seeds.markdown(res, "python -m eval.seeds X")
+    assert "| 1 |" in eval_seeds.markdown(res, "python -m experiments.seeds X")
 
 
 def test_missing_runs_are_a_clear_error(tmp_path):

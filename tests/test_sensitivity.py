@@ -1,4 +1,4 @@
-"""Tests of eval.paper.sensitivity: the constants that decide SCA's split and the conventions.
+"""Tests of experiments.paper.sensitivity: the constants that decide SCA's split and the conventions.
 
 Oracles: env rollouts (data rate carried at SCA's split, PEB scaling with the echo SNR), the closed
 form of the GNSS loop (iscc_gym.analysis.kalman_steady.gnss_steady_error_m) and the project's seed ranges."""
@@ -10,9 +10,9 @@ import math
 import numpy as np
 import pytest
 from iscc_gym.agents.sca import sca_allocation
-from iscc_gym.eval.paper import fading, sensitivity
 from iscc_gym.eval.tune import check_tuning_seeds
 
+from experiments.paper import fading, sensitivity
 from iscc_gym import SCENARIOS, analysis
 from iscc_gym.analysis import averages
 from iscc_gym.analysis.kalman_steady import gnss_steady_error_m

@@ -44,11 +44,12 @@ def test_a_task_refuses_an_unknown_preset_a_shift_outside_its_variants_and_an_un
 
 
 def test_every_command_reads_the_tasks_reference_and_shifts_from_the_table():
-    """The urban task's reference was myopic in python -m eval and mpc in python -m eval.seeds (issue 35)."""
+    """The urban task's reference was myopic in python -m eval and mpc in python -m experiments.seeds (issue 35)."""
     from iscc_gym.eval.__main__ import build_parser
-    from iscc_gym.eval.seeds import build_parser as seeds_parser
-    from iscc_gym.eval.urban_shift import SHIFTS
     from iscc_gym.train.config import RANDOMIZE
+
+    from experiments.seeds import build_parser as seeds_parser
+    from experiments.urban_shift import SHIFTS
 
     urban = TASK_POLICIES[URBAN_ENV_ID]
     assert f"reference {urban.reference}" in " ".join(build_parser().format_help().split())

@@ -156,8 +156,8 @@ def test_tune_and_compare_on_the_urban_task(tmp_path):
 
 
 def test_task_description_and_the_mission_figure(tmp_path):
-    from iscc_gym.eval.urban_figure import main as figure_main
-    from iscc_gym.eval.urban_task import main as task_main
+    from experiments.urban_figure import main as figure_main
+    from experiments.urban_task import main as task_main
 
     st = task_main(["--missions", "3"])
     assert st["n"] == 3 and 0.0 <= st["share_with_blockage"] <= 1.0 and 0.5 < st["los_share_mean"] <= 1.0
@@ -180,10 +180,10 @@ def test_the_comparison_shows_dropped_data_only_where_a_queue_dropped_some():
 
 
 def test_the_levers_table_splits_myopics_reward_and_pairs_the_planners():
-    """``eval.urban_levers`` on a tiny budget: myopic's reward is the sum of its tracking, stability and dropped-data
-    terms (no loss of track in 25 slots), the planners are paired on the same missions, and an unknown variant is
-    refused by name."""
-    from iscc_gym.eval import urban_levers
+    """``experiments.urban_levers`` on a tiny budget: myopic's reward is the sum of its tracking, stability and
+    dropped-data terms (no loss of track in 25 slots), the planners are paired on the same missions, and an unknown
+    variant is refused by name."""
+    from experiments import urban_levers
 
     (row,) = urban_levers.main(["--variants", "smooth", "--missions", "2", "--tune-missions", "2", "--max-steps",
                                 "25"])
@@ -203,10 +203,12 @@ def test_the_levers_table_splits_myopics_reward_and_pairs_the_planners():
 
 
 def test_shifted_missions_change_the_env_and_leave_the_policies_as_tuned(monkeypatch):
-    """``eval.urban_shift``: every policy is built for the urban preset, only the env's missions are shifted; the
+    """``experiments.urban_shift``: every policy is built for the urban preset, only the env's missions are shifted; the
     table pairs the focus with every other policy on each shift.
     """
-    from iscc_gym.eval import policies, urban_shift
+    from iscc_gym.eval import policies
+
+    from experiments import urban_shift
 
     seen = []
     real = policies.run_episodes
@@ -228,7 +230,7 @@ def test_shifted_missions_change_the_env_and_leave_the_policies_as_tuned(monkeyp
 
 
 def test_the_phases_of_a_mission_against_its_blocked_stretches():
-    from iscc_gym.eval.urban_learned import PHASES, phases
+    from experiments.urban_learned import PHASES, phases
 
     los = np.array([1, 1, 1, 0, 0, 1, 1, 1, 1, 1], dtype=bool)
     # by hand, window 2: slots 1-2 see the stretch ahead, 3-4 are in it, 5-6 follow it
@@ -251,10 +253,11 @@ class _Recurrent:
 
 
 def test_a_mission_is_played_as_python_m_eval_plays_it_memory_included():
-    """Issue 34.5: play_mission (eval.urban_figure, eval.urban_learned) carries a recurrent policy's state and
-    episode start as the evaluator's rollout does, so it plays the policy python -m eval scores."""
+    """Issue 34.5: play_mission (experiments.urban_figure, experiments.urban_learned) carries a recurrent policy's
+    state and episode start as the evaluator's rollout does, so it plays the policy python -m eval scores."""
     from iscc_gym.eval.evaluate import run_episodes
-    from iscc_gym.eval.urban_figure import play_mission
+
+    from experiments.urban_figure import play_mission
 
     seed, short = 1_500_024, U.replace(mission_duration_s=U.mission_duration_s / 10)  # 120 slots
     run = play_mission(_Recurrent(), seed, short)
@@ -265,10 +268,11 @@ def test_a_mission_is_played_as_python_m_eval_plays_it_memory_included():
 
 
 def test_the_urban_commands_build_every_policy_before_playing_any(tmp_path, monkeypatch):
-    """Issue 34.16: eval.urban_learned and eval.urban_figure refuse a bad policy before playing the ones before it,
-    and tell an agent of another env to change --policies (they have no --env)."""
+    """Issue 34.16: experiments.urban_learned and experiments.urban_figure refuse a bad policy before playing the ones
+    before it, and tell an agent of another env to change --policies (they have no --env)."""
     from iscc_gym.agents.shipped import PPO_AGENT
-    from iscc_gym.eval import urban_figure, urban_learned
+
+    from experiments import urban_figure, urban_learned
 
     played = []
     for module in (urban_figure, urban_learned):
@@ -315,7 +319,7 @@ def test_ctrl_c_stops_the_urban_commands_jobs_at_once(command, argv, monkeypatch
 
     from iscc_gym.eval import policies
 
-    module = importlib.import_module(f"iscc_gym.eval.{command}")
+    module = importlib.import_module(f"experiments.{command}")
     if command == "urban_shift":
         monkeypatch.setattr(policies, "_run_item", _run_item_ctrl_c_then_sleep)
     else:

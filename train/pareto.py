@@ -10,7 +10,7 @@ Six PPO runs on ``iscc_gym/ISCC-v0`` at the Pareto comparison's rate requirement
 
 Each run trains into ``runs/pareto/<name>`` and its small artifacts (weights, VecNormalize
 statistics, config, summary, learning curve, multipliers) are copied into
-``agents/trained/pareto/<name>``, where ``python -m eval.pareto`` finds them.
+``agents/trained/pareto/<name>``, where ``python -m experiments.pareto`` finds them.
 
 Example::
 

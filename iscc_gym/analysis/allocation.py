@@ -30,7 +30,7 @@ class AllocationMetrics:
     estimation_error_m :
         :math:`\mathbb E\|\hat{\mathbf p}_n - \mathbf p_n\|` of the Kalman estimate.
     peb_m, veb_mps :
-        Trajectory-averaged PEB and VEB (large-scale echo, as ``eval.paper.reproduce``).
+        Trajectory-averaged PEB and VEB (large-scale echo, as ``experiments.paper.reproduce``).
     eps_ctrl :
         Trajectory-averaged control packet-loss rate (eq:ctrl_bler over shadowing and fading).
     rho_m :

@@ -44,7 +44,7 @@ How the steady state is computed (``docs/model.md``, Sec. 3):
 * **Where it can be trusted.** Near the stability edge the steady state is optimistic: far from
   the GBS the losses come in long runs (shadowing is correlated along the flight), and the env's
   error excursions there are transients a steady state does not have. Measured against the env
-  (``eval.paper.fading``, 256 missions per split): while every sampled position's loss rate stays at most
+  (``experiments.paper.fading``, 256 missions per split): while every sampled position's loss rate stays at most
   :data:`TRUST_LOSS_FRACTION` (0.4) of eps*, the env's mean error is within 0.7 % of the
   evaluator's, its RMS error within 3.5 %, and no mission loses track; at one half of eps* the RMS
   is 6-10 % above it, at 0.8 eps* the mean 4 % and the RMS 40-50 %. Splits beyond the bound are
@@ -83,7 +83,7 @@ __all__ = ["TRUST_LOSS_FRACTION", "StaticModel", "static_model", "DEFAULT_SAMPLE
 
 
 #: The evaluator is trusted for a split only if every sampled position's fading-averaged control loss
-#: rate is at most this fraction of eps* (measured against the env in ``eval.paper.fading``; docs/model.md 3.1).
+#: rate is at most this fraction of eps* (measured against the env in ``experiments.paper.fading``; docs/model.md 3.1).
 TRUST_LOSS_FRACTION = 0.4
 
 

@@ -1,4 +1,4 @@
-"""``python -m eval.urban_task``: what the urban task's missions look like (blocked stretches, the link in them).
+"""``python -m experiments.urban_task``: what the urban task's missions look like (blocked stretches, the link in them).
 
 Draws held-out missions of a scenario with blockage (default the ``urban`` preset) exactly as the env's reset
 draws them (:func:`iscc_gym.sim.loop.init_mission`) and reports, from the truth along each reference
@@ -9,7 +9,7 @@ at those SNRs with the whole band (the FBL rate, no fading) against the queue's 
 
 Example::
 
-    python -m eval.urban_task --missions 40 --write-docs
+    python -m experiments.urban_task --missions 40 --write-docs
 """
 
 from __future__ import annotations
@@ -90,7 +90,7 @@ def markdown(st: dict, s_name: str, command: str, seeds) -> str:
         f"{st['capacity_los_mbps']:.1f} / {st['capacity_nlos_mbps']:.2f} Mbit/s; {st['arrival_mbps']:g} Mbit/s |"])
 
 
-def build_parser(prog: str = "python -m eval.urban_task") -> Parser:
+def build_parser(prog: str = "python -m experiments.urban_task") -> Parser:
     ap = Parser(prog=prog, description=__doc__.split("\n")[0])
     ap.add_argument("--scenario", default="urban", choices=sorted(k for k, v in SCENARIOS.items()
                                                                   if v.blockage != "none"),
@@ -103,7 +103,7 @@ def build_parser(prog: str = "python -m eval.urban_task") -> Parser:
     return ap
 
 
-def main(argv: list[str] | None = None, prog: str = "python -m eval.urban_task") -> dict:
+def main(argv: list[str] | None = None, prog: str = "python -m experiments.urban_task") -> dict:
     args = build_parser(prog).parse_args(argv)
     s = make_scenario(args.scenario, **({} if args.blockage is None else {"blockage": args.blockage}))
     seeds = held_out_seeds(URBAN_SEED_START, args.missions)
@@ -126,4 +126,4 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.urban_task")
 
 
 if __name__ == "__main__":
-    sys.exit(run_console(main, None, "python -m eval.urban_task"))
+    sys.exit(run_console(main, None, "python -m experiments.urban_task"))

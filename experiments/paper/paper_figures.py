@@ -1,6 +1,6 @@
 """The paper's Figs. 3-8 redrawn from our model, and its statements about them tested as claims.
 
-Part of ``python -m eval.paper.reproduce`` (:func:`run` computes, :func:`draw` writes the PNGs). Figure
+Part of ``python -m experiments.paper.reproduce`` (:func:`run` computes, :func:`draw` writes the PNGs). Figure
 numbers are the paper's (LaTeX order; Figs. 1-2 are illustrations). Where each figure's numbers come
 from:
 
@@ -11,7 +11,7 @@ from:
   preset (the paper does not give its levels).
 * **Figs. 5-8** (LQG cost and tracking error over (alpha_sen, alpha_ctrl), error vs PEB, the coupling
   of PEB, data rate and LQG cost): a closed-loop Monte Carlo of the env's transition
-  (:func:`iscc_gym.eval.paper.paper_mc.fly_splits`: every split on the same seeded missions, the LQG stage
+  (:func:`experiments.paper.paper_mc.fly_splits`: every split on the same seeded missions, the LQG stage
   cost recovered exactly from the transition). The steady-state evaluator
   (:mod:`iscc_gym.analysis`) is drawn beside it as dashed lines where it calls a split stable: it has
   no loss-of-track and is optimistic near the stability edge (issue 13), which is exactly where the
@@ -24,9 +24,9 @@ the measured numbers only (the paper's words and numbers are quoted in :data:`PA
 from __future__ import annotations
 
 import numpy as np
-from iscc_gym.eval.paper.paper_figures_draw import FIGURES, PAPER, draw
-from iscc_gym.eval.paper.paper_mc import fly_splits
 
+from experiments.paper.paper_figures_draw import FIGURES, PAPER, draw
+from experiments.paper.paper_mc import fly_splits
 from iscc_gym.analysis import static_model
 from iscc_gym.analysis.averages import mean_bounds, mean_snr, sample_positions
 from iscc_gym.physics.dynamics import model_matrices

@@ -1,7 +1,7 @@
-"""``python -m eval.urban_learned``: what the urban agent does differently, phase by phase of a mission.
+"""``python -m experiments.urban_learned``: what the urban agent does differently, phase by phase of a mission.
 
 Plays the shipped urban agent (``ppo``) beside ``myopic`` and ``mpc`` on the same held-out missions (common random
-numbers, :func:`iscc_gym.eval.urban_figure.play_mission`) and splits every slot by where it lies against the
+numbers, :func:`experiments.urban_figure.play_mission`) and splits every slot by where it lies against the
 blocked stretches (the realised line of sight): **ahead** (clear, a blocked slot within the next
 :data:`WINDOW_S` seconds), **blocked**, **after** (clear, a blocked slot within the last :data:`WINDOW_S` s, none
 ahead) and **clear** (the rest). Per phase and policy: the mean split, the mean backlog, the dropped data and the
@@ -9,7 +9,7 @@ reward. ``--write-docs`` writes the table into docs/learning.md (section ``urban
 
 Example::
 
-    python -m eval.urban_learned --missions 10 --write-docs
+    python -m experiments.urban_learned --missions 10 --write-docs
 """
 
 from __future__ import annotations
@@ -26,8 +26,8 @@ from iscc_gym.eval.options import (
     positive_int,
     run_console,
 )
-from iscc_gym.eval.urban_figure import mission_policies, pick_mission, play_mission
 
+from experiments.urban_figure import mission_policies, pick_mission, play_mission
 from iscc_gym.protocol import EVAL_SEED_START
 from iscc_gym.scenario import make_scenario
 from iscc_gym.sim.mission import MC
@@ -107,7 +107,7 @@ def markdown(table: dict, seeds: list[int], command: str, window_s: float) -> st
     return "\n".join(lines)
 
 
-def build_parser(prog: str = "python -m eval.urban_learned") -> Parser:
+def build_parser(prog: str = "python -m experiments.urban_learned") -> Parser:
     ap = Parser(prog=prog, description=__doc__.split("\n")[0], epilog=PICKLE_WARNING)
     ap.add_argument("--policies", default="ppo,myopic,mpc", metavar="LIST",
                     help="policies as in python -m eval (ppo: the shipped urban agent; default: ppo,myopic,mpc)")
@@ -116,14 +116,14 @@ def build_parser(prog: str = "python -m eval.urban_learned") -> Parser:
     ap.add_argument("--window-s", type=float, default=WINDOW_S, metavar="S",
                     help=f"how near a blocked slot makes a clear slot 'ahead' or 'after' (default: {WINDOW_S:g})")
     ap.add_argument("--figure-seed", type=nonneg_int, default=None, metavar="SEED",
-                    help="also draw this mission (python -m eval.urban_figure's figure) with the same policies; "
+                    help="also draw this mission (python -m experiments.urban_figure's figure) with the same policies; "
                          "with --write-docs into docs/figures/urban_learned.png")
     ap.add_argument("--write-docs", action="store_true",
                     help="write the table into the project's docs/learning.md (section urban-learned)")
     return ap
 
 
-def main(argv: list[str] | None = None, prog: str = "python -m eval.urban_learned") -> dict:
+def main(argv: list[str] | None = None, prog: str = "python -m experiments.urban_learned") -> dict:
     args = build_parser(prog).parse_args(argv)
     if not (args.window_s > 0 and np.isfinite(args.window_s)):
         raise ValueError(f"--window-s {args.window_s}: use a positive number of seconds")
@@ -141,7 +141,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.urban_learne
     text = markdown(table, seeds, docs_command(prog, argv), args.window_s)
     print(text)
     if args.figure_seed is not None or args.write_docs:
-        from iscc_gym.eval.urban_figure import draw
+        from experiments.urban_figure import draw
 
         seed = pick_mission() if args.figure_seed is None else args.figure_seed
         one = {name: play_mission(policy, seed) for name, policy in policies.items()}
@@ -160,4 +160,4 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.urban_learne
 
 
 if __name__ == "__main__":
-    sys.exit(run_console(main, None, "python -m eval.urban_learned"))
+    sys.exit(run_console(main, None, "python -m experiments.urban_learned"))

@@ -1,4 +1,4 @@
-"""``python -m eval.urban_shift``: the urban task's policies on missions drawn with other statistics.
+"""``python -m experiments.urban_shift``: the urban task's policies on missions drawn with other statistics.
 
 Every policy is left exactly as it was trained or tuned on the ``urban`` preset: the shipped agent as it is,
 the scripted baselines with their tuning records and built for the preset (their models of the channel,
@@ -10,8 +10,8 @@ paired difference against it (95 % interval).
 
 Examples::
 
-    python -m eval.urban_shift --episodes 20 --jobs 2 --write-docs
-    python -m eval.urban_shift --policies ppo-rand=runs/urban_rand,myopic,margin,dpp,mpc --focus ppo-rand
+    python -m experiments.urban_shift --episodes 20 --jobs 2 --write-docs
+    python -m experiments.urban_shift --policies ppo-rand=runs/urban_rand,myopic,margin,dpp,mpc --focus ppo-rand
 """
 
 from __future__ import annotations
@@ -71,7 +71,7 @@ def markdown(results: dict, focus: str, command: str) -> str:
     return "\n".join(lines)
 
 
-def build_parser(prog: str = "python -m eval.urban_shift") -> Parser:
+def build_parser(prog: str = "python -m experiments.urban_shift") -> Parser:
     ap = Parser(prog=prog, description=__doc__.split("\n")[0], epilog=PICKLE_WARNING)
     ap.add_argument("--shifts", default=",".join(SHIFTS), metavar="LIST",
                     help=f"comma-separated shifts (default: all of {', '.join(SHIFTS)})")
@@ -90,7 +90,7 @@ def build_parser(prog: str = "python -m eval.urban_shift") -> Parser:
     return ap
 
 
-def main(argv: list[str] | None = None, prog: str = "python -m eval.urban_shift") -> dict:
+def main(argv: list[str] | None = None, prog: str = "python -m experiments.urban_shift") -> dict:
     args = build_parser(prog).parse_args(argv)
     names = [v.strip() for v in args.shifts.split(",") if v.strip()]
     unknown = [v for v in names if v not in SHIFTS]
@@ -130,4 +130,4 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.urban_shift"
 
 
 if __name__ == "__main__":
-    sys.exit(run_console(main, None, "python -m eval.urban_shift"))
+    sys.exit(run_console(main, None, "python -m experiments.urban_shift"))

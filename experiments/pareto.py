@@ -1,4 +1,4 @@
-"""``python -m eval.pareto``: tracking error against rate outage for every policy family (issue 15 item 3).
+"""``python -m experiments.pareto``: tracking error against rate outage for every policy family (issue 15 item 3).
 
 Every scripted family is played over its knob (:data:`iscc_gym.eval.outage.FAMILIES`: static SCA's
 rate design margin, ``margin``'s data multiple, ``myopic``'s ``rate_weight``) and every learned run
@@ -16,7 +16,7 @@ their error and the paired CI of each error against the lowest one.
 
 Example::
 
-    python -m eval.pareto --episodes 20 --write-docs
+    python -m experiments.pareto --episodes 20 --write-docs
 """
 
 from __future__ import annotations
@@ -263,7 +263,7 @@ def default_learned() -> dict:
     return {f"{d.parent.name}/{d.name}": str(d) for d in sorted(root.glob("*/*")) if (d / "model.zip").is_file()}
 
 
-def build_parser(prog: str = "python -m eval.pareto") -> Parser:
+def build_parser(prog: str = "python -m experiments.pareto") -> Parser:
     ap = Parser(prog=prog, description=__doc__.split("\n\n")[0])
     ap.add_argument("--episodes", type=positive_int, default=20, help="held-out missions (default: 20)")
     ap.add_argument("--seed", type=nonneg_int, default=0, help="run seed: missions from 1,300,000 + 1000 x seed")
@@ -309,7 +309,7 @@ def _learned(items) -> dict:
     return learned
 
 
-def main(argv: list[str] | None = None, prog: str = "python -m eval.pareto") -> dict:
+def main(argv: list[str] | None = None, prog: str = "python -m experiments.pareto") -> dict:
     from iscc_gym.eval.options import docs_command
 
     args = build_parser(prog).parse_args(argv)
@@ -359,7 +359,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.pareto") -> 
     return res
 
 
-def console(argv: list[str] | None = None, prog: str = "python -m eval.pareto") -> int:
+def console(argv: list[str] | None = None, prog: str = "python -m experiments.pareto") -> int:
     return run_console(main, argv, prog)
 
 

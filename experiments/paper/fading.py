@@ -1,4 +1,5 @@
-"""``python -m eval.paper.fading``: the paper's stability rule under fading, and where the analytic evaluator holds.
+"""``python -m experiments.paper.fading``: the paper's stability rule under fading, and where the analytic evaluator
+holds.
 
 The paper sets the stability threshold alpha_ctrl* where eq:ctrl_bler at the trajectory-averaged SNR
 reaches eps* (Sec. IV-C.1; 4.03 % in the paper, 3.99 % here). The env draws each slot's Rician fading
@@ -17,8 +18,8 @@ training and tuning seed and from the training EvalCallback's episodes (1,000,00
 
 Examples::
 
-    python -m eval.paper.fading                    # 200 missions per split, about a minute
-    python -m eval.paper.fading --quick --json /tmp/fading.json --figures /tmp/fig
+    python -m experiments.paper.fading                    # 200 missions per split, about a minute
+    python -m experiments.paper.fading --quick --json /tmp/fading.json --figures /tmp/fig
 """
 
 from __future__ import annotations
@@ -29,8 +30,8 @@ import time
 
 import numpy as np
 from iscc_gym.agents.base import SplitPolicy
-from iscc_gym.eval.paper.fading_draw import draw
 
+from experiments.paper.fading_draw import draw
 from iscc_gym import SCENARIOS
 from iscc_gym.analysis import TRUST_LOSS_FRACTION, StaticModel, static_model
 from iscc_gym.analysis.averages import mean_snr, sample_positions
@@ -203,7 +204,7 @@ def run(quick: bool = False, seed: int = 0) -> dict:
     n = QUICK_MISSIONS if quick else MISSIONS
     seeds = mission_seeds(n, seed)
     grid = QUICK_ALPHA_CTRL_GRID if quick else ALPHA_CTRL_GRID
-    # the paper's alpha_ctrl* on eval.paper.reproduce's trajectory sample (40 trajectories, every 10th slot)
+    # the paper's alpha_ctrl* on experiments.paper.reproduce's trajectory sample (40 trajectories, every 10th slot)
     snr_bar = mean_snr(s, sample_positions(s, 40, seed=0, stride=10))
     edges = {
         "alpha_ctrl_star_mean_snr": float(alpha_ctrl_star(s, snr_bar, eps_star)),
@@ -380,14 +381,14 @@ def _report(res: dict) -> None:
               f"evaluator {r['evaluator']['local_mean_m']}")
 
 
-def build_parser(prog: str = "python -m eval.paper.fading"):
+def build_parser(prog: str = "python -m experiments.paper.fading"):
     from iscc_gym.eval.options import claims_parser
 
     return claims_parser(prog, __doc__.splitlines()[0], missions=MISSIONS, quick_missions=QUICK_MISSIONS,
                          seed_base=SEED_START, figures_default="runs/fading/figures")
 
 
-def main(argv: list[str] | None = None, prog: str = "python -m eval.paper.fading") -> dict:
+def main(argv: list[str] | None = None, prog: str = "python -m experiments.paper.fading") -> dict:
     from iscc_gym.eval.options import run_claims_command
 
     args = build_parser(prog).parse_args(argv)
@@ -398,4 +399,4 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.paper.fading
 if __name__ == "__main__":
     from iscc_gym.cli import run as _run_cli
 
-    sys.exit(_run_cli(main, None, "python -m eval.paper.fading"))
+    sys.exit(_run_cli(main, None, "python -m experiments.paper.fading"))

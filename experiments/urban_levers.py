@@ -1,4 +1,4 @@
-"""``python -m eval.urban_levers``: what makes looking ahead pay on the urban task (issue 25, point 3).
+"""``python -m experiments.urban_levers``: what makes looking ahead pay on the urban task (issue 25, point 3).
 
 For each named variant of the ``urban`` preset (a change of the blockage statistics, the data's deadline, rate or
 weight, the map's error: :data:`VARIANTS`, each within the range its source states), on training missions only:
@@ -21,8 +21,8 @@ The held-out missions are never played here: a variant chosen from this table is
 
 Example::
 
-    python -m eval.urban_levers --missions 16 --write-docs
-    python -m eval.urban_levers --missions 16 --jobs 2 --write-docs    # two variants at a time
+    python -m experiments.urban_levers --missions 16 --write-docs
+    python -m experiments.urban_levers --missions 16 --jobs 2 --write-docs    # two variants at a time
 """
 
 from __future__ import annotations
@@ -38,8 +38,8 @@ from iscc_gym.eval.evaluate import ci_bounds, ci_side, mean_ci, run_episodes
 from iscc_gym.eval.options import Parser, docs_command, nonneg_int, positive_int, run_console
 from iscc_gym.eval.policies import pool_map
 from iscc_gym.eval.tune import tune_model_grid
-from iscc_gym.eval.urban_task import task_stats
 
+from experiments.urban_task import task_stats
 from iscc_gym.protocol import TUNE_SEED_START
 from iscc_gym.scenario import make_scenario
 from iscc_gym.tasks import TASKS, URBAN_ENV_ID
@@ -156,7 +156,7 @@ def markdown(rows: list[dict], command: str) -> str:
     return "\n".join(lines)
 
 
-def build_parser(prog: str = "python -m eval.urban_levers") -> Parser:
+def build_parser(prog: str = "python -m experiments.urban_levers") -> Parser:
     ap = Parser(prog=prog, description=__doc__.split("\n")[0])
     ap.add_argument("--variants", default=",".join(VARIANTS), metavar="LIST",
                     help=f"comma-separated variant names (default: all of {', '.join(VARIANTS)})")
@@ -177,7 +177,7 @@ def build_parser(prog: str = "python -m eval.urban_levers") -> Parser:
     return ap
 
 
-def main(argv: list[str] | None = None, prog: str = "python -m eval.urban_levers") -> list[dict]:
+def main(argv: list[str] | None = None, prog: str = "python -m experiments.urban_levers") -> list[dict]:
     args = build_parser(prog).parse_args(argv)
     names = [v.strip() for v in args.variants.split(",") if v.strip()]
     unknown = [v for v in names if v not in VARIANTS]
@@ -207,4 +207,4 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.urban_levers
 
 
 if __name__ == "__main__":
-    sys.exit(run_console(main, None, "python -m eval.urban_levers"))
+    sys.exit(run_console(main, None, "python -m experiments.urban_levers"))

@@ -1,4 +1,4 @@
-"""``python -m eval.seeds``: robustness of a training configuration over seeds.
+"""``python -m experiments.seeds``: robustness of a training configuration over seeds.
 
 Evaluates every run of ``python -m train --seeds 0,1,2,3,4 --out DIR`` (the ``DIR/seed_<s>``
 directories) beside the scripted baselines on the same held-out missions (common random numbers)
@@ -10,9 +10,9 @@ and to the best scripted policy
 Example::
 
     python -m train --seeds 0,1,2,3,4 --out runs/seeds
-    python -m eval.seeds runs/seeds --write-docs
+    python -m experiments.seeds runs/seeds --write-docs
     python -m train --env iscc_gym/ISCC-Urban-v0 --seeds 0,1,2,3,4 --out runs/urban_seeds
-    python -m eval.seeds runs/urban_seeds --env iscc_gym/ISCC-Urban-v0 --write-docs   # each against myopic
+    python -m experiments.seeds runs/urban_seeds --env iscc_gym/ISCC-Urban-v0 --write-docs   # each against myopic
 """
 
 from __future__ import annotations
@@ -85,7 +85,7 @@ def markdown(res: dict, command: str) -> str:
     return "\n".join(lines)
 
 
-def build_parser(prog: str = "python -m eval.seeds") -> Parser:
+def build_parser(prog: str = "python -m experiments.seeds") -> Parser:
     ap = Parser(prog=prog, description=__doc__.split("\n")[0], epilog=PICKLE_WARNING)
     ap.add_argument("root", help="directory of python -m train --seeds (holding seed_<s>/model.zip and "
                                  "vecnormalize.pkl: pickles, loaded and so executed; only runs you trust)")
@@ -112,7 +112,7 @@ def build_parser(prog: str = "python -m eval.seeds") -> Parser:
     return ap
 
 
-def main(argv: list[str] | None = None, prog: str = "python -m eval.seeds") -> dict:
+def main(argv: list[str] | None = None, prog: str = "python -m experiments.seeds") -> dict:
     args = build_parser(prog).parse_args(argv)
     if args.episodes < 2:
         raise ValueError(f"--episodes {args.episodes}: use at least 2 (a confidence interval needs two missions)")
@@ -135,12 +135,12 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.seeds") -> d
         check_writable_file(docs_path(RESULTS_PATH), "--write-docs")
     show = show_progress(args.quiet)
     n_policies = len(scripted) + len(runs)
-    with progress_bar(n_policies * horizon_slots(args.scenario, args.max_steps), "python -m eval.seeds",
+    with progress_bar(n_policies * horizon_slots(args.scenario, args.max_steps), "python -m experiments.seeds",
                       unit="slot", enabled=show, unit_scale=True) as bar:
         res = compare_seeds(args.root, range(args.seed_start, args.seed_start + args.episodes), args.scenario,
                             scripted, max_steps=args.max_steps, progress=bar.update if show else None,
                             reference=reference, env_id=args.env)
-    cmd = docs_command("python -m eval.seeds", argv)
+    cmd = docs_command("python -m experiments.seeds", argv)
     table = markdown(res, cmd)
     print(table)
     if args.write_docs:
@@ -156,4 +156,4 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.seeds") -> d
 
 
 if __name__ == "__main__":
-    sys.exit(run_console(main, None, "python -m eval.seeds"))
+    sys.exit(run_console(main, None, "python -m experiments.seeds"))

@@ -1,5 +1,5 @@
 """Reproduce the paper's figures and print them beside the paper's: model level (Secs. II-C, IV-C),
-every figure of Sec. V (Figs. 3-8, :mod:`iscc_gym.eval.paper.paper_figures`; the paper's LaTeX numbering, Figs.
+every figure of Sec. V (Figs. 3-8, :mod:`experiments.paper.paper_figures`; the paper's LaTeX numbering, Figs.
 1-2 are illustrations) and scheme level (Table II: SCA vs grid vs evolutionary search; Fig. 9: open
 loop, GNSS feedback, ISCC ignoring packet loss, proposed ISCC), with every statement of the paper about
 them tested as a claim (``claims`` in the JSON: ``id``, ``figure``, ``paper``, ``ours``, ``holds``,
@@ -7,15 +7,15 @@ them tested as a claim (``claims`` in the JSON: ``id``, ``figure``, ``paper``, `
 
 Usage::
 
-    python -m eval.paper.reproduce [--scenario paper|literal] [--json PATH] [--quick] [--figures DIR]
+    python -m experiments.paper.reproduce [--scenario paper|literal] [--json PATH] [--quick] [--figures DIR]
                              [--no-figures] [--model-only] [--write-docs] [--quiet]
 
 Every number is computed here from the Scenario; the paper's numbers are quoted from its text (JSON
 key ``paper``). The ``calibration`` block shows the values of the ``paper`` preset's calibration
 fields that hit the paper's reported figures on the same trajectory sample, beside the preset's own
-values. The scheme level (:mod:`eval.paper.schemes`) measures tracking error, data rate and PEB in the env
+values. The scheme level (:mod:`experiments.paper.schemes`) measures tracking error, data rate and PEB in the env
 (closed-loop Monte Carlo on fixed seeds) and checks the issue's targets; figures go to
-``runs/reproduce/figures`` (``--figures DIR``; :mod:`eval.figures`, :mod:`eval.paper.paper_figures`). The
+``runs/reproduce/figures`` (``--figures DIR``; :mod:`eval.figures`, :mod:`experiments.paper.paper_figures`). The
 modules of :data:`OTHER_MODULES` (issue 13's stability-under-fading and sensitivity studies), where
 present, run too: their claims and figures join this command's. ``--write-docs`` regenerates the
 project's committed figures in ``docs/figures``, this command's sections of ``docs/results.md`` and the
@@ -36,11 +36,11 @@ from pathlib import Path
 import numpy as np
 import scipy.linalg
 from iscc_gym.eval.options import Parser, Stages, check_writable_dir, check_writable_file, nonneg_int, show_progress
-from iscc_gym.eval.paper import paper_figures
-from iscc_gym.eval.paper import schemes as scheme_level
-from iscc_gym.eval.paper.reproduce_docs import LARGE_ALPHA_CTRL, format_table, write_docs
 from scipy.optimize import brentq
 
+from experiments.paper import paper_figures
+from experiments.paper import schemes as scheme_level
+from experiments.paper.reproduce_docs import LARGE_ALPHA_CTRL, format_table, write_docs
 from iscc_gym import SCENARIOS, Scenario, make_scenario
 from iscc_gym.analysis.averages import TrajectorySample, mean_bounds, mean_comm_rate_bps, mean_snr, sample_positions
 from iscc_gym.docs import README_PATH, RESULTS_PATH, docs_path
@@ -114,7 +114,7 @@ def _sensing_offset(s: Scenario, n_missions: int, max_steps: int | None, rtol: f
     """:func:`calibrate_sensing_offset`'s result as ``(key, value)`` pairs, computed once per process for
     each scenario and budget: ``--write-docs`` calibrates the ``paper`` preset for both presets' runs.
     """
-    from iscc_gym.eval.paper.fading import rollout
+    from experiments.paper.fading import rollout
 
     seeds = range(CALIBRATION_SEED_START, CALIBRATION_SEED_START + n_missions)
     target = PAPER["peb_m_table2_sca"]
@@ -206,10 +206,10 @@ def lqr_floor_error_m(s: Scenario) -> float:
 
 def closed_loop_error_m(s: Scenario, n_missions: int, alpha=(0.2, 0.2, 0.6), seed: int = 0):
     """Mean tracking error of the closed loop in the env (``n_missions`` full missions, seeds
-    ``1000 * seed + i``, one batch, through :func:`iscc_gym.eval.paper.fading.rollout`) at a fixed split; the
+    ``1000 * seed + i``, one batch, through :func:`experiments.paper.fading.rollout`) at a fixed split; the
     paper's Table II SCA split by default. Returns the mean over missions and the missions that lost track.
     """
-    from iscc_gym.eval.paper.fading import rollout
+    from experiments.paper.fading import rollout
 
     r = rollout([alpha], [1000 * int(seed) + i for i in range(int(n_missions))], s)
     return float(np.mean(r["mean_error_m"])), int(np.sum(r["terminated"]))
@@ -272,9 +272,9 @@ def run(scenario: str = "paper", quick: bool = False, seed: int = 0, schemes: bo
         figures_dir: str | Path | None = None, stage=None, paper_figs: bool | None = None) -> dict:
     """Compute the reproduction for a preset; returns the JSON-able result.
 
-    ``schemes=False`` skips the scheme level (Table II and Fig. 9 analogs, :mod:`eval.paper.schemes`);
+    ``schemes=False`` skips the scheme level (Table II and Fig. 9 analogs, :mod:`experiments.paper.schemes`);
     ``paper_figs`` (default: as ``schemes``) computes the paper's Figs. 3-8 and their claims
-    (:mod:`eval.paper.paper_figures`) and runs :data:`OTHER_MODULES` (``paper`` preset only);
+    (:mod:`experiments.paper.paper_figures`) and runs :data:`OTHER_MODULES` (``paper`` preset only);
     ``figures_dir`` is where the PNG figures go (None: no figures). ``stage(label)``, if given, is
     called as each stage starts (a progress display). ``claims`` lists every claim (Figs. 3-9,
     Table II and the other modules').
@@ -330,21 +330,21 @@ def run(scenario: str = "paper", quick: bool = False, seed: int = 0, schemes: bo
             mod = other_module(name)
             if mod is None:
                 continue
-            stage(f"{scenario}: eval.paper.{name}")
+            stage(f"{scenario}: experiments.paper.{name}")
             t1 = time.perf_counter()
             r = mod.run(quick=quick, seed=seed)
             if figures_dir is not None:
                 res["figures"].update(mod.draw(r, figures_dir))
             res["other_modules"][name] = {"wall_time_s": time.perf_counter() - t1, **r}
-            res["claims"] += [{**c, "module": f"eval.paper.{name}"} for c in r.get("claims", [])]
+            res["claims"] += [{**c, "module": f"experiments.paper.{name}"} for c in r.get("claims", [])]
     res["claims_holding"] = sum(bool(c["holds"]) for c in res["claims"])
     res["wall_time_s"] = time.perf_counter() - t0
     return res
 
 
 def other_module(name: str):
-    """The module ``iscc_gym.eval.paper.<name>`` if it exists (None if not); errors inside it propagate."""
-    full = f"iscc_gym.eval.paper.{name}"
+    """The module ``experiments.paper.<name>`` if it exists (None if not); errors inside it propagate."""
+    full = f"experiments.paper.{name}"
     if full in sys.modules:
         return sys.modules[full]
     try:
@@ -354,7 +354,8 @@ def other_module(name: str):
     return importlib.import_module(full) if spec is not None else None
 
 
-#: Table II / Fig. 9 targets of :func:`eval.paper.schemes.check_targets` as claims: name prefix -> (id, figure, paper).
+#: Table II / Fig. 9 targets of :func:`experiments.paper.schemes.check_targets` as claims: name prefix -> (id, figure,
+#: paper).
 _TARGET_CLAIMS = (
     ("SCA tracking error", "table2-sca-error", "Table II", "SCA tracking error 0.4122 m (0.41 m in Fig. 9)"),
     ("grid within", "table2-grid-vs-sca", "Table II", "grid 0.4077 m, millimetres from SCA"),
@@ -370,7 +371,7 @@ _TARGET_CLAIMS = (
 
 
 def scheme_claims(res: dict) -> list[dict]:
-    """The scheme level's targets (:func:`eval.paper.schemes.check_targets`) and Table II's data rate and LQG
+    """The scheme level's targets (:func:`experiments.paper.schemes.check_targets`) and Table II's data rate and LQG
     cost, as claims.
     """
     out = []
@@ -400,7 +401,7 @@ DEFAULT_FIGURES = Path("runs") / "reproduce" / "figures"
 DOCS_FIGURES = Path("docs") / "figures"
 
 
-def build_parser(prog: str = "python -m eval.paper.reproduce") -> Parser:
+def build_parser(prog: str = "python -m experiments.paper.reproduce") -> Parser:
     ap = Parser(prog=prog, description=__doc__.split("\n")[0])
     ap.add_argument("--scenario", default="paper", choices=sorted(SCENARIOS),
                     help="scenario preset to reproduce (default: paper)")
@@ -433,7 +434,7 @@ def figures_dir_of(args) -> Path | None:
     return docs_path(DOCS_FIGURES) if args.write_docs else DEFAULT_FIGURES
 
 
-def main(argv: list[str] | None = None, prog: str = "python -m eval.paper.reproduce") -> dict:
+def main(argv: list[str] | None = None, prog: str = "python -m experiments.paper.reproduce") -> dict:
     args = build_parser(prog).parse_args(argv)
     # every output is checked before the run
     if args.write_docs:
@@ -454,7 +455,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.paper.reprod
     total = n_stages(not args.model_only, figures_dir, args.scenario == "paper")
     if args.write_docs:
         total += n_stages(other_schemes, figures_dir, other_name == "paper")
-    with Stages(total, "python -m eval.paper.reproduce", enabled=show_progress(args.quiet)) as stages:
+    with Stages(total, "python -m experiments.paper.reproduce", enabled=show_progress(args.quiet)) as stages:
         res = run(args.scenario, quick=args.quick, seed=args.seed, schemes=not args.model_only,
                   figures_dir=figures_dir, stage=stages.next)
         other = None
@@ -476,8 +477,8 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.paper.reprod
     return res
 
 
-def console(argv: list[str] | None = None, prog: str = "python -m eval.paper.reproduce") -> int:
-    """``python -m eval.paper.reproduce``: :func:`main` with exit codes (:func:`iscc_gym.cli.run`)."""
+def console(argv: list[str] | None = None, prog: str = "python -m experiments.paper.reproduce") -> int:
+    """``python -m experiments.paper.reproduce``: :func:`main` with exit codes (:func:`iscc_gym.cli.run`)."""
     from iscc_gym.cli import run as run_cli
 
     return run_cli(functools.partial(main, prog=prog), argv, prog)

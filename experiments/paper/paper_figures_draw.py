@@ -1,4 +1,4 @@
-"""The figures of :mod:`iscc_gym.eval.paper.paper_figures` (the paper's Figs. 3-8 redrawn from our model), the list
+"""The figures of :mod:`experiments.paper.paper_figures` (the paper's Figs. 3-8 redrawn from our model), the list
 of them and the paper's printed numbers they are drawn against.
 """
 

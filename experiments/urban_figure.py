@@ -1,5 +1,5 @@
-"""``python -m eval.urban_figure``: one urban mission, ``myopic`` beside ``mpc``: the path and its blocked stretches,
-the queue, and each policy's split over time.
+"""``python -m experiments.urban_figure``: one urban mission, ``myopic`` beside ``mpc``: the path and its blocked
+stretches, the queue, and each policy's split over time.
 
 Plays both policies on the same held-out mission (common random numbers) with the single env and writes one PNG:
 the plan view of the reference coloured by the realised line of sight (and the map's LoS probability beside
@@ -7,7 +7,7 @@ it), the backlog of each policy over time with the blocked slots shaded, and eac
 
 Example::
 
-    python -m eval.urban_figure --write-docs        # docs/figures/urban_mission.png
+    python -m experiments.urban_figure --write-docs        # docs/figures/urban_mission.png
 """
 
 from __future__ import annotations
@@ -21,8 +21,8 @@ from iscc_gym.eval.evaluate import run_episodes
 from iscc_gym.eval.figures import new_figure, save_figure
 from iscc_gym.eval.options import PICKLE_WARNING, Parser, check_writable_file, docs_command, nonneg_int, run_console
 from iscc_gym.eval.policies import build_policy, resolve_specs
-from iscc_gym.eval.urban_task import mission_stats
 
+from experiments.urban_task import mission_stats
 from iscc_gym import URBAN_ENV_ID
 from iscc_gym.docs import RESULTS_PATH, docs_path, write_section
 from iscc_gym.protocol import URBAN_SEED_START
@@ -129,7 +129,7 @@ def draw(runs: dict, path: str | Path) -> Path:
     return save_figure(fig, path)
 
 
-def build_parser(prog: str = "python -m eval.urban_figure") -> Parser:
+def build_parser(prog: str = "python -m experiments.urban_figure") -> Parser:
     ap = Parser(prog=prog, description=__doc__.split("\n")[0], epilog=PICKLE_WARNING)
     ap.add_argument("--seed", type=nonneg_int, default=None, metavar="SEED",
                     help=f"the held-out mission (default: the first from {URBAN_SEED_START} with at least "
@@ -142,7 +142,7 @@ def build_parser(prog: str = "python -m eval.urban_figure") -> Parser:
     return ap
 
 
-def main(argv: list[str] | None = None, prog: str = "python -m eval.urban_figure") -> Path:
+def main(argv: list[str] | None = None, prog: str = "python -m experiments.urban_figure") -> Path:
     args = build_parser(prog).parse_args(argv)
     if args.write_docs:
         out = docs_path(Path("docs") / "figures" / FIGURE)
@@ -172,4 +172,4 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.urban_figure
 
 
 if __name__ == "__main__":
-    sys.exit(run_console(main, None, "python -m eval.urban_figure"))
+    sys.exit(run_console(main, None, "python -m experiments.urban_figure"))

@@ -1,7 +1,7 @@
 """Scheme-level reproduction: the paper's Table II (SCA vs grid vs evolutionary search) and Fig. 9
 (open loop, GNSS feedback, ISCC ignoring packet loss, proposed ISCC), ours beside the paper's.
 
-Part of ``python -m eval.paper.reproduce`` (:func:`iscc_gym.eval.paper.reproduce.run` calls :func:`run_schemes`).
+Part of ``python -m experiments.paper.reproduce`` (:func:`experiments.paper.reproduce.run` calls :func:`run_schemes`).
 
 * **Optimisers** run on the shared steady-state evaluator (:func:`iscc_gym.analysis.static_model`,
   built and warmed up once and timed separately); each optimiser's own wall time is reported beside
@@ -411,7 +411,7 @@ def markdown_schemes(res: dict, figure_links: dict[str, str] | None = None) -> s
         out += [f"- {'holds' if t['holds'] else '**does not hold**'}: {t['name']} — {t['detail']}"
                 for t in res["targets"]]
     if figure_links:
-        out += ["", "Figures (`python -m eval.paper.reproduce`; docs/model.md Sec. 3.4):"]
+        out += ["", "Figures (`python -m experiments.paper.reproduce`; docs/model.md Sec. 3.4):"]
         for title, link in figure_links.items():
             out += ["", f"{title}:", "", f"![{title}]({link})"]
     return "\n".join(out)

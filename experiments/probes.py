@@ -1,4 +1,4 @@
-"""``python -m eval.probes``: what a learner could find beyond the per-slot optimum.
+"""``python -m experiments.probes``: what a learner could find beyond the per-slot optimum.
 
 Is there anything beyond the per-slot optimum for a learner to find?
 
@@ -15,7 +15,7 @@ disjoint from every evaluation seed), and reports the paired difference of episo
 
 Example::
 
-    python -m eval.probes --episodes 16 --write-docs
+    python -m experiments.probes --episodes 16 --write-docs
 """
 
 from __future__ import annotations
@@ -118,7 +118,7 @@ def markdown(rows: list[dict], command: str, seeds) -> str:
     return "\n".join(lines)
 
 
-def build_parser(prog: str = "python -m eval.probes") -> Parser:
+def build_parser(prog: str = "python -m experiments.probes") -> Parser:
     ap = Parser(prog=prog, description=__doc__.split("\n")[0])
     ap.add_argument("--episodes", type=positive_int, default=16, metavar="N",
                     help="tuning missions, >= 2 (default: 16)")
@@ -133,7 +133,7 @@ def build_parser(prog: str = "python -m eval.probes") -> Parser:
     return ap
 
 
-def main(argv: list[str] | None = None, prog: str = "python -m eval.probes") -> list[dict]:
+def main(argv: list[str] | None = None, prog: str = "python -m experiments.probes") -> list[dict]:
     args = build_parser(prog).parse_args(argv)
     if args.episodes < 2:
         raise ValueError(f"--episodes {args.episodes}: use at least 2 (a confidence interval needs two missions)")
@@ -145,9 +145,9 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.probes") -> 
 
         check_writable_file(docs_path(RESULTS_PATH), "--write-docs")
     show = show_progress(args.quiet)
-    with progress_bar(N_PROBES[not args.no_myopic], "python -m eval.probes", unit="policy", enabled=show) as bar:
+    with progress_bar(N_PROBES[not args.no_myopic], "python -m experiments.probes", unit="policy", enabled=show) as bar:
         rows = probes(seeds, myopic=not args.no_myopic, progress=bar.update if show else None)
-    cmd = docs_command("python -m eval.probes", argv)
+    cmd = docs_command("python -m experiments.probes", argv)
     table = markdown(rows, cmd, seeds)
     print(table)
     if args.write_docs:
@@ -159,4 +159,4 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.probes") -> 
 
 
 if __name__ == "__main__":
-    sys.exit(run_console(main, None, "python -m eval.probes"))
+    sys.exit(run_console(main, None, "python -m experiments.probes"))

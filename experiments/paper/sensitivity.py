@@ -1,4 +1,4 @@
-"""``python -m eval.paper.sensitivity``: the constants that decide the reproduced split, and the conventions.
+"""``python -m experiments.paper.sensitivity``: the constants that decide the reproduced split, and the conventions.
 
 Two constants with no value in the paper decide SCA's split (``docs/model.md`` sec. 4): the data-rate
 floor ``rate_min_bps`` (R_comm^min of cons:comm_rate; 20 Mbps) and SCA's ``loss_design_fraction``
@@ -11,12 +11,12 @@ against the sensing link's per-subcarrier noise (each flipped, offsets unchanged
 per axis against the 3-D total, and the PEB calibration against Table II's 0.0635 m at SCA's split.
 
 Missions: seeds ``1_200_000 + 1000 * seed + i`` (:func:`mission_seeds`), held-out evaluation seeds
-(``eval.tune.EVAL_SEED_RANGES``), disjoint from training, tuning and ``eval.paper.fading``'s missions.
+(``eval.tune.EVAL_SEED_RANGES``), disjoint from training, tuning and ``experiments.paper.fading``'s missions.
 
 Examples::
 
-    python -m eval.paper.sensitivity                # 64 missions per point, about a minute
-    python -m eval.paper.sensitivity --quick --json /tmp/sens.json --figures /tmp/fig
+    python -m experiments.paper.sensitivity                # 64 missions per point, about a minute
+    python -m experiments.paper.sensitivity --quick --json /tmp/sens.json --figures /tmp/fig
 """
 
 from __future__ import annotations
@@ -29,8 +29,8 @@ from pathlib import Path
 import numpy as np
 from iscc_gym.agents.sca import sca_allocation
 from iscc_gym.eval.figures import new_figure, save_figure
-from iscc_gym.eval.paper.fading import rollout, summarize_missions
 
+from experiments.paper.fading import rollout, summarize_missions
 from iscc_gym import SCENARIOS
 from iscc_gym.analysis import TRUST_LOSS_FRACTION, static_model
 from iscc_gym.analysis.averages import mean_bounds, sample_positions
@@ -211,7 +211,8 @@ def claims(res: dict) -> list[dict]:
                  f"missions is {peb['offset_for_target_db']:.2f} dB (preset {peb['preset_offset_db']:.2f})"),
         "holds": abs(peb["env_peb_at_table2_split_m"] / PEB_TABLE2_M - 1.0) <= 0.05,
         "why": "the preset's sensing_snr_offset_db is calibrated in the env to this value at 20 / 20 / 60 % on "
-               "1024 calibration missions (eval.paper.reproduce.calibrate_sensing_offset); checked here on held-out "
+               "1024 calibration missions (experiments.paper.reproduce.calibrate_sensing_offset); checked here on "
+               "held-out "
                "missions, tolerance 5 %",
     })
     g = res["gnss"]
@@ -307,14 +308,14 @@ def _report(res: dict) -> None:
                   f"RMS {e['rms_error_m']}, lost {e['lost']}, violations {e['violation']:.3f}")
 
 
-def build_parser(prog: str = "python -m eval.paper.sensitivity"):
+def build_parser(prog: str = "python -m experiments.paper.sensitivity"):
     from iscc_gym.eval.options import claims_parser
 
     return claims_parser(prog, __doc__.splitlines()[0], missions=MISSIONS, quick_missions=QUICK_MISSIONS,
                          seed_base=SEED_START, figures_default="runs/sensitivity/figures")
 
 
-def main(argv: list[str] | None = None, prog: str = "python -m eval.paper.sensitivity") -> dict:
+def main(argv: list[str] | None = None, prog: str = "python -m experiments.paper.sensitivity") -> dict:
     from iscc_gym.eval.options import run_claims_command
 
     args = build_parser(prog).parse_args(argv)
@@ -325,4 +326,4 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.paper.sensit
 if __name__ == "__main__":
     from iscc_gym.cli import run as _run_cli
 
-    sys.exit(_run_cli(main, None, "python -m eval.paper.sensitivity"))
+    sys.exit(_run_cli(main, None, "python -m experiments.paper.sensitivity"))

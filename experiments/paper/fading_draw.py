@@ -1,4 +1,4 @@
-"""The figures of :mod:`iscc_gym.eval.paper.fading`: loss of track and error against alpha_ctrl, the trust bound."""
+"""The figures of :mod:`experiments.paper.fading`: loss of track and error against alpha_ctrl, the trust bound."""
 
 from __future__ import annotations
 

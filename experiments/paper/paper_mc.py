@@ -1,4 +1,4 @@
-r"""Closed-loop Monte Carlo of static splits for the paper's Figs. 5-8 (``python -m eval.paper.reproduce``).
+r"""Closed-loop Monte Carlo of static splits for the paper's Figs. 5-8 (``python -m experiments.paper.reproduce``).
 
 Every split of a list is flown on the same ``n_missions`` seeded missions (common random numbers:
 the same trajectories, shadowing, fading, measurement, process-noise and drop draws for every split),

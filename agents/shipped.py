@@ -1,10 +1,10 @@
 """Where the shipped agents and tuning records live (package data of ``iscc_gym.agents``), written once.
 
-``agents/trained/ppo_iscc`` (:data:`PPO_AGENT`, ``python -m train.ship``), ``agents/trained/ppo_urban``
-(:data:`URBAN_AGENT`, ``python -m train.ship --env iscc_gym/ISCC-Urban-v0``; which agent each task ships:
+``agents/trained/ppo_iscc`` (:data:`PPO_AGENT`, ``python -m experiments.ship``), ``agents/trained/ppo_urban``
+(:data:`URBAN_AGENT`, ``python -m experiments.ship --env iscc_gym/ISCC-Urban-v0``; which agent each task ships:
 :data:`iscc_gym.agents.tasks.TASK_POLICIES`), ``agents/trained/multi/k<K>``
-(:func:`multi_agent_dir`, ``python -m train.multi``), ``agents/trained/pareto/<family>/<label>``
-(:data:`PARETO_DIR`, ``python -m train.pareto``) and ``agents/tuned/<name>.yml`` (:data:`TUNED_DIR`,
+(:func:`multi_agent_dir`, ``python -m experiments.multi_agents``), ``agents/trained/pareto/<family>/<label>``
+(:data:`PARETO_DIR`, ``python -m experiments.pareto_agents``) and ``agents/tuned/<name>.yml`` (:data:`TUNED_DIR`,
 ``python -m eval.tune``).
 """
 
@@ -30,5 +30,5 @@ TUNED_DIR = Path(__file__).resolve().parent / "tuned"
 
 
 def multi_agent_dir(n_drones: int) -> Path:
-    """Where ``python -m train.multi`` ships the agent for ``n_drones`` drones."""
+    """Where ``python -m experiments.multi_agents`` ships the agent for ``n_drones`` drones."""
     return MULTI_DIR / f"k{int(n_drones)}"

@@ -1,6 +1,6 @@
 """The policy side of each task, written once: what ``python -m eval`` compares on it, against what, and which
-agent is shipped for it. Every command reads this table (``python -m eval``, its studies, ``python -m train.ship``);
-the env side (preset, variants, docs page) is :data:`iscc_gym.tasks.TASKS`.
+agent is shipped for it. Every command reads this table (``python -m eval``, its studies,
+``python -m experiments.ship``); the env side (preset, variants, docs page) is :data:`iscc_gym.tasks.TASKS`.
 
 A new task adds one :class:`TaskPolicies` here beside its :class:`iscc_gym.tasks.Task`.
 """
@@ -35,13 +35,13 @@ class TaskPolicies:
     focus : str
         The policy whose differences to every other are reported too.
     agent : Path or None
-        The shipped agent (``python -m train.ship --env ENV``), None where one is shipped per drone count.
+        The shipped agent (``python -m experiments.ship --env ENV``), None where one is shipped per drone count.
     results_section, results_title : str
         The section of ``docs/results.md`` ``python -m eval --env ENV --write-docs`` writes, and its title.
     readme : bool
         Whether that comparison is the README's main table too.
     agent_docs : tuple of str
-        ``(results section, title, learning-curve figure)`` that ``python -m train.ship --env ENV`` writes.
+        ``(results section, title, learning-curve figure)`` that ``python -m experiments.ship --env ENV`` writes.
     """
 
     env_id: str
@@ -62,7 +62,7 @@ class TaskPolicies:
 
     @property
     def ships_agent(self) -> bool:
-        """Whether ``python -m train.ship`` trains and ships one agent for the task."""
+        """Whether ``python -m experiments.ship`` trains and ships one agent for the task."""
         return self.agent is not None
 
     def shipped_agent(self, n_drones: int | None = None) -> Path:
@@ -91,8 +91,8 @@ TASK_POLICIES: dict[str, TaskPolicies] = {
                                focus="agent"),
 }
 assert set(TASK_POLICIES) == set(TASKS), "every task needs its policies (iscc_gym.agents.tasks)"
-#: The shipped agent of each task that ships one (``python -m train.ship --env ENV``; ``python -m eval --env ENV``'s
-#: ``ppo``).
+#: The shipped agent of each task that ships one (``python -m experiments.ship --env ENV``; ``python -m eval --env
+#: ENV``'s ``ppo``).
 SHIPPED_AGENTS = {e: t.agent for e, t in TASK_POLICIES.items() if t.ships_agent}
 
 

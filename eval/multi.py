@@ -5,7 +5,7 @@ numbers; seeds from :data:`SEED_START`): the scripted baselines of :mod:`iscc_gy
 (``equal-sca``: 1/K of the band per drone with per-slot Algorithm 1 inside; ``joint-sca``: Algorithm 1's
 problem over all drones; ``margin``: the tuned rule per drone, renormalised; ``margin-starved``:
 ``margin`` with a tenth of its sensing, the rest to data) and the trained agent of
-``agents/trained/multi/k<K>`` (``python -m train.multi``) or ``--agent PATH``. The table gives mean and
+``agents/trained/multi/k<K>`` (``python -m experiments.multi_agents``) or ``--agent PATH``. The table gives mean and
 95 % CI per policy and paired differences against ``joint-sca`` and of the agent against every other
 policy. ``--k-scan 2,4,8`` repeats the comparison per K, with a summary of every policy's reward,
 tracking error and PEB against K, and reports how the agent's advantage changes with it. ``python -m
@@ -59,7 +59,7 @@ REFERENCE = TASK_POLICIES[MULTI_ENV_ID].reference
 
 
 def agent_dir(n_drones: int) -> Path:
-    """Where ``python -m train.multi`` ships the agent for ``n_drones`` drones."""
+    """Where ``python -m experiments.multi_agents`` ships the agent for ``n_drones`` drones."""
     return TASK_POLICIES[MULTI_ENV_ID].shipped_agent(n_drones)
 
 

@@ -17,7 +17,8 @@ from iscc_gym.sim.schema import obs_size
 __all__ = ["build_policy", "build_policies", "play", "run_parallel", "resolve_specs", "check_specs", "policy_name",
            "SLOW_SPECS", "SHIPPED_AGENT"]
 
-#: The trained PPO agent shipped with the package (``agents/trained/ppo_iscc``; produced by ``python -m train.ship``).
+#: The trained PPO agent shipped with the package (``agents/trained/ppo_iscc``; produced by
+#: ``python -m experiments.ship``).
 SHIPPED_AGENT = PPO_AGENT
 
 #: Specs whose policy is expensive to build (a solve or tables): known valid, so not built to check them.

@@ -2,7 +2,7 @@
 
 Every scripted family is played over its knob (:data:`iscc_gym.eval.outage.FAMILIES`: static SCA's
 rate design margin, ``margin``'s data multiple, ``myopic``'s ``rate_weight``) and every learned run
-(by default the six of ``agents/trained/pareto/``, trained by ``python -m train.pareto``: PPO at three
+(by default the six of ``agents/trained/pareto/``, trained by ``python -m experiments.pareto_agents``: PPO at three
 ``w_rate``, PPO-Lagrangian at three rate-outage limits) as one point, all on the same held-out
 missions (common random numbers) at the rate requirement :data:`RATE_MIN_BPS`. Each point is the
 mean rate-outage fraction and the mean and RMS tracking error with 95 % CIs over missions; the table

@@ -44,9 +44,9 @@ SENSITIVITY_SEED_START = 1_200_000
 PARETO_SEED_START = 1_300_000
 MULTI_SEED_START = 1_400_000
 URBAN_SEED_START = 1_500_000
-#: The Pareto study's data-rate requirement R_min (bit/s): the learned operating points (``train.pareto``) are
-#: trained and compared (``experiments.pareto``) at this value; at the ``paper`` preset's 20 Mbps no split meets a
-#: 5 % or 10 % rate-outage target (docs/model.md 4.6).
+#: The Pareto study's data-rate requirement R_min (bit/s): the learned operating points
+#: (``experiments.pareto_agents``) are trained and compared (``experiments.pareto``) at this value; at the ``paper``
+#: preset's 20 Mbps no split meets a 5 % or 10 % rate-outage target (docs/model.md 4.6).
 PARETO_RATE_MIN_BPS = 12e6
 
 

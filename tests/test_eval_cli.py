@@ -329,14 +329,16 @@ def test_an_agent_is_checked_against_the_env_it_is_compared_on(tmp_path):
 # --- issue 34: every command's --help, named as invoked; progress estimates; pickles -----------------------------
 
 #: Every installed ``python -m`` command (under ``iscc_gym.``): ``main`` / ``cli`` called with --help.
-INSTALLED = ["eval", "eval.bench", "eval.multi", "eval.outage", "eval.tune", "train", "train.multi", "train.pareto",
-             "train.ship"]
+INSTALLED = ["eval", "eval.bench", "eval.multi", "eval.outage", "eval.tune", "train"]
 #: The studies that regenerate this repository's docs, run from a checkout (``experiments/``, not installed).
 EXPERIMENTS = ["experiments.pareto", "experiments.probes", "experiments.seeds", "experiments.urban_figure",
                "experiments.urban_learned", "experiments.urban_levers", "experiments.urban_shift",
                "experiments.urban_task", "experiments.paper.evaluator_check", "experiments.paper.fading",
-               "experiments.paper.reproduce", "experiments.paper.sensitivity"]
+               "experiments.paper.reproduce", "experiments.paper.sensitivity", "experiments.ship",
+               "experiments.multi_agents", "experiments.pareto_agents"]
 COMMANDS = INSTALLED + EXPERIMENTS
+#: The commands whose entry is ``cli`` (the training studies), not ``main``.
+CLI_ENTRY = ("experiments.ship", "experiments.multi_agents", "experiments.pareto_agents")
 
 
 def _help(command: str, capsys) -> str:
@@ -346,7 +348,7 @@ def _help(command: str, capsys) -> str:
     name = {"eval": "iscc_gym.eval.__main__", "train": "iscc_gym.train.cli"}.get(
         command, command if command.startswith("experiments.") else f"iscc_gym.{command}")
     module = importlib.import_module(name)
-    entry = module.cli if command.startswith("train") else module.main
+    entry = module.cli if command.startswith("train") or command in CLI_ENTRY else module.main
     with pytest.raises(SystemExit) as e:
         entry(["--help"])
     assert e.value.code == 0, command

@@ -128,8 +128,7 @@ def test_algo_ppo_lag_is_ppo_with_the_lagrangian():
 
 
 def test_the_pareto_runs_train_at_the_comparisons_rate_and_ship_their_multipliers(tmp_path, monkeypatch):
-    from iscc_gym.train import pareto as TP
-
+    from experiments import pareto_agents as TP
     from iscc_gym.protocol import PARETO_RATE_MIN_BPS as RATE_MIN_BPS
 
     a = TP.run_args("ppo-lag/0.10")

@@ -113,7 +113,8 @@ def test_bad_specs_and_shapes_are_refused():
 def test_the_commands_train_and_compare_on_tiny_budgets(tmp_path, monkeypatch, capsys):
     from iscc_gym.eval import multi as EM
     from iscc_gym.eval.__main__ import main as eval_main
-    from iscc_gym.train import multi as TM
+
+    from experiments import multi_agents as TM
 
     monkeypatch.chdir(tmp_path)
     TM.train_all([2], total_timesteps=256, dest=tmp_path / "ship", out_root=str(tmp_path / "runs"), n_envs=4,
@@ -244,8 +245,8 @@ def test_the_shipped_agent_keeps_its_radar():
 def test_the_shipped_k8_agent_was_trained_to_keep_every_drone():
     """Issue 34: the K = 8 agent shipped before lost track in training (evaluations -40,748 to -274,188 per mission)
     and on 4 of 20 held-out missions: VecNormalize's reward scaling, inflated by the lost drones, hid every slot's
-    reward from PPO. Retrained without it (train.multi.K_SETTINGS), no evaluation of its run lost a drone (a loss
-    half-way costs the 8-mission mean about 31,000; margin scores about -8,100 at K = 8)."""
+    reward from PPO. Retrained without it (experiments.multi_agents.K_SETTINGS), no evaluation of its run lost a drone
+    (a loss half-way costs the 8-mission mean about 31,000; margin scores about -8,100 at K = 8)."""
     import pickle
 
     import yaml

@@ -104,7 +104,8 @@ def test_the_shipped_urban_agent_is_the_urban_entrys_residual_on_myopic():
     import yaml
     from iscc_gym.agents.shipped import URBAN_AGENT
     from iscc_gym.eval.policies import resolve_specs
-    from iscc_gym.train.ship import ship_args
+
+    from experiments.ship import ship_args
 
     policy = SB3Policy.load(URBAN_AGENT, check_env=URBAN_ENV_ID)
     assert isinstance(policy, ResidualPolicy) and policy.spec == "myopic"
@@ -126,8 +127,8 @@ def test_the_shipped_urban_agent_is_the_urban_entrys_residual_on_myopic():
 def test_each_env_ships_its_own_agent():
     from iscc_gym.agents.shipped import PPO_AGENT, URBAN_AGENT
     from iscc_gym.agents.tasks import SHIPPED_AGENTS
-    from iscc_gym.train.ship import SHIP_ARGS, ship_args
 
+    from experiments.ship import SHIP_ARGS, ship_args
     from iscc_gym import ENV_ID
 
     assert ship_args(ENV_ID) is SHIP_ARGS and SHIPPED_AGENTS == {ENV_ID: PPO_AGENT, URBAN_ENV_ID: URBAN_AGENT}

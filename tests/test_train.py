@@ -86,9 +86,9 @@ def test_shipped_agent_loads_and_acts():
     import gymnasium as gym
     from iscc_gym.eval.__main__ import SHIPPED_AGENT
     from iscc_gym.train.config import resolve_args
-    from iscc_gym.train.ship import SHIP_ARGS
 
     import iscc_gym  # noqa: F401
+    from experiments.ship import SHIP_ARGS
 
     policy = SB3Policy.load(SHIPPED_AGENT)
     cfg = yaml.safe_load((SHIPPED_AGENT / "config.yml").read_text())

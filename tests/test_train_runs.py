@@ -377,7 +377,7 @@ def test_rl_zoo3_trains_from_the_yaml(tmp_path):
 
 
 def test_ship_copies_a_unit(tmp_path, monkeypatch):
-    from iscc_gym.train.ship import ARTIFACTS, ship
+    from experiments.ship import ARTIFACTS, ship
 
     monkeypatch.chdir(tmp_path)
     args = _args(tmp_path / "ship_run", eval_freq=0, checkpoint_freq=0, total_timesteps=128, overwrite=True)
@@ -393,7 +393,7 @@ def test_a_ship_killed_while_copying_leaves_the_old_agent_whole(run_256, tmp_pat
     """A kill after the new statistics are copied, before the model: the shipped folder is still the old agent
     (it loads, every file its own), never new statistics beside the old model; the next ship swaps the new one
     in whole and clears what a killed one left beside it."""
-    from iscc_gym.train.ship import publish
+    from experiments.ship import publish
 
     dest = tmp_path / "agent"
     publish(_args(run_256), {}, dest, write_docs=False)

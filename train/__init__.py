@@ -3,8 +3,9 @@
 
 ``config`` (:class:`Args`, the hyperparameter file), ``train`` (the training loop, :func:`main`), ``cli`` (the
 command line above it), ``runs`` (run directories, checkpoints, resume), ``lagrangian`` (PPO-Lagrangian),
-``pretrain`` (behaviour-cloning warm start), ``study``/``study_io``/``multi_seed`` (Optuna studies and seeds),
-``ship`` (the shipped agents), ``multi`` and ``pareto`` (their training commands).
+``pretrain`` (behaviour-cloning warm start), ``study``/``study_io``/``multi_seed`` (Optuna studies and seeds).
+The runs that produce this repository's shipped agents (``experiments.ship``, ``experiments.multi_agents``,
+``experiments.pareto_agents``) are the checkout's ``experiments/``, not installed.
 """
 
 from iscc_gym.train.cli import cli, console, parse_args

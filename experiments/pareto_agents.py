@@ -1,4 +1,4 @@
-"""``python -m train.pareto``: train the learned points of the Pareto fronts (issue 15 item 3).
+"""``python -m experiments.pareto_agents``: train the learned points of the Pareto fronts (issue 15 item 3).
 
 Six PPO runs on ``iscc_gym/ISCC-v0`` at the Pareto comparison's rate requirement
 (:data:`iscc_gym.protocol.PARETO_RATE_MIN_BPS`), each ``python -m train`` with the configuration of
@@ -14,8 +14,8 @@ statistics, config, summary, learning curve, multipliers) are copied into
 
 Example::
 
-    python -m train.pareto               # all six (about 2 minutes each on 2 cores)
-    python -m train.pareto --only ppo/w1  # one
+    python -m experiments.pareto_agents               # all six (about 2 minutes each on 2 cores)
+    python -m experiments.pareto_agents --only ppo/w1  # one
 """
 
 from __future__ import annotations
@@ -61,7 +61,7 @@ def train_all(names=None, total_timesteps: int | None = None, dest: Path = PARET
     """Train the runs ``names`` (default all of :data:`RUNS`) and copy each into ``dest/<name>``;
     ``changes`` replace fields of their :class:`Args` (e.g. a tiny budget in the tests).
     """
-    from iscc_gym.train.ship import ship_all
+    from experiments.ship import ship_all
 
     names = list(RUNS) if names is None else list(names)
     runs = {n: (run_args(n, total_timesteps=total_timesteps, out_root=out_root), dest / n)
@@ -70,7 +70,8 @@ def train_all(names=None, total_timesteps: int | None = None, dest: Path = PARET
 
 
 def cli(argv: list[str] | None = None) -> dict:
-    ap = argparse.ArgumentParser(prog=invoked_prog("python -m train.pareto"), description=__doc__.split("\n")[0],
+    ap = argparse.ArgumentParser(prog=invoked_prog("python -m experiments.pareto_agents"),
+                                 description=__doc__.split("\n")[0],
                                  epilog="Model files and vecnormalize.pkl are pickles: load only files you trust.")
     ap.add_argument("--only", default=None, help=f"comma-separated runs (default: all of {', '.join(RUNS)})")
     ap.add_argument("--total-timesteps", type=int, default=None, help="env steps per run (default: the YAML's)")
@@ -83,4 +84,4 @@ def cli(argv: list[str] | None = None) -> dict:
 if __name__ == "__main__":
     from iscc_gym.cli import run
 
-    sys.exit(run(cli, None, "python -m train.pareto"))
+    sys.exit(run(cli, None, "python -m experiments.pareto_agents"))

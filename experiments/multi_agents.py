@@ -1,4 +1,4 @@
-"""``python -m train.multi``: train the multi-drone agents (issue 16) shipped in ``agents/trained/multi/``.
+"""``python -m experiments.multi_agents``: train the multi-drone agents (issue 16) shipped in ``agents/trained/multi/``.
 
 One PPO run per number of drones K (default 2, 4 and 8) on ``iscc_gym/ISCC-Multi-v0``: ``python -m
 train --env-id iscc_gym/ISCC-Multi-v0 --env-set n_drones=K`` with the configuration of
@@ -16,9 +16,9 @@ baseline's outage; the stability limit is the one of the single-drone Pareto run
 
 Example::
 
-    python -m train.multi                     # K = 2, 4, 8 (a few minutes each on 2 cores)
-    python -m train.multi --n-drones 4
-    python -m train.multi --n-drones 4 --constrained
+    python -m experiments.multi_agents                     # K = 2, 4, 8 (a few minutes each on 2 cores)
+    python -m experiments.multi_agents --n-drones 4
+    python -m experiments.multi_agents --n-drones 4 --constrained
 """
 
 from __future__ import annotations
@@ -70,7 +70,7 @@ def train_all(ks=K_VALUES, total_timesteps: int | None = None, dest: Path = MULT
     """Train one agent per K in ``ks`` and copy each into ``dest/k<K>`` (``dest/k<K>_lag`` if
     ``constrained``); ``changes`` replace fields of their :class:`Args` (e.g. a tiny budget in the tests).
     """
-    from iscc_gym.train.ship import ship_all
+    from experiments.ship import ship_all
 
     ks = [int(k) for k in ks]
     runs = {k: (run_args(k, total_timesteps=total_timesteps, out_root=out_root, constrained=constrained),
@@ -79,7 +79,8 @@ def train_all(ks=K_VALUES, total_timesteps: int | None = None, dest: Path = MULT
 
 
 def cli(argv: list[str] | None = None) -> dict:
-    ap = argparse.ArgumentParser(prog=invoked_prog("python -m train.multi"), description=__doc__.split("\n")[0],
+    ap = argparse.ArgumentParser(prog=invoked_prog("python -m experiments.multi_agents"),
+                                 description=__doc__.split("\n")[0],
                                  epilog="Model files and vecnormalize.pkl are pickles: load only files you trust.")
     ap.add_argument("--n-drones", default=",".join(map(str, K_VALUES)),
                     help=f"comma-separated numbers of drones (default: {','.join(map(str, K_VALUES))})")
@@ -98,4 +99,4 @@ def cli(argv: list[str] | None = None) -> dict:
 if __name__ == "__main__":
     from iscc_gym.cli import run
 
-    sys.exit(run(cli, None, "python -m train.multi"))
+    sys.exit(run(cli, None, "python -m experiments.multi_agents"))

@@ -163,9 +163,7 @@ def make_policy(spec: str, scenario: Scenario | str = "paper", seed: int = 0, tu
             return LookaheadPolicy(s, **p)
         if key == "mpc-hold":
             return LookaheadPolicy(s, preview="hold", name="mpc-hold", **p)
-        oracle = LookaheadPolicy(s.replace(preview_source="truth"), name="oracle", **p)
-        oracle.scenario_overrides = {"preview_source": "truth"}
-        return oracle
+        return LookaheadPolicy(s, preview="truth", name="oracle", **p)
     if key == "sca":
         return SCAPolicy(s, mode="static")
     if key == "sca-per-slot":

@@ -55,7 +55,7 @@ from .myopic import MyopicPolicy
 __all__ = ["LookaheadPolicy", "DATA_GRID", "PREVIEW_MODES"]
 
 #: What the planner reads of the path ahead: the observation's preview, or the slot's channel held.
-PREVIEW_MODES = ("shown", "hold")
+PREVIEW_MODES = ("shown", "hold", "truth")
 
 #: The data shares the planner chooses among (per block).
 DATA_GRID = (0.0, 0.03, 0.07, 0.12, 0.18, 0.25, 0.35, 0.5, 0.7)
@@ -92,7 +92,9 @@ class LookaheadPolicy(SplitPolicy):
         Smallest sensing and control shares (as :class:`iscc_gym.agents.MyopicPolicy`'s).
     preview : str
         ``"shown"``: plan over the observation's preview; ``"hold"``: ignore it, the slot's measured channel held
-        over the horizon (``mpc-hold``, the planner without knowledge of the future).
+        over the horizon (``mpc-hold``, the planner without knowledge of the future); ``"truth"``: plan over the
+        truth ahead (``oracle``, the full-information bound: the env shows it the truth's preview, its
+        ``scenario_overrides``; not a causal policy).
     name : str
 
     Raises
@@ -122,6 +124,9 @@ class LookaheadPolicy(SplitPolicy):
         if preview not in PREVIEW_MODES:
             raise ValueError(f"preview = {preview!r} is invalid: must be one of {PREVIEW_MODES}")
         self.preview = preview
+        if preview == "truth":  # what the env shows it (iscc_gym.eval.evaluate.run_episodes applies it); its model too
+            self.scenario_overrides = {"preview_source": "truth"}
+            s = s.replace(**self.scenario_overrides)
         self.scenario = s
         self.slot = MyopicPolicy(s, rate_weight=0.0, sensing_floor=sensing_floor, ctrl_floor=ctrl_floor)
         self.terminal_weight = float(terminal_weight)

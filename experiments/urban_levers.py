@@ -77,10 +77,9 @@ def lever_row(name: str, overrides: dict, missions: int, tune_missions: int = TU
     params = dict(load_tuned(record_name("mpc", "urban"))["params"])
     grid = {**{k: (v,) for k, v in params.items() if k != "rate_weight"}, **grid}
     plan = tune_model_grid("mpc", tune_seeds, s, log=lambda *_: None, max_steps=max_steps, grid=grid)["params"]
-    truth = s.replace(preview_source="truth")
     policies = {"myopic": MyopicPolicy(s, rate_weight=weight), "mpc": LookaheadPolicy(s, **plan),
                 "mpc-hold": LookaheadPolicy(s, preview="hold", name="mpc-hold", **plan),
-                "oracle": LookaheadPolicy(truth, name="oracle", **plan)}
+                "oracle": LookaheadPolicy(s, preview="truth", name="oracle", **plan)}
     eps = {k: run_episodes(p, seeds, p.scenario, max_steps=max_steps)["episodes"] for k, p in policies.items()}
     m = eps["myopic"]
     slots = m["length"]

@@ -69,7 +69,7 @@ from iscc_gym.eval.training import run_training
 from iscc_gym import ENV_ID, MULTI_ENV_ID, URBAN_ENV_ID
 from iscc_gym.cli import invoked_prog, run
 from iscc_gym.docs import README_PATH, RESULTS_PATH, docs_path, publish, save_json, write_section
-from iscc_gym.protocol import EVAL_SEED_START
+from iscc_gym.protocol import EVAL_SEED_START, seed_list
 from iscc_gym.tasks import TASKS
 
 #: The default comparison on the paper's task (each task's: :data:`iscc_gym.agents.tasks.TASK_POLICIES`).
@@ -225,7 +225,7 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> dict:
     except (ValueError, KeyError, TypeError) as e:
         raise ValueError(f"--scenario {args.scenario!r}: {e.args[0] if e.args else e}") from None
     seeds = (parse_seeds(args.seeds) if args.seeds is not None
-             else list(range(args.seed_start, args.seed_start + args.episodes)))
+             else seed_list(args.seed_start, args.episodes))
     items = resolve_specs(args.policies, task.shipped_agent())
     if args.runs is not None:
         items = resolve_specs(",".join(items + runs_items(args.runs)))  # FileNotFoundError naming the fix

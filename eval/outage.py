@@ -28,6 +28,7 @@ from iscc_gym.eval.evaluate import run_episodes
 from iscc_gym.eval.options import Parser, Stages, nonneg_int, positive_int, run_console
 from iscc_gym.eval.tune import TUNE_SEED_START, check_tuning_seeds
 
+from iscc_gym.protocol import seed_list
 from iscc_gym.scenario import Scenario, make_scenario
 
 __all__ = ["FAMILIES", "build", "outage", "find_knob", "main"]
@@ -118,7 +119,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.outage") -> 
     args = build_parser(prog).parse_args(argv)
     if not (math.isfinite(args.target) and 0.0 <= args.target <= 1.0):
         raise ValueError(f"--target {args.target}: use a fraction in [0, 1], e.g. --target 0.05")
-    seeds = list(range(args.seed_start, args.seed_start + args.episodes))
+    seeds = seed_list(args.seed_start, args.episodes)
     check_tuning_seeds(seeds)
     over = {} if args.rate_min_mbps is None else {"rate_min_bps": args.rate_min_mbps * 1e6}
     with Stages(args.iterations + 1, prog, enabled=not args.quiet) as st:

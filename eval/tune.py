@@ -51,7 +51,7 @@ from iscc_gym.eval.options import (
 )
 from scipy import optimize
 
-from iscc_gym.protocol import TUNE_SEED_START, TUNE_SEEDS, check_outside_evaluation
+from iscc_gym.protocol import TUNE_SEED_START, TUNE_SEEDS, check_outside_evaluation, seed_list
 from iscc_gym.scenario import make_scenario
 
 #: Default grid of ``python -m eval.tune margin``.
@@ -311,7 +311,7 @@ def build_parser(prog: str = "python -m eval.tune") -> Parser:
 
 def main(argv: list[str] | None = None, prog: str = "python -m eval.tune") -> dict:
     args = build_parser(prog).parse_args(argv)
-    seeds = check_tuning_seeds(range(args.seed_start, args.seed_start + args.episodes))
+    seeds = check_tuning_seeds(seed_list(args.seed_start, args.episodes))
     if args.out:
         check_writable_file(args.out, "--out")
     show = show_progress(args.quiet)

@@ -32,7 +32,7 @@ from iscc_gym.eval.outage import build, find_knob
 from iscc_gym.eval.tune import check_tuning_seeds
 
 from iscc_gym.docs import RESULTS_PATH, docs_path, write_section
-from iscc_gym.protocol import PARETO_RATE_MIN_BPS, TUNE_SEED_START, held_out_seeds
+from iscc_gym.protocol import PARETO_RATE_MIN_BPS, TUNE_SEED_START, held_out_seeds, seed_list
 from iscc_gym.protocol import PARETO_SEED_START as SEED_START
 from iscc_gym.scenario import make_scenario
 
@@ -334,7 +334,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.paret
         check_writable_file(args.figure, "--figure")
     s = scenario_at(args.rate_min_mbps * 1e6)
     seeds = held_out_seeds(SEED_START, args.episodes, args.seed)
-    train_seeds = list(range(TUNE_SEED_START, TUNE_SEED_START + args.train_episodes))
+    train_seeds = seed_list(TUNE_SEED_START, args.train_episodes)
     check_tuning_seeds(train_seeds)
     n_points = sum(len(KNOBS[f]) for f in families) + len(learned)
     with Stages(n_points + 2 * len(targets), prog, enabled=not args.quiet) as st:

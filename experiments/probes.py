@@ -38,6 +38,7 @@ from iscc_gym.eval.options import (
 )
 from iscc_gym.eval.tune import TUNE_SEED_START, check_tuning_seeds
 
+from iscc_gym.protocol import seed_list
 from iscc_gym.sim.schema import OBS_NAMES
 
 _TIME_LEFT = OBS_NAMES.index("time_left")
@@ -137,7 +138,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.probe
     args = build_parser(prog).parse_args(argv)
     if args.episodes < 2:
         raise ValueError(f"--episodes {args.episodes}: use at least 2 (a confidence interval needs two missions)")
-    seeds = check_tuning_seeds(range(args.seed_start, args.seed_start + args.episodes))
+    seeds = check_tuning_seeds(seed_list(args.seed_start, args.episodes))
     if args.write_docs:
         from iscc_gym.eval.options import check_writable_file
 

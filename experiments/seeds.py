@@ -37,7 +37,7 @@ from iscc_gym.eval.options import (
 )
 
 from iscc_gym import ENV_ID, URBAN_ENV_ID
-from iscc_gym.protocol import EVAL_SEED_START
+from iscc_gym.protocol import EVAL_SEED_START, seed_list
 
 #: Scripted policies every seed is compared with on the paper's task (each task's: ``TaskPolicies.scripted``).
 SCRIPTED = task_policies(ENV_ID).scripted
@@ -137,7 +137,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.seeds
     n_policies = len(scripted) + len(runs)
     with progress_bar(n_policies * horizon_slots(args.scenario, args.max_steps), "python -m experiments.seeds",
                       unit="slot", enabled=show, unit_scale=True) as bar:
-        res = compare_seeds(args.root, range(args.seed_start, args.seed_start + args.episodes), args.scenario,
+        res = compare_seeds(args.root, seed_list(args.seed_start, args.episodes), args.scenario,
                             scripted, max_steps=args.max_steps, progress=bar.update if show else None,
                             reference=reference, env_id=args.env)
     cmd = docs_command("python -m experiments.seeds", argv)

@@ -25,7 +25,7 @@ from iscc_gym.eval.policies import build_policy, resolve_specs
 from experiments.urban_task import mission_stats
 from iscc_gym import URBAN_ENV_ID
 from iscc_gym.docs import RESULTS_PATH, docs_path, write_section
-from iscc_gym.protocol import URBAN_SEED_START
+from iscc_gym.protocol import URBAN_SEED_START, seed_list
 from iscc_gym.scenario import make_scenario
 from iscc_gym.sim.mission import MC
 
@@ -42,7 +42,7 @@ def pick_mission(scenario="urban", share: float = BLOCKED_SHARE, tries: int = 20
     least ``share`` of it (a mission that shows what the task is about).
     """
     s = make_scenario(scenario)
-    for seed in range(URBAN_SEED_START, URBAN_SEED_START + tries):
+    for seed in seed_list(URBAN_SEED_START, tries):
         if mission_stats(s, seed)["los_share"] <= 1.0 - share:
             return seed
     raise ValueError(f"no mission of the first {tries} from {URBAN_SEED_START} is {share:.0%} blocked")

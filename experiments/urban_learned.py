@@ -28,7 +28,7 @@ from iscc_gym.eval.options import (
 )
 
 from experiments.urban_figure import mission_policies, pick_mission, play_mission
-from iscc_gym.protocol import EVAL_SEED_START
+from iscc_gym.protocol import EVAL_SEED_START, seed_list
 from iscc_gym.scenario import make_scenario
 from iscc_gym.sim.mission import MC
 
@@ -134,7 +134,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.urban
         check_writable_file(learning, "--write-docs")
     s = make_scenario("urban")
     window = max(1, int(round(args.window_s / s.dt_s)))
-    seeds = list(range(EVAL_SEED_START, EVAL_SEED_START + args.missions))
+    seeds = seed_list(EVAL_SEED_START, args.missions)
     policies = mission_policies(args.policies)  # all built (and checked) before any is played
     runs = {name: [play_mission(policy, seed) for seed in seeds] for name, policy in policies.items()}
     table = phase_table(runs, window)

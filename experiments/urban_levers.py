@@ -40,7 +40,7 @@ from iscc_gym.eval.policies import pool_map
 from iscc_gym.eval.tune import tune_model_grid
 
 from experiments.urban_task import task_stats
-from iscc_gym.protocol import TUNE_SEED_START
+from iscc_gym.protocol import TUNE_SEED_START, seed_list
 from iscc_gym.scenario import make_scenario
 from iscc_gym.tasks import TASKS, URBAN_ENV_ID
 
@@ -66,9 +66,9 @@ def lever_row(name: str, overrides: dict, missions: int, tune_missions: int = TU
     replication on other missions: ``--skip``; see the module docstring). Returns the figures of the table's row.
     """
     s = make_scenario("urban", **overrides)
-    tune_seeds = list(range(TUNE_SEED_START, TUNE_SEED_START + tune_missions))
+    tune_seeds = seed_list(TUNE_SEED_START, tune_missions)
     first = TUNE_SEED_START + tune_missions + skip
-    seeds = list(range(first, first + missions))
+    seeds = seed_list(first, missions)
     t0 = time.perf_counter()
     grid = {"rate_weight": tuple(w * s.w_rate for w in RATE_WEIGHT_GRID)}
     record = tune_model_grid("myopic", tune_seeds, s, log=lambda *_: None, max_steps=max_steps, grid=grid)

@@ -26,7 +26,7 @@ from iscc_gym.eval.evaluate import ci_bounds, ci_side
 from iscc_gym.eval.options import PICKLE_WARNING, Parser, docs_command, positive_int, run_console
 from iscc_gym.eval.policies import policy_name, resolve_specs
 
-from iscc_gym.protocol import EVAL_SEED_START
+from iscc_gym.protocol import EVAL_SEED_START, seed_list
 from iscc_gym.tasks import TASKS, URBAN_ENV_ID
 
 __all__ = ["SHIFTS", "POLICIES", "markdown", "main"]
@@ -108,7 +108,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.urban
         from iscc_gym.docs import RESULTS_PATH, docs_path
 
         check_writable_file(docs_path(RESULTS_PATH), "--write-docs")
-    seeds = list(range(EVAL_SEED_START, EVAL_SEED_START + args.episodes))
+    seeds = seed_list(EVAL_SEED_START, args.episodes)
     t0 = time.perf_counter()
     # the engine: every policy built for the preset, played on each shift's missions (seeded: any --jobs, one table)
     results = compare(URBAN_ENV_ID, items, seeds, variants=names, focus=args.focus, max_steps=args.max_steps,

@@ -50,6 +50,11 @@ URBAN_SEED_START = 1_500_000
 PARETO_RATE_MIN_BPS = 12e6
 
 
+def seed_list(start: int, n: int) -> list[int]:
+    """``n`` consecutive mission seeds from ``start`` (``start``, ``start + 1``, ...): every command's missions."""
+    return list(range(int(start), int(start) + int(n)))
+
+
 def held_out_seeds(start: int, n: int, seed: int = 0) -> list[int]:
     """``n`` mission seeds for run ``seed`` from ``start``: ``start + 1000 * seed + i``.
 
@@ -64,7 +69,7 @@ def held_out_seeds(start: int, n: int, seed: int = 0) -> list[int]:
         raise ValueError(f"seed = {seed!r} is invalid: use an integer >= 0")
     if not 1 <= n <= 1000:
         raise ValueError(f"n = {n!r} missions is invalid: use 1 to 1000 per run seed")
-    seeds = [start + 1000 * int(seed) + i for i in range(int(n))]
+    seeds = seed_list(start + 1000 * int(seed), n)
     if seeds[0] < lo_range or seeds[-1] >= hi_range:
         raise ValueError(f"seed = {seed}: missions {seeds[0]}-{seeds[-1]} leave the held-out evaluation range "
                          f"[{lo_range}, {hi_range}); use a seed below {(hi_range - start) // 1000}")

@@ -67,7 +67,7 @@ from iscc_gym.physics.stability import (
     spectral_radius,
     stability_matrix,
 )
-from iscc_gym.protocol import CALIBRATION_SEED_START
+from iscc_gym.protocol import CALIBRATION_SEED_START, seed_list
 from iscc_gym.units import lin_to_db, w_to_dbm
 
 #: The paper's reported model-level figures (its Fig. 4 in Sec. IV-C.1, Sec. V Table II and text).
@@ -116,7 +116,7 @@ def _sensing_offset(s: Scenario, n_missions: int, max_steps: int | None, rtol: f
     """
     from experiments.paper.fading import rollout
 
-    seeds = range(CALIBRATION_SEED_START, CALIBRATION_SEED_START + n_missions)
+    seeds = seed_list(CALIBRATION_SEED_START, n_missions)
     target = PAPER["peb_m_table2_sca"]
     off = float(s.sensing_snr_offset_db)
     for iterations in range(1, 9):

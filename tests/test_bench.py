@@ -1,4 +1,5 @@
-"""The benchmark command in quick mode: every figure present, positive, with its reference."""
+"""The benchmark command in quick mode: every figure present, positive, with its reference. The two runs of the bench
+(the quick bench and the PPO training subprocess) are ``slow``: the README's **Slow tests** command runs them."""
 
 import json
 from concurrent.futures import ThreadPoolExecutor
@@ -15,6 +16,7 @@ def ppo_figure():
         yield pool.submit(bench.ppo_shipped_steps_per_second, 256, 1, settings=((1, 1),))
 
 
+@pytest.mark.slow
 def test_bench_quick_reports_every_figure(tmp_path, capsys, ppo_figure):
     path = tmp_path / "bench.json"
     res = bench.main(["--quick", "--steps", "50", "--repeats", "1", "--skip-ppo", "--json", str(path)])
@@ -42,6 +44,7 @@ def test_bench_write_docs_needs_the_full_run():
         bench.main(["--write-docs"])
 
 
+@pytest.mark.slow
 def test_ppo_figure_of_the_train_configuration(ppo_figure):
     """The PPO figure trains python -m train's own configuration (the YAML's env count) per thread setting."""
     from iscc_gym.train.config import Args, resolve_args

@@ -279,6 +279,7 @@ def test_figures_are_written_atomically(tmp_path):
     assert path.read_bytes() == before and [p.name for p in path.parent.iterdir()] == ["a.png"]
 
 
+@pytest.mark.slow
 def test_a_failing_worker_stops_the_others_at_once():
     """A policy failing in one worker is reported at once: the policy still being played in the other worker
     (myopic over 1000 whole missions, about 25 min on a quiet machine) is ended, not waited for. The bound is

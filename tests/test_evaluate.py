@@ -133,6 +133,7 @@ class FakeBar:
         pass
 
 
+@pytest.mark.slow
 def test_python_m_eval_in_worker_processes_gives_the_serial_results(monkeypatch, tmp_path):
     """``python -m eval --workers 2`` runs as ``__main__`` (its spawned workers must import what they run from
     a module): every per-episode figure equals the serial in-process run's, and the progress it reports

@@ -6,6 +6,9 @@ Builds the wheel from a copy of the sources (so the checkout gets no ``build/``)
 listing its site-packages folders, after the new venv's own: ``system_site_packages=True`` would expose the *base*
 interpreter's packages, not those of the venv the tests run in), and runs it from a folder holding generic modules
 that would shadow top-level ``agents``/``train``/``eval`` packages.
+
+The tests of the built wheel and of the subprocesses are ``slow`` (the build, the venv and the launches: about 30 s
+of two cores), run by the README's **Slow tests** command; the in-process check of the core install is not.
 """
 
 from __future__ import annotations
@@ -109,6 +112,7 @@ def installed(tmp_path_factory, core_only):  # core_only: started first, to run 
     return {"wheel": wheel, "py": py, "bin": env_dir / "bin", "site": Path(purelib.stdout.strip()), "work": work}
 
 
+@pytest.mark.slow
 def test_wheel_holds_only_the_iscc_gym_namespace(installed):
     names = zipfile.ZipFile(installed["wheel"]).namelist()
     top = {n.split("/")[0] for n in names}
@@ -127,6 +131,7 @@ def test_wheel_holds_only_the_iscc_gym_namespace(installed):
         assert not (site / generic).exists(), f"{generic}/ installed at the top of site-packages"
 
 
+@pytest.mark.slow
 def test_core_requirements_are_light(installed):
     """torch, SB3, tensorboard and optuna only with the ``train`` extra."""
     with zipfile.ZipFile(installed["wheel"]) as z:
@@ -197,6 +202,7 @@ def _in_one_launch(launched) -> dict:
     return json.loads(out.splitlines()[-1])
 
 
+@pytest.mark.slow
 def test_installed_package_is_not_shadowed_by_user_modules(installed, launched):
     code, out = _in_one_launch(launched)["shadow"]
     assert code == 0, code
@@ -205,6 +211,7 @@ def test_installed_package_is_not_shadowed_by_user_modules(installed, launched):
     assert name == "MarginPolicy"
 
 
+@pytest.mark.slow
 def test_console_commands_run_from_any_directory(launched):
     for command in SCRIPTS:
         code, out, err = launched(" ".join(command))
@@ -216,6 +223,7 @@ def test_console_commands_run_from_any_directory(launched):
             assert "usage" in out.lower(), command
 
 
+@pytest.mark.slow
 def test_env_and_scripted_policies_work_without_the_train_extra(core_only):
     """What a core install (no torch, SB3, Optuna, TensorBoard, rich) offers: the env, the physics and
     the scripted policies, evaluated."""

@@ -228,7 +228,8 @@ def test_readme_quotes_no_time_that_no_command_produced():
 
 
 def test_ci_runs_the_readme_commands_in_a_fresh_venv():
-    """.ci/run runs tools/readme_commands.py, which reads exactly the README's two set-up commands."""
+    """.ci/run runs tools/readme_commands.py, which reads exactly the README's set-up commands: the main job, the
+    tests and the slow tests (the ones the tests' command skips), each on the same install."""
     import importlib.util
 
     root = README.parent
@@ -237,10 +238,12 @@ def test_ci_runs_the_readme_commands_in_a_fresh_venv():
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     commands = mod.readme_commands(README.read_text())
-    assert list(commands) == ["main", "tests"]
+    assert list(commands) == ["main", "tests", "slow"]
     assert commands["main"].endswith("python -m eval") and commands["tests"].endswith("python -m pytest tests")
+    assert commands["slow"].endswith("python -m pytest tests -m slow")
     install = commands["tests"].rsplit("&&", 1)[0]
-    assert commands["main"].startswith(install) and install.startswith("pip install torch==2.13.0 &&")
+    assert install.startswith("pip install torch==2.13.0 &&")
+    assert commands["main"].startswith(install) and commands["slow"].startswith(install)
     assert "setup-times:start" in README.read_text()
 
 

@@ -1,7 +1,12 @@
 """The reproduce command in quick mode: the paper's model-level targets, calibration, the scheme
 level (Table II and Fig. 9), the paper's Figs. 3-8 and their claims, figures and the generated docs
 sections. Every assert checks a value computed independently of the one it tests (a closed form, the
-paper's number with a stated tolerance, a property the physics implies), not a constant echoed back."""
+paper's number with a stated tolerance, a property the physics implies), not a constant echoed back.
+
+The tests reading the quick run (the ``quick_paper`` and ``quick_literal`` fixtures: the reproduction command run end
+to end, figures included, about 25 s of one core) are ``slow``: the README's **Slow tests** command runs them. The
+pieces below them (the Monte Carlo, the evaluator's check rows, the figure folders, the calibration cache) run by
+default, and the physics they rest on has its own oracles (tests/test_sensing.py, test_stability.py, ...)."""
 
 import json
 import sys
@@ -38,6 +43,7 @@ def quick_literal(quick_paper):
     return reproduce.run("literal", quick=True, schemes=False)
 
 
+@pytest.mark.slow
 def test_claims_are_machine_readable(quick_paper):
     claims = quick_paper["claims"]
     ids = [c["id"] for c in claims]
@@ -50,6 +56,7 @@ def test_claims_are_machine_readable(quick_paper):
     assert quick_paper["claims_holding"] == sum(c["holds"] for c in claims)
 
 
+@pytest.mark.slow
 def test_paper_preset_hits_the_model_level_targets(quick_paper):
     """The paper's Sec. IV-C.1 and Table II numbers, each with its tolerance."""
     r = quick_paper
@@ -64,6 +71,7 @@ def test_paper_preset_hits_the_model_level_targets(quick_paper):
     assert peb[a == 0.8][0] / peb[a == 0.2][0] == pytest.approx(0.5, rel=0.1)
 
 
+@pytest.mark.slow
 def test_bounds_decrease_and_saturate_in_alpha_sen(quick_paper):
     peb, veb = np.array(quick_paper["peb_m"]), np.array(quick_paper["veb_mps"])
     assert np.all(np.diff(peb) < 0) and np.all(np.diff(veb) < 0)
@@ -71,6 +79,7 @@ def test_bounds_decrease_and_saturate_in_alpha_sen(quick_paper):
     assert np.all(np.diff(gains) < 0)  # diminishing returns
 
 
+@pytest.mark.slow
 def test_sharp_eps_transition_at_alpha_ctrl_star(quick_paper):
     tr = quick_paper["eps_ctrl_vs_alpha_ctrl"]
     a, e = np.array(tr["alpha_ctrl"]), np.array(tr["eps_ctrl"])
@@ -80,6 +89,7 @@ def test_sharp_eps_transition_at_alpha_ctrl_star(quick_paper):
     assert np.all(np.diff(e) <= 0)
 
 
+@pytest.mark.slow
 def test_calibration_solved_matches_the_preset(quick_paper):
     solved = quick_paper["calibration"]["solved"]
     preset = SCENARIOS["paper"]
@@ -88,6 +98,7 @@ def test_calibration_solved_matches_the_preset(quick_paper):
     assert solved["ctrl_deadline_s"] == pytest.approx(preset.ctrl_deadline_s, rel=0.1)
 
 
+@pytest.mark.slow
 def test_literal_preset_shows_the_mismatch(quick_literal):
     r = quick_literal
     assert r["alpha_ctrl_star"] < 1e-3  # collapses far below 4.03 %
@@ -104,6 +115,7 @@ def test_closed_loop_at_table2_split_tracks_near_paper():
     assert 0.3 < err < 0.5  # paper: 0.41 m
 
 
+@pytest.mark.slow
 def test_write_docs_regenerates_only_its_sections(tmp_path, quick_paper, quick_literal):
     readme = tmp_path / "README.md"
     readme.write_text("head\n<!-- reproduce:start -->\nSTALE\n<!-- reproduce:end -->\n"
@@ -139,6 +151,7 @@ ALLOC_KEYS = ("tracking_error_m", "rate_mbps", "peb_m", "lqg_cost", "time_s", "a
               "alpha_comm")
 
 
+@pytest.mark.slow
 def test_scheme_level_json_has_the_issue_keys(quick_paper):
     r = quick_paper
     for method in ("sca", "grid", "evolutionary"):
@@ -150,6 +163,7 @@ def test_scheme_level_json_has_the_issue_keys(quick_paper):
     assert len(names) == 10 and all(isinstance(t["holds"], bool) for t in r["targets"])
 
 
+@pytest.mark.slow
 def test_scheme_level_sanity(quick_paper):
     al, sc = quick_paper["allocation"], quick_paper["schemes"]
     sca = al["sca"]["tracking_error_m"]
@@ -166,6 +180,7 @@ def test_scheme_level_sanity(quick_paper):
         assert 0.0 < al[method]["time_s"] < 60.0
 
 
+@pytest.mark.slow
 def test_figures_written(quick_paper, figures_dir):
     assert set(quick_paper["figures"]) == set(FIGURES) | set(paper_figures.FIGURES)
     for name in quick_paper["figures"]:
@@ -173,6 +188,7 @@ def test_figures_written(quick_paper, figures_dir):
         assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 5000
 
 
+@pytest.mark.slow
 def test_gnss_steady_state_matches_the_env(quick_paper):
     wi = quick_paper["schemes"]["gnss"]["what_if"]
     env = quick_paper["schemes"]["gnss"]["tracking_error_m"]
@@ -183,6 +199,7 @@ def test_gnss_steady_state_matches_the_env(quick_paper):
     assert wi["gnss_pos_std_for_paper_m"] > SCENARIOS["paper"].gnss_pos_std_m
 
 
+@pytest.mark.slow
 def test_format_prints_paper_beside_ours(quick_paper):
     text = reproduce.format_table(quick_paper)
     for snippet in ("Table II analog", "Fig. 9 analog", "68.6", "57.8", "2.36", "17.37", "holds"):
@@ -267,6 +284,7 @@ def test_fit_line_recovers_a_line():
     assert r2 < 1.0 and k == pytest.approx(0.16, abs=0.05)
 
 
+@pytest.mark.slow
 def test_fig3_fig4_physics(quick_paper):
     pf = quick_paper["paper_figures"]
     curves = pf["fig3"]["curves"]
@@ -282,6 +300,7 @@ def test_fig3_fig4_physics(quick_paper):
     assert f4["alpha_ctrl_star_faded_worst"] > f4["alpha_ctrl_star_faded_mean"] > 0.0
 
 
+@pytest.mark.slow
 def test_claims_follow_the_measurements(quick_paper):
     """A claim flips when the measured numbers it reads flip."""
     pf = json.loads(json.dumps(quick_paper["paper_figures"]))

@@ -179,6 +179,10 @@ def test_the_comparison_shows_dropped_data_only_where_a_queue_dropped_some():
         == DROPPED_COLUMN
 
 
+LEVERS_TINY = ["--variants", "smooth,urban", "--missions", "1", "--tune-missions", "1", "--max-steps", "5", "--skip",
+               "3"]
+
+
 def test_the_levers_table_splits_myopics_reward_and_pairs_the_planners():
     """``experiments.urban_levers`` on a tiny budget: myopic's reward is the sum of its tracking, stability and
     dropped-data terms (no loss of track in 25 slots), the planners are paired on the same missions, and an unknown
@@ -187,10 +191,8 @@ def test_the_levers_table_splits_myopics_reward_and_pairs_the_planners():
 
     (row,) = urban_levers.main(["--variants", "smooth", "--missions", "2", "--tune-missions", "2", "--max-steps",
                                 "25"])
-    tiny = ["--variants", "smooth,urban", "--missions", "1", "--tune-missions", "1", "--max-steps", "5"]
-    rows = urban_levers.main(tiny + ["--skip", "3"])
+    rows = urban_levers.main(LEVERS_TINY)
     assert rows[0]["seeds"] == [500004, 500004] and rows[1]["name"] == "urban"  # 3 missions after the tuning one
-    assert urban_levers.main(tiny + ["--skip", "3", "--jobs", "2"]) == rows  # the same rows from two processes
     assert row["overrides"] == {"los_field_kernel": "gaussian"}
     assert row["parts"]["lost_track"] == pytest.approx(0.0, abs=1e-6)
     assert row["parts"]["tracking"] > 0.0 and row["myopic"] < 0.0
@@ -200,6 +202,14 @@ def test_the_levers_table_splits_myopics_reward_and_pairs_the_planners():
         assert lo <= mean <= hi
     with pytest.raises(ValueError, match="unknown"):
         urban_levers.main(["--variants", "smooth,nope"])
+
+
+@pytest.mark.slow
+def test_the_levers_table_is_the_same_from_two_processes():
+    """``--jobs 2`` (a pool of worker processes, each importing the planners) gives the serial run's rows."""
+    from experiments import urban_levers
+
+    assert urban_levers.main(LEVERS_TINY + ["--jobs", "2"]) == urban_levers.main(LEVERS_TINY)
 
 
 def test_shifted_missions_change_the_env_and_leave_the_policies_as_tuned(monkeypatch):
@@ -303,8 +313,8 @@ def _run_item_ctrl_c_then_sleep(index, *args):
 
 
 @pytest.mark.parametrize("command, argv", [
-    ("urban_shift", ["--shifts", "umi_av,map error 0.8", "--policies", "myopic", "--focus", "myopic", "--episodes",
-                     "1"]),
+    pytest.param("urban_shift", ["--shifts", "umi_av,map error 0.8", "--policies", "myopic", "--focus", "myopic",
+                                 "--episodes", "1"], marks=pytest.mark.slow),  # spawned workers import the engine
     ("urban_levers", ["--variants", "urban,smooth", "--missions", "1"]),
 ])
 def test_ctrl_c_stops_the_urban_commands_jobs_at_once(command, argv, monkeypatch):

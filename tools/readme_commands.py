@@ -1,15 +1,15 @@
-"""Run the README's two set-up commands as a new user would: in a fresh virtual environment, from a checkout.
+"""Run the README's set-up commands as a new user would: in a fresh virtual environment, from a checkout.
 
 ``python tools/readme_commands.py`` creates a new venv (``--venv DIR``, default a temporary folder removed
-afterwards), activates it, and runs the README's **Main job** and **Tests** commands in it, in that order,
-exactly as the README prints them, each step of a command (the parts joined by ``&&``) timed. It exits with the
-first failing command's status, so CI (``.ci/run``) runs nothing the README does not tell a user: a package
-installed by hand on the machine cannot hide a missing step.
+afterwards), activates it, and runs the README's **Main job**, **Tests** and **Slow tests** commands in it, in
+that order, exactly as the README prints them, each step of a command (the parts joined by ``&&``) timed. It exits
+with the first failing command's status, so CI (``.ci/run``) runs nothing the README does not tell a user: a
+package installed by hand on the machine cannot hide a missing step.
 
 ``--write-docs`` writes the measured times into the README's ``setup-times`` block (through the new venv's
-``iscc_gym.docs.write_section``, the one writer of generated sections). ``--only main`` or ``--only tests``
-runs one command (the other's time is then not written). Standard library only: it runs before anything is
-installed.
+``iscc_gym.docs.write_section``, the one writer of generated sections). ``--only main``, ``--only tests`` or
+``--only slow`` runs one command (the others' times are then not written). Standard library only: it runs before
+anything is installed.
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 README = ROOT / "README.md"
 #: The README paragraphs whose first ``bash`` block is a set-up command, in the order a user runs them.
-COMMANDS = {"main": "**Main job**", "tests": "**Tests**"}
+COMMANDS = {"main": "**Main job**", "tests": "**Tests**", "slow": "**Slow tests**"}
 
 
 def readme_commands(text: str) -> dict[str, str]:
@@ -71,7 +71,7 @@ def table(results: dict[str, list[tuple[str, float]]]) -> str:
     cores = os.cpu_count()
     lines = [f"Measured by `python tools/readme_commands.py --write-docs` in a new virtual environment on this "
              f"machine ({cores} cores, Python {platform.python_version()}), the commands run in the README's order "
-             "(so the second one's installs find everything in place); a download's time depends on the network.",
+             "(so the later ones' installs find everything in place); a download's time depends on the network.",
              "", "| command | step | wall time |", "|---|---|--:|"]
     for name, steps in results.items():
         for step, dt in steps:
@@ -84,7 +84,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--venv", type=Path, help="where to create the venv (must not exist; default: a temporary "
                     "folder, removed afterwards)")
-    ap.add_argument("--only", choices=sorted(COMMANDS), help="run one of the two commands")
+    ap.add_argument("--only", choices=sorted(COMMANDS), help="run one of the commands")
     ap.add_argument("--write-docs", action="store_true", help="write the times into README.md's setup-times block")
     args = ap.parse_args(argv)
     commands = readme_commands(README.read_text())
@@ -103,7 +103,7 @@ def main(argv: list[str] | None = None) -> int:
         print(text)
         if args.write_docs:
             if args.only:
-                ap.error("--write-docs needs both commands (no --only)")
+                ap.error("--write-docs needs every command (no --only)")
             code = ("import sys; from iscc_gym.docs import write_section, docs_path, README_PATH; "
                     "write_section(docs_path(README_PATH), 'setup-times', sys.stdin.read())")
             subprocess.run([str(env_dir / "bin" / "python"), "-c", code], input=text, text=True, check=True,

@@ -6,8 +6,6 @@ sensing.crlb_local, finite differences, a seeded Monte Carlo of a Gaussian, and 
 
 from __future__ import annotations
 
-import time
-
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -224,15 +222,14 @@ def test_trust_bound_and_the_averaged_snr_reading(model):
     assert model.evaluate([0.2, 0.09, 0.71], trust_loss_fraction=1.0).trusted[0]
 
 
-def test_grid_of_splits_is_fast(model):
+def test_a_grid_of_splits_evaluates_in_one_call(model):
     g = np.arange(1, 100) / 100
     a_s, a_c = np.meshgrid(g, g, indexing="ij")
     keep = a_s + a_c < 1 - 1e-9
     splits = np.stack([a_s[keep], a_c[keep], 1 - a_s[keep] - a_c[keep]], -1)
     model.evaluate(splits[:5])  # build the lazy tables
-    t0 = time.perf_counter()
-    res = model.evaluate(splits)
-    assert len(splits) == 4851 and time.perf_counter() - t0 < 10.0
+    res = model.evaluate(splits)  # its speed: python -m eval.bench, never a timing assert
+    assert len(splits) == 4851 and res.objective.shape == (4851,)
     assert np.isfinite(res.objective).all()
 
 

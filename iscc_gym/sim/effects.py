@@ -5,14 +5,14 @@ each is a switch of :class:`TaskEffects`, derived from the Scenario's fields her
 that composes the slot reads the record instead of testing the scenario's fields:
 
 * the compiled slot's constants (:func:`iscc_gym.sim.params.slot_params`: the record's switches, which
-  :func:`iscc_gym.sim.loop.slot_one` and :mod:`iscc_gym.sim.kernel` test), and the compiled blockage branch
+  :func:`iscc_gym.sim.loop.step_one` and :mod:`iscc_gym.sim.kernel` test), and the compiled blockage branch
   (:func:`iscc_gym.sim.loop.blocked_switch`);
 * the step's layout (:mod:`iscc_gym.sim.schema`: the observation's blocks, the slot's normals);
 * the mission's rows (:mod:`iscc_gym.sim.mission`: the channel along the path with blockage), the loop state's
   buffer (:func:`iscc_gym.sim.loop.init_state`), and the multi-drone fleet (the paper's task only).
 
 A new effect: a field here (off for the existing presets), its equation in the physics module that owns it, its
-call in :func:`iscc_gym.sim.loop.slot_one`, its observation block in :data:`iscc_gym.sim.schema.OBS_BLOCKS`.
+call in :func:`iscc_gym.sim.loop.step_one`, its observation block in :data:`iscc_gym.sim.schema.OBS_BLOCKS`.
 Plain Python; imports only the Scenario's cache.
 """
 

@@ -1,10 +1,12 @@
 """The env's step, compiled: action map, slot, reward and costs, next observation, as one loop over
-the batch (numba), composed of the compiled slot (:func:`iscc_gym.sim.loop.slot_one`) and the physics
+the batch (numba), composed of the compiled slot (:func:`iscc_gym.sim.loop.step_one`, then the data queue's
+:func:`iscc_gym.sim.loop.queue_slot_one`) and the physics
 modules' scalar forms.
 
 Every equation of the slot is written once, in the module that owns it (``channel.*_one``,
 ``fbl.*_one``, ``sensing.*_one``, ``kalman.*_one``, ``dynamics.*_one``, ``queue.*_one``), and composed by
-:func:`iscc_gym.sim.loop.slot_one` (the whole slot transition, which :func:`iscc_gym.sim.loop.step` runs too);
+:func:`iscc_gym.sim.loop.step_one` and :func:`iscc_gym.sim.loop.queue_slot_one` (the whole slot transition,
+which :func:`iscc_gym.sim.loop.step` runs too);
 this module adds the env's own pieces, also written once: the action
 map (:func:`split_one`), the reward and costs (:func:`reward_one`) and the observation
 (:func:`observe_one`). ``tests/test_kernel.py`` checks it against the numpy oracle
@@ -28,7 +30,7 @@ from iscc_gym.physics.channel import beam_gain_one, direction_one, link_snr_one
 from iscc_gym.physics.fbl import link_terms_one, min_comm_share_one, min_ctrl_share_one
 from iscc_gym.physics.queue import oldest_age_one
 from iscc_gym.physics.sensing import echo_amplitude_one
-from iscc_gym.sim.loop import channel_state_one, new_outputs, slot_one, work_space
+from iscc_gym.sim.loop import channel_state_one, new_outputs, queue_slot_one, step_one, work_space
 from iscc_gym.sim.mission import MC
 from iscc_gym.sim.noise import fill_slot_normals
 from iscc_gym.sim.schema import (
@@ -282,9 +284,10 @@ def _env_rows(cp, mats, x, x_hat, p, shadow, n, ref, key, queue, action, budget,
             zi = zbuf
         else:
             zi = z[i]
-        # the slot transition, data queue included (iscc_gym.sim.loop.slot_one, as loop.step runs it)
-        shadow_next[i] = slot_one(c, mats, x[i], x_hat[i], p[i], shadow[i], n[i], ref[i], queue[i], a0, a1, a2,
-                                  zi, x_next[i], x_hat_next[i], p_next[i], queue_next[i], mt, work, blocked)
+        # the slot transition, data queue included (loop.step_one, then loop.queue_slot_one, as loop.step runs it)
+        shadow_next[i] = step_one(c, mats, x[i], x_hat[i], p[i], shadow[i], n[i], ref[i], a0, a1, a2,
+                                  zi, x_next[i], x_hat_next[i], p_next[i], mt, work, blocked)
+        queue_slot_one(c, queue[i], zi, mt, queue_next[i])
         n_next = n[i] + 1
         evaluable = observe_one(c, x_hat_next[i], p_next[i], shadow_next[i], n_next, ref[i], queue_next[i], mt[_RX],
                                 mt[_PEB], obs[i])
@@ -301,14 +304,14 @@ def _env_rows(cp, mats, x, x_hat, p, shadow, n, ref, key, queue, action, budget,
 def env_step_batch(c, mats, x, x_hat, p, shadow, n, ref, key, queue, action, budget, z, active,
                    x_next, x_hat_next, p_next, shadow_next, queue_next, out, obs, blocked=None):
     """One env step of a batch: action -> split (:func:`split_one`), slot transition
-    (:func:`iscc_gym.sim.loop.slot_one`, the data queue included), reward and costs (:func:`reward_one`), next
-    observation (:func:`observe_one`), written into the outputs: next x, x_hat, p, shadow, queue, ``out``
-    (B, N_ENV_COLUMNS) and ``obs`` (B, obs_size) float32. ``budget`` (B,) scales loop i's split to its share of
-    the band (the multi-drone env, :mod:`iscc_gym.envs.multi`), or has no rows: the whole band (the single env).
-    ``z`` holds the slot's normals (B, n_draws), or has no rows: then each loop draws its own from its episode key
-    (noise.slot_normals(key[i], n[i])). Loops with ``active[i]`` False are left as they are (state
-    copied, zero outputs). ``blocked``: None without blockage (the default), True with
-    (:func:`iscc_gym.sim.loop.step_one`'s compile-time switch).
+    (:func:`iscc_gym.sim.loop.step_one`, then the data queue's :func:`iscc_gym.sim.loop.queue_slot_one`), reward and
+    costs (:func:`reward_one`), next observation (:func:`observe_one`), written into the outputs: next x, x_hat, p,
+    shadow, queue, ``out`` (B, N_ENV_COLUMNS) and ``obs`` (B, obs_size) float32. ``budget`` (B,) scales loop i's split
+    to its share of the band (the multi-drone env, :mod:`iscc_gym.envs.multi`), or has no rows: the whole band (the
+    single env). ``z`` holds the slot's normals (B, n_draws), or has no rows: then each loop draws its own from its
+    episode key (noise.slot_normals(key[i], n[i])). Loops with ``active[i]`` False are left as they are (state copied,
+    zero outputs). ``blocked``: None without blockage (the default), True with (:func:`iscc_gym.sim.loop.step_one`'s
+    compile-time switch).
     """
     _env_rows(c, mats, x, x_hat, p, shadow, n, ref, key, queue, action, budget, z, active, 0, x.shape[0],
               x_next, x_hat_next, p_next, shadow_next, queue_next, out, obs, blocked)

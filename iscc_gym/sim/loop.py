@@ -4,8 +4,9 @@
 drones by one slot: sense (CRLB-limited ISAC or GNSS) -> Kalman update -> LQG command ->
 finite-blocklength delivery (Bernoulli drop) -> drone dynamics -> Kalman prediction, and with a data queue
 the slot's arrivals served by its data share (:mod:`iscc_gym.physics.queue`). The compiled slot
-(:func:`slot_one`) is the whole transition: :func:`step` and the env's kernel (:mod:`iscc_gym.sim.kernel`) both
-run it, so neither advances any part of the state the other does not; nothing here keeps state between calls.
+(:func:`step_one`, then the data queue's :func:`queue_slot_one`) is the whole transition: :func:`step` and the
+env's kernel (:mod:`iscc_gym.sim.kernel`) both run it, so neither advances any part of the state the other does
+not; nothing here keeps state between calls.
 
 Randomness: each slot uses exactly :func:`iscc_gym.sim.schema.n_draws` standard normals per drone
 (:data:`N_DRAWS`, one more with a queue: the arrivals). By default they are
@@ -64,7 +65,7 @@ from iscc_gym.trajectory import Reference, sample_reference
 __all__ = ["LoopState", "N_DRAWS", "init_state", "step", "reference_at",
            "standard_normals", "stack_references", "reference_array", "slot_noise", "step_one", "reference_rows",
            "vector_norm", "check_step", "channel_state_one", "init_mission", "blocked_switch",
-           "step_batch", "new_outputs", "slot_one", "queue_slot_one"]
+           "step_batch", "new_outputs", "queue_slot_one"]
 
 
 class LoopState(NamedTuple):
@@ -247,9 +248,9 @@ def step(s: Scenario, state: LoopState, alpha: ArrayLike, rng: np.random.Generat
 
     Notes
     -----
-    Evaluated by the compiled slot (:func:`step_batch`, :func:`slot_one`) one drone at a time, so drone
-    i of a batch reproduces the unbatched loop bit for bit, and the env's step (which runs the same
-    :func:`slot_one`) from the same state, split and normals bit for bit. ``tests/oracle_loop.py`` holds the same
+    Evaluated by the compiled slot (:func:`step_batch`: :func:`step_one`, :func:`queue_slot_one`) one drone at a
+    time, so drone i of a batch reproduces the unbatched loop bit for bit, and the env's step (which runs the
+    same pair) from the same state, split and normals bit for bit. ``tests/oracle_loop.py`` holds the same
     transition in numpy (``step_reference``), the test oracle it is checked against.
     """
     alpha = np.asarray(alpha, dtype=float)
@@ -318,12 +319,43 @@ def channel_state_one(c, row, h_m, dist_m, shadow):
     return blocked_state_one(c, row, h_m, dist_m)
 
 
+@njit(cache=True, error_model="numpy")
+def queue_slot_one(c, q, zi, mt, q_next):
+    """The data queue's part of a slot (:mod:`iscc_gym.physics.queue`), run right after :func:`step_one` (which
+    writes the slot's data rate into ``mt``): the slot's arrivals (:func:`iscc_gym.physics.queue.arrival_bits_one`
+    of the draw ``zi[Z_ARRIVAL]``) join ``q`` and the data share serves ``rate_comm_bps`` x dt bits (none at a NaN
+    rate); writes the next buffer into ``q_next`` (``q`` unchanged) and the queue's metrics columns of ``mt`` (0
+    without a queue).
+
+    The slot transition is :func:`step_one` then this function: :func:`step_batch` (``loop.step``) and the env's
+    kernel (:func:`iscc_gym.sim.kernel.env_step_batch`) both run the pair. It is a function of its own, called
+    from those callers without fastmath, so its arithmetic stays as written: called from inside the fastmath
+    :func:`step_one` the compiler may fuse its multiply-adds (the urban task's bits would change), and a wrapper
+    around the pair costs the paper's kernel 7-14 % (measured: call and reference-count overhead per loop).
+    """
+    for j in range(q.shape[0]):
+        q_next[j] = q[j]
+    if c.queue == 1.0:
+        arrived = arrival_bits_one(c.arrival_mean_bits, c.arrival_sigma, zi[Z_ARRIVAL])
+        capacity = mt[_RATE_COMM] * c.dt_s
+        served, dropped = queue_step_one(q_next, arrived, capacity if capacity == capacity else 0.0)
+        backlog = 0.0
+        for j in range(q_next.shape[0]):
+            backlog += q_next[j]
+    else:
+        arrived = served = dropped = backlog = 0.0
+    mt[_ARRIVED], mt[_SERVED], mt[_DROPPED], mt[_BACKLOG] = arrived, served, dropped, backlog
+
+
 @njit(cache=True, error_model="numpy", fastmath={"reassoc", "contract"})
 def step_one(c, mats, xi, x_hat, p, shadow, ni, ref, a_sen, a_ctrl, a_comm, zi,
              x_next, x_hat_next, p_next, mt, work, blocked=None):
-    """:func:`step_reference` for one drone (``c``, ``mats``: :func:`iscc_gym.sim.params.slot_params`);
-    writes the next state and the metrics row ``mt`` (:data:`iscc_gym.sim.schema.METRIC_NAMES`); returns
-    the next shadowing state. ``zi``: the slot's normals (:data:`iscc_gym.sim.schema.DRAWS`). ``blocked``: None
+    """The closed loop's part of one slot of one loop (``tests/oracle_loop.py``'s ``step_reference``; ``c``,
+    ``mats``: :func:`iscc_gym.sim.params.slot_params`); the slot transition is this, then the data queue
+    (:func:`queue_slot_one`). Writes the next state (x, x_hat, p) and the metrics row ``mt``
+    (:data:`iscc_gym.sim.schema.METRIC_NAMES`; a row of the env's columns fits too: they start with them); returns
+    the next shadowing state. ``zi``: the slot's normals (:func:`iscc_gym.sim.schema.n_draws`); ``work``:
+    :func:`work_space`, scratch reused from loop to loop (the slot allocates nothing). ``blocked``: None
     without blockage (the default), True with (a compile-time switch: see the comment in the body).
     """
     w4, w6, y, x_post, p_post, u, bu, pa, h = work
@@ -408,44 +440,6 @@ def step_one(c, mats, xi, x_hat, p, shadow, ni, ref, a_sen, a_ctrl, a_comm, zi,
 
 
 @njit(cache=True, error_model="numpy")
-def queue_slot_one(c, q, zi, mt, q_next):
-    """The data queue's part of a slot (:mod:`iscc_gym.physics.queue`), after :func:`step_one` has written the
-    slot's data rate into ``mt``: the slot's arrivals (:func:`iscc_gym.physics.queue.arrival_bits_one` of the
-    draw ``zi[Z_ARRIVAL]``) join ``q`` and the data share serves ``rate_comm_bps`` x dt bits (none at a NaN rate);
-    writes the next buffer into ``q_next`` (``q`` unchanged) and the queue's metrics columns of ``mt``. Without a
-    queue (no buffer) the columns are 0. Compiled apart from :func:`step_one` (no fastmath: the bits add up as
-    written).
-    """
-    for j in range(q.shape[0]):
-        q_next[j] = q[j]
-    if c.queue == 1.0:
-        arrived = arrival_bits_one(c.arrival_mean_bits, c.arrival_sigma, zi[Z_ARRIVAL])
-        capacity = mt[_RATE_COMM] * c.dt_s
-        served, dropped = queue_step_one(q_next, arrived, capacity if capacity == capacity else 0.0)
-        backlog = 0.0
-        for j in range(q_next.shape[0]):
-            backlog += q_next[j]
-    else:
-        arrived = served = dropped = backlog = 0.0
-    mt[_ARRIVED], mt[_SERVED], mt[_DROPPED], mt[_BACKLOG] = arrived, served, dropped, backlog
-
-
-@njit(cache=True, error_model="numpy")
-def slot_one(c, mats, xi, x_hat, p, shadow, ni, ref, q, a_sen, a_ctrl, a_comm, zi,
-             x_next, x_hat_next, p_next, q_next, mt, work, blocked=None):
-    """One slot of one loop, the whole transition: the closed loop (:func:`step_one`), then the data queue
-    served by the slot's data share (:func:`queue_slot_one`). Writes the next state (x, x_hat, p, queue) and the
-    metrics row ``mt`` (:data:`iscc_gym.sim.schema.METRIC_NAMES`; a row of the env's columns also fits: they
-    start with them); returns the next shadowing state. ``zi``: the slot's normals
-    (:func:`iscc_gym.sim.schema.n_draws`); ``work``: :func:`work_space`, scratch reused from loop to loop.
-    """
-    shadow_next = step_one(c, mats, xi, x_hat, p, shadow, ni, ref, a_sen, a_ctrl, a_comm, zi,
-                           x_next, x_hat_next, p_next, mt, work, blocked)
-    queue_slot_one(c, q, zi, mt, q_next)
-    return shadow_next
-
-
-@njit(cache=True, error_model="numpy")
 def work_space():
     """Scratch space of one drone's slot, carved out of one allocation (zeros where only some
     entries are written: the observation matrices).
@@ -459,16 +453,18 @@ def work_space():
 @njit(cache=True, error_model="numpy")
 def step_batch(cp, mats, x, x_hat, p, shadow, n, ref, queue, alpha, z, x_next, x_hat_next, p_next, shadow_next,
                queue_next, metrics, blocked=None):
-    """:func:`slot_one` over a batch, written into the output arrays (next x, x_hat, p, shadow, queue and the
-    metrics (B, N_METRICS)); outputs are passed in because returning fresh arrays from compiled code
-    costs more than the slot itself at small batches. ``cp``: the parameter record array (1,).
+    """The slot transition (:func:`step_one`, then :func:`queue_slot_one`) over a batch, written into the output
+    arrays (next x, x_hat, p, shadow, queue and the metrics (B, N_METRICS)); outputs are passed in because returning
+    fresh arrays from compiled code costs more than the slot itself at small batches. ``cp``: the parameter record
+    array (1,).
     """
     c = cp[0]
     work = work_space()
     for i in range(x.shape[0]):
-        shadow_next[i] = slot_one(c, mats, x[i], x_hat[i], p[i], shadow[i], n[i], ref[i], queue[i], alpha[i, 0],
+        shadow_next[i] = step_one(c, mats, x[i], x_hat[i], p[i], shadow[i], n[i], ref[i], alpha[i, 0],
                                   alpha[i, 1], alpha[i, 2], z[i], x_next[i], x_hat_next[i], p_next[i],
-                                  queue_next[i], metrics[i], work, blocked)
+                                  metrics[i], work, blocked)
+        queue_slot_one(c, queue[i], z[i], metrics[i], queue_next[i])
 
 
 def new_outputs(nb: int, columns: int, n_obs: int = N_OBS, queue_deadline_slots: int = 0):

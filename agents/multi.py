@@ -31,7 +31,7 @@ Each maps a batch of observations (n, 23K) to the 3K shares of every env and pla
 * ``margin-starved`` (:class:`ScaledSensing` of ``margin``, :data:`STARVED_SCALE`): ``margin`` with every
   drone's sensing share cut to a tenth, the rest given to the drone's data link: a policy that buys
   rate with its radar, the direction the old summed-penalty reward paid for (issue 23). Under the
-  per-drone mean reward it scores worse than ``margin`` (docs/learning.md, tests/test_multi_agents.py).
+  per-drone mean reward it scores worse than ``margin`` (docs/learning.md, tests/agents/test_multi_agents.py).
 """
 
 from __future__ import annotations

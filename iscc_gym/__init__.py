@@ -2,7 +2,7 @@
 
 The closed loop of Li et al., "Closed-Loop Integrated Sensing, Communication, and Control for
 Efficient Drone Flight" around one frozen :class:`Scenario` (``scenario.py``), in four layers whose
-imports run one way (``tests/test_imports.py``):
+imports run one way (``tests/commands/test_imports.py``):
 
 - :mod:`iscc_gym.physics`: per-drone equations, one module per concept;
 - :mod:`iscc_gym.sim`: the compiled slot and env step composed of them;

@@ -12,7 +12,7 @@ A mission is a seed of ``env.reset(seed=...)``. The rules every command follows,
   baselines are tuned on :data:`TUNE_SEEDS`, the reproduction calibrates on :data:`CALIBRATION_SEED_START` + i.
 
 Used by ``agents``, ``train`` and ``eval``; the core (physics, sim, envs, analysis) never imports it
-(``tests/test_imports.py``).
+(``tests/commands/test_imports.py``).
 """
 
 from __future__ import annotations

@@ -24,8 +24,8 @@ _readme_blocks = []
 
 
 def pytest_collection_finish(session):
-    """tests/test_readme.py runs the README's blocks in an interpreter of their own: start it as soon as the tests
-    are known, where a selected test reads it, so that it runs beside the tests before that module's."""
+    """tests/commands/test_readme.py runs the README's blocks in an interpreter of their own: start it as soon as the
+    tests are known, where a selected test reads it, so that it runs beside the tests before that module's."""
     if session.config.option.collectonly:
         return
     for item in session.items:

@@ -2,7 +2,7 @@
 time update, batched over a leading axis (states (..., 6), covariances (..., 6, 6)).
 
 The library runs the compiled :func:`iscc_gym.physics.kalman.kf_update_whitened_one` and
-:func:`iscc_gym.physics.kalman.kf_predict_one`; ``tests/test_kalman.py`` checks them against these.
+:func:`iscc_gym.physics.kalman.kf_predict_one`; ``tests/physics/test_kalman.py`` checks them against these.
 """
 
 from __future__ import annotations

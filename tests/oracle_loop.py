@@ -1,7 +1,7 @@
 """Test oracle of the closed loop and the env step in numpy: the transition (``step_reference``), the
 observation (``observe_reference``) and the env step (``env_step_reference``), written with the numpy
 physics functions (``channel``, ``fbl``, ``sensing``, ``kalman``) independently of the compiled slot
-(:func:`iscc_gym.sim.loop.step_one`, :mod:`iscc_gym.sim.kernel`), which ``tests/test_kernel.py`` checks
+(:func:`iscc_gym.sim.loop.step_one`, :mod:`iscc_gym.sim.kernel`), which ``tests/physics/test_kernel.py`` checks
 against them (issue 14: the library computes each equation once, the numpy path lives here).
 """
 

@@ -11,7 +11,7 @@ compiles to libm's (the wrapper types as the ufunc it wraps). ``tests/conftest.p
 process and, through ``tests/ulp_site/sitecustomize.py`` on ``PYTHONPATH``, in every Python subprocess the tests
 start (their workers see the same numpy as the test). Not covered: ``a ** b`` on arrays, which reaches numpy's
 power without the module attribute. Golden digests belong to a processor, and this is another one
-(``tests/test_golden.py`` skips).
+(``tests/env/test_golden.py`` skips).
 """
 
 from __future__ import annotations

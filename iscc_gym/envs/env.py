@@ -180,7 +180,7 @@ class ISCCEnv(TimeLimitCheck, gym.Env):
     small-scale fading is drawn after the allocation. symlog(x, c) = sign(x) ln(1 + |x|/c); every
     entry is clipped to [-10, 10]. The entries, their scalings, bounds and order are defined once in
     :data:`iscc_gym.sim.schema.OBS_BLOCKS`; :func:`iscc_gym.sim.schema.observation_table` gives a scenario's
-    table (the tables below are it, written out; ``tests/test_urban.py`` checks they agree) and
+    table (the tables below are it, written out; ``tests/env/test_urban.py`` checks they agree) and
     :func:`iscc_gym.sim.functional.decode_observation` the physical values.
 
     | Num | Observation | Unit / scaling | Min | Max |

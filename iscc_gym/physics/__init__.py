@@ -7,5 +7,5 @@ rates and block error rates), ``dynamics`` (the drone's double integrator and th
 
 Compiled scalar ``*_one`` functions, which the compiled slot (:mod:`iscc_gym.sim`) calls, beside their
 array forms. Imports nothing of :mod:`iscc_gym.sim`, :mod:`iscc_gym.envs` or :mod:`iscc_gym.analysis`
-(``tests/test_imports.py``).
+(``tests/commands/test_imports.py``).
 """

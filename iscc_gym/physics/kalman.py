@@ -44,7 +44,7 @@ def kf_update_whitened_one(x, p, y, w, x_post, p_post, h):
     (the Joseph form of a scalar update reduces to this), symmetric by construction; no rows: the
     prior is copied (a slot without a measurement). About a third of the batch update's arithmetic
     and no matrix inverse; it agrees with :func:`kf_update`'s batch Joseph form to rounding
-    (``tests/test_kernel.py``). Writes ``x_post`` (6), ``p_post`` (6, 6); ``h`` (6) is scratch.
+    (``tests/physics/test_kernel.py``). Writes ``x_post`` (6), ``p_post`` (6, 6); ``h`` (6) is scratch.
     """
     for i in range(6):
         x_post[i] = x[i]

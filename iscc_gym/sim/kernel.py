@@ -9,7 +9,7 @@ Every equation of the slot is written once, in the module that owns it (``channe
 which :func:`iscc_gym.sim.loop.step` runs too);
 this module adds the env's own pieces, also written once: the action
 map (:func:`split_one`), the reward and costs (:func:`reward_one`) and the observation
-(:func:`observe_one`). ``tests/test_kernel.py`` checks it against the numpy oracle
+(:func:`observe_one`). ``tests/physics/test_kernel.py`` checks it against the numpy oracle
 (``tests/oracle_loop.py``, to ~1e-9 relative) on random states and whole episodes. Each slot draws
 its own normals from the loop's episode key (:mod:`iscc_gym.sim.noise`), on whichever core steps the
 loop; drone i of a batch goes through the same machine code whatever the batch size, so a batch

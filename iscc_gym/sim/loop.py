@@ -363,7 +363,7 @@ def step_one(c, mats, xi, x_hat, p, shadow, ni, ref, a_sen, a_ctrl, a_comm, zi,
     # channel: geometry, large-scale SNR, fading
     dist, gx, gy, gz, ct, st, cp, sp = direction_one(c.gbs_height_m, px, py, pz)
     # ``blocked`` None (the paper) prunes the other branch when the kernel compiles: the paper's slot is the same
-    # machine code as before blockage existed (bit for bit under fastmath, tests/test_golden.py)
+    # machine code as before blockage existed (bit for bit under fastmath, tests/env/test_golden.py)
     if blocked is None:
         shadow_db = shadowing_db_one(c.sf_a, c.sf_b, pz, shadow)
         snr_ls = link_snr_one(c.snr_k, beam_gain_one(c, ct, st, cp, sp), dist, shadow_db)

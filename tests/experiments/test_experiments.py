@@ -5,7 +5,7 @@ import importlib
 import re
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 SECTION = re.compile(r"<!-- (\S+):start -->(.*?)<!-- \1:end -->", re.S)
 GENERATED = re.compile(r"(?:Generated|Measured|Written|generated) by `(python -m [^`]*)`")
 

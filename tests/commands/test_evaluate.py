@@ -146,7 +146,7 @@ def test_python_m_eval_in_worker_processes_gives_the_serial_results(monkeypatch,
     argv = ["--policies", "equal,margin,sca", "--episodes", "3", "--seed-start", "60", "--max-steps", "30"]
     serial = cli.main([*argv, "--workers", "1"])
     assert FakeBar.last.total == FakeBar.last.n == 3 * 30
-    root = Path(__file__).resolve().parents[1]
+    root = Path(__file__).resolve().parents[2]
     out = subprocess.run([sys.executable, "-m", "eval", *argv, "--workers", "2", "--json", str(tmp_path / "p.json")],
                          cwd=root, capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr

@@ -22,7 +22,7 @@ from iscc_gym.train.cli import cli
 from iscc_gym.train.study import StudyArgs, open_study
 from iscc_gym.train.study_io import StudyConfigError, make_storage
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 #: A budget small enough that a study that is not refused ends in seconds.
 TINY = ["--init-policy", "none", "--n-trials", "1", "--n-envs", "2", "--set", "n_steps=32", "--set", "n_epochs=1",
         "--trial-timesteps", "64", "--eval-episodes", "1", "--eval-max-steps", "10", "--no-tensorboard",

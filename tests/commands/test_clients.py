@@ -262,7 +262,8 @@ def test_rl_zoo3_train_and_enjoy(tmp_path):
 
 
 def _hyperparams() -> str:
-    return os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "train", "hyperparams.yml")
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    return os.path.join(root, "train", "hyperparams.yml")
 
 
 def test_ray_rllib_ppo_on_the_pettingzoo_view():

@@ -19,7 +19,7 @@ from iscc_gym.train.train import progress_bar_on
 from tiny_runs import TINY
 from tiny_runs import tiny_args as _args
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 SHIPPED = ROOT / "agents" / "trained" / "ppo_iscc"
 
 
@@ -210,8 +210,8 @@ def test_console_exits_0_on_success_and_on_a_non_tty_shows_no_progress_bar(tmp_p
 
 
 def test_torch_threads_hold_when_numbas_pool_starts_in_a_fork(tmp_path, monkeypatch):
-    """In a forked process (the study workers of tests/test_study.py) numba's first start of its OpenMP pool sets
-    torch's thread count to numba's (measured: torch 1 -> 2 on 2 cores), so --torch-threads set before the numba
+    """In a forked process (the study workers of tests/training/test_study.py) numba's first start of its OpenMP pool
+    sets torch's thread count to numba's (measured: torch 1 -> 2 on 2 cores), so --torch-threads set before the numba
     threads was lost (PPO's updates 5-10x slower beside a busy process). Emulated here in process: the numba
     setting also sets torch's count, as that first start does; the run must end on --torch-threads."""
     import torch

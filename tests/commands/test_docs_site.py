@@ -15,7 +15,7 @@ import sys
 
 import pytest
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
+ROOT = pathlib.Path(__file__).resolve().parents[2]
 SITE = ROOT / "docs" / "site"
 #: single-threaded pools: the tests run beside each other on a small machine
 QUIET = {"NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
@@ -23,7 +23,7 @@ QUIET = {"NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS
 
 def site_blocks() -> list[dict]:
     """Every ```python block of the site's own pages (the included repository documents have none of their own:
-    the README's are run by tests/test_readme.py)."""
+    the README's are run by tests/commands/test_readme.py)."""
     blocks = []
     for page in sorted(SITE.rglob("*.md")):
         if "_build" in page.parts:

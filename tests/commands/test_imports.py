@@ -21,7 +21,7 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 #: folder -> the package it installs as (pyproject's package-dir)
 FOLDERS = {ROOT / "iscc_gym": "iscc_gym", ROOT / "agents": "iscc_gym.agents", ROOT / "train": "iscc_gym.train",
            ROOT / "eval": "iscc_gym.eval", ROOT / "experiments": "experiments"}

@@ -13,8 +13,8 @@ instruction set, and numpy picks SIMD kernels by CPU), so a digest belongs to th
 (:func:`platform_key`: architecture, CPU model, vector extensions). Issue 23: on a new machine (AMD EPYC, AVX2)
 the code of c41e22e, whose golden test had passed on the earlier machine, gave other digests, the same with
 numba 0.68.0/0.68.1, numpy 2.3.5/2.4.6, scipy 1.16.3/1.17.1 and gymnasium 1.3.0/1.4.0, while every generated
-comparison table came out identical. ``tests/golden.json`` lists the recorded processors; one not in it is
-skipped with a message, and ``python tests/test_golden.py --record`` adds it, run on the code whose behaviour
+comparison table came out identical. ``tests/env/golden.json`` lists the recorded processors; one not in it is
+skipped with a message, and ``python tests/env/test_golden.py --record`` adds it, run on the code whose behaviour
 is the reference. A library release that moves a bit on a recorded processor fails the test, as it should.
 """
 
@@ -84,7 +84,7 @@ def _recorded() -> dict:
     entry = json.loads(GOLDEN.read_text())["platforms"].get(platform_key())
     if entry is None:
         pytest.skip(f"no golden digests recorded for this platform ({platform_key()}); record them on the reference "
-                    "code with `python tests/test_golden.py --record`")
+                    "code with `python tests/env/test_golden.py --record`")
     return entry
 
 
@@ -105,7 +105,8 @@ def test_this_machine_has_recorded_digests_or_says_how_to_record_them():
 
 if __name__ == "__main__":
     if sys.argv[1:] != ["--record"]:
-        raise SystemExit("usage: python tests/test_golden.py --record  (adds this platform's digests to golden.json)")
+        raise SystemExit("usage: python tests/env/test_golden.py --record  (adds this platform's digests to "
+                         "golden.json)")
     import subprocess
 
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,

@@ -11,7 +11,7 @@ import pytest
 
 from iscc_gym.files import atomic_dir, atomic_target, create_exclusive, destination, write_atomic
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_write_replaces_and_creates_parents(tmp_path):

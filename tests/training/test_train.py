@@ -65,7 +65,7 @@ def test_sac_runs_on_the_batched_env(tmp_path):
 def test_ppo_learns_bit_identically_on_the_batched_env_and_on_single_envs(tmp_path):
     """Same seed, same budget: PPO on the batched env ends with exactly the parameters and VecNormalize
     statistics of PPO on DummyVecEnv of gymnasium.make envs (SubprocVecEnv equals DummyVecEnv,
-    tests/test_env.py), through episode ends (20 s missions) and autoresets."""
+    tests/env/test_env.py), through episode ends (20 s missions) and autoresets."""
     import torch
     from stable_baselines3 import PPO
 

@@ -29,7 +29,7 @@ from iscc_gym.train.study import (
     sample_ppo_params,
 )
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 ENV_ID = "iscc_gym/ISCC-v0"
 TINY = ["--init-policy", "none", "--n-envs", "4", "--set", "n_steps=32", "--set", "n_epochs=1",
         "--trial-timesteps", "256",

@@ -18,7 +18,7 @@ from experiments import probes, seeds
 from experiments.paper import evaluator_check, reproduce
 from iscc_gym import docs
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 PARSERS = {"eval": cli.build_parser, "reproduce": reproduce.build_parser, "seeds": seeds.build_parser,
            "tune": tune.build_parser, "probes": probes.build_parser, "bench": bench.build_parser,
            "evaluator_check": evaluator_check.build_parser}

@@ -14,7 +14,7 @@ import tempfile
 
 import pytest
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
+ROOT = pathlib.Path(__file__).resolve().parents[2]
 README = ROOT / "README.md"
 IMPORTS_ONLY = re.compile(r"<!-- readme-test: imports only: (.+?) -->")
 
@@ -137,13 +137,13 @@ def test_every_python_block_of_the_readme_runs_outside_the_checkout(ran, block):
 
 def test_few_readme_blocks_run_their_imports_only_each_for_a_reason():
     """The imports-only mark is for training and heavy clients: at most three blocks, each reason naming a test
-    of tests/test_clients.py that runs the block in miniature; a mark anywhere else is a mistake."""
+    of tests/commands/test_clients.py that runs the block in miniature; a mark anywhere else is a mistake."""
     marked = [b for b in BLOCKS if b["imports_only"]]
     assert len(marked) <= 3
     assert len(IMPORTS_ONLY.findall(README.read_text())) == len(marked)  # each mark sits right above a block
-    clients = (ROOT / "tests" / "test_clients.py").read_text()
+    clients = (ROOT / "tests" / "commands" / "test_clients.py").read_text()
     for b in marked:
-        named = re.findall(r"tests/test_clients\.py::(\w+)", b["imports_only"])
+        named = re.findall(r"tests/commands/test_clients\.py::(\w+)", b["imports_only"])
         assert named and all(f"\ndef {name}(" in clients for name in named), b["imports_only"]
 
 

@@ -6,7 +6,7 @@ paper's number with a stated tolerance, a property the physics implies), not a c
 The tests reading the quick run (the ``quick_paper`` and ``quick_literal`` fixtures: the reproduction command run end
 to end, figures included, about 25 s of one core) are ``slow``: the README's **Slow tests** command runs them. The
 pieces below them (the Monte Carlo, the evaluator's check rows, the figure folders, the calibration cache) run by
-default, and the physics they rest on has its own oracles (tests/test_sensing.py, test_stability.py, ...)."""
+default, and the physics they rest on has its own oracles (tests/physics/test_sensing.py, test_stability.py, ...)."""
 
 import json
 import sys

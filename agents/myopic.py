@@ -348,7 +348,7 @@ class MyopicPolicy(SplitPolicy):
         snr_db = np.asarray(snr_db, dtype=float)
         coef = predicted_sensing(s, snr_db, range_m, sin_el, cos_az, sin_az, self._gain, echo_snr_db)
         snr = db_to_lin(snr_db)
-        if s.queue_slots > 0:  # the queue, served greedily: clear the backlog and the slot's mean arrivals
+        if s.queue_deadline_slots > 0:  # the queue, served greedily: clear the backlog and the slot's mean arrivals
             mean_bits = s.queue_arrival_bps * s.dt_s
             rate = comm_rate_bps(s, 1.0, snr[:, None] * self.fade) * (s.dt_s / mean_bits)
             backlog = np.asarray(backlog_bits, dtype=float) / mean_bits

@@ -20,7 +20,7 @@ def task_of(s) -> str:
 
     ``"urban"`` with blocked line of sight or a data queue (issue 25), else ``"paper"``.
     """
-    return "urban" if (s.blockage != "none" or s.queue_slots > 0) else "paper"
+    return "urban" if (s.blockage != "none" or s.queue_deadline_slots > 0) else "paper"
 
 
 def task_mismatch(env_id: str, scenario: str) -> tuple[str, str, str | None, str] | None:

@@ -70,7 +70,7 @@ def task_stats(s: Scenario, seeds) -> dict:
             "stretch_s_max": float(lengths.max()) if len(lengths) else float("nan"),
             "snr_los_db_median": snr_los, "snr_nlos_db_median": snr_nlos,
             "capacity_los_mbps": capacity[0], "capacity_nlos_mbps": capacity[1],
-            "arrival_mbps": s.queue_arrival_bps * 1e-6 if s.queue_slots else float("nan")}
+            "arrival_mbps": s.queue_arrival_bps * 1e-6 if s.queue_deadline_slots else float("nan")}
 
 
 def markdown(st: dict, s_name: str, command: str, seeds) -> str:

@@ -335,11 +335,6 @@ class Scenario:
         return 0 if self.queue_deadline_s == 0.0 else max(1, int(round(self.queue_deadline_s / self.dt_s)))
 
     @property
-    def queue_slots(self) -> int:
-        """The former name of :attr:`queue_deadline_slots` (the same value), kept for readers above the core."""
-        return self.queue_deadline_slots
-
-    @property
     def n_slots(self) -> int:
         """Slots per mission N = round(T_m / dt)."""
         return int(round(self.mission_duration_s / self.dt_s))

@@ -352,7 +352,7 @@ def reset_bytes(s: Scenario) -> int:
     mission rows carry 10 more columns (three copies of 80 bytes a slot) and the draw of the channel along
     the path about 35 temporary arrays of a slot's float (280): 824 bytes a slot (estimated, not measured).
     """
-    return (304 if s.blockage == "none" else 824) * (s.n_slots + 1) + 16384 + 8 * s.queue_slots
+    return (304 if s.blockage == "none" else 824) * (s.n_slots + 1) + 16384 + 8 * s.queue_deadline_slots
 
 
 def available_memory_bytes() -> int | None:

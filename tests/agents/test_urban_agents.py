@@ -51,7 +51,7 @@ def test_dpp_prices_data_by_the_backlog(observations):
 def test_the_planners_fluid_queue_matches_the_queue_at_constant_rates():
     """Constant arrivals and service: the fluid model's backlog and drops equal the FIFO queue's (physics.queue)."""
     pol = LookaheadPolicy(U)
-    d, a = U.queue_slots, U.queue_arrival_bps * U.dt_s
+    d, a = U.queue_deadline_slots, U.queue_arrival_bps * U.dt_s
     for served in (0.0, 0.3, 0.9, 1.0, 1.7):
         q = np.zeros((1, d))
         dropped_q = 0.0

@@ -141,8 +141,8 @@ def test_urban_fields_ranges_and_cross_checks():
         Scenario(queue_deadline_s=0.01)
     with pytest.raises(ValueError, match=_msg("altitude_min_m") + r".*TR 36.777 Table B-2"):
         SCENARIOS["urban"].replace(altitude_min_m=20.0, gbs_height_m=10.0)
-    assert Scenario().queue_slots == 0 and SCENARIOS["urban"].queue_slots == 10
-    assert Scenario(queue_deadline_s=0.26).queue_slots == 3
+    assert Scenario().queue_deadline_slots == 0 and SCENARIOS["urban"].queue_deadline_slots == 10
+    assert Scenario(queue_deadline_s=0.26).queue_deadline_slots == 3
 
 
 @pytest.mark.parametrize("name", BLER)

@@ -205,9 +205,7 @@ class ISCCVectorEnv(TimeLimitCheck, VectorEnv):
         RuntimeError
             Before the first ``reset``.
         """
-        if self._state is None:
-            raise RuntimeError("call reset() before positions()")
-        m = (self.num_envs if rows is None else max(0, min(int(rows), self.num_envs))) * self._k
+        m = self._first_loops(rows, "positions")
         st = self._state
         pos, ref = st.x[:m, :3].copy(), st.ref[np.arange(m), st.n[:m], :3].copy()
         if self.n_drones is None:
@@ -225,11 +223,17 @@ class ISCCVectorEnv(TimeLimitCheck, VectorEnv):
         RuntimeError
             Before the first ``reset``.
         """
-        if self._state is None:
-            raise RuntimeError("call reset() before missions()")
-        m = (self.num_envs if rows is None else max(0, min(int(rows), self.num_envs))) * self._k
+        m = self._first_loops(rows, "missions")
         ref = self._state.ref[:m].copy()
         return ref if self.n_drones is None else ref.reshape(-1, self._k, *ref.shape[1:])
+
+    def _first_loops(self, rows: int | None, what: str) -> int:
+        """The loops of the first ``rows`` sub-envs (all by default; K per sub-env with ``n_drones``);
+        ``RuntimeError`` naming ``what`` before the first ``reset``.
+        """
+        if self._state is None:
+            raise RuntimeError(f"call reset() before {what}()")
+        return (self.num_envs if rows is None else max(0, min(int(rows), self.num_envs))) * self._k
 
     def _reset_info(self, mask: np.ndarray) -> dict:
         """A step's info keys at reset (:func:`iscc_gym.sim.functional.reset_info_arrays`), masked to the sub-envs

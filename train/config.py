@@ -86,32 +86,56 @@ class Args:
     lagrange_lr: float = 0.05  # step of the multipliers' dual ascent per rollout
 
 
+#: Run settings a YAML entry may hold beside the algorithm's hyperparameters (rl-zoo3's names), mapped
+#: to the :class:`Args` field they fill, and the value used when neither the flag nor the YAML sets it.
+#: ``init_*`` are python -m train's own: in a file rl-zoo3 reads too, they go under ``iscc_gym.train.settings``.
+RUN_KEYS = {"n_timesteps": "total_timesteps", "n_envs": "n_envs", "normalize": "normalize",
+            "init_policy": "init_policy", "init_envs": "init_envs", "init_steps": "init_steps",
+            "init_log_std": "init_log_std", "residual": "residual", "residual_scale": "residual_scale",
+            "randomize": "randomize", "norm_reward": "norm_reward"}
+RUN_DEFAULTS = {"total_timesteps": 200_000, "n_envs": 4, "normalize": True, "init_policy": None, "init_envs": 16,
+                "init_steps": 5000, "init_log_std": None, "residual": None, "residual_scale": 0.5,
+                "randomize": None, "norm_reward": True}
+
+
+
+
+def _or_default(name: str, yaml_key: str = "YAML's") -> str:
+    """``default: the YAML's, else <RUN_DEFAULTS[name]>``: a run setting's default in its help, read from
+    :data:`RUN_DEFAULTS` (written once).
+    """
+    value = RUN_DEFAULTS[name]
+    shown = "on" if value is True else "off" if value is False else value
+    return f"default: the {yaml_key}, else {shown}"
+
+
 #: The ``--help`` text of every :class:`Args` field.
 FIELD_HELP = {
     "env_id": "Gymnasium env id to train on (an entry of --hyperparams)",
     "algo": "SB3 algorithm: ppo | sac | td3 | ppo_lstm (sb3-contrib's RecurrentPPO) | ppo-lag (PPO with --cost-limit, "
             "by default "
             f"{PPO_LAG_LIMITS})",
-    "total_timesteps": "env steps to train (default: the YAML entry's n_timesteps, else 200000)",
-    "n_envs": "parallel envs (default: the YAML entry's n_envs, else 4)",
+    "total_timesteps": "env steps to train (" + _or_default("total_timesteps", "YAML entry's n_timesteps") + ")",
+    "n_envs": "parallel envs (" + _or_default("n_envs", "YAML entry's n_envs") + ")",
     "vec_env": "dummy | subproc | batched (the ISCC env's own batched env, fastest)",
     "seed": "training seed (envs, networks, sampling)",
     "scenario": "Scenario preset of the env (default: the env id's own: paper, or urban for "
                 f"{URBAN_ENV_ID})",
     "out": "run directory; must be empty or new unless --resume or --overwrite",
     "hyperparams": "hyperparameter YAML in rl-zoo3's layout (env id -> hyperparameters; see train/hyperparams.yml)",
-    "normalize": "VecNormalize observations and rewards (default: the YAML entry's normalize, else on)",
-    "norm_reward": "with --normalize, scale the rewards too (VecNormalize's norm_reward; default: the YAML's, else "
-                   "on); --no-norm-reward where rare huge penalties (a lost drone) swamp the return statistics",
+    "normalize": "VecNormalize observations and rewards (" + _or_default("normalize", "YAML entry's normalize") + ")",
+    "norm_reward": "with --normalize, scale the rewards too (VecNormalize's norm_reward; " + _or_default("norm_reward")
+                   + "); "
+                   "--no-norm-reward where rare huge penalties (a lost drone) swamp the return statistics",
     "init_policy": "warm start: behaviour-clone this scripted policy (agents.make_policy spec, e.g. myopic; "
                    "none: no warm start; default: the YAML's)",
-    "init_envs": "envs the scripted policy plays during the warm start (default: the YAML's, else 16)",
-    "init_steps": "steps per env of the warm start (default: the YAML's, else 5000)",
+    "init_envs": "envs the scripted policy plays during the warm start (" + _or_default("init_envs") + ")",
+    "init_steps": "steps per env of the warm start (" + _or_default("init_steps") + ")",
     "init_log_std": "log standard deviation of the actions after the warm start (default: the YAML's, else kept)",
     "residual": "residual learning: the agent corrects this scripted policy's action (agents.make_policy spec, e.g. "
                 "myopic; none: no residual; default: the YAML's)",
-    "residual_scale": "reach of the residual agent's correction in action units, in (0, 2] (default: the YAML's, "
-                      "else 0.5)",
+    "residual_scale": "reach of the residual agent's correction in action units, in (0, 2] ("
+                      + _or_default("residual_scale") + ")",
     "randomize": "train over randomised missions: urban-shifts (the urban preset and each of its shifted "
                  "statistics, the urban task's shifts in iscc_gym.tasks, on equal shares of the envs: n_envs >= 5); "
                  "none: "
@@ -133,18 +157,6 @@ FIELD_HELP = {
                   "violate each constraint, e.g. rate=0.05,stability=0.0 (default: none, the fixed-weight reward)",
     "lagrange_lr": "step of the Lagrange multipliers' dual ascent, once per rollout",
 }
-
-#: Run settings a YAML entry may hold beside the algorithm's hyperparameters (rl-zoo3's names), mapped
-#: to the :class:`Args` field they fill, and the value used when neither the flag nor the YAML sets it.
-#: ``init_*`` are python -m train's own: in a file rl-zoo3 reads too, they go under ``iscc_gym.train.settings``.
-RUN_KEYS = {"n_timesteps": "total_timesteps", "n_envs": "n_envs", "normalize": "normalize",
-            "init_policy": "init_policy", "init_envs": "init_envs", "init_steps": "init_steps",
-            "init_log_std": "init_log_std", "residual": "residual", "residual_scale": "residual_scale",
-            "randomize": "randomize", "norm_reward": "norm_reward"}
-RUN_DEFAULTS = {"total_timesteps": 200_000, "n_envs": 4, "normalize": True, "init_policy": None, "init_envs": 16,
-                "init_steps": 5000, "init_log_std": None, "residual": None, "residual_scale": 0.5,
-                "randomize": None, "norm_reward": True}
-
 
 def _to_int(v):
     f = float(v)

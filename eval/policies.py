@@ -14,7 +14,8 @@ from iscc_gym.eval.evaluate import run_episodes
 from iscc_gym.scenario import make_scenario
 from iscc_gym.sim.schema import obs_size
 
-__all__ = ["build_policy", "build_policies", "play", "run_parallel", "resolve_specs", "check_specs", "policy_name",
+__all__ = ["build_policy", "build_policies", "play", "run_parallel", "world_spec", "WORLD_SUFFIX", "resolve_specs",
+           "check_specs", "policy_name",
            "SLOW_SPECS", "SHIPPED_AGENT"]
 
 #: The trained PPO agent shipped with the package (``agents/trained/ppo_iscc``; produced by
@@ -29,9 +30,28 @@ _KNOWN_SPECS = ("sca", "sca-per-slot", "sca-ignore-loss", "grid", "evolutionary"
 ENV_FIX = "compare it with --env set to the env it was trained on"
 
 
-def build_policy(item: str, scenario: str = "paper", fix: str = ENV_FIX):
+#: A scripted spec ending in this is designed on the world its missions are played on (the true parameters of
+#: a variant, :func:`iscc_gym.eval.engine.compare`), not on the task's preset: the model-knowledge bound.
+WORLD_SUFFIX = "@world"
+#: Aliases of world-designed specs: ``aware`` is ``myopic`` given the world's true parameters (issue 36).
+WORLD_ALIASES = {"aware": "myopic" + WORLD_SUFFIX}
+
+
+def world_spec(item: str) -> tuple[str, bool]:
+    """``(spec, designed on the world)`` of a scripted item: ``myopic@world`` and ``aware`` give ``("myopic",
+    True)``, ``myopic`` gives ``("myopic", False)``.
+    """
+    item = WORLD_ALIASES.get(item.strip().lower(), item)
+    if item.endswith(WORLD_SUFFIX):
+        return item[:-len(WORLD_SUFFIX)], True
+    return item, False
+
+
+def build_policy(item: str, scenario: str = "paper", fix: str = ENV_FIX, world=None):
     """``(name, policy)`` of one ``NAME=PATH`` (a trained agent) or :func:`agents.make_policy` spec; ``fix`` ends
     the error for an agent of another env's observations (the option of the calling command that fixes it).
+    A spec ending in ``@world`` (or ``aware``) is built on ``world`` (the Scenario the missions are played on;
+    default ``scenario``) instead of ``scenario``: the designer knows the world.
     """
     from iscc_gym.agents import make_policy
 
@@ -46,7 +66,8 @@ def build_policy(item: str, scenario: str = "paper", fix: str = ENV_FIX):
                              f"{scenario if isinstance(scenario, str) else 'given'} scenario's env gives {want}: it "
                              f"was trained on another env; {fix}")
         return name, policy
-    return item, make_policy(item, scenario)
+    spec, designed = world_spec(item)
+    return item, make_policy(spec, world if designed and world is not None else scenario)
 
 
 def build_policies(specs: str, scenario: str = "paper") -> dict:
@@ -98,8 +119,8 @@ def check_specs(items: list[str], scenario: str = "paper") -> None:
                 raise FileNotFoundError(f"--policies {name}={path}: no trained agent there (give a run directory "
                                         "of python -m train holding model.zip, or a model .zip file)")
             learned = True
-        elif item.strip().lower() not in _KNOWN_SPECS:
-            make_policy(item, scenario)  # cheap for the others; raises ValueError naming the valid specs
+        elif world_spec(item)[0].strip().lower() not in _KNOWN_SPECS:
+            make_policy(world_spec(item)[0], scenario)  # cheap for the others; raises ValueError naming the specs
     if learned:
         missing = [m for m in ("torch", "stable_baselines3") if importlib.util.find_spec(m) is None]
         if missing:
@@ -130,7 +151,7 @@ def _worker_init(torch_threads: int, progress_queue=None) -> None:
 
 
 def _run_item(index: int, item: str, seeds, scenario: str, max_steps, record: int, world=None):
-    name, policy = build_policy(item, scenario)
+    name, policy = build_policy(item, scenario, world=world)
     progress = None
     if _PROGRESS is not None:
         done = [0]
@@ -163,7 +184,8 @@ def play(items: list[str], seeds, scenario: str = "paper", worlds: dict | None =
     worlds = {scenario: scenario} if worlds is None else dict(worlds)
     seeds = list(seeds)
     # (world, item) jobs, the slow policies first
-    jobs = [(w, it) for it in sorted(items, key=lambda it: it.split("=")[0] not in SLOW_SPECS) for w in worlds]
+    jobs = [(w, it) for it in sorted(items, key=lambda it: world_spec(it.split("=")[0])[0] not in SLOW_SPECS)
+            for w in worlds]
     horizons = [horizon_slots(worlds[w], max_steps) for w, _ in jobs]
     if workers <= 1 or len(jobs) <= 1:
         if torch_threads and any("=" in it for it in items):
@@ -172,7 +194,7 @@ def play(items: list[str], seeds, scenario: str = "paper", worlds: dict | None =
             torch.set_num_threads(torch_threads)
         out: dict = {w: {} for w in worlds}
         for w, it in jobs:
-            name, policy = build_policy(it, scenario)
+            name, policy = build_policy(it, scenario, world=worlds[w])
             out[w][name] = run_episodes(policy, seeds, worlds[w], max_steps, record, progress=progress)
         return {w: {policy_name(it): out[w][policy_name(it)] for it in items} for w in worlds}
     ctx = multiprocessing.get_context("spawn")

@@ -41,7 +41,7 @@ def test_worlds_are_the_tasks_variants_and_unknown_names_are_refused():
     assert list(worlds(ENV_ID, None, "literal")) == ["literal"]
     with pytest.raises(ValueError, match="variant 'nope' is not one of iscc_gym/ISCC-Urban-v0's"):
         worlds(URBAN_ENV_ID, "umi_av,nope")
-    with pytest.raises(ValueError, match="iscc_gym/ISCC-v0's: it has none"):
+    with pytest.raises(ValueError, match="variant 'umi_av' is not one of iscc_gym/ISCC-v0's: rcs -10 dB"):
         worlds(ENV_ID, "umi_av")
     with pytest.raises(ValueError, match="--reference 'sca' is not one of the policies played"):
         compare(URBAN_ENV_ID, "myopic", SEEDS, reference="sca")
@@ -60,3 +60,27 @@ def test_the_command_line_plays_variants_and_seed_runs_and_refuses_what_it_canno
         eval_main(["--env", URBAN_ENV_ID, "--policies", "myopic", "--variants", "umi_av", "--write-docs"])
     with pytest.raises(FileNotFoundError, match="no seed_<s>/model.zip under .*python -m train --seeds"):
         eval_main(["--policies", "myopic", "--runs", str(tmp_path)])
+
+
+def test_aware_is_myopic_designed_on_the_world_and_equals_it_where_the_world_is_the_model(monkeypatch):
+    """Issue 36's model-knowledge bound: ``aware`` (``myopic@world``) is built on each variant's world, ``myopic`` on
+    the task's preset. On the preset's own missions the two are one policy (every episode equal); where the world
+    differs, aware's model is the world's."""
+    from iscc_gym import agents
+
+    built = []
+    real = agents.make_policy
+
+    def spy(spec, scenario="paper", **kw):
+        built.append((spec, scenario if isinstance(scenario, str) else scenario.rcs_m2))
+        return real(spec, scenario, **kw)
+
+    monkeypatch.setattr(agents, "make_policy", spy)
+    res = compare(ENV_ID, "myopic,aware,margin@world", SEEDS, scenario="paper", max_steps=8, reference="myopic")
+    eps = res["paper"]["policies"]
+    assert eps["aware"]["episodes"] == eps["myopic"]["episodes"]  # designed on the world that is the model
+    res = compare(ENV_ID, "myopic,aware", SEEDS, variants=["rcs -10 dB"], max_steps=8, reference="myopic")
+    assert ("myopic", 0.001) in built and ("myopic", "paper") in built  # aware knew the RCS, myopic the model's
+    assert res["rcs -10 dB"]["policies"]["aware"]["episodes"] != res["rcs -10 dB"]["policies"]["myopic"]["episodes"]
+    with pytest.raises(ValueError, match="unknown policy spec|not a policy spec|spec"):
+        compare(ENV_ID, "nope@world", SEEDS, max_steps=2)

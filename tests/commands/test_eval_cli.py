@@ -336,7 +336,7 @@ EXPERIMENTS = ["experiments.pareto", "experiments.probes", "experiments.seeds", 
                "experiments.urban_learned", "experiments.urban_levers", "experiments.urban_shift",
                "experiments.urban_task", "experiments.paper.evaluator_check", "experiments.paper.fading",
                "experiments.paper.reproduce", "experiments.paper.sensitivity", "experiments.ship",
-               "experiments.multi_agents", "experiments.pareto_agents"]
+               "experiments.multi_agents", "experiments.pareto_agents", "experiments.headroom"]
 COMMANDS = INSTALLED + EXPERIMENTS
 #: The commands whose entry is ``cli`` (the training studies), not ``main``.
 CLI_ENTRY = ("experiments.ship", "experiments.multi_agents", "experiments.pareto_agents")

@@ -3,7 +3,8 @@
 ``channel`` (path loss, shadowing, Rician fading, link SNR), ``signature`` (the OFDM radar's echo
 signature), ``sensing`` (Fisher information and CRLB of the measurement), ``fbl`` (finite-blocklength
 rates and block error rates), ``dynamics`` (the drone's double integrator and the LQG gain),
-``kalman`` (the filter's update), ``trajectory`` (reference missions), ``stability`` (eps*, M, rho).
+``kalman`` (the filter's update), ``trajectory`` (reference missions), ``stability`` (eps*, M, rho), ``blockage``
+and ``queue`` (the urban task's), ``wind`` (Dryden low-altitude turbulence; not in the slot yet, issue 36).
 
 Compiled scalar ``*_one`` functions, which the compiled slot (:mod:`iscc_gym.sim`) calls, beside their
 array forms. Imports nothing of :mod:`iscc_gym.sim`, :mod:`iscc_gym.envs` or :mod:`iscc_gym.analysis`

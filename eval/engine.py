@@ -47,11 +47,7 @@ def worlds(env_id: str, variants: Sequence[str] | str | None, scenario: str | No
     if not names:
         raise ValueError(f"--variants {variants!r}: name some of {env_id}'s variants "
                          f"({', '.join(task.variants) or 'it has none'}) or 'shifts'")
-    out = {}
-    for name in names:
-        s = variant_scenario(env_id, name)
-        out[name] = s if base == task.preset else make_scenario(base, **task.variants[name].overrides)
-    return out
+    return {name: variant_scenario(env_id, name, base) for name in names}
 
 
 def seed_runs(root: str | Path) -> dict[int, Path]:

@@ -119,8 +119,8 @@ def check_specs(items: list[str], scenario: str = "paper") -> None:
                 raise FileNotFoundError(f"--policies {name}={path}: no trained agent there (give a run directory "
                                         "of python -m train holding model.zip, or a model .zip file)")
             learned = True
-        elif world_spec(item)[0].strip().lower() not in _KNOWN_SPECS:
-            make_policy(world_spec(item)[0], scenario)  # cheap for the others; raises ValueError naming the specs
+        elif (spec := world_spec(item)[0]).strip().lower() not in _KNOWN_SPECS:
+            make_policy(spec, scenario)  # cheap for the others; raises ValueError naming the valid specs
     if learned:
         missing = [m for m in ("torch", "stable_baselines3") if importlib.util.find_spec(m) is None]
         if missing:
@@ -192,11 +192,11 @@ def play(items: list[str], seeds, scenario: str = "paper", worlds: dict | None =
             import torch
 
             torch.set_num_threads(torch_threads)
-        out: dict = {w: {} for w in worlds}
-        for w, it in jobs:
+        results = {}
+        for i, (w, it) in enumerate(jobs):
             name, policy = build_policy(it, scenario, world=worlds[w])
-            out[w][name] = run_episodes(policy, seeds, worlds[w], max_steps, record, progress=progress)
-        return {w: {policy_name(it): out[w][policy_name(it)] for it in items} for w in worlds}
+            results[i] = name, run_episodes(policy, seeds, worlds[w], max_steps, record, progress=progress)
+        return _by_world(results, jobs, items, worlds)
     ctx = multiprocessing.get_context("spawn")
     queue = ctx.Queue() if progress is not None else None
     done = [0] * len(jobs)
@@ -240,6 +240,11 @@ def play(items: list[str], seeds, scenario: str = "paper", worlds: dict | None =
         results = {i: futures[i].result() for i in futures}
     if queue is not None:
         queue.close()
+    return _by_world(results, jobs, items, worlds)
+
+
+def _by_world(results: dict, jobs: list, items: list[str], worlds: dict) -> dict:
+    """``{world: {name: run}}`` of the jobs' ``(name, run)`` results, each world's policies in ``items``' order."""
     by_world: dict = {w: {} for w in worlds}
     for i, (w, _) in enumerate(jobs):
         name, run = results[i]

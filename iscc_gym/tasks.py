@@ -20,7 +20,7 @@ from typing import Any
 
 from iscc_gym.scenario import SCENARIOS, make_scenario
 
-__all__ = ["Variant", "Task", "TASKS", "ENV_ID", "URBAN_ENV_ID", "MULTI_ENV_ID", "get_task", "task_of_preset",
+__all__ = ["Variant", "Task", "TASKS", "ENV_ID", "URBAN_ENV_ID", "MULTI_ENV_ID", "get_task",
            "variant_scenario"]
 
 #: The registered id of the paper's task.
@@ -171,17 +171,11 @@ def get_task(env_id: str) -> Task:
         raise ValueError(f"{env_id!r} is not a registered env id; use one of {', '.join(TASKS)}") from None
 
 
-def task_of_preset(preset: str, single_drone: bool = True) -> Task | None:
-    """The first task (a single-drone one, unless ``single_drone`` is False) played on ``preset``; None if none."""
-    return next((t for t in TASKS.values() if t.preset == preset
-                 and (not single_drone or t.entry_point.endswith(":ISCCEnv"))), None)
-
-
-def variant_scenario(env_id: str, name: str):
-    """The Scenario of variant ``name`` of ``env_id``'s missions (its preset with the variant's overrides);
-    ``ValueError`` naming the task's variants if it has none of that name.
+def variant_scenario(env_id: str, name: str, base: str | None = None):
+    """The Scenario of variant ``name`` of ``env_id``'s missions (``base``, default the task's preset, with the
+    variant's overrides); ``ValueError`` naming the task's variants if it has none of that name.
     """
     task = get_task(env_id)
     if name not in task.variants:
         raise ValueError(f"variant {name!r} is not one of {env_id}'s: {', '.join(task.variants) or 'it has none'}")
-    return make_scenario(task.preset, **task.variants[name].overrides)
+    return make_scenario(base or task.preset, **task.variants[name].overrides)

@@ -60,7 +60,8 @@ __all__ = [
 
 #: The specs :func:`make_policy` understands.
 POLICY_SPECS = ("sca", "sca-per-slot", "sca-ignore-loss", "equal", "fixed:A_SEN,A_CTRL,A_COMM", "grid",
-                "evolutionary", "margin", "margin:M_CTRL,M_COMM", "myopic", "dpp", "dpp:V", "mpc", "mpc-hold", "oracle")
+                "evolutionary", "margin", "margin:M_CTRL,M_COMM", "myopic", "dpp", "dpp:V", "mpc", "mpc-hold", "oracle",
+                "adaptive")
 #: The specs of the urban task's queue planners (they need a scenario with a data queue and a preview).
 URBAN_SPECS = ("dpp", "mpc", "mpc-hold", "oracle")
 
@@ -77,6 +78,8 @@ def tuned_record(spec: str, scenario: Scenario | str = "paper") -> str | None:
         return record_name(key, task)
     if key in ("mpc", "mpc-hold", "oracle"):
         return record_name("mpc", task)
+    if key == "adaptive":
+        return "adaptive"
     return "sca-per-slot" if key == "sca-per-slot" else None
 
 
@@ -97,7 +100,9 @@ def make_policy(spec: str, scenario: Scenario | str = "paper", seed: int = 0, tu
         records ``<spec>-urban`` tuned there (``python -m eval.tune <spec> --scenario urban``); ``"dpp:2"``
         (given V), ``"oracle"`` (``mpc`` on the truth's preview: its ``scenario_overrides`` make the
         evaluation show it the realised channel ahead on the same missions), ``"mpc-hold"`` (``mpc`` blind to the
-        preview: the slot's channel held over the horizon).
+        preview: the slot's channel held over the horizon). ``"adaptive"`` (the field task's
+        :class:`agents.adaptive.AdaptivePolicy`, its estimators tuned by ``python -m eval.tune adaptive --scenario
+        field``).
     scenario : Scenario or str
         The scenario (or preset name) the model-based policies design for.
     seed : int
@@ -164,6 +169,10 @@ def make_policy(spec: str, scenario: Scenario | str = "paper", seed: int = 0, tu
         if key == "mpc-hold":
             return LookaheadPolicy(s, preview="hold", name="mpc-hold", **p)
         return LookaheadPolicy(s, preview="truth", name="oracle", **p)
+    if key == "adaptive":  # the field task's estimator memory, tuned there (python -m eval.tune adaptive)
+        from .adaptive import AdaptivePolicy
+
+        return AdaptivePolicy(s, **params())
     if key == "sca":
         return SCAPolicy(s, mode="static")
     if key == "sca-per-slot":

@@ -52,16 +52,20 @@ def predicted_geometry(s: Scenario, snr_db: ArrayLike, range_m: ArrayLike, sin_e
 
 def predicted_sensing(s: Scenario, snr_db: ArrayLike, range_m: ArrayLike, sin_el: ArrayLike, cos_az: ArrayLike,
                       sin_az: ArrayLike, gain: ArrayLike | None = None,
-                      echo_snr_db: ArrayLike | None = None) -> SensingCoefficients:
+                      echo_snr_db: ArrayLike | None = None,
+                      rcs_offset_db: ArrayLike | None = None) -> SensingCoefficients:
     """The coefficients of the slot's CRLB as a function of the sensing share
     (:func:`iscc_gym.analysis.sensing_share.sensing_coefficients`) at :func:`predicted_geometry`.
 
     ``echo_snr_db`` (the urban task's measured echo SNR, :func:`iscc_gym.sim.functional.decode_observation`):
     the echo's loss is what it implies (:func:`iscc_gym.physics.sensing.echo_amplitude_sq` without loss, minus it),
     which carries a blocked line of sight's two-way excess; without it, the link's shadowing stands for the echo's.
+    ``rcs_offset_db`` (the field task's drone RCS over ``rcs_m2``, known or estimated): a gain on the echo.
     """
     dist, trig, shadow_db = predicted_geometry(s, snr_db, range_m, sin_el, cos_az, sin_az, gain)
     if echo_snr_db is not None:
         free = echo_amplitude_sq(s, dist, 0.0, 1.0) / sensing_noise_var_w(s)
         shadow_db = 10.0 * np.log10(free) - echo_snr_db
+    elif rcs_offset_db is not None:
+        shadow_db = shadow_db - np.asarray(rcs_offset_db, dtype=float)
     return sensing_coefficients(s, dist, trig, shadow_db)

@@ -18,6 +18,7 @@ geometry, for any sensing share and loss rate).
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, fields, replace
 
@@ -25,13 +26,14 @@ import numpy as np
 from scipy.special import chndtr
 
 from iscc_gym.analysis.kalman_steady import axis_kalman_steady_state
-from iscc_gym.analysis.quadrature import expected_norm, mean_ctrl_loss, rician_nodes
+from iscc_gym.analysis.quadrature import expected_norm, mean_ctrl_loss, rician_nodes, rician_power_nodes
 from iscc_gym.analysis.sensing_share import SensingCoefficients, local_crlb
 from iscc_gym.physics.channel import matched_gain
 from iscc_gym.physics.dynamics import axis_gain, axis_matrices
 from iscc_gym.physics.fbl import comm_rate_bps, min_shares
 from iscc_gym.physics.stability import scenario_eps_star, stability_matrix
 from iscc_gym.scenario import Scenario, make_scenario, per_scenario
+from iscc_gym.sim.effects import task_effects
 from iscc_gym.sim.functional import decode_observation
 from iscc_gym.sim.kernel import reward_from_costs
 from iscc_gym.sim.schema import obs_size
@@ -41,10 +43,11 @@ from iscc_gym.units import db_to_lin
 from .base import SplitPolicy, as_obs_batch
 from .geometry import predicted_sensing
 
-__all__ = ["MyopicPolicy", "LocalTrackingModel", "rician_power_cdf", "SlotContext", "lead_axes", "refine_lattice"]
+__all__ = ["MyopicPolicy", "LocalTrackingModel", "rician_power_cdf", "rician_nodes_at", "SlotContext", "lead_axes",
+           "refine_lattice"]
 
 
-def rician_power_cdf(s: Scenario, x):
+def rician_power_cdf(s: Scenario, x, k_lin=None):
     r"""CDF :math:`P(|g|^2 \le x)` of the unit-mean Rician power gain of
     :func:`iscc_gym.physics.channel.rician_gain_one`.
 
@@ -56,13 +59,15 @@ def rician_power_cdf(s: Scenario, x):
     s : Scenario
     x : array_like
         Power gain (linear, >= 0).
+    k_lin : array_like, optional
+        The K-factor (linear), broadcast with ``x``; default the scenario's ``rician_k_db``.
 
     Returns
     -------
     ndarray
         Same shape as ``x``.
     """
-    k = float(db_to_lin(s.rician_k_db))
+    k = float(db_to_lin(s.rician_k_db)) if k_lin is None else np.asarray(k_lin, dtype=float)
     return chndtr(np.asarray(x, dtype=float) * (2.0 * (k + 1.0)), 2.0, 2.0 * k)  # scipy.stats.ncx2.cdf
 
 
@@ -204,6 +209,11 @@ class SlotContext:
         With a queue: the backlog and a slot's mean arrivals, over A (what serving the queue greedily clears).
     backlog : (n,) or None
         With a queue: the backlog over A.
+    k_lin : (n,) or None
+        The slot's Rician K-factor (linear) where the policy is given one (the field task's ``aware`` bound, or an
+        estimate: ``adaptive``); None: the scenario's ``rician_k_db``.
+    fade : (n, J) or None
+        The fading quadrature's gain nodes at ``k_lin`` (:func:`rician_nodes_at`; the weights do not depend on K).
     """
 
     snr: np.ndarray
@@ -211,6 +221,30 @@ class SlotContext:
     rate_per_share: np.ndarray
     need: np.ndarray | None = None
     backlog: np.ndarray | None = None
+    k_lin: np.ndarray | None = None
+    fade: np.ndarray | None = None
+
+
+#: The K-factor grid of :func:`rician_nodes_at`'s table, dB (outside it, clamped: below -20 dB the gain is
+#: Rayleigh's to 1 %, above 40 dB a constant to 1e-4).
+_K_GRID_DB = np.arange(-20.0, 40.0 + 1e-9, 0.25)
+
+
+@functools.lru_cache(maxsize=1)
+def _nodes_table():
+    return np.stack([rician_power_nodes(float(db_to_lin(k)))[0] for k in _K_GRID_DB])
+
+
+def rician_nodes_at(k_db):
+    """The gain nodes of :func:`iscc_gym.analysis.quadrature.rician_power_nodes` at K-factors ``k_db`` (n,) in dB,
+    shape (n, J): linear interpolation in dB on a 0.25 dB table (-20 .. 40 dB, clamped; nodes within 1e-3 relative
+    of the exact ones between grid points, ``tests/agents/test_field_agents.py``). The weights are K's for any K.
+    """
+    table = _nodes_table()
+    u = (np.clip(np.asarray(k_db, dtype=float), _K_GRID_DB[0], _K_GRID_DB[-1]) - _K_GRID_DB[0]) / 0.25
+    i = np.minimum(u.astype(np.intp), len(_K_GRID_DB) - 2)
+    t = (u - i)[..., None]
+    return (1.0 - t) * table[i] + t * table[i + 1]
 
 
 def lead_axes(x, ndim):
@@ -326,6 +360,9 @@ class MyopicPolicy(SplitPolicy):
         self.tracking = local_tracking_model(s)
         self._gain = matched_gain(s) if s.beamforming == "matched" else None
         self.obs_size = obs_size(s)
+        self.shows_world = task_effects(s).show_world
+        if self.shows_world:  # what the env shows it (eval.evaluate.run_episodes applies it): the aware bound
+            self.scenario_overrides = {"show_world": True}
         self.name = "myopic"
 
     # --- the model ------------------------------------------------------------------------------
@@ -336,18 +373,38 @@ class MyopicPolicy(SplitPolicy):
         if not np.all(np.isfinite(o)):
             raise ValueError("obs contains NaN or inf; pass the env's (finite) observations")
         d = decode_observation(o, s)
+        k_db, rcs_db = self.world_of(d)
         return self.context(d["snr_db"], d["range_m"], d["sin_elevation"], d["cos_azimuth"], d["sin_azimuth"],
-                            d.get("echo_snr_db"), d.get("backlog_bits"))
+                            d.get("echo_snr_db"), d.get("backlog_bits"), k_db, rcs_db)
 
-    def context(self, snr_db, range_m, sin_el, cos_az, sin_az, echo_snr_db=None, backlog_bits=None) -> SlotContext:
+    def world_of(self, decoded: dict):
+        """The world the policy designs the slot for, ``(k_db, rcs_offset_db)`` (arrays (n,), or None: the
+        scenario's constants), from the decoded observations: the hidden world block where the env shows it (the
+        ``aware`` bound, ``show_world``), else the model's (None, None). :class:`agents.adaptive.AdaptivePolicy`
+        estimates them instead.
+        """
+        if self.shows_world:
+            return decoded["world_k_db"], decoded["world_rcs_offset_db"]
+        return None, None
+
+    def context(self, snr_db, range_m, sin_el, cos_az, sin_az, echo_snr_db=None, backlog_bits=None, k_db=None,
+                rcs_offset_db=None) -> SlotContext:
         """:class:`SlotContext` of slots given by their decoded entries (arrays (n,)): the predicted large-scale
         SNR and geometry, with blockage the echo's SNR, with a queue the backlog in bits (what
-        :meth:`slot_context` reads from observations; a planner passes the slots it looks ahead to).
+        :meth:`slot_context` reads from observations; a planner passes the slots it looks ahead to); the world's
+        K-factor and the RCS's offset in dB where the policy knows or estimates them (default the scenario's).
         """
         s = self.scenario
         snr_db = np.asarray(snr_db, dtype=float)
-        coef = predicted_sensing(s, snr_db, range_m, sin_el, cos_az, sin_az, self._gain, echo_snr_db)
+        coef = predicted_sensing(s, snr_db, range_m, sin_el, cos_az, sin_az, self._gain, echo_snr_db, rcs_offset_db)
         snr = db_to_lin(snr_db)
+        if k_db is not None:  # the slot's own fading law: its nodes, its K for the stability term's CDF
+            fade = rician_nodes_at(k_db)
+            rate = comm_rate_bps(s, 1.0, snr[:, None] * fade) / max(s.rate_min_bps, 1e-300)
+            if s.queue_deadline_slots > 0:
+                raise ValueError("a world K-factor with a data queue is not modelled (the field task has none)")
+            return SlotContext(snr=snr, coef=coef, rate_per_share=rate, k_lin=db_to_lin(np.asarray(k_db, float)),
+                               fade=fade)
         if s.queue_deadline_slots > 0:  # the queue, served greedily: clear the backlog and the slot's mean arrivals
             mean_bits = s.queue_arrival_bps * s.dt_s
             rate = comm_rate_bps(s, 1.0, snr[:, None] * self.fade) * (s.dt_s / mean_bits)
@@ -362,9 +419,12 @@ class MyopicPolicy(SplitPolicy):
         """
         c = np.asarray(alpha_ctrl, dtype=float)
         snr = lead_axes(ctx.snr, c.ndim)
-        eps_bar = mean_ctrl_loss(self.scenario, c, snr)
+        nodes = None if ctx.fade is None else (ctx.fade.reshape(ctx.fade.shape[:1] + (1,) * (c.ndim - 1) + (-1,)),
+                                               self.fade_w)
+        eps_bar = mean_ctrl_loss(self.scenario, c, snr, nodes)
         log_snr = np.interp(np.log(np.maximum(c, 1e-300)), self._log_alpha_star, self._log_snr_star)
-        p_viol = rician_power_cdf(self.scenario, np.exp(log_snr) / snr)
+        p_viol = rician_power_cdf(self.scenario, np.exp(log_snr) / snr,
+                                  None if ctx.k_lin is None else lead_axes(ctx.k_lin, c.ndim))
         return eps_bar, np.where(c > 0.0, p_viol, 1.0)
 
     def rate_shortfall(self, ctx: SlotContext, alpha_comm):

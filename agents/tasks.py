@@ -12,7 +12,7 @@ from pathlib import Path
 
 from iscc_gym.agents.shipped import PPO_AGENT, URBAN_AGENT, multi_agent_dir
 
-from iscc_gym.tasks import ENV_ID, MULTI_ENV_ID, TASKS, URBAN_ENV_ID, Task
+from iscc_gym.tasks import ENV_ID, FIELD_ENV_ID, MULTI_ENV_ID, TASKS, URBAN_ENV_ID, Task
 
 __all__ = ["TaskPolicies", "TASK_POLICIES", "task_policies", "SHIPPED_AGENTS"]
 
@@ -61,6 +61,11 @@ class TaskPolicies:
         return TASKS[self.env_id]
 
     @property
+    def fleet(self) -> bool:
+        """Whether the task's env is the multi-drone one (its comparison: ``iscc_gym.eval.multi``)."""
+        return self.task.entry_point.endswith(":ISCCMultiEnv")
+
+    @property
     def ships_agent(self) -> bool:
         """Whether ``python -m experiments.ship`` trains and ships one agent for the task."""
         return self.agent is not None
@@ -89,6 +94,12 @@ TASK_POLICIES: dict[str, TaskPolicies] = {
     MULTI_ENV_ID: TaskPolicies(MULTI_ENV_ID, "equal-sca,joint-sca,margin,margin-starved", "joint-sca",
                                ("equal-sca", "joint-sca", "margin"), "multi", "Many drones, one base station",
                                focus="agent"),
+    # the field task: the designer's per-slot policies on the paper's model, the adaptive rung that re-estimates the
+    # world, and the model-knowledge bound (aware: myopic shown the world's hidden values); no agent ships yet
+    FIELD_ENV_ID: TaskPolicies(FIELD_ENV_ID, "myopic,margin,sca,adaptive,aware", "myopic",
+                               ("myopic", "margin", "sca", "adaptive"), "field-comparison",
+                               "The field task: the baseline ladder where the world is not the model",
+                               focus="adaptive"),
 }
 assert set(TASK_POLICIES) == set(TASKS), "every task needs its policies (iscc_gym.agents.tasks)"
 #: The shipped agent of each task that ships one (``python -m experiments.ship --env ENV``; ``python -m eval --env

@@ -109,10 +109,13 @@ def compare(env_id: str, policies: Sequence[str] | str | None = None, seeds: Seq
         False where the caller has).
     """
     pol = task_policies(env_id)
-    if not pol.ships_agent:
+    if pol.fleet:
         raise ValueError(f"{env_id}: its comparison is python -m eval --env {env_id} (iscc_gym.eval.multi)")
     specs = policies if isinstance(policies, str) or policies is None else ",".join(policies)
-    items = resolve_specs(specs or pol.policies, pol.shipped_agent())
+    specs = specs or pol.policies
+    if not pol.ships_agent and "ppo" in [p.strip().lower() for p in specs.split(",")]:
+        raise ValueError(f"--policies {specs!r}: {env_id} ships no agent yet; name a trained one, ppo=RUN_DIR")
+    items = resolve_specs(specs, pol.agent)
     names = [policy_name(it) for it in items]
     reference = reference if reference is not None else (pol.reference if pol.reference in names else None)
     focus = focus if focus is not None else (pol.focus if pol.focus in names else None)

@@ -103,7 +103,7 @@ class Actor:
 
 
 #: The Scenario fields a policy's ``scenario_overrides`` may set (the oracle's view of the same missions).
-SHOWN_OVERRIDES = frozenset({"preview_source"})
+SHOWN_OVERRIDES = frozenset({"preview_source", "show_world"})
 
 
 def run_episodes(policy, seeds: Sequence[int], scenario: str | Scenario = "paper", max_steps: int | None = None,

@@ -12,6 +12,7 @@ from iscc_gym.agents.shipped import PPO_AGENT
 from iscc_gym.eval.evaluate import run_episodes
 
 from iscc_gym.scenario import make_scenario
+from iscc_gym.sim.effects import task_effects
 from iscc_gym.sim.schema import obs_size
 
 __all__ = ["build_policy", "build_policies", "play", "run_parallel", "world_spec", "WORLD_SUFFIX", "resolve_specs",
@@ -67,7 +68,12 @@ def build_policy(item: str, scenario: str = "paper", fix: str = ENV_FIX, world=N
                              f"was trained on another env; {fix}")
         return name, policy
     spec, designed = world_spec(item)
-    return item, make_policy(spec, world if designed and world is not None else scenario)
+    if designed and world is not None:
+        w = make_scenario(world) if isinstance(world, str) else world
+        if task_effects(w).field:  # a world that changes along the mission: the env shows it the slot's values
+            w = w.replace(show_world=True)
+        return item, make_policy(spec, w)
+    return item, make_policy(spec, scenario)
 
 
 def build_policies(specs: str, scenario: str = "paper") -> dict:

@@ -1,4 +1,4 @@
-"""``python -m eval.tune {margin,sca-per-slot,myopic,dpp,mpc}``: tune a scripted baseline on training seeds, store it.
+"""``python -m eval.tune {margin,sca-per-slot,myopic,dpp,mpc,adaptive}``: tune a scripted baseline on training seeds.
 
 Tuning seeds (default :data:`TUNE_SEEDS`, 500,000 onwards) are disjoint from every evaluation seed
 of the project (the comparison's 10,000-10,999, training's held-out 1,000,000 onwards, RL training's
@@ -53,6 +53,7 @@ from scipy import optimize
 
 from iscc_gym.protocol import TUNE_SEED_START, TUNE_SEEDS, check_outside_evaluation, seed_list
 from iscc_gym.scenario import make_scenario
+from iscc_gym.sim.effects import task_effects
 
 #: Default grid of ``python -m eval.tune margin``.
 MARGIN_GRID = {"m_ctrl": (2.5, 3.0, 3.5, 4.0, 5.0, 6.0, 8.0),
@@ -119,12 +120,20 @@ def margin_rewards(points, seeds, scenario="paper", progress=None) -> np.ndarray
 #: The urban task's model-based baselines: their parameters' grids for ``python -m eval.tune <policy> --scenario urban``
 #: (every combination played on the tuning seeds).
 MODEL_GRIDS = {"myopic": {"rate_weight": (0.1, 0.3, 0.6, 1.0, 2.0, 4.0)},
-                "dpp": {"v": (0.3, 1.0, 3.0, 10.0, 30.0, 100.0, 300.0)},
-                "mpc": {"deadline_margin": (0.0, 2.0, 4.0), "holding_cost": (0.05, 0.2),
-                        "rate_weight": (0.1, 0.3, 1.0)}}
+               "dpp": {"v": (0.3, 1.0, 3.0, 10.0, 30.0, 100.0, 300.0)},
+               "mpc": {"deadline_margin": (0.0, 2.0, 4.0), "holding_cost": (0.05, 0.2),
+                       "rate_weight": (0.1, 0.3, 1.0)},
+               # the field task's adaptive rung: its estimators' memory (python -m eval.tune adaptive --scenario field)
+               "adaptive": {"k_window_slots": (10.0, 20.0, 40.0, 80.0), "echo_weight": (0.0, 0.5, 1.0)}}
+#: The task each grid-tuned baseline is tuned on (the preset ``--scenario`` must pose it).
+MODEL_TASKS = {"myopic": "urban", "dpp": "urban", "mpc": "urban", "adaptive": "field"}
 
 
 def _grid_policy(policy: str, scenario, params: dict):
+    if policy == "adaptive":
+        from iscc_gym.agents.adaptive import AdaptivePolicy
+
+        return AdaptivePolicy(scenario, **params)
     if policy == "myopic":
         return MyopicPolicy(scenario, **params)
     if policy == "dpp":
@@ -143,8 +152,9 @@ def tune_model_grid(policy: str, seeds=TUNE_SEEDS, scenario: str = "urban", log=
     points = [dict(zip(names, (float(v) for v in combo), strict=True))
               for combo in np.stack(np.meshgrid(*grid.values(), indexing="ij"), -1).reshape(-1, len(names))]
     s = make_scenario(scenario)
-    if task_of(s) != "urban":
-        raise ValueError(f"--scenario {scenario!r}: {policy} is tuned on the urban task (--scenario urban)")
+    want = MODEL_TASKS[policy]
+    if (task_effects(s).field if want == "field" else task_of(s) == want) is False:
+        raise ValueError(f"--scenario {scenario!r}: {policy} is tuned on the {want} task (--scenario {want})")
     t0 = time.perf_counter()
     rewards = []
     for params in points:
@@ -290,7 +300,8 @@ def _fmt(x) -> str:
 def build_parser(prog: str = "python -m eval.tune") -> Parser:
     ap = Parser(prog=prog, description=__doc__.split("\n")[0])
     ap.add_argument("policy", choices=["margin", PER_SLOT_RECORD, *MODEL_GRIDS],
-                    help="the baseline to tune (myopic, dpp, mpc: on the urban task, --scenario urban)")
+                    help="the baseline to tune (myopic, dpp, mpc: on the urban task, --scenario urban; adaptive: on "
+                         "the field task, --scenario field)")
     ap.add_argument("--episodes", type=positive_int, default=len(TUNE_SEEDS), metavar="N",
                     help=f"tuning missions (default: {len(TUNE_SEEDS)})")
     ap.add_argument("--seed-start", type=nonneg_int, default=TUNE_SEED_START, metavar="SEED",

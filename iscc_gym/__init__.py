@@ -20,10 +20,10 @@ from iscc_gym.envs.env import ISCCEnv
 from iscc_gym.scenario import SCENARIOS, Scenario, make_scenario
 from iscc_gym.sim.fleet import N_DRONES
 from iscc_gym.sim.task import action_to_split, split_to_action
-from iscc_gym.tasks import ENV_ID, MULTI_ENV_ID, TASKS, URBAN_ENV_ID
+from iscc_gym.tasks import ENV_ID, FIELD_ENV_ID, MULTI_ENV_ID, TASKS, URBAN_ENV_ID
 
 __all__ = ["Scenario", "SCENARIOS", "make_scenario", "ISCCEnv", "action_to_split", "split_to_action",
-           "ENV_ID", "URBAN_ENV_ID", "MULTI_ENV_ID", "TASKS", "parallel_env"]
+           "ENV_ID", "URBAN_ENV_ID", "MULTI_ENV_ID", "FIELD_ENV_ID", "TASKS", "parallel_env"]
 
 for _task in TASKS.values():  # every env id from the one task table (iscc_gym.tasks)
     if _task.env_id not in _gym.registry:

@@ -227,6 +227,23 @@ class Scenario:
         ``"map"`` (the GBS's map, the task) or ``"truth"``: the preview shows the realised LoS state (0/1) and
         the SNRs with the realised shadowing (both states' entries the realised one), the missions and every
         draw unchanged. For an oracle bound (``eval``'s ``oracle``), not a policy's information.
+    rician_k_std_db : float
+        The field task (issue 36, ``docs/model.md`` Sec. 8): the spread sigma_K of the Rician K-factor in dB around
+        ``rician_k_db`` (3GPP TR 38.901 Table 7.5-6, a large-scale parameter drawn per link: UMi LoS mu_K 9 dB,
+        sigma_K 5 dB; UMa LoS 9 dB, 3.5 dB). The K-factor of the command link and of the echo is then a spatially
+        consistent field over the horizontal plane, drawn per mission (correlation ``rician_k_correlation_m``),
+        which the designer's model (the constant ``rician_k_db``) does not know. 0 (the paper): the constant.
+    rician_k_correlation_m : float
+        Correlation distance of the K-factor's field, m (TR 38.901 Table 7.5-6: 15 for UMi LoS, 12 for UMa LoS).
+    rcs_std_db : float
+        The field task: the spread in dB of the drone's radar cross section around ``rcs_m2``, one log-normal draw
+        per mission (3GPP TR 38.901 Rel-19 Sec. 7.9, the UAV target's RCS: 3.74 dB for a small UAV). 0 (the
+        paper): the constant.
+    show_world : bool
+        The observation adds the world's hidden values of the slot (the K-factor in dB and the RCS's offset from
+        ``rcs_m2`` in dB) after the measured block: for the model-knowledge bound (``eval``'s ``aware``), never a
+        policy's information. Needs ``rician_k_std_db`` or ``rcs_std_db`` > 0; the missions and every draw
+        unchanged.
     """
 
     # --- Table I: radio -------------------------------------------------------------------------
@@ -305,6 +322,11 @@ class Scenario:
     preview_slots: int = 0
     preview_stride_slots: int = 1
     preview_source: str = "map"
+    # --- the field task (issue 36): the world the designer's model does not know; off by default --------
+    rician_k_std_db: float = 0.0
+    rician_k_correlation_m: float = 15.0
+    rcs_std_db: float = 0.0
+    show_world: bool = False
 
     def __post_init__(self) -> None:
         validate(self)
@@ -395,10 +417,21 @@ URBAN_OVERRIDES: dict[str, Any] = {
     "preview_stride_slots": 5,      # 10 points over the next 5 s
 }
 
+#: Overrides turning the ``paper`` preset into the field task (``docs/model.md`` Sec. 8): the paper's loop in a world
+#: its model does not know, the K-factor a field along the path (3GPP TR 38.901 Table 7.5-6, UMi LoS: sigma_K 5 dB
+#: around the model's 9 dB, correlation 15 m) and the drone's RCS log-normal per mission (TR 38.901 Rel-19 Sec.
+#: 7.9, a small UAV: 3.74 dB around the model's 0.01 m^2).
+FIELD_OVERRIDES: dict[str, Any] = {
+    "rician_k_std_db": 5.0,
+    "rician_k_correlation_m": 15.0,
+    "rcs_std_db": 3.74,
+}
+
 SCENARIOS: dict[str, Scenario] = {
     "paper": Scenario(),
     "literal": Scenario(**LITERAL_OVERRIDES),
     "urban": Scenario(**URBAN_OVERRIDES),
+    "field": Scenario(**FIELD_OVERRIDES),
 }
 
 

@@ -41,6 +41,10 @@ CHOICES: dict[str, tuple[str, ...]] = {
 }
 
 
+#: The fields that are True or False.
+_FLAGS = ("reference_feedforward", "show_world")
+
+
 def _fail(name: str, value: Any, allowed: str) -> None:
     raise ValueError(f"Scenario.{name} = {value!r} is invalid: must be {allowed}")
 
@@ -104,6 +108,9 @@ _RANGES: dict[str, tuple[float, float, bool]] = {
     "queue_arrival_cv": (0.0, 10.0, False),
     "preview_slots": (0, 256, False),
     "preview_stride_slots": (1, 10**4, False),
+    "rician_k_std_db": (0.0, 20.0, False),
+    "rician_k_correlation_m": (0.0, 1e5, True),
+    "rcs_std_db": (0.0, 20.0, False),
 }
 #: At most this many slots per mission (the reference alone takes 72 bytes a slot per loop).
 MAX_SLOTS = 1_000_000
@@ -166,7 +173,7 @@ def validate(s: Scenario) -> None:
                "comm_blocklength", "min_waypoints", "preview_slots", "preview_stride_slots"]
     for f in dataclasses.fields(s):
         v = getattr(s, f.name)
-        if f.name in CHOICES or f.name == "reference_feedforward":
+        if f.name in CHOICES or f.name in _FLAGS:
             continue
         if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, float, np.integer, np.floating)):
             _fail(f.name, v, "a real number (not a bool or a string)")
@@ -186,8 +193,12 @@ def validate(s: Scenario) -> None:
     for name, choices in CHOICES.items():
         if getattr(s, name) not in choices:
             _fail(name, getattr(s, name), f"one of {list(choices)}")
-    if not isinstance(s.reference_feedforward, (bool, np.bool_)):
-        _fail("reference_feedforward", s.reference_feedforward, "True or False")
+    for name in _FLAGS:
+        if not isinstance(getattr(s, name), (bool, np.bool_)):
+            _fail(name, getattr(s, name), "True or False")
+    if s.show_world and s.rician_k_std_db == 0.0 and s.rcs_std_db == 0.0:
+        _fail("show_world", s.show_world, "False where the world is the model (rician_k_std_db and rcs_std_db "
+              "both 0: there is nothing hidden to show); set one of them > 0")
     for name in ("ctrl_target_bler", "comm_target_bler"):
         v = getattr(s, name)
         if not 0.0 < v < 0.5:

@@ -20,7 +20,7 @@ from typing import Any
 
 from iscc_gym.scenario import SCENARIOS, make_scenario
 
-__all__ = ["Variant", "Task", "TASKS", "ENV_ID", "URBAN_ENV_ID", "MULTI_ENV_ID", "get_task",
+__all__ = ["Variant", "Task", "TASKS", "ENV_ID", "URBAN_ENV_ID", "MULTI_ENV_ID", "FIELD_ENV_ID", "get_task",
            "variant_scenario"]
 
 #: The registered id of the paper's task.
@@ -29,6 +29,8 @@ ENV_ID = "iscc_gym/ISCC-v0"
 URBAN_ENV_ID = "iscc_gym/ISCC-Urban-v0"
 #: Many drones sharing one band (issue 19).
 MULTI_ENV_ID = "iscc_gym/ISCC-Multi-v0"
+#: The field task (issue 36): the paper's loop in a world its designer's model does not know.
+FIELD_ENV_ID = "iscc_gym/ISCC-Field-v0"
 
 
 @dataclass(frozen=True)
@@ -149,6 +151,16 @@ PAPER_VARIANTS: dict[str, Variant] = {
                                                           "(antenna pattern, misalignment)"),
 }
 
+#: The field task's worlds outside the ranges its preset draws from (the out-of-range table: every policy left as
+#: designed, tuned or trained on the preset).
+FIELD_VARIANTS: dict[str, Variant] = {
+    "K spread 8 dB": Variant({"rician_k_std_db": 8.0}, "the K-factor's spread 8 dB, beyond TR 38.901's largest "
+                                                         "LoS sigma_K (5 dB, UMi)"),
+    "K mean 4 dB": Variant({"rician_k_db": 4.0}, "the K-factor's mean 5 dB below the model's 9 dB (more scattering "
+                                                 "than TR 38.901's LoS means, 7-9 dB)"),
+    "RCS spread 6 dB": Variant({"rcs_std_db": 6.0}, "the RCS's spread 6 dB, beyond Rel-19's 3.74 dB of a small UAV"),
+}
+
 #: Every registered env id's task, in registration order.
 TASKS: dict[str, Task] = {
     ENV_ID: Task(ENV_ID, "paper", "iscc_gym.envs.env:ISCCEnv", "iscc_gym.envs.vector:ISCCVectorEnv",
@@ -160,6 +172,9 @@ TASKS: dict[str, Task] = {
     MULTI_ENV_ID: Task(MULTI_ENV_ID, "paper", "iscc_gym.envs.multi:ISCCMultiEnv",
                        "iscc_gym.envs.vector:ISCCMultiVectorEnv",
                        "K drones sharing one base station's band, the paper's loop each", "tasks/multi"),
+    FIELD_ENV_ID: Task(FIELD_ENV_ID, "field", "iscc_gym.envs.env:ISCCEnv", "iscc_gym.envs.vector:ISCCVectorEnv",
+                       "the paper's loop in a world its model does not know: the links' K-factor a field along the "
+                       "path, the drone's RCS drawn per mission", "tasks/field", FIELD_VARIANTS),
 }
 
 

@@ -23,6 +23,7 @@ from iscc_gym.physics.channel import (
 from iscc_gym.physics.dynamics import model_matrices
 from iscc_gym.physics.fbl import min_shares, q_func, slot_link
 from iscc_gym.physics.queue import arrival_sigma, queue_step
+from iscc_gym.physics.sensing import echo_amplitude_sq, sensing_noise_var_w
 from iscc_gym.physics.stability import scenario_eps_star
 from iscc_gym.scenario import Scenario
 from iscc_gym.sim import loop
@@ -104,8 +105,8 @@ def step_reference(s: Scenario, state: LoopState, alpha, rng=None, z=None):
     snr = rician_power_gain(s, z[..., Z_FADE_COMM], z[..., Z_FADE_COMM + 1]) * snr_ls
 
     # --- sensing (CRLB in the local range/azimuth/elevation frame) and Kalman measurement update
-    m_r, m_tt, m_tp, m_pp, crlb_vr = crlb_local(s, a_sen, dist, trig, shadow_db,
-                                                rician_power_gain(s, z[..., Z_FADE_SEN], z[..., Z_FADE_SEN + 1]))
+    g_sen = rician_power_gain(s, z[..., Z_FADE_SEN], z[..., Z_FADE_SEN + 1])
+    m_r, m_tt, m_tp, m_pp, crlb_vr = crlb_local(s, a_sen, dist, trig, shadow_db, g_sen)
     if s.observation_source == "isac":
         # eq:observation_model, whitened: W y = W C x + z with W C from the CRLBs, z ~ N(0, I4)
         c = whitened_observation_matrix(los, trig, m_r, m_tt, m_tp, m_pp, crlb_vr)
@@ -164,7 +165,8 @@ def step_reference(s: Scenario, state: LoopState, alpha, rng=None, z=None):
         q_next, served, dropped = q_next.reshape(state.queue.shape), served.reshape(zero.shape), \
             dropped.reshape(zero.shape)
         backlog = q_next.sum(axis=-1)
-    metrics.update(bits_arrived=arrived, bits_served=served, bits_dropped=dropped, backlog_bits=backlog)
+    metrics.update(bits_arrived=arrived, bits_served=served, bits_dropped=dropped, backlog_bits=backlog,
+                   echo_snr_db=10.0 * np.log10(echo_amplitude_sq(s, dist, shadow_db, g_sen) / sensing_noise_var_w(s)))
     new_state = state._replace(x=x_next, x_hat=x_hat_next, p=p_next, shadow=shadow_next, n=n_next, queue=q_next)
     return new_state, metrics
 

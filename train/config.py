@@ -17,7 +17,7 @@ import yaml
 from iscc_gym.agents.sb3_policy import ALGOS as SB3_ALGOS
 from iscc_gym.agents.sb3_policy import algo_class
 
-from iscc_gym import ENV_ID, MULTI_ENV_ID, URBAN_ENV_ID
+from iscc_gym import ENV_ID, FIELD_ENV_ID, MULTI_ENV_ID, URBAN_ENV_ID
 from iscc_gym.envs.env import registered_scenario
 from iscc_gym.protocol import INIT_SEED_START, check_outside_evaluation
 from iscc_gym.tasks import TASKS
@@ -27,8 +27,9 @@ ALGOS = SB3_ALGOS  # ppo, sac, td3 and ppo_lstm (sb3-contrib's RecurrentPPO, rl-
 #: The on-policy algorithms (rollouts of n_steps per env, advantages normalised per mini-batch).
 ON_POLICY = ("ppo", "ppo_lstm")
 VEC_ENVS = ("dummy", "subproc", "batched")
-#: The ids the native batched env serves (the paper's env, the urban task, the multi-drone env).
-ISCC_ENV_IDS = (ENV_ID, URBAN_ENV_ID, MULTI_ENV_ID)
+#: The ids the native batched env serves: every task of the table (the paper's env, the urban task, the multi-drone
+#: env, the field task).
+ISCC_ENV_IDS = tuple(TASKS)
 #: ``--randomize NAME``: the shifted statistics a randomised run trains over, beside the env's own.
 RANDOMIZE = {"urban-shifts": TASKS[URBAN_ENV_ID].shift_overrides()}
 #: ``--algo ppo-lag``: PPO with the Lagrangian of train/lagrangian.py, at these limits unless
@@ -119,8 +120,8 @@ FIELD_HELP = {
     "n_envs": "parallel envs (" + _or_default("n_envs", "YAML entry's n_envs") + ")",
     "vec_env": "dummy | subproc | batched (the ISCC env's own batched env, fastest)",
     "seed": "training seed (envs, networks, sampling)",
-    "scenario": "Scenario preset of the env (default: the env id's own: paper, or urban for "
-                f"{URBAN_ENV_ID})",
+    "scenario": "Scenario preset of the env (default: the env id's own: paper, urban for "
+                f"{URBAN_ENV_ID}, field for {FIELD_ENV_ID})",
     "out": "run directory; must be empty or new unless --resume or --overwrite",
     "hyperparams": "hyperparameter YAML in rl-zoo3's layout (env id -> hyperparameters; see train/hyperparams.yml)",
     "normalize": "VecNormalize observations and rewards (" + _or_default("normalize", "YAML entry's normalize") + ")",
@@ -525,9 +526,10 @@ def check_args(args: Args) -> None:
     if args.scenario is not None and args.env_id in ISCC_ENV_IDS:
         check_task(args.env_id, args.scenario)
     if has_residual(args):
-        if args.env_id not in (ENV_ID, URBAN_ENV_ID):
-            raise ValueError(f"residual = {args.residual!r}: a scripted base policy plays {ENV_ID} and {URBAN_ENV_ID} "
-                             f"only, not {args.env_id}; unset residual")
+        if args.env_id not in ISCC_ENV_IDS or args.env_id == MULTI_ENV_ID:
+            raise ValueError(f"residual = {args.residual!r}: a scripted base policy plays the single-drone tasks "
+                             f"({', '.join(e for e in ISCC_ENV_IDS if e != MULTI_ENV_ID)}) only, not {args.env_id}; "
+                             "unset residual")
         if has_warm_start(args):
             raise ValueError(f"residual = {args.residual!r} and init_policy = {args.init_policy!r}: use one (a "
                              "residual agent starts at its base policy already)")

@@ -214,6 +214,18 @@ class ISCCEnv(TimeLimitCheck, gym.Env):
     | 27 + 5(k-1), 28 + 5(k-1) | map's large-scale SNR of the command link there, in LoS, in NLoS | dB / 10 | -10 | 10 |
     | 29 + 5(k-1), 30 + 5(k-1) | map's large-scale echo SNR there, in LoS, in NLoS | dB / 10 | -10 | 10 |
 
+    **The field task** (``iscc_gym/ISCC-Field-v0``, preset ``"field"``; ``docs/model.md`` Sec. 8) plays the paper's
+    loop in a world its model does not know (the links' K-factor a field along the path, the drone's RCS drawn per
+    mission) and has ``Box(-10, 10, (25,), float32)``: the 23 above, then what the GBS measured in the last slot:
+
+    | Num | Observation | Unit / scaling | Min | Max |
+    |-----|-------------|----------------|-----|-----|
+    | 23 | last slot's fading gain of the command link (measured over predicted SNR) | dB / 10 | -10 | 10 |
+    | 24 | last slot's measured echo SNR per element and subcarrier (fading, RCS) | dB / 10 | -10 | 10 |
+
+    (0 at reset). ``show_world=True`` (the ``aware`` bound's, never a policy's information) adds the slot's hidden
+    K-factor and the RCS's offset from ``rcs_m2``, both dB / 10.
+
     ## Rewards
 
     .. math::
@@ -244,8 +256,9 @@ class ISCCEnv(TimeLimitCheck, gym.Env):
     The reset ``info`` carries every key of a step's ``info``: ``tracking_error_m`` the initial
     error, costs 0, ``packet_received`` True, ``alpha`` equal thirds, ``slot`` 0, ``action`` NaN, and
     the slot outcomes (``snr_db``, ``snr_large_scale_db``, ``peb_m``, ``veb_mps``, ``eps_ctrl``,
-    ``rate_comm_bps``, ``rate_ctrl_bps``, ``estimation_error_m``) NaN: no slot has run yet
-    (:func:`reset_info_arrays`).
+    ``rate_comm_bps``, ``rate_ctrl_bps``, ``estimation_error_m``, ``echo_snr_db``) NaN: no slot has run yet
+    (:func:`reset_info_arrays`). ``echo_snr_db`` is the slot's echo SNR per element and subcarrier (fading and RCS
+    included), the radar's measurement of its echo.
 
     ## Episode End
 

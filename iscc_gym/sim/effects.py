@@ -8,7 +8,8 @@ that composes the slot reads the record instead of testing the scenario's fields
   :func:`iscc_gym.sim.loop.step_one` and :mod:`iscc_gym.sim.kernel` test), and the compiled blockage branch
   (:func:`iscc_gym.sim.loop.blocked_switch`);
 * the step's layout (:mod:`iscc_gym.sim.schema`: the observation's blocks, the slot's normals);
-* the mission's rows (:mod:`iscc_gym.sim.mission`: the channel along the path with blockage), the loop state's
+* the mission's rows (:mod:`iscc_gym.sim.mission`: the channel along the path with blockage, the world with the
+  field), the loop state's
   buffer (:func:`iscc_gym.sim.loop.init_state`), and the multi-drone fleet (the paper's task only).
 
 A new effect: a field here (off for the existing presets), its equation in the physics module that owns it, its
@@ -50,6 +51,13 @@ class TaskEffects(NamedTuple):
         The reference acceleration stored on board, no command link (``control_mode="open_loop"``).
     feedforward : bool
         The LQG command adds the reference acceleration (``reference_feedforward``).
+    field : bool
+        The world the designer's model does not know (the field task: ``rician_k_std_db`` or ``rcs_std_db`` > 0):
+        the K-factor along the mission and the drone's RCS in its rows (:mod:`iscc_gym.sim.mission`), read by the
+        compiled field branch (:func:`iscc_gym.sim.loop.field_switch`), and the observation's measured block (the
+        last slot's fading gain of the command link and echo SNR).
+    show_world : bool
+        The observation's world block (``show_world``: the hidden values, for the ``aware`` bound).
     """
 
     blockage: bool
@@ -61,11 +69,13 @@ class TaskEffects(NamedTuple):
     gnss: bool
     open_loop: bool
     feedforward: bool
+    field: bool = False
+    show_world: bool = False
 
     @property
     def paper_task(self) -> bool:
         """No effect beyond the paper's closed loop (no blockage, no queue, no preview)."""
-        return not (self.blockage or self.queue or self.preview_points)
+        return not (self.blockage or self.queue or self.preview_points or self.field)
 
 
 @per_scenario
@@ -75,4 +85,5 @@ def task_effects(s: Scenario) -> TaskEffects:
                        queue_deadline_slots=s.queue_deadline_slots, preview_points=s.preview_slots,
                        preview_stride_slots=s.preview_stride_slots, preview_truth=s.preview_source == "truth",
                        gnss=s.observation_source == "gnss", open_loop=s.control_mode == "open_loop",
-                       feedforward=bool(s.reference_feedforward))
+                       feedforward=bool(s.reference_feedforward),
+                       field=s.rician_k_std_db > 0.0 or s.rcs_std_db > 0.0, show_world=bool(s.show_world))

@@ -163,12 +163,12 @@ def env_step(s: Scenario, state: loop.LoopState, actions: ArrayLike, normals: Ar
 
 @per_scenario
 def _output_sizes(s: Scenario) -> tuple[int, int, tuple]:
-    """The observation's length, the queue's slots and the compiled step's trailing ``blocked`` argument of a
-    scenario (cached: asked at every step). Without blockage the argument is left out: the kernel's default (None)
-    compiles the paper's slot (:func:`iscc_gym.sim.loop.blocked_switch`).
+    """The observation's length, the queue's slots and the compiled step's trailing switch arguments of a
+    scenario (cached: asked at every step; :func:`iscc_gym.sim.loop.slot_switches`: for the paper none, the kernel's
+    defaults compile the paper's slot).
     """
     fx = task_effects(s)
-    return obs_size(s), fx.queue_deadline_slots, ((loop.blocked_switch(s),) if fx.blockage else ())
+    return obs_size(s), fx.queue_deadline_slots, loop.slot_switches(s)
 
 
 _ALL_ACTIVE: dict[int, np.ndarray] = {}
@@ -195,7 +195,7 @@ def _all_active(nb: int) -> np.ndarray:
 #: Info keys of a step whose values are outcomes of a slot (its fading, measurement and links): NaN in the
 #: info of ``reset``, before any slot has run (:func:`reset_info_arrays`).
 SLOT_OUTCOME_KEYS = ("snr_db", "snr_large_scale_db", "peb_m", "veb_mps", "eps_ctrl", "rate_comm_bps", "rate_ctrl_bps",
-                     "estimation_error_m")
+                     "estimation_error_m", "echo_snr_db")
 
 
 def reset_info_arrays(state: loop.LoopState) -> dict:
@@ -226,7 +226,7 @@ def reset_info_arrays(state: loop.LoopState) -> dict:
 #: The output columns a step's info reports as they are, per loop.
 INFO_COLUMNS = ("tracking_error_m", "cost_rate", "cost_stability", "snr_db", "snr_large_scale_db", "peb_m", "veb_mps",
                 "eps_ctrl", "rate_comm_bps", "rate_ctrl_bps", "estimation_error_m", "bits_arrived", "bits_served",
-                "bits_dropped", "backlog_bits")
+                "bits_dropped", "backlog_bits", "echo_snr_db")
 #: The keys of a step's info (:func:`step_info`): :data:`INFO_COLUMNS`, ``cost`` (rate plus stability cost,
 #: Safety-Gymnasium's key), ``packet_received`` (bool), ``alpha`` (the applied split) and ``slot``. The single
 #: env adds ``action``; the multi-drone env sums ``cost`` over its drones and adds ``mean_tracking_error_m``.

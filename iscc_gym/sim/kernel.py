@@ -73,6 +73,7 @@ _O_SIN_EL, _O_COS_AZ, _O_SIN_AZ = OBS["sin_elevation"], OBS["cos_azimuth"], OBS[
 _O_CTRL, _O_COMM, _O_RX, _O_PEB, _O_TIME = (OBS[k] for k in ("alpha_ctrl_min", "alpha_comm_min", "last_packet_received",
                                                            "last_peb", "time_left"))
 _DROPPED = COL["bits_dropped"]
+_SNR, _SNR_LS, _ECHO = COL["snr_db"], COL["snr_large_scale_db"], COL["echo_snr_db"]
 _MC_P, _MC_LOS, _MC_SNR_TRUE, _MC_ECHO_TRUE = MC["p_los_map"], MC["los"], MC["snr_true_db"], MC["echo_true_db"]
 _N_PREVIEW_DB = 4  # the preview point's dB columns, after p_los_map's shadow_map_unit (sim.mission.CHANNEL_COLUMNS)
 _MC_DB = MC["snr_los_map_db"]
@@ -90,11 +91,13 @@ def _symlog(x, scale):
 
 
 @njit(cache=True, error_model="numpy")
-def observe_one(c, x_hat, p, shadow, n, ref, q, last_received, last_peb, out):
+def observe_one(c, x_hat, p, shadow, n, ref, q, last_received, last_peb, out, last_fade_db=0.0, last_echo_db=0.0):
     """The observation of one loop (the entries, scalings and layout of :data:`iscc_gym.sim.schema.OBS_BLOCKS`,
     :func:`iscc_gym.sim.schema.observation_table`), written into ``out`` (:func:`iscc_gym.sim.schema.obs_size`
     entries: the optional blocks at :func:`iscc_gym.sim.schema.obs_offsets`, passed in the record); returns False
-    where an entry could not be evaluated (NaN, written as 0) or the estimate is not finite.
+    where an entry could not be evaluated (NaN, written as 0) or the estimate is not finite. ``last_fade_db``,
+    ``last_echo_db``: the last slot's measured fading gain of the command link and echo SNR (the field's measured
+    block; 0 at reset).
     """
     dist, gx, gy, gz, ct, st, cp, sp = direction_one(c.gbs_height_m, x_hat[0], x_hat[1], x_hat[2])
     shadow_db, extra_db = channel_state_one(c, ref[n], x_hat[2], dist, shadow)
@@ -135,6 +138,14 @@ def observe_one(c, x_hat, p, shadow, n, ref, q, last_received, last_peb, out):
     if c.obs_echo_at >= 0.0:
         echo = echo_amplitude_one(c, dist, shadow_db + 2.0 * extra_db, 1.0) / c.sen_noise_w
         out[int(c.obs_echo_at)] = 10.0 * math.log10(echo) * SNR_SCALE
+    if c.obs_measured_at >= 0.0:
+        k = int(c.obs_measured_at)
+        out[k] = last_fade_db * SNR_SCALE
+        out[k + 1] = last_echo_db * SNR_SCALE
+    if c.obs_world_at >= 0.0:  # the hidden world of the slot about to be allocated (the aware bound's)
+        k, w = int(c.obs_world_at), int(c.world_at)
+        out[k] = ref[n, w] * SNR_SCALE
+        out[k + 1] = ref[n, w + 1] * SNR_SCALE
     last = int(c.n_slots)
     stride = int(c.preview_stride_slots)
     k = int(c.obs_preview_at)
@@ -260,7 +271,7 @@ def reward_batch(cp, err, rate, eps, dropped, terminated, n_next, cost_rate, cos
 
 @njit(cache=True, error_model="numpy")
 def _env_rows(cp, mats, x, x_hat, p, shadow, n, ref, key, queue, action, budget, z, active, lo, hi,
-              x_next, x_hat_next, p_next, shadow_next, queue_next, out, obs, blocked=None):
+              x_next, x_hat_next, p_next, shadow_next, queue_next, out, obs, blocked=None, field=None):
     """env_step_batch for rows lo..hi-1, writing into the output arrays."""
     c = cp[0]
     work = work_space()
@@ -286,11 +297,11 @@ def _env_rows(cp, mats, x, x_hat, p, shadow, n, ref, key, queue, action, budget,
             zi = z[i]
         # the slot transition, data queue included (loop.step_one, then loop.queue_slot_one, as loop.step runs it)
         shadow_next[i] = step_one(c, mats, x[i], x_hat[i], p[i], shadow[i], n[i], ref[i], a0, a1, a2,
-                                  zi, x_next[i], x_hat_next[i], p_next[i], mt, work, blocked)
+                                  zi, x_next[i], x_hat_next[i], p_next[i], mt, work, blocked, field)
         queue_slot_one(c, queue[i], zi, mt, queue_next[i])
         n_next = n[i] + 1
         evaluable = observe_one(c, x_hat_next[i], p_next[i], shadow_next[i], n_next, ref[i], queue_next[i], mt[_RX],
-                                mt[_PEB], obs[i])
+                                mt[_PEB], obs[i], mt[_SNR] - mt[_SNR_LS], mt[_ECHO])
         terminated = mt[_DIVERGED] == 1.0 or not evaluable
         cost_rate, cost_stab, reward = reward_one(c, mt[_ERR], mt[_RATE_COMM], mt[_EPS], mt[_DROPPED], terminated,
                                                   n_next)
@@ -302,7 +313,7 @@ def _env_rows(cp, mats, x, x_hat, p, shadow, n, ref, key, queue, action, budget,
 
 @njit(cache=True, error_model="numpy")
 def env_step_batch(c, mats, x, x_hat, p, shadow, n, ref, key, queue, action, budget, z, active,
-                   x_next, x_hat_next, p_next, shadow_next, queue_next, out, obs, blocked=None):
+                   x_next, x_hat_next, p_next, shadow_next, queue_next, out, obs, blocked=None, field=None):
     """One env step of a batch: action -> split (:func:`split_one`), slot transition
     (:func:`iscc_gym.sim.loop.step_one`, then the data queue's :func:`iscc_gym.sim.loop.queue_slot_one`), reward and
     costs (:func:`reward_one`), next observation (:func:`observe_one`), written into the outputs: next x, x_hat, p,
@@ -310,16 +321,17 @@ def env_step_batch(c, mats, x, x_hat, p, shadow, n, ref, key, queue, action, bud
     to its share of the band (the multi-drone env, :mod:`iscc_gym.envs.multi`), or has no rows: the whole band (the
     single env). ``z`` holds the slot's normals (B, n_draws), or has no rows: then each loop draws its own from its
     episode key (noise.slot_normals(key[i], n[i])). Loops with ``active[i]`` False are left as they are (state copied,
-    zero outputs). ``blocked``: None without blockage (the default), True with (:func:`iscc_gym.sim.loop.step_one`'s
-    compile-time switch).
+    zero outputs). ``blocked``, ``field``: None without blockage, without the field's world (the defaults), True
+    with (:func:`iscc_gym.sim.loop.step_one`'s compile-time switches).
     """
     _env_rows(c, mats, x, x_hat, p, shadow, n, ref, key, queue, action, budget, z, active, 0, x.shape[0],
-              x_next, x_hat_next, p_next, shadow_next, queue_next, out, obs, blocked)
+              x_next, x_hat_next, p_next, shadow_next, queue_next, out, obs, blocked, field)
 
 
 @njit(cache=True, error_model="numpy", parallel=True)
 def env_step_batch_parallel(c, mats, x, x_hat, p, shadow, n, ref, key, queue, action, budget, z, active,
-                            x_next, x_hat_next, p_next, shadow_next, queue_next, out, obs, chunk, blocked=None):
+                            x_next, x_hat_next, p_next, shadow_next, queue_next, out, obs, chunk, blocked=None,
+                            field=None):
     """:func:`env_step_batch` with chunks of ``chunk`` rows spread over all cores: each row goes
     through the same compiled :func:`_env_rows`, so results equal the serial kernel's bit for bit
     whatever the chunking.
@@ -329,7 +341,7 @@ def env_step_batch_parallel(c, mats, x, x_hat, p, shadow, n, ref, key, queue, ac
     for k in prange(n_chunks):
         lo = k * chunk
         _env_rows(c, mats, x, x_hat, p, shadow, n, ref, key, queue, action, budget, z, active, lo,
-                  min(lo + chunk, nb), x_next, x_hat_next, p_next, shadow_next, queue_next, out, obs, blocked)
+                  min(lo + chunk, nb), x_next, x_hat_next, p_next, shadow_next, queue_next, out, obs, blocked, field)
 
 
 def parallel_chunk(nb: int) -> int:

@@ -39,7 +39,7 @@ from iscc_gym.physics.dynamics import input_one, lqg_command_one, propagate_one
 from iscc_gym.physics.fbl import ctrl_bler_one, delivered_one, link_terms_one, rate_one
 from iscc_gym.physics.kalman import kf_predict_one, kf_update_whitened_one
 from iscc_gym.physics.queue import arrival_bits_one, queue_step_one
-from iscc_gym.physics.sensing import crlb_local_one, whitened_rows_one
+from iscc_gym.physics.sensing import crlb_local_one, echo_amplitude_one, whitened_rows_one
 from iscc_gym.scenario import Scenario
 from iscc_gym.sim.effects import task_effects
 from iscc_gym.sim.mission import MC, mission_columns, mission_rows
@@ -64,7 +64,8 @@ from iscc_gym.trajectory import Reference, sample_reference
 
 __all__ = ["LoopState", "N_DRAWS", "init_state", "step", "reference_at",
            "standard_normals", "stack_references", "reference_array", "slot_noise", "step_one", "reference_rows",
-           "vector_norm", "check_step", "channel_state_one", "init_mission", "blocked_switch",
+           "vector_norm", "check_step", "channel_state_one", "init_mission", "blocked_switch", "field_switch",
+           "slot_switches",
            "step_batch", "new_outputs", "queue_slot_one"]
 
 
@@ -194,6 +195,23 @@ def blocked_switch(s: Scenario):
     return True if task_effects(s).blockage else None
 
 
+def field_switch(s: Scenario):
+    """The compiled slot's ``field`` argument for a scenario: None without the field task's world (the paper's
+    machine code), True with (:func:`step_one`).
+    """
+    return True if task_effects(s).field else None
+
+
+def slot_switches(s: Scenario) -> tuple:
+    """The compiled slot's trailing switch arguments (``blocked``, ``field``) of a scenario, as short as the defaults
+    allow: () for the paper (the kernel's defaults, None, compile the paper's slot), (True,) with blockage alone.
+    """
+    blocked, field = blocked_switch(s), field_switch(s)
+    if field is not None:
+        return blocked, field
+    return () if blocked is None else (blocked,)
+
+
 def init_mission(s: Scenario, rng: np.random.Generator) -> LoopState:
     """A new mission for one loop, as a batch of one: its reference (:func:`iscc_gym.trajectory.sample_reference`),
     with blockage the channel along it (:func:`iscc_gym.sim.mission.mission_rows`), then :func:`init_state`, all
@@ -261,14 +279,14 @@ def step(s: Scenario, state: LoopState, alpha: ArrayLike, rng: np.random.Generat
     nb = 1 if batch is None else batch
     x_n, xh_n, p_n, sh_n, q_n, met, _ = new_outputs(nb, N_METRICS,
                                                     queue_deadline_slots=task_effects(s).queue_deadline_slots)
-    blocked = blocked_switch(s)
+    switches = slot_switches(s)
     if batch is None:  # a batch of one, squeezed back
         step_batch(*slot_params(s), x[None], state.x_hat[None], state.p[None], state.shadow[None], state.n[None],
-                   state.ref[None], state.queue[None], alpha[None], z[None], x_n, xh_n, p_n, sh_n, q_n, met, blocked)
+                   state.ref[None], state.queue[None], alpha[None], z[None], x_n, xh_n, p_n, sh_n, q_n, met, *switches)
         x_n, xh_n, p_n, sh_n, q_n, met = x_n[0], xh_n[0], p_n[0], sh_n[0], q_n[0], met[0]
     else:
         step_batch(*slot_params(s), x, state.x_hat, state.p, state.shadow, state.n, state.ref, state.queue, alpha, z,
-                   x_n, xh_n, p_n, sh_n, q_n, met, blocked)
+                   x_n, xh_n, p_n, sh_n, q_n, met, *switches)
     metrics = dict(zip(METRIC_NAMES, met.T, strict=True))
     metrics["packet_received"] = metrics["packet_received"] > 0.5
     metrics["diverged"] = metrics["diverged"] > 0.5
@@ -294,7 +312,8 @@ def check_step(s: Scenario, state: LoopState, alpha: np.ndarray) -> None:
 _A, _B, _K, _SIGMA_W, _DIAGS = MATS["a"], MATS["b"], MATS["k"], MATS["sigma_w"], MATS["diags"]
 _MC_LOS, _MC_SHADOW = MC["los"], MC["shadow_unit"]
 (_ERR, _EST, _SNR, _SNR_LS, _PEB, _VEB, _EPS, _RX, _RATE_COMM, _RATE_CTRL, _DIVERGED,
- _ARRIVED, _SERVED, _DROPPED, _BACKLOG) = (COL[name] for name in METRIC_NAMES)
+ _ARRIVED, _SERVED, _DROPPED, _BACKLOG, _ECHO) = (COL[name] for name in METRIC_NAMES)
+_LN10_OVER_10 = math.log(10.0) / 10.0
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -349,14 +368,16 @@ def queue_slot_one(c, q, zi, mt, q_next):
 
 @njit(cache=True, error_model="numpy", fastmath={"reassoc", "contract"})
 def step_one(c, mats, xi, x_hat, p, shadow, ni, ref, a_sen, a_ctrl, a_comm, zi,
-             x_next, x_hat_next, p_next, mt, work, blocked=None):
+             x_next, x_hat_next, p_next, mt, work, blocked=None, field=None):
     """The closed loop's part of one slot of one loop (``tests/oracle_loop.py``'s ``step_reference``; ``c``,
     ``mats``: :func:`iscc_gym.sim.params.slot_params`); the slot transition is this, then the data queue
     (:func:`queue_slot_one`). Writes the next state (x, x_hat, p) and the metrics row ``mt``
     (:data:`iscc_gym.sim.schema.METRIC_NAMES`; a row of the env's columns fits too: they start with them); returns
     the next shadowing state. ``zi``: the slot's normals (:func:`iscc_gym.sim.schema.n_draws`); ``work``:
     :func:`work_space`, scratch reused from loop to loop (the slot allocates nothing). ``blocked``: None
-    without blockage (the default), True with (a compile-time switch: see the comment in the body).
+    without blockage (the default), True with (a compile-time switch: see the comment in the body). ``field``:
+    None without the field task's world (the default), True with: the slot's K-factor (both links) and the drone's
+    RCS offset are the mission row's :data:`iscc_gym.sim.mission.WORLD_COLUMNS` instead of the scenario's constants.
     """
     w4, w6, y, x_post, p_post, u, bu, pa, h = work
     px, py, pz = xi[0], xi[1], xi[2]
@@ -372,10 +393,16 @@ def step_one(c, mats, xi, x_hat, p, shadow, ni, ref, a_sen, a_ctrl, a_comm, zi,
         shadow_db, extra_db = blocked_state_one(c, ref[ni], pz, dist)
         snr_ls = link_snr_one(c.snr_k, beam_gain_one(c, ct, st, cp, sp), dist, shadow_db + extra_db)
         shadow_echo = shadow_db + 2.0 * extra_db
-    snr = rician_gain_one(c.ric_los, c.ric_scat, zi[Z_FADE_COMM], zi[Z_FADE_COMM + 1]) * snr_ls
-    m_r, m_tt, m_tp, m_pp, crlb_vr = crlb_local_one(
-        c, a_sen, dist, ct, st, cp, sp, shadow_echo,
-        rician_gain_one(c.ric_los, c.ric_scat, zi[Z_FADE_SEN], zi[Z_FADE_SEN + 1]))
+    if field is None:  # the paper's constants (pruned at compile time, as ``blocked``)
+        ric_los, ric_scat = c.ric_los, c.ric_scat
+    else:  # the world's K-factor here, and the drone's RCS (a gain on the echo: a negative loss)
+        wk = int(c.world_at)
+        k_lin = math.exp(_LN10_OVER_10 * ref[ni, wk])
+        ric_los, ric_scat = math.sqrt(k_lin / (k_lin + 1.0)), math.sqrt(0.5 / (k_lin + 1.0))
+        shadow_echo -= ref[ni, wk + 1]
+    snr = rician_gain_one(ric_los, ric_scat, zi[Z_FADE_COMM], zi[Z_FADE_COMM + 1]) * snr_ls
+    g_sen = rician_gain_one(ric_los, ric_scat, zi[Z_FADE_SEN], zi[Z_FADE_SEN + 1])
+    m_r, m_tt, m_tp, m_pp, crlb_vr = crlb_local_one(c, a_sen, dist, ct, st, cp, sp, shadow_echo, g_sen)
     # measurement, whitened (ISAC or GNSS), and the Kalman measurement update
     if c.gnss == 1.0:
         w = w6
@@ -436,6 +463,7 @@ def step_one(c, mats, xi, x_hat, p, shadow, ni, ref, a_sen, a_ctrl, a_comm, zi,
     mt[_RATE_COMM] = rate_comm
     mt[_RATE_CTRL] = rate_ctrl
     mt[_DIVERGED] = 0.0 if err <= c.max_tracking_error_m else 1.0
+    mt[_ECHO] = 10.0 * math.log10(echo_amplitude_one(c, dist, shadow_echo, g_sen) / c.sen_noise_w)
     return shadow_next
 
 
@@ -452,7 +480,7 @@ def work_space():
 
 @njit(cache=True, error_model="numpy")
 def step_batch(cp, mats, x, x_hat, p, shadow, n, ref, queue, alpha, z, x_next, x_hat_next, p_next, shadow_next,
-               queue_next, metrics, blocked=None):
+               queue_next, metrics, blocked=None, field=None):
     """The slot transition (:func:`step_one`, then :func:`queue_slot_one`) over a batch, written into the output
     arrays (next x, x_hat, p, shadow, queue and the metrics (B, N_METRICS)); outputs are passed in because returning
     fresh arrays from compiled code costs more than the slot itself at small batches. ``cp``: the parameter record
@@ -463,7 +491,7 @@ def step_batch(cp, mats, x, x_hat, p, shadow, n, ref, queue, alpha, z, x_next, x
     for i in range(x.shape[0]):
         shadow_next[i] = step_one(c, mats, x[i], x_hat[i], p[i], shadow[i], n[i], ref[i], alpha[i, 0],
                                   alpha[i, 1], alpha[i, 2], z[i], x_next[i], x_hat_next[i], p_next[i],
-                                  metrics[i], work, blocked)
+                                  metrics[i], work, blocked, field)
         queue_slot_one(c, queue[i], z[i], metrics[i], queue_next[i])
 
 

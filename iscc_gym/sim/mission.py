@@ -32,7 +32,8 @@ from iscc_gym.physics.sensing import echo_amplitude_sq, sensing_noise_var_w
 from iscc_gym.scenario import Scenario
 from iscc_gym.sim.effects import task_effects
 
-__all__ = ["REFERENCE_COLUMNS", "CHANNEL_COLUMNS", "MC", "mission_columns", "channel_along", "mission_rows"]
+__all__ = ["REFERENCE_COLUMNS", "CHANNEL_COLUMNS", "MC", "WORLD_COLUMNS", "mission_columns", "world_column",
+           "channel_along", "world_along", "mission_rows"]
 
 #: Columns of the reference part of a mission row.
 REFERENCE_COLUMNS = 9
@@ -48,9 +49,22 @@ CHANNEL_COLUMNS = ("los", "shadow_unit", "p_los_map", "shadow_map_unit", "snr_lo
 MC = {name: REFERENCE_COLUMNS + j for j, name in enumerate(CHANNEL_COLUMNS)}
 
 
+#: Columns of the world's part (the field task, after the channel's): ``k_db``, the Rician K-factor of the command
+#: link and of the echo at the slot's reference position (dB), and ``rcs_offset_db``, the drone's radar cross
+#: section over ``rcs_m2`` (dB, one value per mission): what the designer's model does not know.
+WORLD_COLUMNS = ("k_db", "rcs_offset_db")
+
+
+def world_column(s: Scenario) -> int:
+    """Where a mission row's :data:`WORLD_COLUMNS` start; -1 without the field."""
+    fx = task_effects(s)
+    return REFERENCE_COLUMNS + (len(CHANNEL_COLUMNS) if fx.blockage else 0) if fx.field else -1
+
+
 def mission_columns(s: Scenario) -> int:
-    """Columns of a mission row: 9, or 9 + len(CHANNEL_COLUMNS) with blockage."""
-    return REFERENCE_COLUMNS + (len(CHANNEL_COLUMNS) if task_effects(s).blockage else 0)
+    """Columns of a mission row: 9, + len(CHANNEL_COLUMNS) with blockage, + len(WORLD_COLUMNS) with the field."""
+    fx = task_effects(s)
+    return REFERENCE_COLUMNS + (len(CHANNEL_COLUMNS) if fx.blockage else 0) + (len(WORLD_COLUMNS) if fx.field else 0)
 
 
 def _state_snr_db(s: Scenario, dist, h, gain, los, shadow_unit):
@@ -100,10 +114,38 @@ def channel_along(s: Scenario, ref: np.ndarray, rng: np.random.Generator) -> np.
                             echo_nlos, snr_true, echo_true])
 
 
-def mission_rows(s: Scenario, reference: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """A mission's rows (N+1, :func:`mission_columns`): the reference (N+1, 9) as it is without blockage, else
-    with :func:`channel_along` drawn from ``rng`` appended.
+def world_along(s: Scenario, ref: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    r"""The world's part of a mission's rows, shape (N+1, len(WORLD_COLUMNS)), drawn from ``rng``: one unit field
+    (:func:`iscc_gym.physics.blockage.draw_field`, exponential correlation ``rician_k_correlation_m``, 3GPP TR
+    38.901 Sec. 7.6.3's spatially consistent large-scale parameters) and one standard normal, in that order,
+    whatever the spreads (so worlds of other spreads share a mission's draws: common random numbers).
+
+    .. math::
+        K_\mathrm{dB}(\mathbf p) = \mu_K + \sigma_K\, f(\mathbf p),\qquad
+        \Delta\sigma_\mathrm{RCS,dB} = \sigma_\mathrm{RCS}\, z
+
+    (:math:`\mu_K` = ``rician_k_db``, :math:`\sigma_K` = ``rician_k_std_db``, :math:`\sigma_\mathrm{RCS}` =
+    ``rcs_std_db``; the field at the slot's reference position, as the blockage's channel is).
     """
-    if not task_effects(s).blockage:
+    if not task_effects(s).field:
+        raise ValueError("world_along needs Scenario.rician_k_std_db or rcs_std_db > 0")
+    field = draw_field(rng, s.rician_k_correlation_m, kernel="exponential")
+    z = rng.standard_normal()
+    k_db = s.rician_k_db + s.rician_k_std_db * field_at(field, ref[:, 0], ref[:, 1])
+    return np.column_stack([k_db, np.full(len(ref), s.rcs_std_db * z)])
+
+
+def mission_rows(s: Scenario, reference: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """A mission's rows (N+1, :func:`mission_columns`): the reference (N+1, 9) as it is without blockage or the
+    field; with blockage :func:`channel_along`, then with the field :func:`world_along`, drawn from ``rng`` in that
+    order, appended.
+    """
+    fx = task_effects(s)
+    if not (fx.blockage or fx.field):
         return reference
-    return np.concatenate([reference, channel_along(s, reference, rng)], axis=1)
+    parts = [reference]
+    if fx.blockage:
+        parts.append(channel_along(s, reference, rng))
+    if fx.field:
+        parts.append(world_along(s, reference, rng))
+    return np.concatenate(parts, axis=1)

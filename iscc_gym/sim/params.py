@@ -21,6 +21,7 @@ from iscc_gym.physics.sensing import SENSING_PARAMS, sensing_noise_var_w, sensin
 from iscc_gym.physics.stability import scenario_eps_star
 from iscc_gym.scenario import Scenario, per_scenario
 from iscc_gym.sim.effects import task_effects
+from iscc_gym.sim.mission import world_column
 from iscc_gym.sim.schema import obs_offsets
 
 __all__ = ["SLOT_PARAMS", "slot_params", "MATS"]
@@ -47,6 +48,8 @@ _OWN_FIELDS = (
     "sen_noise_w",     # sensing.sensing_noise_var_w: the echo SNR's noise
     "preview_truth",   # 1.0 with preview_source="truth" (the oracle's preview)
     "obs_queue_at", "obs_echo_at", "obs_preview_at",  # schema.obs_offsets: where the observation's blocks start, -1
+    "obs_measured_at", "obs_world_at",
+    "world_at",        # mission.world_column: where a mission row's world columns start (the field), -1 without
 )
 #: The fields of the record (all float64; flags are 0.0/1.0): the slot's own, then those of
 #: :data:`iscc_gym.physics.sensing.SENSING_PARAMS` and :data:`iscc_gym.physics.fbl.LINK_PARAMS` (copied from
@@ -94,6 +97,8 @@ def slot_params(s: Scenario):
     r["preview_truth"] = fx.preview_truth
     at = obs_offsets(s)
     r["obs_queue_at"], r["obs_echo_at"], r["obs_preview_at"] = at["queue"], at["blockage"], at["preview"]
+    r["obs_measured_at"], r["obs_world_at"] = at["measured"], at["world"]
+    r["world_at"] = world_column(s)
     mats = np.zeros((5, 6, 6))
     mats[MATS["a"]], mats[MATS["b"], :, :3], mats[MATS["k"], :3, :] = mm.a, mm.b, mm.k
     mats[MATS["sigma_w"]] = mm.sigma_w

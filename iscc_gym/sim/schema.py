@@ -14,7 +14,8 @@ from typing import NamedTuple
 from iscc_gym.sim.effects import task_effects
 
 __all__ = ["obs_names", "obs_size", "obs_entries", "obs_blocks", "obs_offsets", "observation_table", "ObsEntry",
-           "OBS_BLOCKS", "BASE_OBS", "QUEUE_OBS", "BLOCKAGE_OBS", "PREVIEW_OBS", "N_PREVIEW_OBS", "O_BACKLOG",
+           "OBS_BLOCKS", "BASE_OBS", "QUEUE_OBS", "BLOCKAGE_OBS", "PREVIEW_OBS", "MEASURED_OBS", "WORLD_OBS",
+           "N_PREVIEW_OBS", "O_BACKLOG",
            "O_OLDEST_AGE", "O_P_LOS_AHEAD", "O_SNR_LOS_AHEAD", "O_SNR_NLOS_AHEAD", "O_ECHO_LOS_AHEAD",
            "O_ECHO_NLOS_AHEAD",
            "QUEUE_OBS_NAMES", "PREVIEW_OBS_NAMES", "BLOCKAGE_OBS_NAMES",
@@ -25,10 +26,11 @@ __all__ = ["obs_names", "obs_size", "obs_entries", "obs_blocks", "obs_offsets", 
 
 #: Columns of a slot's metrics (:func:`iscc_gym.sim.loop.step`), in order: the closed loop's, then the data
 #: queue's (:mod:`iscc_gym.physics.queue`: the slot's arrivals, the bits served and dropped, the backlog after the
-#: slot; 0 without a queue).
+#: slot; 0 without a queue), then the echo's SNR per element and subcarrier in the slot, its fading and the drone's
+#: RCS included (dB: what the radar measures of its echo).
 METRIC_NAMES = ("tracking_error_m", "estimation_error_m", "snr_db", "snr_large_scale_db", "peb_m",
                 "veb_mps", "eps_ctrl", "packet_received", "rate_comm_bps", "rate_ctrl_bps", "diverged",
-                "bits_arrived", "bits_served", "bits_dropped", "backlog_bits")
+                "bits_arrived", "bits_served", "bits_dropped", "backlog_bits", "echo_snr_db")
 #: Columns an env step adds after :data:`METRIC_NAMES`: the applied split, costs, reward, episode end (0/1).
 ENV_COLUMNS = ("alpha_sen", "alpha_ctrl", "alpha_comm", "cost_rate", "cost_stability", "reward",
                "terminated", "truncated")
@@ -118,6 +120,23 @@ BLOCKAGE_OBS = (
     ObsEntry("echo_snr_db", "dB", "linear", SNR_SCALE, -OBS_BOUND, OBS_BOUND, "echo_snr_db",
              "the slot's measured large-scale echo SNR per element and subcarrier"),
 )
+#: The entries with the field (after the blockage's): what the GBS measured in the last slot (0 at reset), from which
+#: an adaptive policy infers the world its model does not know: the command link's small-scale fading gain (the
+#: acknowledgement's pilots: the slot's SNR over its predicted large-scale SNR) and the echo's SNR.
+MEASURED_OBS = (
+    ObsEntry("last_fade_db", "dB", "linear", SNR_SCALE, -OBS_BOUND, OBS_BOUND, "last_fade_db",
+             "last slot's small-scale fading gain of the command link (measured SNR over the large-scale SNR)"),
+    ObsEntry("last_echo_snr_db", "dB", "linear", SNR_SCALE, -OBS_BOUND, OBS_BOUND, "last_echo_snr_db",
+             "last slot's measured echo SNR per element and subcarrier (fading and the drone's RCS included)"),
+)
+#: The entries with ``show_world`` (after the measured ones): the world's hidden values of the slot about to be
+#: allocated, for the model-knowledge bound ``aware``; never a policy's information.
+WORLD_OBS = (
+    ObsEntry("world_k_db", "dB", "linear", SNR_SCALE, -OBS_BOUND, OBS_BOUND, "world_k_db",
+             "the slot's Rician K-factor (hidden: the aware bound's)"),
+    ObsEntry("world_rcs_offset_db", "dB", "linear", SNR_SCALE, -OBS_BOUND, OBS_BOUND, "world_rcs_offset_db",
+             "the drone's RCS over the model's rcs_m2 (hidden: the aware bound's)"),
+)
 #: The entries of one preview point (after the others, one group per point k = 1 .. preview_slots, names suffixed
 #: ``_k``), at the reference's slot n + k stride (the last slot where that is past the mission's end): the map's
 #: LoS probability, and the large-scale SNRs it predicts there with its mean shadowing, of the command link in LoS
@@ -135,7 +154,8 @@ PREVIEW_OBS = (
              "map's large-scale echo SNR, in NLoS"),
 )
 #: The observation's blocks in their order; which a scenario has, and how often: :func:`obs_blocks`.
-OBS_BLOCKS = {"base": BASE_OBS, "queue": QUEUE_OBS, "blockage": BLOCKAGE_OBS, "preview": PREVIEW_OBS}
+OBS_BLOCKS = {"base": BASE_OBS, "queue": QUEUE_OBS, "blockage": BLOCKAGE_OBS, "measured": MEASURED_OBS,
+              "world": WORLD_OBS, "preview": PREVIEW_OBS}
 
 #: Names of the entries every observation has, in order, and their positions.
 OBS_NAMES = tuple(e.name for e in BASE_OBS)
@@ -155,10 +175,12 @@ N_PREVIEW_OBS = len(PREVIEW_OBS)
 def obs_blocks(s) -> tuple[tuple[str, int, int], ...]:
     """The observation's blocks for a scenario, in order: ``(block, offset, repeats)`` for each block it has
     (:data:`OBS_BLOCKS`): the base entries; the queue's with a queue (``queue_deadline_s`` > 0); the echo's with
-    blockage; the preview's, once per point (``preview_slots`` > 0). The one place the layout is decided.
+    blockage; the measured ones with the field; the world's with ``show_world``; the preview's, once per point
+    (``preview_slots`` > 0). The one place the layout is decided.
     """
     fx = task_effects(s)
-    counts = {"base": 1, "queue": int(fx.queue), "blockage": int(fx.blockage), "preview": fx.preview_points}
+    counts = {"base": 1, "queue": int(fx.queue), "blockage": int(fx.blockage), "measured": int(fx.field),
+              "world": int(fx.show_world), "preview": fx.preview_points}
     blocks, at = [], 0
     for name, entries in OBS_BLOCKS.items():
         if counts[name] > 0:

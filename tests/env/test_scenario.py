@@ -20,13 +20,13 @@ POSITIVE = [  # must be > 0
     "shadowing_decorrelation_m", "rcs_m2", "subcarrier_spacing_hz", "symbol_duration_s",
     "mission_duration_s", "dt_s", "lqg_r", "ctrl_deadline_s", "lqg_cost_target",
     "max_tracking_error_m", "waypoint_intensity_per_km3", "sensing_prior_var_m2",
-    "gnss_pos_std_m", "gnss_vel_std_mps", "los_correlation_m",
+    "gnss_pos_std_m", "gnss_vel_std_mps", "los_correlation_m", "rician_k_correlation_m",
 ]
 NON_NEGATIVE = [  # must be >= 0
     "gbs_height_m", "shadowing_a_db", "shadowing_b_per_m", "lqg_q_vel", "process_noise_pos",
     "process_noise_vel", "rate_min_bps", "w_rate", "w_stab", "initial_pos_std_m",
     "initial_vel_std_mps", "altitude_min_m", "map_error_std", "queue_deadline_s", "queue_arrival_bps",
-    "queue_arrival_cv",
+    "queue_arrival_cv", "rician_k_std_db", "rcs_std_db",
 ]
 POSITIVE_INT = ["n_x", "n_y", "n_symbols", "n_subcarriers", "ctrl_packet_bits",
                 "ctrl_blocklength", "comm_blocklength", "min_waypoints"]
@@ -49,7 +49,7 @@ CHOICES = {
     "preview_source": ("map", "truth"),
     "los_field_kernel": ("exponential", "gaussian"),
 }
-BOOLS = ["reference_feedforward"]
+BOOLS = ["reference_feedforward", "show_world"]
 NUMERIC = POSITIVE + NON_NEGATIVE + POSITIVE_INT + BLER + ANY_FINITE + SPECIAL + URBAN_INT
 
 

@@ -230,10 +230,13 @@ def test_loop_step_advances_the_queue_as_the_env_does(noise):
     assert backlog_seen > U.queue_arrival_bps * U.dt_s  # the data share starved: bits waited
 
 
-def _docstring_rows(doc: str, s) -> dict[int, tuple[float, float]]:
-    """The env docstring's observation tables as {entry: (min, max)} (``26 + 5(k-1)`` expanded for every point)."""
+def _docstring_rows(doc: str, s, preset: str = "paper") -> dict[int, tuple[float, float]]:
+    """The env docstring's observation tables as {entry: (min, max)} (``26 + 5(k-1)`` expanded for every point): the
+    paper's table, then the preset's task's (after its ``**The <preset> task**`` paragraph)."""
+    parts = re.split(r"\*\*The (\w+) task\*\*", doc.split("## Rewards")[0])
+    text = parts[0] + "".join(body for name, body in zip(parts[1::2], parts[2::2], strict=True) if name == preset)
     rows = {}
-    for line in doc.splitlines():
+    for line in text.splitlines():
         cells = [c.strip() for c in line.strip().strip("|").split("|")]
         if len(cells) < 5 or not cells[0][:1].isdigit():
             continue
@@ -251,7 +254,7 @@ def _docstring_rows(doc: str, s) -> dict[int, tuple[float, float]]:
     return rows
 
 
-@pytest.mark.parametrize("preset", ["paper", "urban"])
+@pytest.mark.parametrize("preset", ["paper", "urban", "field"])
 def test_the_observation_table_is_the_layout_the_env_writes(preset):
     """schema.observation_table (the docs' per-task table) lists every entry in the env's order, with bounds that the
     entries keep over a mission and that the env's docstring table states; the optional blocks start where
@@ -261,7 +264,7 @@ def test_the_observation_table_is_the_layout_the_env_writes(preset):
     assert [r["index"] for r in table] == list(range(obs_size(s)))
     assert tuple(r["name"] for r in table) == obs_names(s)
     assert all(set(r) == {"index", "name", "unit", "scaling", "min", "max", "description"} for r in table)
-    doc = _docstring_rows(ISCCEnv.__doc__, SCENARIOS[preset])
+    doc = _docstring_rows(ISCCEnv.__doc__, SCENARIOS[preset], preset)
     assert {j: (r["min"], r["max"]) for j, r in enumerate(schema.observation_table(SCENARIOS[preset]))} == \
         {j: doc[j] for j in range(obs_size(SCENARIOS[preset]))}
     at = schema.obs_offsets(s)

@@ -15,7 +15,8 @@ S = Scenario()
 HEALTHY = (0.2, 0.2, 0.6)
 METRIC_KEYS = {"tracking_error_m", "estimation_error_m", "snr_db", "snr_large_scale_db", "peb_m",
                "veb_mps", "eps_ctrl", "packet_received", "rate_comm_bps", "rate_ctrl_bps",
-               "diverged", "bits_arrived", "bits_served", "bits_dropped", "backlog_bits"}  # the queue's: 0 without
+               "diverged", "bits_arrived", "bits_served", "bits_dropped", "backlog_bits",
+               "echo_snr_db"}  # the queue's: 0 without
 STATE_FIELDS = ("x", "x_hat", "p", "shadow", "n", "ref")
 
 # model written out from eq:AB_matrices and Table I (independent of iscc_gym.physics.dynamics)

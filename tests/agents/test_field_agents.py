@@ -1,0 +1,90 @@
+"""The field task's baseline ladder (issue 36): the fading law at any K, the adaptive rung's estimators against Monte
+Carlo, and the aware bound reading the world the env shows it."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from iscc_gym.agents import make_policy
+from iscc_gym.agents.adaptive import AdaptivePolicy, greenstein_k, mean_log_gain_db
+from iscc_gym.agents.myopic import MyopicPolicy, rician_nodes_at
+
+from iscc_gym.analysis.quadrature import rician_power_nodes
+from iscc_gym.envs.vector import ISCCVectorEnv
+from iscc_gym.scenario import make_scenario
+from iscc_gym.sim.effects import task_effects
+from iscc_gym.units import db_to_lin
+
+
+def _rician_power(k_db, n, rng):
+    k = db_to_lin(k_db)
+    los, scat = np.sqrt(k / (k + 1.0)), np.sqrt(0.5 / (k + 1.0))
+    z = rng.standard_normal((2, n))
+    return (los + scat * z[0]) ** 2 + (scat * z[1]) ** 2
+
+
+@pytest.mark.parametrize("k_db", [-7.3, 2.61, 9.0, 17.9])
+def test_nodes_at_any_k_are_the_exact_quadratures(k_db):
+    exact = rician_power_nodes(float(db_to_lin(k_db)))[0]
+    np.testing.assert_allclose(rician_nodes_at(np.array([k_db]))[0], exact, rtol=2e-3, atol=1e-9)
+
+
+@pytest.mark.parametrize("k_db", [0.0, 6.0, 12.0])
+def test_greenstein_estimate_and_mean_log_gain_against_monte_carlo(k_db):
+    g = _rician_power(k_db, 400_000, np.random.default_rng(1))
+    k_hat = 10.0 * np.log10(greenstein_k(g.mean(), (g * g).mean()))
+    assert k_hat == pytest.approx(k_db, abs=0.3)
+    assert mean_log_gain_db(np.array([k_db]))[0] == pytest.approx(np.mean(10.0 * np.log10(g)), abs=0.05)
+
+
+def test_greenstein_clamps_where_the_moments_are_not_rician():
+    lo, hi = greenstein_k(np.array([1.0, 1.0]), np.array([3.5, 1.0]))  # gamma >= 1: Rayleigh's end; 0: no fading
+    assert 10.0 * np.log10(lo) == pytest.approx(-20.0) and 10.0 * np.log10(hi) == pytest.approx(40.0)
+
+
+def test_aware_at_the_models_world_is_myopic():
+    """The world block at the model's values (K 9 dB, RCS offset 0): aware designs the slot as myopic does."""
+    s = make_scenario("field")
+    venv = ISCCVectorEnv(num_envs=3, scenario=s)
+    obs, _ = venv.reset(seed=[1, 2, 3])
+    world = np.tile(np.array([9.0 * 0.1, 0.0], np.float32), (3, 1))
+    aware = MyopicPolicy(s.replace(show_world=True))
+    assert aware.scenario_overrides == {"show_world": True}
+    np.testing.assert_allclose(aware.split_batch(np.hstack([obs, world]))[0], MyopicPolicy(s).split_batch(obs)[0],
+                               atol=1e-12)
+    low_k = np.tile(np.array([-3.0 * 0.1, 0.0], np.float32), (3, 1))
+    assert np.all(aware.split_batch(np.hstack([obs, low_k]))[0][:, 1] > MyopicPolicy(s).split_batch(obs)[0][:, 1])
+
+
+def test_adaptive_learns_a_constant_world_from_the_measured_block():
+    """Fed the env's missions with a low K and a large RCS everywhere, its estimates move from the model's to them."""
+    s = make_scenario("field", rician_k_db=2.0, rician_k_std_db=1e-9, rcs_std_db=1e-9)
+    truth = make_scenario("field", rician_k_db=2.0, rician_k_std_db=1e-9, rcs_std_db=1e-9)
+    venv = ISCCVectorEnv(num_envs=8, scenario=truth)
+    obs, _ = venv.reset(seed=list(range(8)))
+    # the designer's model: K 9 dB; the world 2 dB. The RCS offset: a world of rcs_m2 10x the model's
+    model = make_scenario("field")
+    pol = AdaptivePolicy(model, k_window_slots=100.0, rcs_prior_slots=1.0)
+    venv_rcs = ISCCVectorEnv(num_envs=8, scenario=truth.replace(rcs_m2=10.0 * model.rcs_m2))
+    obs, _ = venv_rcs.reset(seed=list(range(8)))
+    assert task_effects(s).field
+    for _ in range(300):
+        action, _ = pol.predict(obs)
+        obs, *_ = venv_rcs.step(action)
+    k_db, rcs_db = pol._k_db, pol._rcs_sum / (pol._rcs_n + 1.0)
+    assert np.all(np.abs(k_db - 2.0) < 2.5), k_db
+    assert np.all(np.abs(rcs_db - 10.0) < 1.5), rcs_db
+    # a new mission (slot 0) starts afresh at the model's values
+    obs, _ = venv_rcs.reset(seed=list(range(8)))
+    pol.predict(obs)
+    np.testing.assert_allclose(pol._k_db, 9.0, atol=1e-9)
+
+
+def test_adaptive_needs_the_field_and_is_causal():
+    with pytest.raises(ValueError, match="rician_k_std_db or rcs_std_db"):
+        AdaptivePolicy("paper")
+    with pytest.raises(ValueError, match="show_world"):
+        AdaptivePolicy(make_scenario("field", show_world=True))
+    with pytest.raises(ValueError, match="k_window_slots"):
+        AdaptivePolicy("field", k_window_slots=0.5)
+    assert make_policy("adaptive", "field").name == "adaptive"

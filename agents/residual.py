@@ -7,7 +7,12 @@ plays
 .. math:: a_\mathrm{env} = \mathrm{clip}\big(a_\mathrm{base}(o) + s\,a_\mathrm{agent}(o),\; -1,\; 1\big)
 
 where :math:`a_\mathrm{base}` is a scripted policy's action on the same raw observation :math:`o` and
-:math:`s` the residual's scale. An agent whose action is zero plays the base policy exactly, so training
+:math:`s` the residual's scale (``residual_space="action"``, the default). With ``residual_space="split"`` the
+correction multiplies the base's shares instead, :math:`\alpha_i \propto \alpha_{\mathrm{base},i}\,
+e^{s\,a_{\mathrm{agent},i}}` (its logits shifted by at most s): no action bound clips it, so an exploring agent
+moves a base that sits at a corner of the action box (a share at +1, a small share near -1) symmetrically, where
+the additive form clips half its draws and drifts (the field task: ``docs/learning.md``). An agent whose action is
+zero plays the base policy exactly, so training
 starts at the base's level (PPO's action head starts near zero) and keeps what it cannot improve.
 
 ``python -m train`` trains one with ``residual: SPEC`` (an :func:`agents.make_policy` spec) and
@@ -34,7 +39,8 @@ import numpy as np
 import yaml
 from stable_baselines3.common.vec_env import VecEnvWrapper
 
-__all__ = ["ResidualVecEnv", "ResidualPolicy", "residual_action", "check_scale", "RECORD_ENTRY", "RECORD_KEYS",
+__all__ = ["ResidualVecEnv", "ResidualPolicy", "residual_action", "check_scale", "check_space", "RESIDUAL_SPACES",
+           "RECORD_ENTRY", "RECORD_KEYS",
            "RECORD_FIX", "residual_record", "write_record", "add_record", "read_record", "check_record", "base_policy"]
 
 #: The entry of a residual agent's model ``.zip`` that holds its :func:`residual_record`.
@@ -43,6 +49,16 @@ RECORD_ENTRY = "residual.yml"
 RECORD_FIX = "the model file is damaged: use the run's own copy, or retrain"
 #: What a residual record holds: the run settings (as a run's manifest names them) that make the base policy.
 RECORD_KEYS = ("residual", "residual_scale", "scenario", "env_overrides", "residual_params")
+#: Where the correction acts (``residual_space``): ``action`` (added to the base's action; the default, which
+#: records leave out) or ``split`` (the base's shares' logits).
+RESIDUAL_SPACES = ("action", "split")
+
+
+def check_space(space) -> str:
+    """``space`` if it is one of :data:`RESIDUAL_SPACES`; ``ValueError`` naming ``residual_space`` otherwise."""
+    if space not in RESIDUAL_SPACES:
+        raise ValueError(f"residual_space = {space!r}; use one of {', '.join(RESIDUAL_SPACES)}")
+    return space
 
 
 def check_scale(scale) -> float:
@@ -59,9 +75,11 @@ def check_scale(scale) -> float:
     return s
 
 
-def residual_action(base_action, agent_action, scale: float) -> np.ndarray:
-    """The env's action: ``clip(base_action + scale * agent_action, -1, 1)`` as float32, the agent's action
-    clipped to [-1, 1] first (as SB3 clips a policy's action to its box). NaN in either is refused.
+def residual_action(base_action, agent_action, scale: float, space: str = "action") -> np.ndarray:
+    """The env's action: ``clip(base_action + scale * agent_action, -1, 1)`` as float32 (``space="action"``), or
+    with ``space="split"`` the action of the split whose logits are the base split's plus ``scale * agent_action``
+    (:func:`iscc_gym.sim.task.split_to_action`; the base's shares floored at 1e-9); the agent's action clipped to
+    [-1, 1] first (as SB3 clips a policy's action to its box). NaN in either is refused.
     """
     base = np.asarray(base_action, dtype=np.float64)
     agent = np.asarray(agent_action, dtype=np.float64)
@@ -69,6 +87,12 @@ def residual_action(base_action, agent_action, scale: float) -> np.ndarray:
         raise ValueError(f"the agent's action has shape {agent.shape}, the base policy's {base.shape}")
     if not (np.isfinite(base).all() and np.isfinite(agent).all()):
         raise ValueError("residual action: NaN or inf in the base policy's or the agent's action")
+    if space == "split":
+        from iscc_gym.sim.task import action_to_split, split_to_action
+
+        z = np.log(np.maximum(action_to_split(base), 1e-9)) + scale * np.clip(agent, -1.0, 1.0)
+        w = np.exp(z - z.max(axis=-1, keepdims=True))
+        return split_to_action(w / w.sum(axis=-1, keepdims=True))
     return np.clip(base + scale * np.clip(agent, -1.0, 1.0), -1.0, 1.0).astype(np.float32)
 
 
@@ -82,12 +106,15 @@ class ResidualVecEnv(VecEnvWrapper):
     base : a policy (``predict(obs, state, episode_start)`` on raw observations, batched)
     scale : float
         :math:`s`, in (0, 2].
+    space : str
+        ``residual_space`` (:data:`RESIDUAL_SPACES`).
     """
 
-    def __init__(self, venv, base, scale: float):
+    def __init__(self, venv, base, scale: float, space: str = "action"):
         super().__init__(venv)
         self.base = base
         self.scale = check_scale(scale)
+        self.space = check_space(space)
         self._obs = None
         self._state = None
         self._start = np.ones(self.num_envs, dtype=bool)
@@ -103,7 +130,8 @@ class ResidualVecEnv(VecEnvWrapper):
             raise RuntimeError("ResidualVecEnv.step before reset: call reset() first")
         base, self._state = self.base.predict(self._obs, state=self._state, episode_start=self._start,
                                               deterministic=True)
-        self.venv.step_async(residual_action(base, np.asarray(actions).reshape(np.shape(base)), self.scale))
+        self.venv.step_async(residual_action(base, np.asarray(actions).reshape(np.shape(base)), self.scale,
+                                             self.space))
 
     def step_wait(self):
         obs, rewards, dones, infos = self.venv.step_wait()
@@ -124,10 +152,13 @@ class ResidualPolicy:
         The run's ``residual_scale``.
     spec : str
         The base's spec (for ``repr``).
+    space : str
+        The run's ``residual_space``.
     """
 
-    def __init__(self, base, agent, scale: float, spec: str = "base"):
+    def __init__(self, base, agent, scale: float, spec: str = "base", space: str = "action"):
         self.base, self.agent, self.scale, self.spec = base, agent, check_scale(scale), spec
+        self.space = check_space(space)
         self.obs_shape = agent.obs_shape
         self.model = agent.model
 
@@ -139,17 +170,20 @@ class ResidualPolicy:
         correction, agent_state = self.agent.predict(obs, state=agent_state, episode_start=episode_start,
                                                      deterministic=deterministic)
         base, base_state = self.base.predict(obs, state=base_state, episode_start=episode_start, deterministic=True)
-        return residual_action(base, correction, self.scale), (agent_state, base_state)
+        return residual_action(base, correction, self.scale, self.space), (agent_state, base_state)
 
     def __repr__(self) -> str:
-        return f"ResidualPolicy(base={self.spec!r}, scale={self.scale})"
+        return f"ResidualPolicy(base={self.spec!r}, scale={self.scale}" + (
+            f", space={self.space!r})" if self.space != "action" else ")")
 
 
-def residual_record(spec: str, scale: float, scenario: str = "paper", env_overrides: dict | None = None) -> dict:
+def residual_record(spec: str, scale: float, scenario: str = "paper", env_overrides: dict | None = None,
+                    space: str = "action") -> dict:
     """The record of a residual agent on base ``spec`` at ``scale``, the base built for preset ``scenario`` with
     ``env_overrides``: :data:`RECORD_KEYS`, ``residual_params`` the tuned parameters the base reads now
-    (:func:`agents.tuned_record`'s record; None for a spec that reads none). Resolved once per run, it is what the
-    base is built from (:func:`base_policy`) in training and at every load.
+    (:func:`agents.tuned_record`'s record; None for a spec that reads none), and ``residual_space`` where it is not
+    the default ``action``. Resolved once per run, it is what the base is built from (:func:`base_policy`) in
+    training and at every load.
     """
     from iscc_gym.agents import tuned_record
     from iscc_gym.agents.tuned_records import load_tuned
@@ -159,9 +193,11 @@ def residual_record(spec: str, scale: float, scenario: str = "paper", env_overri
     overrides = dict(env_overrides or {})
     name = tuned_record(spec, make_scenario(scenario, **overrides))
     params = dict(load_tuned(name)["params"]) if name is not None else None
-    return yaml.safe_load(yaml.safe_dump({"residual": str(spec), "residual_scale": check_scale(scale),
-                                          "scenario": str(scenario), "env_overrides": overrides,
-                                          "residual_params": params}))
+    record = {"residual": str(spec), "residual_scale": check_scale(scale), "scenario": str(scenario),
+              "env_overrides": overrides, "residual_params": params}
+    if check_space(space) != "action":
+        record["residual_space"] = space
+    return yaml.safe_load(yaml.safe_dump(record))
 
 
 def write_record(model_path: str | Path, record: dict) -> None:
@@ -171,7 +207,8 @@ def write_record(model_path: str | Path, record: dict) -> None:
     with zipfile.ZipFile(model_path, "a") as z:
         if RECORD_ENTRY in z.namelist():
             raise ValueError(f"{model_path}: holds a {RECORD_ENTRY} already")
-        z.writestr(RECORD_ENTRY, yaml.safe_dump({k: record[k] for k in RECORD_KEYS}, sort_keys=False))
+        z.writestr(RECORD_ENTRY, yaml.safe_dump({k: record[k] for k in RECORD_KEYS + ("residual_space",)
+                                                 if k in record}, sort_keys=False))
 
 
 def add_record(model_path: str | Path, record: dict) -> Path:
@@ -207,7 +244,7 @@ def read_record(model_path: str | Path) -> dict | None:
         record = yaml.safe_load(text)
     except yaml.YAMLError as e:
         raise ValueError(f"{where}: not valid YAML ({str(e).splitlines()[0]}); {RECORD_FIX}") from None
-    if not isinstance(record, dict) or set(record) != set(RECORD_KEYS):
+    if not isinstance(record, dict) or set(record) - {"residual_space"} != set(RECORD_KEYS):
         raise ValueError(f"{where}: {record!r}; expected the mapping of {', '.join(RECORD_KEYS)}; {RECORD_FIX}")
     check_record(record, where, RECORD_FIX)
     return record
@@ -234,6 +271,8 @@ def check_record(run: dict, where: str, fix: str, prefix: str = "") -> None:
         fail("scenario", f"a preset, one of {sorted(SCENARIOS)}")
     if "env_overrides" in run and not isinstance(run["env_overrides"], dict):
         fail("env_overrides", "a mapping of Scenario fields")
+    if run.get("residual_space", "action") not in RESIDUAL_SPACES:
+        fail("residual_space", f"one of {', '.join(RESIDUAL_SPACES)}")
     if run.get("residual_params") is not None and not is_params(run["residual_params"]):
         fail("residual_params", "null or the base's tuned parameters, a mapping of names to numbers")
 

@@ -271,6 +271,8 @@ class SB3Policy:
                         run["residual"] = None if residual in (None, "none") else residual
                         if run["residual"] is not None:  # a residual run: its base and reach
                             run.update({k: args.get(k) for k in ("residual_scale", "scenario", "env_overrides")})
+                            if args.get("residual_space") not in (None, "action"):
+                                run["residual_space"] = args["residual_space"]
                     except (yaml.YAMLError, KeyError, TypeError):
                         raise ValueError(f"{cfg}: not a config.yml written by python -m train") from None
                     where, prefix = cfg, "args."
@@ -355,7 +357,7 @@ def residual_policy(agent: SB3Policy, run: dict, where: str = "the run", fix: st
     from iscc_gym.agents.residual import ResidualPolicy, base_policy
 
     base = base_policy(run, where, fix, prefix, agent.obs_shape)
-    return ResidualPolicy(base, agent, run["residual_scale"], run["residual"])
+    return ResidualPolicy(base, agent, run["residual_scale"], run["residual"], run.get("residual_space", "action"))
 
 
 def _obs_shape(env_id: str):

@@ -1,7 +1,8 @@
 """Where the shipped agents and tuning records live (package data of ``iscc_gym.agents``), written once.
 
 ``agents/trained/ppo_iscc`` (:data:`PPO_AGENT`, ``python -m experiments.ship``), ``agents/trained/ppo_urban``
-(:data:`URBAN_AGENT`, ``python -m experiments.ship --env iscc_gym/ISCC-Urban-v0``; which agent each task ships:
+(:data:`URBAN_AGENT`, ``python -m experiments.ship --env iscc_gym/ISCC-Urban-v0``), ``agents/trained/ppo_field``
+(:data:`FIELD_AGENT`, ``python -m experiments.ship --env iscc_gym/ISCC-Field-v0``; which agent each task ships:
 :data:`iscc_gym.agents.tasks.TASK_POLICIES`), ``agents/trained/multi/k<K>``
 (:func:`multi_agent_dir`, ``python -m experiments.multi_agents``), ``agents/trained/pareto/<family>/<label>``
 (:data:`PARETO_DIR`, ``python -m experiments.pareto_agents``) and ``agents/tuned/<name>.yml`` (:data:`TUNED_DIR`,
@@ -12,7 +13,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-__all__ = ["TRAINED_DIR", "PPO_AGENT", "URBAN_AGENT", "MULTI_DIR", "PARETO_DIR", "TUNED_DIR",
+__all__ = ["TRAINED_DIR", "PPO_AGENT", "URBAN_AGENT", "FIELD_AGENT", "MULTI_DIR", "PARETO_DIR", "TUNED_DIR",
            "multi_agent_dir"]
 
 #: The folder of the trained agents.
@@ -21,6 +22,9 @@ TRAINED_DIR = Path(__file__).resolve().parent / "trained"
 PPO_AGENT = TRAINED_DIR / "ppo_iscc"
 #: The trained PPO agent of ``iscc_gym/ISCC-Urban-v0`` (``python -m eval --env iscc_gym/ISCC-Urban-v0``'s ``ppo``).
 URBAN_AGENT = TRAINED_DIR / "ppo_urban"
+#: The trained agent of ``iscc_gym/ISCC-Field-v0``: a residual on ``adaptive`` (``python -m eval --env
+#: iscc_gym/ISCC-Field-v0``'s ``ppo``).
+FIELD_AGENT = TRAINED_DIR / "ppo_field"
 #: The multi-drone agents, one folder per drone count (``k4``, ``k4_lag``, ...).
 MULTI_DIR = TRAINED_DIR / "multi"
 #: The Pareto study's learned operating points, ``<family>/<label>``.

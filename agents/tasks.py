@@ -10,7 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from iscc_gym.agents.shipped import PPO_AGENT, URBAN_AGENT, multi_agent_dir
+from iscc_gym.agents.shipped import FIELD_AGENT, PPO_AGENT, URBAN_AGENT, multi_agent_dir
 
 from iscc_gym.tasks import ENV_ID, FIELD_ENV_ID, MULTI_ENV_ID, TASKS, URBAN_ENV_ID, Task
 
@@ -94,12 +94,14 @@ TASK_POLICIES: dict[str, TaskPolicies] = {
     MULTI_ENV_ID: TaskPolicies(MULTI_ENV_ID, "equal-sca,joint-sca,margin,margin-starved", "joint-sca",
                                ("equal-sca", "joint-sca", "margin"), "multi", "Many drones, one base station",
                                focus="agent"),
-    # the field task: the designer's per-slot policies on the paper's model, the adaptive rung that re-estimates the
-    # world, and the model-knowledge bound (aware: myopic shown the world's hidden values); no agent ships yet
-    FIELD_ENV_ID: TaskPolicies(FIELD_ENV_ID, "myopic,margin,sca,adaptive,aware", "myopic",
+    # the field task: the shipped agent (a residual on adaptive), the designer's per-slot policies on the paper's
+    # model, the adaptive rung that re-estimates the world, and the model-knowledge bound (aware: myopic shown the
+    # world's hidden values); every difference against myopic, the agent's against every rung
+    FIELD_ENV_ID: TaskPolicies(FIELD_ENV_ID, "ppo,myopic,margin,sca,adaptive,aware", "myopic",
                                ("myopic", "margin", "sca", "adaptive"), "field-comparison",
-                               "The field task: the baseline ladder where the world is not the model",
-                               focus="adaptive"),
+                               "The field task: the agent and the baseline ladder where the world is not the model",
+                               agent=FIELD_AGENT, agent_docs=("field-agent", "The shipped PPO agent of the field task",
+                                                              "ppo_field_learning_curve.png")),
 }
 assert set(TASK_POLICIES) == set(TASKS), "every task needs its policies (iscc_gym.agents.tasks)"
 #: The shipped agent of each task that ships one (``python -m experiments.ship --env ENV``; ``python -m eval --env

@@ -66,7 +66,7 @@ from iscc_gym.eval.policies import (  # noqa: F401
 )
 from iscc_gym.eval.training import run_training
 
-from iscc_gym import ENV_ID, MULTI_ENV_ID, URBAN_ENV_ID
+from iscc_gym import ENV_ID, FIELD_ENV_ID, MULTI_ENV_ID, URBAN_ENV_ID
 from iscc_gym.cli import invoked_prog, run
 from iscc_gym.docs import README_PATH, RESULTS_PATH, docs_path, publish, save_json, write_section
 from iscc_gym.protocol import EVAL_SEED_START, seed_list
@@ -139,6 +139,7 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
     ap.add_argument("--env", default=ENV_ID, metavar="ID",
                     help=f"env id (default: iscc_gym/ISCC-v0); {URBAN_ENV_ID}: the urban task (scenario 'urban', "
                          f"policies {URBAN_POLICIES}, reference {TASK_POLICIES[URBAN_ENV_ID].reference}); "
+                         f"{FIELD_ENV_ID}: the field task (policies {TASK_POLICIES[FIELD_ENV_ID].policies}); "
                          "iscc_gym/ISCC-Multi-v0 runs python -m eval.multi with the other flags (--n-drones K, "
                          "--k-scan, ...: python -m eval.multi --help)")
     ap.add_argument("--policies", default=None, metavar="LIST",
@@ -146,7 +147,9 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
                          "or a model .zip; loads that directory's vecnormalize.pkl too, both pickles: only files "
                          "you trust), 'ppo' (the shipped agent), or a scripted spec: sca, sca-per-slot, "
                          "sca-ignore-loss, equal, fixed:A_SEN,A_CTRL,A_COMM, grid, evolutionary, margin, "
-                         f"margin:M_CTRL,M_COMM, myopic, and on the urban task dpp, dpp:V, mpc, oracle (default: "
+                         "margin:M_CTRL,M_COMM, myopic, aware (myopic designed on the world played: the "
+                         "model-knowledge bound), on the field task adaptive, and on the urban task dpp, dpp:V, mpc, "
+                         "oracle (default: "
                          f"{DEFAULT_POLICIES}; on the urban task {URBAN_POLICIES})")
     ap.add_argument("--episodes", type=positive_int, default=20, metavar="N",
                     help="held-out episodes (missions) per policy (default: 20)")
@@ -212,8 +215,8 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> dict:
 
         return multi_main(rest, prog=f"{prog} --env {MULTI_ENV_ID}")
     args = build_parser(prog).parse_args(argv)
-    if args.env not in (ENV_ID, URBAN_ENV_ID):
-        raise ValueError(f"--env {args.env!r}: use {ENV_ID}, {URBAN_ENV_ID} or {MULTI_ENV_ID}")
+    if args.env not in TASK_POLICIES or task_policies(args.env).fleet:
+        raise ValueError(f"--env {args.env!r}: use one of {', '.join(TASK_POLICIES)}")
     task = task_policies(args.env)
     args.scenario = env_scenario(args.env, args.scenario, args.write_docs)  # the env's own, or a variant of its task
     if args.policies is None:
@@ -226,7 +229,10 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> dict:
         raise ValueError(f"--scenario {args.scenario!r}: {e.args[0] if e.args else e}") from None
     seeds = (parse_seeds(args.seeds) if args.seeds is not None
              else seed_list(args.seed_start, args.episodes))
-    items = resolve_specs(args.policies, task.shipped_agent())
+    if not task.ships_agent and "ppo" in [p.strip().lower() for p in args.policies.split(",")]:
+        raise ValueError(f"--policies {args.policies!r}: {args.env} ships no agent yet; name a trained one, "
+                         "ppo=RUN_DIR")
+    items = resolve_specs(args.policies, task.agent)
     if args.runs is not None:
         items = resolve_specs(",".join(items + runs_items(args.runs)))  # FileNotFoundError naming the fix
     played = worlds(args.env, args.variants, args.scenario)  # ValueError naming the task's variants
@@ -276,7 +282,7 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> dict:
         if variants:
             print(f"\nmissions: {name} ({variants[name].why})")
         print(format_table(res))
-        share = oracle_share(res)
+        share = oracle_share(res, oracle="oracle" if "oracle" in res["policies"] else "aware")
         if share is not None:
             res["oracle_share"] = share
             print(oracle_share_sentence(share))

@@ -13,6 +13,7 @@ Example::
     python -m experiments.seeds runs/seeds --write-docs
     python -m train --env iscc_gym/ISCC-Urban-v0 --seeds 0,1,2,3,4 --out runs/urban_seeds
     python -m experiments.seeds runs/urban_seeds --env iscc_gym/ISCC-Urban-v0 --write-docs   # each against myopic
+    python -m experiments.seeds runs/field --env iscc_gym/ISCC-Field-v0 --write-docs         # and adaptive, aware
 """
 
 from __future__ import annotations
@@ -36,14 +37,15 @@ from iscc_gym.eval.options import (
     show_progress,
 )
 
-from iscc_gym import ENV_ID, URBAN_ENV_ID
+from iscc_gym import ENV_ID, FIELD_ENV_ID, URBAN_ENV_ID
 from iscc_gym.protocol import EVAL_SEED_START, seed_list
 
 #: Scripted policies every seed is compared with on the paper's task (each task's: ``TaskPolicies.scripted``).
 SCRIPTED = task_policies(ENV_ID).scripted
 #: The env ids whose training configuration is studied, with their docs section and its title.
 SECTIONS = {ENV_ID: ("seeds", "The shipped configuration over 5 training seeds"),
-            URBAN_ENV_ID: ("urban-seeds", "The urban task's shipped configuration over 5 training seeds")}
+            URBAN_ENV_ID: ("urban-seeds", "The urban task's shipped configuration over 5 training seeds"),
+            FIELD_ENV_ID: ("field-seeds", "The field task's shipped configuration over 5 training seeds")}
 
 
 def compare_seeds(root, seeds, scenario: str = "paper", scripted=SCRIPTED, max_steps: int | None = None,

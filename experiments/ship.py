@@ -60,8 +60,12 @@ def ship_args(env_id: str = ENV_ID) -> Args:
 
 def ship(args: Args = SHIP_ARGS, dest: Path | None = None, write_docs: bool = True) -> dict:
     """Train ``args`` and copy its small artifacts into ``dest`` (default: the env's shipped agent);
-    returns the shipped summary.
+    returns the shipped summary. A budget under twice the evaluation interval evaluates every third of it
+    instead, so every shipped agent's learning curve has held-out points (the field task's 300k steps).
     """
+    budget = resolve_args(args)[0].total_timesteps
+    if args.eval_freq > 0 and budget < 2 * args.eval_freq:
+        args = dataclasses.replace(args, eval_freq=max(1, budget // 3))
     return publish(args, main(args), dest, write_docs)
 
 
@@ -96,8 +100,10 @@ def publish(args: Args, summary: dict, dest: Path | None = None, write_docs: boo
             "`train/hyperparams.yml` (resolved copy in the agent's `config.yml`)",
             f"- algorithm: {'RecurrentPPO' if args.algo == 'ppo_lstm' else 'PPO'}, {args.n_envs} envs on the batched "
             "env, VecNormalize"
-            + (f"; a residual agent: it corrects `{args.residual}`'s action by at most {args.residual_scale:g} "
-               "(agents/residual.py)" if has_residual(args) else "")
+            + ((f"; a residual agent: it scales `{args.residual}`'s shares by a factor e^(+-{args.residual_scale:g}) "
+                "at most (agents/residual.py, `residual_space: split`)" if args.residual_space == "split" else
+                f"; a residual agent: it corrects `{args.residual}`'s action by at most {args.residual_scale:g} "
+                "(agents/residual.py)") if has_residual(args) else "")
             + (f"; warm start: behaviour cloning of `{ws['policy']}` on {ws['envs']} x {ws['steps_per_env']:,} "
                f"slots ({ws['samples']:,} samples, actor MSE {ws['actor_mse']:.2g}, {ws['wall_time_s']:.0f} s)"
                if (ws := summary.get("warm_start")) else ""),

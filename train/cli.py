@@ -47,7 +47,7 @@ def build_parser(prog: str = "python -m train") -> argparse.ArgumentParser:
             ap.add_argument(*flags, action=argparse.BooleanOptionalAction, default=default, help=help_)
         elif default is None:  # a run setting the YAML fills (RUN_KEYS), or numba's default
             kind = {"init_policy": str, "init_log_std": float, "cost_limit": str, "scenario": str, "residual": str,
-                    "residual_scale": float, "randomize": str}.get(f.name, int)
+                    "residual_scale": float, "residual_space": str, "randomize": str}.get(f.name, int)
             ap.add_argument(*flags, type=kind, default=None, help=help_)
         else:
             ap.add_argument(*flags, type=type(default), default=default, help=help_ + f" (default: {default})")

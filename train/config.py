@@ -67,6 +67,9 @@ class Args:
     # agents.make_policy spec; None: the YAML's residual, else none) by at most residual_scale
     residual: str | None = None
     residual_scale: float | None = None
+    # where the correction acts (agents/residual.py): "action" (added to the base's action) or "split" (the
+    # base's shares' logits); None: the YAML's, else action
+    residual_space: str | None = None
     # training over randomised missions: "urban-shifts" splits the envs between the urban preset and each of
     # the urban task's shifts (iscc_gym.tasks) (None: the YAML's, else the env's own missions only)
     randomize: str | None = None
@@ -93,10 +96,10 @@ class Args:
 RUN_KEYS = {"n_timesteps": "total_timesteps", "n_envs": "n_envs", "normalize": "normalize",
             "init_policy": "init_policy", "init_envs": "init_envs", "init_steps": "init_steps",
             "init_log_std": "init_log_std", "residual": "residual", "residual_scale": "residual_scale",
-            "randomize": "randomize", "norm_reward": "norm_reward"}
+            "residual_space": "residual_space", "randomize": "randomize", "norm_reward": "norm_reward"}
 RUN_DEFAULTS = {"total_timesteps": 200_000, "n_envs": 4, "normalize": True, "init_policy": None, "init_envs": 16,
                 "init_steps": 5000, "init_log_std": None, "residual": None, "residual_scale": 0.5,
-                "randomize": None, "norm_reward": True}
+                "residual_space": "action", "randomize": None, "norm_reward": True}
 
 
 
@@ -137,6 +140,8 @@ FIELD_HELP = {
                 "myopic; none: no residual; default: the YAML's)",
     "residual_scale": "reach of the residual agent's correction in action units, in (0, 2] ("
                       + _or_default("residual_scale") + ")",
+    "residual_space": "where the residual agent's correction acts: action (added to the base's action) or split "
+                      "(the base's shares' logits, no action bound clips it) (" + _or_default("residual_space") + ")",
     "randomize": "train over randomised missions: urban-shifts (the urban preset and each of its shifted "
                  "statistics, the urban task's shifts in iscc_gym.tasks, on equal shares of the envs: n_envs >= 5); "
                  "none: "
@@ -174,7 +179,7 @@ def _to_bool(v):
 
 _RUN_TYPES = {"total_timesteps": _to_int, "n_envs": _to_int, "normalize": _to_bool, "init_policy": str,
               "init_envs": _to_int, "init_steps": _to_int, "init_log_std": float, "residual": str,
-              "residual_scale": float, "randomize": str, "norm_reward": _to_bool}
+              "residual_scale": float, "residual_space": str, "randomize": str, "norm_reward": _to_bool}
 
 #: The key of a hyperparameter file that only python -m train reads (rl-zoo3 reads the entry of its env id).
 OWN_SECTION = "iscc_gym.train"
@@ -314,7 +319,7 @@ def resolve_args(args: Args) -> tuple[Args, dict]:
                 filled[name] = _RUN_TYPES[name](value)
             except (TypeError, ValueError):
                 kind = {"normalize": "true or false", "norm_reward": "true or false", "init_policy": "a policy spec",
-                        "residual": "a policy spec",
+                        "residual": "a policy spec", "residual_space": "action or split",
                         "init_log_std": "a number", "residual_scale": "a number"}.get(name, "an integer")
                 raise ValueError(f"{key} = {value!r} in {args.hyperparams} or --set; use {kind}") from None
     env_kwargs = hp.pop("env_kwargs", None) or {}
@@ -543,6 +548,10 @@ def check_args(args: Args) -> None:
         from iscc_gym.agents.residual import check_scale
 
         check_scale(args.residual_scale)
+    if args.residual_space is not None:
+        from iscc_gym.agents.residual import check_space
+
+        check_space(args.residual_space)
     if args.init_log_std is not None and not math.isfinite(args.init_log_std):
         raise ValueError(f"init_log_std = {args.init_log_std}; use a finite number (a log standard deviation)")
 
@@ -603,6 +612,8 @@ def run_settings(args: Args) -> dict:
             out["init_log_std"] = float(args.init_log_std)
     if has_residual(args):
         out.update(residual=str(args.residual), residual_scale=float(args.residual_scale))
+        if args.residual_space not in (None, "action"):
+            out["residual_space"] = str(args.residual_space)
     if randomized(args):
         out["randomize"] = str(args.randomize)
     if args.normalize and args.norm_reward is False:

@@ -53,6 +53,8 @@ def run_identity(args: Args, hyperparams: dict | None = None, resumed: dict | No
     # a residual agent's base policy and reach (agents/residual.py; SB3Policy.load plays them); None otherwise
     ident["residual"] = str(args.residual) if has_residual(args) else None
     ident["residual_scale"] = float(args.residual_scale) if has_residual(args) else None
+    if has_residual(args) and args.residual_space not in (None, "action"):  # absent: the default (older runs')
+        ident["residual_space"] = str(args.residual_space)
     ident["residual_params"] = None
     if has_residual(args):
         from iscc_gym.agents.residual import residual_record

@@ -140,9 +140,10 @@ def with_residual(venv, args: Args, residual: dict | None = None):
     from iscc_gym.agents.residual import ResidualVecEnv, base_policy, residual_record
 
     if residual is None:
-        residual = residual_record(args.residual, args.residual_scale, args.scenario, args.env_overrides)
+        residual = residual_record(args.residual, args.residual_scale, args.scenario, args.env_overrides,
+                                   args.residual_space or "action")
     base = base_policy(residual)
-    return ResidualVecEnv(venv, base, residual["residual_scale"])
+    return ResidualVecEnv(venv, base, residual["residual_scale"], residual.get("residual_space", "action"))
 
 
 def batched_kwargs(args: Args) -> dict:

@@ -84,3 +84,19 @@ def test_aware_is_myopic_designed_on_the_world_and_equals_it_where_the_world_is_
     assert res["rcs -10 dB"]["policies"]["aware"]["episodes"] != res["rcs -10 dB"]["policies"]["myopic"]["episodes"]
     with pytest.raises(ValueError, match="unknown policy spec|not a policy spec|spec"):
         compare(ENV_ID, "nope@world", SEEDS, max_steps=2)
+
+
+def test_the_field_task_prints_its_ladder_with_the_share_of_the_gap(capsys):
+    """python -m eval --env iscc_gym/ISCC-Field-v0: the task's ladder, every difference against myopic, and the
+    share of aware's gain the agent closes, with its interval."""
+    from iscc_gym.tasks import FIELD_ENV_ID
+
+    res = eval_main(["--env", FIELD_ENV_ID, "--episodes", "3", "--max-steps", "8", "--workers", "1"])
+    out = capsys.readouterr().out
+    assert list(res["policies"]) == ["ppo", "myopic", "margin", "sca", "adaptive", "aware"]
+    assert set(res["paired"]) == {f"{p}_vs_myopic" for p in ("ppo", "margin", "sca", "adaptive", "aware")}
+    share = res["oracle_share"]
+    assert share["oracle"] == "aware" and len(share["share_ci95"]) == 2
+    assert "Share of the aware's gain over myopic that ppo recovers" in out
+    with pytest.raises(ValueError, match="use one of"):
+        eval_main(["--env", "iscc_gym/ISCC-Nope-v0"])

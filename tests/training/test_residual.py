@@ -329,3 +329,42 @@ def test_a_damaged_manifest_is_named_with_its_field_and_the_fix(tmp_path, damage
     with pytest.raises(ValueError, match=f"manifest\\.yml: {field}") as e:
         SB3Policy.load(d, check_env=None)
     assert any(fix in str(e.value) for fix in ("set it back", "restore it", "retrain"))
+
+
+def test_a_split_space_correction_scales_the_base_shares_and_never_clips():
+    """residual_space="split": shares times e^(s a), renormalised; zero plays the base split; a base at a corner of
+    the action box (one share at +1, a small one near -1) moves symmetrically, where the additive form clips."""
+    from iscc_gym.sim.task import action_to_split, split_to_action
+
+    base_split = np.array([[0.04, 0.25, 0.71], [0.2, 0.3, 0.5]])
+    base = split_to_action(base_split)
+    np.testing.assert_allclose(action_to_split(residual_action(base, np.zeros_like(base), 0.3, "split")), base_split,
+                               rtol=1e-6)
+    up = action_to_split(residual_action(base, np.array([[1.0, 0.0, 0.0]] * 2), 0.3, "split"))
+    down = action_to_split(residual_action(base, np.array([[-1.0, 0.0, 0.0]] * 2), 0.3, "split"))
+    ratio = lambda a: np.log(a[:, 0] / a[:, 2])  # noqa: E731
+    np.testing.assert_allclose(ratio(up) - ratio(base_split), 0.3, atol=1e-6)
+    np.testing.assert_allclose(ratio(down) - ratio(base_split), -0.3, atol=1e-6)
+    # the data share sits at +1: the additive form clips a positive correction there, the split form does not
+    add_up = action_to_split(residual_action(base, np.array([[0.0, 0.0, 1.0]] * 2), 0.3))
+    np.testing.assert_allclose(add_up[0], base_split[0], rtol=1e-6)  # clipped: nothing moved
+    split_up = action_to_split(residual_action(base, np.array([[0.0, 0.0, 1.0]] * 2), 0.3, "split"))
+    assert split_up[0, 2] > base_split[0, 2]
+
+
+def test_a_split_space_record_round_trips_and_older_records_read_as_action(tmp_path):
+    from iscc_gym.agents.residual import check_space, residual_record, write_record
+
+    rec = residual_record("adaptive", 0.3, "field", space="split")
+    assert rec["residual_space"] == "split"
+    assert "residual_space" not in residual_record("adaptive", 0.3, "field")  # the default left out, as before
+    for record, name in ((rec, "split.zip"), (residual_record("margin", 0.5), "old.zip")):
+        path = tmp_path / name
+        with zipfile.ZipFile(path, "w") as z:
+            z.writestr("data", "{}")
+        write_record(path, record)
+        assert read_record(path) == record
+    with pytest.raises(ValueError, match="residual_space"):
+        check_space("logits")
+    with pytest.raises(ValueError, match="residual_space"):
+        ResidualPolicy(make_policy(BASE), None, 0.5, space="logits")

@@ -128,3 +128,17 @@ def test_the_env_measures_what_the_slot_did_and_shows_the_world_only_when_asked(
     w = world_column(s)
     assert dw["world_k_db"] == pytest.approx(rows[n, w], abs=1e-5)
     assert dw["world_rcs_offset_db"] == pytest.approx(rows[n, w + 1], abs=1e-5)
+
+
+def test_both_checkers_pass_on_the_field_env_without_warnings():
+    import warnings
+
+    from gymnasium.utils.env_checker import check_env as gym_check_env
+    from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        gym_check_env(gym.make(FIELD_ENV_ID).unwrapped)
+        sb3_check_env(gym.make(FIELD_ENV_ID), warn=True)
+        sb3_check_env(gym.make(FIELD_ENV_ID, show_world=True).unwrapped, warn=True)
+    assert [str(w.message) for w in caught] == []

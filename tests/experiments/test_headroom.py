@@ -43,3 +43,15 @@ def test_the_field_worlds_table_plays_every_rung_and_the_agent_on_each_world(cap
             mean, (lo, hi) = r[key]
             assert lo <= mean <= hi
     assert "| K mean 4 dB | the K-factor's mean 5 dB below" in out and "share closed" in out
+
+
+def test_what_the_field_agent_learned_is_read_from_one_flight_of_each_policy(capsys):
+    from experiments import field_learned
+
+    stats = field_learned.main(["--missions", "2", "--max-steps", "20"])
+    out = capsys.readouterr().out
+    assert set(stats) == {"aware", "adaptive", "ppo", "estimate", "per_slot"}
+    assert stats["per_slot"]["adaptive_std"] > 0.0
+    for name in ("aware", "adaptive", "ppo"):
+        assert -1.0 <= stats[name]["ctrl_vs_k"] <= 1.0 and 0.0 < stats[name]["ctrl_mean"] < 1.0
+    assert stats["estimate"]["mae_db"] >= 0.0 and "| aware |" in out

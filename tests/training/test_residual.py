@@ -125,13 +125,14 @@ def test_the_shipped_urban_agent_is_the_urban_entrys_residual_on_myopic():
 
 
 def test_each_env_ships_its_own_agent():
-    from iscc_gym.agents.shipped import PPO_AGENT, URBAN_AGENT
+    from iscc_gym.agents.shipped import FIELD_AGENT, PPO_AGENT, URBAN_AGENT
     from iscc_gym.agents.tasks import SHIPPED_AGENTS
 
     from experiments.ship import SHIP_ARGS, ship_args
-    from iscc_gym import ENV_ID
+    from iscc_gym import ENV_ID, FIELD_ENV_ID
 
-    assert ship_args(ENV_ID) is SHIP_ARGS and SHIPPED_AGENTS == {ENV_ID: PPO_AGENT, URBAN_ENV_ID: URBAN_AGENT}
+    assert ship_args(ENV_ID) is SHIP_ARGS and SHIPPED_AGENTS == {ENV_ID: PPO_AGENT, URBAN_ENV_ID: URBAN_AGENT,
+                                                                 FIELD_ENV_ID: FIELD_AGENT}
     urban = ship_args(URBAN_ENV_ID)
     assert (urban.env_id, urban.seed, urban.out) == (URBAN_ENV_ID, 0, "runs/ship_ppo_urban")
     with pytest.raises(ValueError, match="an agent is shipped for"):
@@ -368,3 +369,23 @@ def test_a_split_space_record_round_trips_and_older_records_read_as_action(tmp_p
         check_space("logits")
     with pytest.raises(ValueError, match="residual_space"):
         ResidualPolicy(make_policy(BASE), None, 0.5, space="logits")
+
+
+def test_the_field_entry_trains_a_split_residual_on_adaptive_and_ships_it(tmp_path):
+    """python -m train --env iscc_gym/ISCC-Field-v0 reads its entry's settings (a residual on adaptive that scales
+    its shares); a tiny run of it and the shipped agent both load as that residual policy."""
+    import yaml
+    from iscc_gym.agents.shipped import FIELD_AGENT
+
+    from iscc_gym import FIELD_ENV_ID
+
+    args, hp = resolve_args(parse_args(["--env", FIELD_ENV_ID]))
+    assert (args.scenario, args.residual, args.residual_space, args.residual_scale) == ("field", "adaptive", "split",
+                                                                                        0.3)
+    main(tiny_args(tmp_path / "f", env_id=FIELD_ENV_ID, scenario="field", residual="adaptive",
+                   residual_space="split", residual_scale=0.3))
+    for path in (tmp_path / "f", FIELD_AGENT):
+        policy = SB3Policy.load(path, check_env=FIELD_ENV_ID)
+        assert isinstance(policy, ResidualPolicy) and (policy.spec, policy.space) == ("adaptive", "split")
+    cfg = yaml.safe_load((FIELD_AGENT / "config.yml").read_text())["args"]
+    assert (cfg["residual"], cfg["residual_space"]) == ("adaptive", "split")

@@ -229,9 +229,6 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> dict:
         raise ValueError(f"--scenario {args.scenario!r}: {e.args[0] if e.args else e}") from None
     seeds = (parse_seeds(args.seeds) if args.seeds is not None
              else seed_list(args.seed_start, args.episodes))
-    if not task.ships_agent and "ppo" in [p.strip().lower() for p in args.policies.split(",")]:
-        raise ValueError(f"--policies {args.policies!r}: {args.env} ships no agent yet; name a trained one, "
-                         "ppo=RUN_DIR")
     items = resolve_specs(args.policies, task.agent)
     if args.runs is not None:
         items = resolve_specs(",".join(items + runs_items(args.runs)))  # FileNotFoundError naming the fix

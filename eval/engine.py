@@ -112,10 +112,7 @@ def compare(env_id: str, policies: Sequence[str] | str | None = None, seeds: Seq
     if pol.fleet:
         raise ValueError(f"{env_id}: its comparison is python -m eval --env {env_id} (iscc_gym.eval.multi)")
     specs = policies if isinstance(policies, str) or policies is None else ",".join(policies)
-    specs = specs or pol.policies
-    if not pol.ships_agent and "ppo" in [p.strip().lower() for p in specs.split(",")]:
-        raise ValueError(f"--policies {specs!r}: {env_id} ships no agent yet; name a trained one, ppo=RUN_DIR")
-    items = resolve_specs(specs, pol.agent)
+    items = resolve_specs(specs or pol.policies, pol.agent)
     names = [policy_name(it) for it in items]
     reference = reference if reference is not None else (pol.reference if pol.reference in names else None)
     focus = focus if focus is not None else (pol.focus if pol.focus in names else None)

@@ -86,14 +86,17 @@ def policy_name(item: str) -> str:
     return item.split("=", 1)[0] if "=" in item else item
 
 
-def resolve_specs(specs: str, agent: Path = SHIPPED_AGENT) -> list[str]:
+def resolve_specs(specs: str, agent: Path | None = SHIPPED_AGENT) -> list[str]:
     """The items of a ``--policies`` value: a bare ``ppo`` becomes the shipped ``agent`` (``ppo=`` its path;
-    by default the paper env's, :data:`iscc_gym.agents.tasks.TASK_POLICIES` holds each task's);
-    ``ValueError`` if it is empty or names a policy twice (results are keyed by name).
+    by default the paper env's, :data:`iscc_gym.agents.tasks.TASK_POLICIES` holds each task's; None: the task ships
+    none); ``ValueError`` if it is empty, names a policy twice (results are keyed by name) or a bare ``ppo`` where
+    no agent ships.
     """
     items = [p.strip() for p in split_specs(specs) if p.strip()]
     if not items:
         raise ValueError("--policies is empty; e.g. --policies ppo,sca,equal")
+    if agent is None and any(item.lower() == "ppo" for item in items):
+        raise ValueError(f"--policies {specs!r}: this task ships no agent; name a trained one, ppo=RUN_DIR")
     items = [f"ppo={agent}" if item.lower() == "ppo" else item for item in items]
     names = [policy_name(item) for item in items]
     for item, name in zip(items, names, strict=True):

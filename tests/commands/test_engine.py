@@ -100,3 +100,11 @@ def test_the_field_task_prints_its_ladder_with_the_share_of_the_gap(capsys):
     assert "Share of the aware's gain over myopic that ppo recovers" in out
     with pytest.raises(ValueError, match="use one of"):
         eval_main(["--env", "iscc_gym/ISCC-Nope-v0"])
+
+
+def test_a_bare_ppo_where_no_agent_ships_names_the_fix():
+    from iscc_gym.eval.policies import resolve_specs
+
+    with pytest.raises(ValueError, match="ships no agent; name a trained one, ppo=RUN_DIR"):
+        resolve_specs("myopic,ppo", None)
+    assert resolve_specs("myopic,ppo=runs/x", None) == ["myopic", "ppo=runs/x"]

@@ -29,6 +29,7 @@ seeds (``python -m eval.tune adaptive --scenario field``; ``agents/tuned/adaptiv
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -61,14 +62,21 @@ def greenstein_k(m1, m2):
     return np.clip(k, lo, hi)
 
 
+@functools.lru_cache(maxsize=1)
+def _node_weights():
+    """The fading quadrature's weights (its bins' probabilities: the same at every K), computed once."""
+    from iscc_gym.analysis.quadrature import rician_power_nodes
+
+    weight = rician_power_nodes(1.0)[1]
+    weight.setflags(write=False)
+    return weight
+
+
 def mean_log_gain_db(k_db):
     r""":math:`\mathbb E[10\log_{10} g]` of the unit-mean Rician power gain at K-factors ``k_db`` (dB), by the
     fading quadrature (:func:`agents.myopic.rician_nodes_at`): what a fade takes from a measured SNR in dB on average.
     """
-    from iscc_gym.analysis.quadrature import rician_power_nodes
-
-    weight = rician_power_nodes(1.0)[1]
-    return (10.0 * np.log10(np.maximum(rician_nodes_at(k_db), 1e-300))) @ weight
+    return (10.0 * np.log10(np.maximum(rician_nodes_at(k_db), 1e-300))) @ _node_weights()
 
 
 class AdaptivePolicy(MyopicPolicy):

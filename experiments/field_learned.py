@@ -89,13 +89,14 @@ def summary(res: dict) -> dict:
 
 
 def figure(res: dict, path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    """The first mission's figure (see the module docstring), written atomically
+    (:func:`iscc_gym.eval.figures.save_figure`).
+    """
+    from iscc_gym.eval.figures import new_figure, save_figure
 
     t = np.arange(res["k_true"].shape[0]) * 0.1
-    fig, ax = plt.subplots(3, 1, figsize=(9, 7), sharex=True)
+    fig = new_figure((9, 7), dpi=110)
+    ax = fig.subplots(3, 1, sharex=True)
     ax[0].plot(t, res["k_true"][:, 0], color="k", lw=1.0, label="true K (the world)")
     ax[0].plot(t, res["k_est"][:, 0], color="tab:orange", lw=0.8, label="adaptive's estimate")
     ax[0].axhline(9.0, color="grey", ls=":", lw=0.8, label="the model's 9 dB")
@@ -109,8 +110,7 @@ def figure(res: dict, path) -> None:
     ax[2].set_xlabel("time (s)")
     ax[0].set_title(f"mission {res['seeds'][0]}: the drone's RCS {res['rcs_db'][0]:+.1f} dB from the model's")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def markdown(stats: dict, seeds, command: str) -> str:

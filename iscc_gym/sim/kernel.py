@@ -57,7 +57,7 @@ from iscc_gym.sim.schema import (
     SNR_SCALE,
 )
 
-__all__ = ["env_step_batch", "env_step_batch_parallel", "observe_batch",
+__all__ = ["env_step_batch", "env_row_one", "env_step_batch_parallel", "observe_batch",
            "observe_one", "reward_one", "reward_batch", "split_one", "split_batch", "parallel_chunk", "new_outputs",
            "METRIC_NAMES", "ENV_COLUMNS"]
 
@@ -269,10 +269,41 @@ def reward_batch(cp, err, rate, eps, dropped, terminated, n_next, cost_rate, cos
                                                            n_next[i])
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def env_row_one(c, mats, xi, x_hat, p, shadow, ni, ref, q, a0, a1, a2, zi, x_next, x_hat_next, p_next, q_next, mt, ob,
+                work, blocked, field):
+    """One env step of one loop from its split ``(a0, a1, a2)`` and the slot's normals ``zi``: the slot transition
+    (:func:`iscc_gym.sim.loop.step_one`, then the data queue's :func:`iscc_gym.sim.loop.queue_slot_one`), the next
+    observation (:func:`observe_one`, into ``ob``), reward and costs (:func:`reward_one`) and the done flags, written
+    into the row ``mt`` (:data:`ENV_COLUMNS`); returns the next shadowing state.
+
+    The one step source of every face: the CPU batch (:func:`env_step_batch`, :func:`env_step_batch_parallel`) and
+    the device kernel (:mod:`iscc_gym.gpu.kernel`, compiled by numba-cuda) call it. It allocates nothing: ``work``
+    (:func:`iscc_gym.sim.loop.work_from`) is scratch the caller owns (a buffer per batch on the CPU, per-thread local
+    memory on the GPU); the next state goes to arrays that must not alias the current one. Inlined into its caller
+    (no call overhead; compiled under the caller's flags, as the code it replaced).
+    """
+    shadow_next = step_one(c, mats, xi, x_hat, p, shadow, ni, ref, a0, a1, a2, zi, x_next, x_hat_next, p_next, mt,
+                           work, blocked, field)
+    queue_slot_one(c, q, zi, mt, q_next)
+    n_next = ni + 1
+    evaluable = observe_one(c, x_hat_next, p_next, shadow_next, n_next, ref, q_next, mt[_RX], mt[_PEB], ob,
+                            mt[_SNR] - mt[_SNR_LS], mt[_ECHO])
+    terminated = mt[_DIVERGED] == 1.0 or not evaluable
+    cost_rate, cost_stab, reward = reward_one(c, mt[_ERR], mt[_RATE_COMM], mt[_EPS], mt[_DROPPED], terminated, n_next)
+    mt[_ALPHA], mt[_ALPHA + 1], mt[_ALPHA + 2] = a0, a1, a2
+    mt[_COST_RATE], mt[_COST_STAB], mt[_REWARD] = cost_rate, cost_stab, reward
+    mt[_TERM] = 1.0 if terminated else 0.0
+    mt[_TRUNC] = 1.0 if (not terminated and n_next >= c.n_slots) else 0.0
+    return shadow_next
+
+
 @njit(cache=True, error_model="numpy")
 def _env_rows(cp, mats, x, x_hat, p, shadow, n, ref, key, queue, action, budget, z, active, lo, hi,
               x_next, x_hat_next, p_next, shadow_next, queue_next, out, obs, blocked=None, field=None):
-    """env_step_batch for rows lo..hi-1, writing into the output arrays."""
+    """env_step_batch for rows lo..hi-1, writing into the output arrays (scratch: one work space and one draw
+    buffer for the rows, :func:`env_row_one`).
+    """
     c = cp[0]
     work = work_space()
     draw = z.shape[0] == 0
@@ -289,26 +320,14 @@ def _env_rows(cp, mats, x, x_hat, p, shadow, n, ref, key, queue, action, budget,
         if not whole:  # the loop's share of the band (iscc_gym.envs.multi): its split scaled by it
             b = budget[i]
             a0, a1, a2 = a0 * b, a1 * b, a2 * b
-        mt = out[i]
         if draw:  # the episode's noise stream (noise.slot_normals), drawn where it is used
             fill_slot_normals(key[i], n[i], zbuf)
             zi = zbuf
         else:
             zi = z[i]
-        # the slot transition, data queue included (loop.step_one, then loop.queue_slot_one, as loop.step runs it)
-        shadow_next[i] = step_one(c, mats, x[i], x_hat[i], p[i], shadow[i], n[i], ref[i], a0, a1, a2,
-                                  zi, x_next[i], x_hat_next[i], p_next[i], mt, work, blocked, field)
-        queue_slot_one(c, queue[i], zi, mt, queue_next[i])
-        n_next = n[i] + 1
-        evaluable = observe_one(c, x_hat_next[i], p_next[i], shadow_next[i], n_next, ref[i], queue_next[i], mt[_RX],
-                                mt[_PEB], obs[i], mt[_SNR] - mt[_SNR_LS], mt[_ECHO])
-        terminated = mt[_DIVERGED] == 1.0 or not evaluable
-        cost_rate, cost_stab, reward = reward_one(c, mt[_ERR], mt[_RATE_COMM], mt[_EPS], mt[_DROPPED], terminated,
-                                                  n_next)
-        mt[_ALPHA], mt[_ALPHA + 1], mt[_ALPHA + 2] = a0, a1, a2
-        mt[_COST_RATE], mt[_COST_STAB], mt[_REWARD] = cost_rate, cost_stab, reward
-        mt[_TERM] = 1.0 if terminated else 0.0
-        mt[_TRUNC] = 1.0 if (not terminated and n_next >= c.n_slots) else 0.0
+        shadow_next[i] = env_row_one(c, mats, x[i], x_hat[i], p[i], shadow[i], n[i], ref[i], queue[i], a0, a1, a2, zi,
+                                     x_next[i], x_hat_next[i], p_next[i], queue_next[i], out[i], obs[i], work,
+                                     blocked, field)
 
 
 @njit(cache=True, error_model="numpy")

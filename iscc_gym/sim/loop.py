@@ -62,7 +62,7 @@ from iscc_gym.sim.schema import (
 )
 from iscc_gym.trajectory import Reference, sample_reference
 
-__all__ = ["LoopState", "N_DRAWS", "init_state", "step", "reference_at",
+__all__ = ["LoopState", "N_DRAWS", "init_state", "step", "reference_at", "work_from", "WORK_MATS", "WORK_VEC",
            "standard_normals", "stack_references", "reference_array", "slot_noise", "step_one", "reference_rows",
            "vector_norm", "check_step", "channel_state_one", "init_mission", "blocked_switch", "field_switch",
            "slot_switches",
@@ -467,15 +467,29 @@ def step_one(c, mats, xi, x_hat, p, shadow, ni, ref, a_sen, a_ctrl, a_comm, zi,
     return shadow_next
 
 
+#: The sizes of a slot's scratch (:func:`work_from`): four 6 x 6 matrices and 27 numbers.
+WORK_MATS, WORK_VEC = (4, 6, 6), 27
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def work_from(mbuf, vbuf):
+    """Scratch space of one drone's slot (:func:`step_one`'s ``work``) carved out of buffers the caller owns:
+    ``mbuf`` (:data:`WORK_MATS`) and ``vbuf`` (:data:`WORK_VEC`), zeroed here (the observation matrices are only
+    partly written). Allocates nothing: the device kernel passes per-thread local arrays.
+    """
+    for a in range(mbuf.shape[0]):
+        for j in range(6):
+            for k in range(6):
+                mbuf[a, j, k] = 0.0
+    for j in range(vbuf.shape[0]):
+        vbuf[j] = 0.0
+    return (mbuf[0, :4], mbuf[1], vbuf[0:6], vbuf[6:12], mbuf[2], vbuf[12:15], vbuf[15:21], mbuf[3], vbuf[21:27])
+
+
 @njit(cache=True, error_model="numpy")
 def work_space():
-    """Scratch space of one drone's slot, carved out of one allocation (zeros where only some
-    entries are written: the observation matrices).
-    """
-    buf = np.zeros(4 * 36 + 27)
-    mats = buf[:4 * 36].reshape(4, 6, 6)
-    vec = buf[4 * 36:]
-    return (mats[0, :4], mats[1], vec[0:6], vec[6:12], mats[2], vec[12:15], vec[15:21], mats[3], vec[21:27])
+    """Scratch space of one drone's slot: :func:`work_from` of new buffers (the CPU batch's one allocation)."""
+    return work_from(np.empty(WORK_MATS), np.empty(WORK_VEC))
 
 
 @njit(cache=True, error_model="numpy")

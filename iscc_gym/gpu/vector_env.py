@@ -1,0 +1,289 @@
+"""A vector env whose state, missions and outputs live on the GPU: one kernel launch a step, autoreset on the device,
+torch tensors shared with the env without copies.
+
+``DeviceVectorEnv("iscc_gym/ISCC-v0", num_envs=131072, device="cuda")`` (the ``gpu`` extra); ``device="cpu"`` is its
+stand-in: the same row functions (:mod:`iscc_gym.gpu.kernel`) compiled for one CPU core, torch CPU tensors sharing the
+env's numpy buffers. With ``NUMBA_ENABLE_CUDASIM=1`` set before numba is imported, ``device="cuda"`` runs the
+kernels in numba-cuda's simulator (the tests' way to run the device path without a GPU).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from gymnasium import spaces
+from gymnasium.utils import seeding
+from gymnasium.vector.utils import batch_space
+
+from iscc_gym.envs.env import check_seed
+from iscc_gym.gpu.kernel import MAX_QUEUE_SLOTS, THREADS_PER_BLOCK, cuda_kernels, reset_rows_cpu, step_rows_cpu
+from iscc_gym.scenario import Scenario, make_scenario
+from iscc_gym.sim import loop
+from iscc_gym.sim.effects import task_effects
+from iscc_gym.sim.params import slot_params
+from iscc_gym.sim.schema import COL, OBS_BOUND, STEP_COLUMNS
+from iscc_gym.tasks import get_task
+
+__all__ = ["DeviceVectorEnv", "DEVICES", "DEFAULT_POOL_SIZE"]
+
+#: Where the env runs: ``cuda`` (numba-cuda kernels on the GPU, or its simulator) or ``cpu`` (the stand-in).
+DEVICES = ("cuda", "cpu")
+#: Missions in the device pool by default (at most one per env): 0.36 MB each on the paper preset.
+DEFAULT_POOL_SIZE = 1024
+
+
+class DeviceVectorEnv:
+    """``num_envs`` loops of a single-drone task stepped by one kernel launch, the state on the device.
+
+    Every row runs the env's own step (:func:`iscc_gym.sim.kernel.env_row_one`, the function the CPU envs run),
+    so the same seed gives the same episodes as the CPU vector env (:class:`iscc_gym.envs.vector.ISCCVectorEnv`)
+    up to floating-point rounding, for each env's first episode where the pool holds its mission (``i <
+    pool_size``): row i flies the mission and initial state that the CPU vector env's sub-env i draws at
+    ``reset(seed=seed)``. Later episodes (and rows beyond the pool) are drawn on the device
+    (:mod:`iscc_gym.gpu.kernel`: from the seed, the row and its episode count), their missions from the pool.
+
+    Arguments
+    ---------
+    env_id : str
+        A single-drone task of :data:`iscc_gym.tasks.TASKS` (paper, urban, field); the multi-drone task is refused.
+    num_envs : int >= 1
+    device : ``"cuda"`` or ``"cpu"``
+        ``cuda`` needs numba-cuda (``pip install -e ".[gpu]"``) and a GPU (or the simulator); ``cpu`` runs the same
+        row functions on one core (tests, machines without a GPU).
+    pool_size : int >= 1, optional
+        Missions the device holds (default ``min(num_envs, 1024)``); drawn at ``reset(seed=...)`` on the host, each
+        as the CPU vector env's sub-env of that index draws it.
+    max_episode_steps : int, optional
+        Truncate after this many steps (default the mission's length, the task's registered limit).
+    scenario : str or Scenario, optional, and ``**overrides``: the task's preset by default, then field overrides.
+
+    Attributes
+    ----------
+    obs, reward, terminated, truncated : torch.Tensor
+        The env's output buffers (``(N, obs_size)`` float32, ``(N,)`` float32, ``(N,)`` bool), on the device, written
+        by every step and returned by it: copy what must outlive the next step.
+    final_return, final_length : torch.Tensor
+        ``(N,)``: the return and length of the episode a row ended in the last step (NaN and 0 where none ended).
+    metrics : torch.Tensor
+        ``(N, len(STEP_COLUMNS))`` float64: the step's columns (:data:`iscc_gym.sim.schema.STEP_COLUMNS`) per row.
+
+    Notes
+    -----
+    Same-step autoreset: where an episode ends, the returned observation is the next episode's first; ``terminated``
+    and ``truncated`` say which rows ended. Actions are torch tensors ``(N, 3)`` (any float dtype, on the env's
+    device), checked finite (one device sync) unless ``step(actions, check=False)``.
+    """
+
+    def __init__(self, env_id: str = "iscc_gym/ISCC-v0", num_envs: int = 1024, device: str = "cuda",
+                 pool_size: int | None = None, max_episode_steps: int | None = None,
+                 scenario: str | Scenario | None = None, **overrides: Any):
+        import torch
+
+        task = get_task(env_id)
+        if task.entry_point.endswith("ISCCMultiEnv"):
+            raise ValueError(f"env_id {env_id!r}: the multi-drone task has no device env (its K drones share one "
+                             "band through a per-base-station split the row kernel does not hold); use "
+                             "gymnasium.make_vec for it, or a single-drone task")
+        if device not in DEVICES:
+            raise ValueError(f"device = {device!r}; expected one of {DEVICES}")
+        self.num_envs = _count(num_envs, "num_envs")
+        self.pool_size = min(self.num_envs, DEFAULT_POOL_SIZE) if pool_size is None else _count(pool_size, "pool_size")
+        self.env_id = env_id
+        self.scenario = s = make_scenario(task.preset if scenario is None else scenario, **overrides)
+        self.max_steps = s.n_slots if max_episode_steps is None else min(
+            _count(max_episode_steps, "max_episode_steps"), s.n_slots)
+        nq = task_effects(s).queue_deadline_slots
+        if nq > MAX_QUEUE_SLOTS:
+            raise ValueError(f"queue_deadline_s = {s.queue_deadline_s} is {nq} slots; the device kernel holds at most "
+                             f"{MAX_QUEUE_SLOTS} (iscc_gym.gpu.kernel.MAX_QUEUE_SLOTS): a shorter deadline or a "
+                             "longer dt_s")
+        from iscc_gym.sim.functional import _output_sizes
+
+        self._switches = (loop.blocked_switch(s), loop.field_switch(s))
+        self.device = device
+        self._cuda = None
+        if device == "cuda":
+            from iscc_gym.gpu.cuda import import_cuda, simulator
+
+            self._cuda = import_cuda()
+            self._sim = simulator()
+            if not self._sim and not self._cuda.is_available():
+                raise RuntimeError("device='cuda' but numba-cuda finds no CUDA GPU (and NUMBA_ENABLE_CUDASIM is not "
+                                   "set): run on a machine with one, or use device='cpu' (the stand-in)")
+        else:
+            self._sim = False
+        self._torch_device = torch.device("cuda" if device == "cuda" and not self._sim else "cpu")
+        n, n_obs = self.num_envs, _output_sizes(s)[0]
+        self.obs_size = n_obs
+        self.single_action_space = spaces.Box(-1.0, 1.0, (3,), np.float32)
+        self.single_observation_space = spaces.Box(-OBS_BOUND, OBS_BOUND, (n_obs,), np.float32)
+        self.action_space = batch_space(self.single_action_space, n)
+        self.observation_space = batch_space(self.single_observation_space, n)
+        # the exposed buffers are torch tensors; the kernels see them through numba views of the same memory
+        td = self._torch_device
+        self.obs = torch.zeros((n, n_obs), dtype=torch.float32, device=td)
+        self.reward = torch.zeros(n, dtype=torch.float32, device=td)
+        self.terminated = torch.zeros(n, dtype=torch.bool, device=td)
+        self.truncated = torch.zeros(n, dtype=torch.bool, device=td)
+        self.final_return = torch.full((n,), float("nan"), dtype=torch.float64, device=td)
+        self.final_length = torch.zeros(n, dtype=torch.int64, device=td)
+        self.metrics = torch.zeros((n, len(STEP_COLUMNS)), dtype=torch.float64, device=td)
+        self.actions = torch.zeros((n, 3), dtype=torch.float32, device=td)
+        c, mats = slot_params(s)
+        self._c, self._mats = self._to_device(np.array(c)), self._to_device(np.array(mats))
+        self._std0 = self._to_device(np.array([s.initial_pos_std_m] * 3 + [s.initial_vel_std_mps] * 3))
+        self._state = None
+        self._pool = None
+        self._seed_key = None
+        self._nq = nq
+
+    # --- buffers ---------------------------------------------------------------------------------
+    def _view(self, t):
+        """The kernels' view of tensor ``t`` (the same memory)."""
+        if self._torch_device.type == "cuda":
+            return self._cuda.as_cuda_array(t)
+        return t.numpy()
+
+    def _to_device(self, a: np.ndarray):
+        if self._torch_device.type == "cuda":
+            return self._cuda.to_device(np.ascontiguousarray(a))
+        return np.ascontiguousarray(a)
+
+    def _outputs(self):
+        return tuple(self._view(t) for t in (self.actions, self.metrics, self.obs, self.reward, self.terminated,
+                                             self.truncated, self.final_return, self.final_length))
+
+    # --- API ---------------------------------------------------------------------------------------
+    def reset(self, *, seed: int | None = None):
+        """Every row starts a new episode; returns ``(obs, info)``, ``obs`` the tensor :attr:`obs`.
+
+        ``seed`` (int >= 0 or None): the pool's missions and the first episodes of rows below the pool's size are
+        those the CPU vector env draws at ``reset(seed=seed)`` (sub-env i from ``seed + i``); the rest, and every later
+        episode, come from the seed's counter-based streams. None draws a fresh seed.
+        """
+        check_seed(seed, "seed")
+        if seed is None:
+            seed = int(np.random.SeedSequence().generate_state(1, np.uint32)[0])
+        s = self.scenario
+        n, pool_n = self.num_envs, self.pool_size
+        parts = [loop.init_mission(s, seeding.np_random(seed + j)[0]) for j in range(pool_n)]
+        first = loop.LoopState(*(np.concatenate(f) for f in zip(*parts, strict=True)))
+        self._seed_key = np.uint64(np.random.SeedSequence(seed).generate_state(1, np.uint64)[0])
+        host = {"x": np.zeros((n, 6)), "x_hat": np.zeros((n, 6)), "p": np.zeros((n, 6, 6)), "shadow": np.zeros(n),
+                "n": np.zeros(n, np.int64), "key": np.zeros(n, np.uint64), "queue": np.zeros((n, self._nq)),
+                "mission": np.zeros(n, np.int64), "episode": np.zeros(n, np.int64), "ep_return": np.zeros(n),
+                "ep_length": np.zeros(n, np.int64)}
+        m = min(n, pool_n)
+        for name in ("x", "x_hat", "p", "shadow", "key", "queue"):
+            host[name][:m] = getattr(first, name)[:m]
+        host["mission"][:m] = np.arange(m)
+        self._pool = self._to_device(first.ref)
+        self._state = {k: self._to_device(v) for k, v in host.items()}
+        obs_first = loop_obs(s, first)[:m]
+        self.obs[:m] = _torch_from(obs_first, self._torch_device)
+        if n > m:
+            self._launch_reset(np.arange(m, n, dtype=np.int64))
+        self.final_return.fill_(float("nan"))
+        self.final_length.zero_()
+        return self.obs, {}
+
+    def step(self, actions, check: bool = True):
+        """One step of every row: ``(obs, reward, terminated, truncated, info)``, the env's own tensors (see the
+        class notes); ``info`` holds ``final_return``, ``final_length`` and ``metrics``.
+
+        Raises
+        ------
+        RuntimeError
+            Called before :meth:`reset`.
+        ValueError
+            ``actions`` of another shape than (num_envs, 3), or (with ``check``) NaN or inf in it.
+        """
+        import torch
+
+        if self._state is None:
+            raise RuntimeError("step() called before reset(): call env.reset(seed=...) first")
+        a = torch.as_tensor(actions)
+        if tuple(a.shape) != (self.num_envs, 3):
+            raise ValueError(f"actions must have shape ({self.num_envs}, 3), got {tuple(a.shape)}")
+        if a.dtype.is_complex:
+            raise TypeError(f"actions have complex dtype {a.dtype}; pass real numbers in [-1, 1]")
+        if check and not bool(torch.isfinite(a).all()):
+            bad = torch.nonzero(~torch.isfinite(a).all(dim=1)).flatten()[:10].tolist()
+            raise ValueError(f"actions of rows {bad} contain NaN or inf; pass finite values in [-1, 1]")
+        self.actions.copy_(a)
+        if self.device == "cpu":
+            step_rows_cpu(*self.kernel_args(), *self._switches)
+        else:
+            step, _ = cuda_kernels(*self._switches)
+            step[_blocks(self.num_envs), THREADS_PER_BLOCK](*self.kernel_args())
+        info = {"final_return": self.final_return, "final_length": self.final_length, "metrics": self.metrics}
+        return self.obs, self.reward, self.terminated, self.truncated, info
+
+    def kernel_args(self) -> tuple:
+        """The step kernel's arguments (:func:`iscc_gym.gpu.kernel.step_rows_cpu` without the switches): the
+        parameters, the state, the pool, the seed key, the step limit, then the action and output buffers.
+        """
+        if self._state is None:
+            raise RuntimeError("no state before reset(): call env.reset(seed=...) first")
+        st = self._state
+        return (self._c, self._mats, st["x"], st["x_hat"], st["p"], st["shadow"], st["n"], st["key"], st["queue"],
+                st["mission"], st["episode"], st["ep_return"], st["ep_length"], self._pool, self._std0,
+                self._seed_key, np.int64(self.max_steps), *self._outputs())
+
+    @property
+    def switches(self) -> tuple:
+        """The task's compile-time switches of the slot (``blocked``, ``field``: None or True)."""
+        return self._switches
+
+    def _launch_reset(self, rows: np.ndarray) -> None:
+        st = self._state
+        args = (self._c, st["x"], st["x_hat"], st["p"], st["shadow"], st["n"], st["key"], st["queue"], st["mission"],
+                st["episode"], st["ep_return"], st["ep_length"], self._pool, self._std0, self._seed_key,
+                self._view(self.obs), self._to_device(rows))
+        if self.device == "cpu":
+            reset_rows_cpu(*args)
+        else:
+            _, reset = cuda_kernels(*self._switches)
+            reset[_blocks(rows.size), THREADS_PER_BLOCK](*args)
+
+    def host_state(self) -> dict:
+        """Copies of the rows' state on the host: ``x``, ``x_hat``, ``p``, ``shadow``, ``n``, ``key``, ``queue``,
+        ``mission`` (pool index), ``episode``, ``ep_return``, ``ep_length`` (for tests and inspection).
+        """
+        if self._state is None:
+            raise RuntimeError("no state before reset()")
+        return {k: (v.copy_to_host() if hasattr(v, "copy_to_host") else np.array(v)) for k, v in self._state.items()}
+
+    def close(self) -> None:
+        """Free the device buffers."""
+        self._state = self._pool = None
+
+    @property
+    def column(self) -> dict:
+        """Index of each step column in :attr:`metrics` (:data:`iscc_gym.sim.schema.COL`)."""
+        return dict(COL)
+
+
+def loop_obs(s: Scenario, state: loop.LoopState) -> np.ndarray:
+    """The observations of a batch of loop states at reset (:func:`iscc_gym.sim.functional.observe`)."""
+    from iscc_gym.sim.functional import observe
+
+    nb = state.x.shape[0]
+    return observe(s, state, np.ones(nb), np.zeros(nb))
+
+
+def _torch_from(a: np.ndarray, device):
+    import torch
+
+    return torch.from_numpy(np.ascontiguousarray(a)).to(device)
+
+
+def _blocks(n: int) -> int:
+    return max(1, -(-n // THREADS_PER_BLOCK))
+
+
+def _count(value, name: str) -> int:
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or value < 1:
+        raise ValueError(f"{name} = {value!r}; expected an integer >= 1")
+    return int(value)

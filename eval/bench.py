@@ -479,6 +479,13 @@ def build_parser(prog: str = "python -m eval.bench") -> argparse.ArgumentParser:
     ap.add_argument("--quick", action="store_true", help="tiny sizes of every figure (a smoke run, for the tests)")
     ap.add_argument("--skip-ppo", action="store_true", help="skip the PPO training figures")
     ap.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
+    ap.add_argument("--device", choices=("cpu", "cuda", "standin"), default="cpu",
+                    help="cpu: the CPU figures (default); cuda: the device env and device PPO on a GPU (gpu extra), with "
+                         "the CPU vector env's row of the same run; standin: those rows on the device env's CPU "
+                         "stand-in (eval/bench_device.py)")
+    ap.add_argument("--max-wall-s", type=float, default=120.0, metavar="S",
+                    help="with --device: training time allowed to the paper agent to come within 1%% of myopic "
+                         "(default: 120)")
     ap.add_argument("--write-docs", action="store_true",
                     help="write the figures into the project's docs/results.md and README.md (bench block; needs "
                          "--full and a source checkout)")
@@ -494,6 +501,16 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.bench") -> d
     if args.write_docs:
         for rel in (RESULTS_PATH, README_PATH):
             check_writable_file(docs_path(rel), "--write-docs")
+    if args.device != "cpu":
+        if args.write_docs:
+            raise ValueError("--write-docs writes the CPU table: drop --device")
+        from iscc_gym.eval.bench_device import format_device, run_device
+
+        res = run_device(args.device, quick=args.quick, max_wall_s=args.max_wall_s)
+        print(format_device(res))
+        if args.json:
+            save_json(args.json, res)
+        return res
     profile = "full" if args.full else "short"
     if not args.quiet and not args.quick:
         print(f"{prog}: {profile} run, {PROFILES[profile][0]}; {PROFILES[profile][1]} on a quiet 2-core machine, "

@@ -20,6 +20,9 @@ from iscc_gym.cli import invoked_prog, run
 __all__ = ["build_parser", "args_from_namespace", "parse_value", "parse_args", "cli", "console", "PICKLE_WARNING"]
 
 
+#: Where ``python -m train`` trains (``--device``).
+DEVICES = ("cpu", "cuda", "standin")
+
 PICKLE_WARNING = ("Model files (.zip) and vecnormalize.pkl are pickles: loading one executes code it holds. "
                   "Load only files you trust (and --resume only runs of your own).")
 
@@ -55,6 +58,10 @@ def build_parser(prog: str = "python -m train") -> argparse.ArgumentParser:
                     help="override a hyperparameter of the YAML, e.g. --set n_steps=256 (value read as YAML)")
     ap.add_argument("--env-set", action="append", default=[], metavar="FIELD=VALUE",
                     help="override a Scenario field of the env, e.g. --env-set observation_source=gnss")
+    ap.add_argument("--device", choices=DEVICES, default="cpu",
+                    help="cpu: SB3 on the CPU (the default, every option); cuda: PPO on the device env on a GPU "
+                         "(iscc_gym.train.device_ppo, the gpu extra; saves an SB3 model python -m eval loads); "
+                         "standin: that trainer on the device env's CPU stand-in (no GPU needed)")
     add_study_arguments(ap)
     return ap
 
@@ -106,9 +113,16 @@ def cli(argv: list[str] | None = None, prog: str = "python -m train") -> dict:
     ap = build_parser(prog)
     ns = ap.parse_args(argv)
     args = args_from_namespace(ap, ns)
-    if ns.optimize or ns.seeds is not None:
+    if ns.device != "cpu":
+        if ns.optimize or ns.seeds is not None:
+            ap.error(f"--device {ns.device} trains one run: --optimize and --seeds run SB3 on the CPU")
+        from iscc_gym.train.device_ppo import main as device_main
+
+        summary = device_main(args, ns.device)
+    elif ns.optimize or ns.seeds is not None:
         return run_cli(ap, ns, args)
-    summary = loop.main(args)
+    else:
+        summary = loop.main(args)
     if not args.quiet:
         print(f"trained {summary['timesteps']} steps in {summary['wall_time_s']:.1f} s -> {summary['out']}")
     return summary

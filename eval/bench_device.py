@@ -1,0 +1,211 @@
+"""``python -m eval.bench --device cuda`` (or ``standin``): the device env's and the device trainer's figures.
+
+Rows: env-steps/s of :class:`iscc_gym.gpu.vector_env.DeviceVectorEnv` by batch size (paper task; urban and field at
+one size), a rollout with a torch MLP policy (2 x 64) on the device reading the env's tensors, PPO end to end
+(:mod:`iscc_gym.train.device_ppo`), the wall time for the paper task's device agent to come within 1 % of
+``myopic``'s reward per slot on held-out missions (common random numbers: the same seeds and slots, played on the CPU
+env by :func:`iscc_gym.eval.evaluate.run_episodes`), and, from the same run, the CPU kernel's rows for comparison.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+__all__ = ["run_device", "format_device", "env_rate", "rollout_rate", "time_to_myopic", "SIZES"]
+
+#: Batch sizes of the env rows: on a GPU 1k to 1M envs; on the CPU stand-in small ones.
+SIZES = {"cuda": (1024, 16_384, 131_072, 1_048_576), "standin": (64, 1024), "quick": (16,)}
+
+
+def _sync(device: str) -> None:
+    if device == "cuda":
+        import torch
+
+        torch.cuda.synchronize()
+
+
+def _dev(device: str) -> str:
+    return "cuda" if device == "cuda" else "cpu"
+
+
+def env_rate(device: str, env_id: str, num_envs: int, steps: int, pool_size: int = 1024) -> dict:
+    """Env-steps/s of the device env stepping ``steps`` times (after one warm-up step: the kernel's compile)."""
+    import torch
+
+    from iscc_gym.gpu.vector_env import DeviceVectorEnv
+
+    env = DeviceVectorEnv(env_id, num_envs=num_envs, device=_dev(device), pool_size=min(pool_size, num_envs))
+    t = time.perf_counter()
+    env.reset(seed=0)
+    a = torch.zeros((num_envs, 3), device=env.obs.device)
+    env.step(a, check=False)
+    _sync(device)
+    first = time.perf_counter() - t
+    t = time.perf_counter()
+    for _ in range(steps):
+        env.step(a, check=False)
+    _sync(device)
+    dt = time.perf_counter() - t
+    env.close()
+    return {"env_steps_per_s": num_envs * steps / dt, "num_envs": num_envs, "steps": steps,
+            "reset_and_first_step_s": first}
+
+
+def rollout_rate(device: str, num_envs: int, steps: int) -> dict:
+    """Env-steps/s of a rollout: a torch MLP (2 x 64, tanh) on the env's device maps each observation tensor to
+    actions written into the env's action buffer, with no copy to the host.
+    """
+    import torch
+
+    from iscc_gym.gpu.vector_env import DeviceVectorEnv
+
+    env = DeviceVectorEnv("iscc_gym/ISCC-v0", num_envs=num_envs, device=_dev(device), pool_size=min(1024, num_envs))
+    net = torch.nn.Sequential(torch.nn.Linear(env.obs_size, 64), torch.nn.Tanh(), torch.nn.Linear(64, 64),
+                              torch.nn.Tanh(), torch.nn.Linear(64, 3)).to(env.obs.device)
+    obs, _ = env.reset(seed=0)
+    with torch.no_grad():
+        env.step(net(obs), check=False)
+        _sync(device)
+        t = time.perf_counter()
+        for _ in range(steps):
+            obs, *_ = env.step(net(obs), check=False)
+        _sync(device)
+    dt = time.perf_counter() - t
+    env.close()
+    return {"env_steps_per_s": num_envs * steps / dt, "num_envs": num_envs, "steps": steps}
+
+
+class _DeviceAgent:
+    """``predict`` of a device trainer's policy and observation statistics (SB3's deterministic action, clipped)."""
+
+    def __init__(self, pol, obs_rms, clip_obs: float):
+        self.pol, self.obs_rms, self.clip = pol, obs_rms, clip_obs
+
+    def predict(self, obs, state=None, episode_start=None, deterministic: bool = True):
+        import torch
+
+        dev = self.obs_rms.mean.device
+        o = torch.as_tensor(np.asarray(obs), dtype=torch.float64, device=dev)
+        o = ((o - self.obs_rms.mean) / torch.sqrt(self.obs_rms.var + 1e-8)).clamp(-self.clip, self.clip).float()
+        with torch.no_grad():
+            a = self.pol._predict(o, deterministic=deterministic)
+        return np.clip(a.cpu().numpy(), -1.0, 1.0), None
+
+
+def time_to_myopic(device: str, max_wall_s: float, eval_seeds: int = 8, eval_slots: int = 1000,
+                   check_every: int = 10, cfg_overrides: dict | None = None, within: float = 0.01) -> dict:
+    """Train the paper task's device agent (``python -m train --device``'s configuration) until its deterministic
+    reward per slot on ``eval_seeds`` held-out missions of ``eval_slots`` slots comes within ``within`` (1 %) of
+    ``myopic``'s on the same missions, checked every ``check_every`` updates, or ``max_wall_s`` of training passes.
+    The wall time counts training only; the checks' time is reported apart.
+    """
+    from iscc_gym.agents.myopic import MyopicPolicy
+    from iscc_gym.eval.evaluate import run_episodes
+    from iscc_gym.protocol import CALLBACK_EVAL_SEED_START
+    from iscc_gym.train.cli import parse_args
+    from iscc_gym.train.device_ppo import config_from_args, train
+
+    seeds = list(range(CALLBACK_EVAL_SEED_START, CALLBACK_EVAL_SEED_START + eval_seeds))
+    t = time.perf_counter()
+    ref = run_episodes(MyopicPolicy("paper"), seeds, "paper", eval_slots)
+    myopic = _per_slot(ref)
+    myopic_s = time.perf_counter() - t
+    target = myopic - within * abs(myopic)
+    cfg = config_from_args(parse_args(["--out", "unused"]), device)
+    for k, v in (cfg_overrides or {}).items():
+        setattr(cfg, k, v)
+    cfg.total_timesteps = 10**12
+    checks, check_s = [], [0.0]
+
+    def callback(summary, pol, obs_rms):
+        if summary["iterations"] % check_every:
+            return summary["wall_time_s"] - check_s[0] > max_wall_s
+        t0 = time.perf_counter()
+        res = run_episodes(_DeviceAgent(pol, obs_rms, cfg.clip_obs), seeds, "paper", eval_slots)
+        check_s[0] += time.perf_counter() - t0
+        value = _per_slot(res)
+        train_s = summary["wall_time_s"] - check_s[0]
+        checks.append({"timesteps": summary["timesteps"], "train_wall_s": train_s, "reward_per_slot": value})
+        return value >= target or train_s > max_wall_s
+
+    summary = train(cfg, callback=callback)
+    reached = [c for c in checks if c["reward_per_slot"] >= target]
+    return {"myopic_reward_per_slot": myopic, "target_reward_per_slot": target, "myopic_eval_s": myopic_s,
+            "reached": bool(reached), "train_wall_s": reached[0]["train_wall_s"] if reached else None,
+            "timesteps": reached[0]["timesteps"] if reached else summary["timesteps"], "checks": checks,
+            "check_s": check_s[0], "max_wall_s": max_wall_s, "eval_seeds": eval_seeds, "eval_slots": eval_slots,
+            "config": {k: summary["config"][k] for k in ("n_envs", "n_steps", "batch_size", "n_epochs",
+                                                          "learning_rate", "gamma")}}
+
+
+def run_device(device: str, quick: bool = False, max_wall_s: float = 120.0) -> dict:
+    """Every device figure (``quick``: tiny sizes, the tests' smoke run) and the CPU kernel's rows of the same run."""
+    import torch
+
+    from iscc_gym.eval.bench import vector_steps_per_second
+    from iscc_gym.train.device_ppo import DevicePPOConfig, train
+
+    if device == "cuda":
+        from iscc_gym.gpu.cuda import cuda_available, simulator
+
+        if not cuda_available() or simulator() or not torch.cuda.is_available():
+            raise RuntimeError("--device cuda: no CUDA GPU here (numba-cuda and torch must both see one; the simulator "
+                               "does not count); --device standin measures the CPU stand-in")
+    sizes = SIZES["quick" if quick else device]
+    steps = 3 if quick else (200 if device == "cuda" else 20)
+    res = {"device": device, "gpu": torch.cuda.get_device_name(0) if device == "cuda" else None,
+           "torch": torch.__version__}
+    res["env"] = {str(n): env_rate(device, "iscc_gym/ISCC-v0", n, steps) for n in sizes}
+    big = sizes[min(2, len(sizes) - 1)]
+    res["tasks"] = {env_id: env_rate(device, env_id, big, steps)
+                    for env_id in ("iscc_gym/ISCC-Urban-v0", "iscc_gym/ISCC-Field-v0")}
+    res["rollout"] = {str(n): rollout_rate(device, n, steps) for n in sizes[-2:]}
+    n_ppo = 16 if quick else (131_072 if device == "cuda" else 1024)
+    cfg = DevicePPOConfig(device=_dev(device), n_envs=n_ppo, n_steps=16 if not quick else 4,
+                          batch_size=min(65_536, n_ppo * 16), total_timesteps=(n_ppo * 16 * 20) if not quick else 128,
+                          pool_size=1024, gamma=0.3, gae_lambda=0.8)
+    ppo = train(cfg)
+    res["ppo"] = {k: ppo[k] for k in ("timesteps", "wall_time_s", "steps_per_s", "rollout_s", "update_s")}
+    res["ppo"]["n_envs"] = n_ppo
+    res["time_to_myopic"] = time_to_myopic(
+        device, max_wall_s=2.0 if quick else max_wall_s, eval_seeds=2 if quick else 8,
+        eval_slots=20 if quick else 1000, check_every=1 if quick else 10,
+        cfg_overrides={"n_envs": 16, "batch_size": 64, "pool_size": 16} if quick else None)
+    res["cpu_kernel"] = {str(n): vector_steps_per_second(n, 5 if quick else 50, 1 if quick else 3)
+                         for n in ((64,) if quick else (1024,))}
+    return res
+
+
+def format_device(res: dict) -> str:
+    """The device figures as a text table."""
+    lines = [f"device: {res['device']} ({res['gpu'] or 'CPU stand-in'}), torch {res['torch']}",
+             f"{'what':<58} {'env-steps/s':>14}"]
+    for n, r in res["env"].items():
+        lines.append(f"{'device env, paper, ' + n + ' envs':<58} {r['env_steps_per_s']:>14,.0f}")
+    for env_id, r in res["tasks"].items():
+        name = f"device env, {env_id.split('/')[-1]}, {r['num_envs']} envs"
+        lines.append(f"{name:<58} {r['env_steps_per_s']:>14,.0f}")
+    for n, r in res["rollout"].items():
+        lines.append(f"{'device env + torch MLP 2x64 policy, ' + n + ' envs':<58} {r['env_steps_per_s']:>14,.0f}")
+    p = res["ppo"]
+    lines.append(f"{'PPO end to end, ' + str(p['n_envs']) + ' envs':<58} {p['steps_per_s']:>14,.0f}")
+    for n, r in res["cpu_kernel"].items():
+        lines.append(f"{'CPU vector env (gymnasium.make_vec), paper, ' + n + ' envs':<58} "
+                     f"{r['median_env_steps_per_s']:>14,.0f}")
+    t = res["time_to_myopic"]
+    if t["reached"]:
+        lines.append(f"paper agent within 1 % of myopic ({t['myopic_reward_per_slot']:.4f}/slot): "
+                     f"{t['train_wall_s']:.1f} s of training, {t['timesteps']:,} env-steps")
+    else:
+        best = max((c["reward_per_slot"] for c in t["checks"]), default=float("nan"))
+        lines.append(f"paper agent did not reach 1 % of myopic ({t['myopic_reward_per_slot']:.4f}/slot) in "
+                     f"{t['max_wall_s']:.0f} s of training (best {best:.4f}/slot)")
+    return "\n".join(lines)
+
+
+def _per_slot(res: dict) -> float:
+    """Mean reward per slot over a :func:`iscc_gym.eval.evaluate.run_episodes` result's missions."""
+    ep = res["episodes"]
+    return float(np.sum(ep["reward"]) / np.sum(ep["length"]))

@@ -1,0 +1,356 @@
+"""PPO on the device env (:class:`iscc_gym.gpu.vector_env.DeviceVectorEnv`): rollouts, normalisation, GAE and updates
+all on one torch device, the env's tensors read without copies. ``python -m train --device cuda`` runs it.
+
+The smallest clear PPO the project can own, written to SB3's PPO step for step (clipped surrogate, unclipped value
+loss, per-minibatch advantage normalisation, Adam with eps 1e-5, gradient norm clip, VecNormalize's running
+observation and return statistics) with SB3's own network (:class:`stable_baselines3.common.policies.
+ActorCriticPolicy`), so a run saves as an SB3 ``model.zip`` with its ``vecnormalize.pkl``: ``python -m eval`` and
+:class:`iscc_gym.agents.sb3_policy.SB3Policy` load it like every other agent and compare it on the CPU with common
+random numbers. Why not a library (docs/gpu.md): rsl-rl-lib, skrl and TorchRL each want their own env wrapper and
+policy classes (TensorDict observations, their checkpoints), none of which ``predict`` loads.
+
+Differences from SB3, stated: a truncated episode is not bootstrapped with the value of its last observation (the
+device env autoresets in the same step and keeps no final observation; at the paper task's discount 0.3 and 5000-slot
+missions the term is one step in thousands, discounted to nothing); the rollout's episodes are the device's.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+import warnings
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["DevicePPOConfig", "RunningMeanStd", "gae", "train", "save_sb3", "DEVICE_DEFAULTS"]
+
+#: Settings of a device run where the task's YAML entry (sized for SB3 on a CPU) does not fit a GPU: many envs, a
+#: rollout of 16 steps, large minibatches.
+DEVICE_DEFAULTS = {"n_envs": 4096, "n_steps": 16, "batch_size": 16384, "pool_size": 1024}
+
+
+@dataclass
+class DevicePPOConfig:
+    """A device PPO run (SB3's PPO names and defaults where they exist)."""
+
+    env_id: str = "iscc_gym/ISCC-v0"
+    device: str = "cuda"
+    total_timesteps: int = 20_000_000
+    n_envs: int = 4096
+    n_steps: int = 16
+    batch_size: int = 16384
+    n_epochs: int = 3
+    learning_rate: float = 3e-4
+    gamma: float = 0.99
+    gae_lambda: float = 0.95
+    clip_range: float = 0.2
+    ent_coef: float = 0.0
+    vf_coef: float = 0.5
+    max_grad_norm: float = 0.5
+    net_arch: list = field(default_factory=lambda: [64, 64])
+    activation: str = "Tanh"
+    log_std_init: float = 0.0
+    normalize: bool = True
+    norm_reward: bool = True
+    clip_obs: float = 10.0
+    clip_reward: float = 10.0
+    pool_size: int = 1024
+    seed: int = 0
+    env_overrides: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        for name in ("total_timesteps", "n_envs", "n_steps", "batch_size", "n_epochs", "pool_size"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
+                raise ValueError(f"{name} = {v!r}; expected an integer >= 1")
+        for name, lo, hi in (("gamma", 0.0, 1.0), ("gae_lambda", 0.0, 1.0), ("clip_range", 0.0, math.inf),
+                             ("learning_rate", 0.0, math.inf)):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and lo < v <= hi) or not math.isfinite(v):
+                raise ValueError(f"{name} = {v!r}; expected a number in ({lo}, {hi}]")
+
+
+class RunningMeanStd:
+    """SB3's ``RunningMeanStd`` (the parallel-variance update of Chan et al.) on torch tensors, in float64."""
+
+    def __init__(self, shape, device, epsilon: float = 1e-4):
+        import torch
+
+        self.mean = torch.zeros(shape, dtype=torch.float64, device=device)
+        self.var = torch.ones(shape, dtype=torch.float64, device=device)
+        self.count = epsilon
+
+    def update(self, x) -> None:
+        import torch
+
+        x = x.to(torch.float64)
+        b_mean, b_var, b_count = x.mean(0), x.var(0, unbiased=False), x.shape[0]
+        delta = b_mean - self.mean
+        tot = self.count + b_count
+        self.mean = self.mean + delta * b_count / tot
+        m2 = self.var * self.count + b_var * b_count + delta.square() * self.count * b_count / tot
+        self.var = m2 / tot
+        self.count = tot
+
+
+def gae(rewards, values, dones, last_value, gamma: float, lam: float):
+    """Generalised advantage estimates and returns of a rollout (T, N) as SB3's ``RolloutBuffer``
+    (``compute_returns_and_advantage``): ``dones[t]`` marks that the episode ended at step t (no bootstrap from t + 1).
+    """
+    import torch
+
+    adv = torch.zeros_like(rewards)
+    last = torch.zeros_like(last_value)
+    n = rewards.shape[0]
+    for t in range(n - 1, -1, -1):
+        next_value = last_value if t == n - 1 else values[t + 1]
+        live = 1.0 - dones[t]
+        delta = rewards[t] + gamma * next_value * live - values[t]
+        last = delta + gamma * lam * live * last
+        adv[t] = last
+    return adv, adv + values
+
+
+def _policy(cfg: DevicePPOConfig, env, device):
+    import torch
+    from stable_baselines3.common.policies import ActorCriticPolicy
+
+    act = getattr(torch.nn, cfg.activation)
+    pol = ActorCriticPolicy(env.single_observation_space, env.single_action_space, lambda _: cfg.learning_rate,
+                            net_arch=list(cfg.net_arch), activation_fn=act, log_std_init=cfg.log_std_init)
+    return pol.to(device)
+
+
+def train(cfg: DevicePPOConfig, out: str | Path | None = None, callback=None, quiet: bool = True) -> dict:
+    """Train a PPO agent on the device env; returns the summary (steps, wall time, throughput, the learning curve as
+    (steps, mean return per step of the rollouts)). ``callback(summary_so_far, policy, normalizer)`` after each
+    update may return True to stop (the bench's time-to-level). With ``out``, saves the SB3 model there
+    (:func:`save_sb3`).
+    """
+    import torch
+
+    from iscc_gym.gpu.vector_env import DeviceVectorEnv
+
+    torch.manual_seed(cfg.seed)
+    env = DeviceVectorEnv(cfg.env_id, num_envs=cfg.n_envs, device=cfg.device, pool_size=min(cfg.pool_size, cfg.n_envs),
+                          **cfg.env_overrides)
+    dev = env.obs.device
+    pol = _policy(cfg, env, dev)
+    opt = torch.optim.Adam(pol.parameters(), lr=cfg.learning_rate, eps=1e-5)
+    n, t_len, d_obs = cfg.n_envs, cfg.n_steps, env.obs_size
+    obs_buf = torch.zeros((t_len, n, d_obs), device=dev)
+    act_buf = torch.zeros((t_len, n, 3), device=dev)
+    logp_buf = torch.zeros((t_len, n), device=dev)
+    rew_buf = torch.zeros((t_len, n), device=dev)
+    done_buf = torch.zeros((t_len, n), device=dev)
+    val_buf = torch.zeros((t_len, n), device=dev)
+    obs_rms = RunningMeanStd((d_obs,), dev)
+    ret_rms = RunningMeanStd((), dev)
+    ret = torch.zeros(n, dtype=torch.float64, device=dev)
+
+    def norm(o):
+        if not cfg.normalize:
+            return o
+        return ((o.double() - obs_rms.mean) / torch.sqrt(obs_rms.var + 1e-8)).clamp(-cfg.clip_obs, cfg.clip_obs).float()
+
+    raw, _ = env.reset(seed=cfg.seed)
+    if cfg.normalize:
+        obs_rms.update(raw)
+    obs = norm(raw)
+    steps, iters, t0 = 0, 0, time.perf_counter()
+    curve, rollout_s, update_s = [], 0.0, 0.0
+    batch = n * t_len
+    mb = min(cfg.batch_size, batch)
+    stop = False
+    while steps < cfg.total_timesteps and not stop:
+        ta = time.perf_counter()
+        rsum = 0.0
+        with torch.no_grad():
+            for t in range(t_len):
+                actions, values, logp = pol(obs)
+                obs_buf[t], act_buf[t], logp_buf[t], val_buf[t] = obs, actions, logp, values.flatten()
+                raw, reward, term, trunc, _ = env.step(actions, check=False)
+                done = term | trunc
+                r = reward.double()
+                rsum += float(r.sum()) if t == t_len - 1 else 0.0
+                rew_buf[t] = r.float()
+                if cfg.normalize and cfg.norm_reward:  # VecNormalize's reward scaling
+                    ret = ret * cfg.gamma + r
+                    ret_rms.update(ret)
+                    rew_buf[t] = (r / torch.sqrt(ret_rms.var + 1e-8)).clamp(-cfg.clip_reward, cfg.clip_reward).float()
+                    ret = torch.where(done, torch.zeros_like(ret), ret)
+                done_buf[t] = done.float()
+                if cfg.normalize:
+                    obs_rms.update(raw)
+                obs = norm(raw)
+            last_value = pol.predict_values(obs).flatten()
+            adv, returns = gae(rew_buf, val_buf, done_buf, last_value, cfg.gamma, cfg.gae_lambda)
+        if dev.type == "cuda":
+            torch.cuda.synchronize()
+        tb = time.perf_counter()
+        rollout_s += tb - ta
+        b_obs, b_act = obs_buf.reshape(batch, d_obs), act_buf.reshape(batch, 3)
+        b_logp, b_adv, b_ret = logp_buf.reshape(batch), adv.reshape(batch), returns.reshape(batch)
+        for _ in range(cfg.n_epochs):
+            perm = torch.randperm(batch, device=dev)
+            for k in range(0, batch, mb):
+                idx = perm[k:k + mb]
+                values, logp, entropy = pol.evaluate_actions(b_obs[idx], b_act[idx])
+                a = b_adv[idx]
+                if a.numel() > 1:
+                    a = (a - a.mean()) / (a.std() + 1e-8)
+                ratio = torch.exp(logp - b_logp[idx])
+                pg = -torch.min(a * ratio, a * ratio.clamp(1 - cfg.clip_range, 1 + cfg.clip_range)).mean()
+                vf = torch.nn.functional.mse_loss(b_ret[idx], values.flatten())
+                ent = -torch.mean(-logp) if entropy is None else -torch.mean(entropy)
+                loss = pg + cfg.ent_coef * ent + cfg.vf_coef * vf
+                opt.zero_grad()
+                loss.backward()
+                torch.nn.utils.clip_grad_norm_(pol.parameters(), cfg.max_grad_norm)
+                opt.step()
+        if dev.type == "cuda":
+            torch.cuda.synchronize()
+        update_s += time.perf_counter() - tb
+        steps += batch
+        iters += 1
+        curve.append((steps, rsum / n))
+        summary = {"timesteps": steps, "iterations": iters, "wall_time_s": time.perf_counter() - t0,
+                   "rollout_s": rollout_s, "update_s": update_s, "curve": curve}
+        if not quiet and iters % 20 == 0:
+            print(f"  {steps:>12,d} steps  {steps / summary['wall_time_s'] / 1e6:6.2f}M steps/s  "
+                  f"reward/step {curve[-1][1]:8.3f}", flush=True)
+        if callback is not None and callback(summary, pol, obs_rms):
+            stop = True
+    wall = time.perf_counter() - t0
+    summary = {"timesteps": steps, "iterations": iters, "wall_time_s": wall, "rollout_s": rollout_s,
+               "update_s": update_s, "steps_per_s": steps / wall, "curve": curve, "config": asdict(cfg),
+               "device": str(dev)}
+    if out is not None:
+        save_sb3(cfg, pol, obs_rms, ret_rms, out, summary)
+    env.close()
+    return summary
+
+
+def save_sb3(cfg: DevicePPOConfig, pol, obs_rms, ret_rms, out: str | Path, summary: dict) -> Path:
+    """Save the policy as an SB3 PPO ``model.zip`` with its ``vecnormalize.pkl`` (the observation statistics) and a
+    ``config.yml`` saying how it was trained, each written under a temporary name, then renamed; loads with
+    :meth:`iscc_gym.agents.sb3_policy.SB3Policy.load` and ``python -m eval --policies ppo=OUT``.
+    """
+    import gymnasium as gym
+    import torch
+    import yaml
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+
+    import iscc_gym  # noqa: F401  (the env ids)
+    from iscc_gym.files import write_atomic
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    venv = DummyVecEnv([lambda: gym.make(cfg.env_id, **cfg.env_overrides)])
+    with warnings.catch_warnings():  # SB3 warns that a batch exceeds its (unused) one-env rollout buffer
+        warnings.simplefilter("ignore", UserWarning)
+        model = PPO("MlpPolicy", venv, learning_rate=cfg.learning_rate, n_steps=cfg.n_steps, batch_size=cfg.batch_size,
+                    n_epochs=cfg.n_epochs, gamma=cfg.gamma, gae_lambda=cfg.gae_lambda, clip_range=cfg.clip_range,
+                    ent_coef=cfg.ent_coef, vf_coef=cfg.vf_coef, max_grad_norm=cfg.max_grad_norm, device="cpu",
+                    policy_kwargs={"net_arch": list(cfg.net_arch), "activation_fn": getattr(torch.nn, cfg.activation),
+                                   "log_std_init": cfg.log_std_init})
+    model.policy.load_state_dict({k: v.detach().cpu() for k, v in pol.state_dict().items()})
+    model.num_timesteps = int(summary["timesteps"])
+    _save_atomic(lambda p: model.save(p), out / "model.zip")
+    if cfg.normalize:
+        vn = VecNormalize(venv, gamma=cfg.gamma, clip_obs=cfg.clip_obs, clip_reward=cfg.clip_reward,
+                          norm_reward=cfg.norm_reward)
+        vn.obs_rms.mean = obs_rms.mean.cpu().numpy().copy()
+        vn.obs_rms.var = obs_rms.var.cpu().numpy().copy()
+        vn.obs_rms.count = float(obs_rms.count)
+        vn.ret_rms.mean, vn.ret_rms.var = float(ret_rms.mean), float(ret_rms.var)
+        vn.ret_rms.count = float(ret_rms.count)
+        _save_atomic(lambda p: vn.save(p), out / "vecnormalize.pkl")
+    args = {"algo": "ppo", "normalize": bool(cfg.normalize), "residual": "none", "env_id": cfg.env_id,
+            "trainer": "device_ppo", **{k: v for k, v in asdict(cfg).items() if k != "env_id"}}
+    record = {"args": args, "timesteps": int(summary["timesteps"]), "wall_time_s": float(summary["wall_time_s"]),
+              "steps_per_s": float(summary.get("steps_per_s", 0.0))}
+    write_atomic(out / "config.yml", yaml.safe_dump(record, sort_keys=False))
+    return out
+
+
+def _save_atomic(save, path: Path) -> None:
+    """``save(tmp)`` to a temporary name beside ``path``, then a rename onto it."""
+    import os
+    import tempfile
+
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
+    os.close(fd)
+    try:
+        save(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def config_from_args(args, device: str) -> DevicePPOConfig:
+    """The device run of ``python -m train --device cuda`` (or ``standin``): the task's YAML entry
+    (:mod:`iscc_gym.train.config`: discount, GAE, clip range, entropy, learning rate, network, normalisation, budget)
+    on the device's batch sizes (:data:`DEVICE_DEFAULTS`, unless ``--n-envs`` or ``--set n_steps=`` / ``batch_size=``
+    say otherwise).
+
+    Raises
+    ------
+    ValueError
+        A setting the device trainer does not have (another algorithm, a residual or warm-started or randomised run,
+        a learning-rate schedule), naming it.
+    """
+    from iscc_gym.train.config import resolve_args
+
+    if args.algo != "ppo":
+        raise ValueError(f"--algo {args.algo}: --device {device} trains PPO only; drop --device for SB3's {args.algo}")
+    resolved, hp = resolve_args(args)
+    for name, flag in (("residual", "--residual"), ("init_policy", "--init-policy"), ("randomize", "--randomize"),
+                       ("cost_limit", "--cost-limit")):
+        value = getattr(resolved, name)
+        if value not in (None, "none"):
+            raise ValueError(f"{flag} {value!r} (set by the flag or the YAML entry of {args.env_id}): the device "
+                             f"trainer has no {name.replace('_', ' ')}; train it with SB3 (drop --device)")
+    pk = dict(hp.get("policy_kwargs") or {})
+    act = pk.get("activation_fn", "Tanh")
+    act = act if isinstance(act, str) else act.__name__
+    act = {"tanh": "Tanh", "relu": "ReLU", "elu": "ELU", "leaky_relu": "LeakyReLU", "gelu": "GELU"}.get(
+        act.split(".")[-1].lower(), act.split(".")[-1])
+    lr = hp.get("learning_rate", 3e-4)
+    if not isinstance(lr, (int, float)):
+        raise ValueError(f"learning_rate = {lr!r}: the device trainer takes a constant; --set learning_rate=3e-4")
+    over = args.overrides or {}
+    kw = {"n_envs": DEVICE_DEFAULTS["n_envs"] if args.n_envs is None else resolved.n_envs,
+          "n_steps": int(over.get("n_steps", DEVICE_DEFAULTS["n_steps"])),
+          "batch_size": int(over.get("batch_size", DEVICE_DEFAULTS["batch_size"]))}
+    unknown = sorted(set(hp) - {"policy", "n_steps", "batch_size", "n_epochs", "learning_rate", "gamma", "gae_lambda",
+                                "clip_range", "ent_coef", "vf_coef", "max_grad_norm", "policy_kwargs"})
+    if unknown:
+        raise ValueError(f"hyperparameters {unknown} of {args.env_id}'s entry (or --set) have no meaning to the device "
+                         "trainer; drop them or train with SB3 (drop --device)")
+    return DevicePPOConfig(
+        env_id=args.env_id, device="cuda" if device == "cuda" else "cpu", total_timesteps=int(resolved.total_timesteps),
+        n_epochs=int(hp.get("n_epochs", 10)), learning_rate=float(lr), gamma=float(hp.get("gamma", 0.99)),
+        gae_lambda=float(hp.get("gae_lambda", 0.95)), clip_range=float(hp.get("clip_range", 0.2)),
+        ent_coef=float(hp.get("ent_coef", 0.0)), vf_coef=float(hp.get("vf_coef", 0.5)),
+        max_grad_norm=float(hp.get("max_grad_norm", 0.5)), net_arch=list(pk.get("net_arch", [64, 64])),
+        activation=act, log_std_init=float(pk.get("log_std_init", 0.0)), normalize=bool(resolved.normalize),
+        norm_reward=bool(resolved.norm_reward), seed=int(args.seed), env_overrides=dict(resolved.env_overrides),
+        pool_size=DEVICE_DEFAULTS["pool_size"], **kw)
+
+
+def main(args, device: str) -> dict:
+    """``python -m train --device cuda|standin``: train on the device env into ``args.out`` (refusing a non-empty
+    folder unless ``--overwrite``); returns the summary.
+    """
+    out = Path(args.out)
+    if out.exists() and any(out.iterdir()) and not args.overwrite:
+        raise FileExistsError(f"{out} is not empty: pass --overwrite to replace its run, or another --out")
+    cfg = config_from_args(args, device)
+    summary = train(cfg, out=out, quiet=args.quiet)
+    summary["out"] = str(out)
+    return summary

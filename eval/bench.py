@@ -480,9 +480,9 @@ def build_parser(prog: str = "python -m eval.bench") -> argparse.ArgumentParser:
     ap.add_argument("--skip-ppo", action="store_true", help="skip the PPO training figures")
     ap.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
     ap.add_argument("--device", choices=("cpu", "cuda", "standin"), default="cpu",
-                    help="cpu: the CPU figures (default); cuda: the device env and device PPO on a GPU (gpu extra), with "
-                         "the CPU vector env's row of the same run; standin: those rows on the device env's CPU "
-                         "stand-in (eval/bench_device.py)")
+                    help="cpu: the CPU figures (default); cuda: the device env and device PPO on a GPU (gpu "
+                         "extra), with the CPU vector env's row of the same run; standin: those rows on the device "
+                         "env's CPU stand-in (eval/bench_device.py)")
     ap.add_argument("--max-wall-s", type=float, default=120.0, metavar="S",
                     help="with --device: training time allowed to the paper agent to come within 1%% of myopic "
                          "(default: 120)")

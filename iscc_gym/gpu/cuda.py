@@ -64,16 +64,28 @@ def toolkit_for_ptx() -> str | None:
         return str(e)
     if simulator():
         return "NUMBA_ENABLE_CUDASIM=1: the simulator compiles nothing"
-    home = os.environ.get("CUDA_HOME") or os.environ.get("CUDA_PATH")
-    if not home and shutil.which("nvcc"):
-        home = str(Path(shutil.which("nvcc")).resolve().parent.parent)
-        os.environ.setdefault("CUDA_HOME", home)
-    if not home or not any(Path(home).glob("**/libnvvm.so*")):
-        return "no CUDA toolkit (libNVVM) found: set CUDA_HOME to the toolkit's folder"
+    home = _toolkit_home()
+    if home is None:
+        return ("no CUDA toolkit found (libNVVM and libdevice): set CUDA_HOME to the toolkit's folder (the one holding "
+                "nvvm/libdevice)")
+    os.environ.setdefault("CUDA_HOME", home)
     try:
         from cuda.pathfinder import load_nvidia_dynamic_lib
 
         load_nvidia_dynamic_lib("nvrtc")
     except Exception as e:  # noqa: BLE001 - any failure to find the library is the same answer
         return f"no NVRTC library ({type(e).__name__}): pip install nvidia-cuda-nvrtc"
+    return None
+
+
+def _toolkit_home() -> str | None:
+    """The first CUDA toolkit folder holding ``nvvm/libdevice``: ``CUDA_HOME``, ``CUDA_PATH``, ``/usr/local/cuda``, then
+    the folder above the ``bin`` of ``nvcc`` on the PATH.
+    """
+    nvcc = shutil.which("nvcc")
+    candidates = [os.environ.get("CUDA_HOME"), os.environ.get("CUDA_PATH"), "/usr/local/cuda",
+                  str(Path(nvcc).resolve().parent.parent) if nvcc else None]
+    for home in candidates:
+        if home and (Path(home) / "nvvm" / "libdevice").is_dir():
+            return home
     return None

@@ -1,0 +1,85 @@
+"""The device trainer: its GAE and running statistics against SB3's own, a tiny run on the CPU stand-in that saves an
+SB3 model python -m eval's loader reads, and python -m train --device's checks."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+pytest.importorskip("stable_baselines3")
+
+from iscc_gym.train.device_ppo import DevicePPOConfig, RunningMeanStd, gae, train  # noqa: E402
+
+
+def test_gae_equals_sb3s_rollout_buffer():
+    from gymnasium import spaces
+    from stable_baselines3.common.buffers import RolloutBuffer
+
+    t_len, n = 7, 5
+    rng = np.random.default_rng(0)
+    rewards, values = rng.normal(size=(t_len, n)), rng.normal(size=(t_len, n))
+    dones = (rng.random((t_len, n)) < 0.2).astype(float)
+    last_value = rng.normal(size=n)
+    buf = RolloutBuffer(t_len, spaces.Box(-1, 1, (2,)), spaces.Box(-1, 1, (3,)), n_envs=n, gamma=0.7, gae_lambda=0.9)
+    # SB3 stores episode_starts[t] = done[t - 1] and takes the done of the last step apart
+    starts = np.vstack([np.zeros((1, n)), dones[:-1]])
+    for t in range(t_len):
+        buf.add(np.zeros((n, 2)), np.zeros((n, 3)), rewards[t], starts[t], torch.tensor(values[t]),
+                torch.zeros(n))
+    buf.compute_returns_and_advantage(torch.tensor(last_value), dones[-1])
+    adv, ret = gae(*(torch.tensor(a) for a in (rewards, values, dones, last_value)), 0.7, 0.9)
+    # SB3's buffer holds float32
+    np.testing.assert_allclose(adv.numpy(), buf.advantages, rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(ret.numpy(), buf.returns, rtol=1e-6, atol=1e-6)
+
+
+def test_running_statistics_equal_sb3s():
+    from stable_baselines3.common.running_mean_std import RunningMeanStd as SB3RMS
+
+    rng = np.random.default_rng(1)
+    ours, theirs = RunningMeanStd((3,), "cpu"), SB3RMS(shape=(3,))
+    for _ in range(4):
+        x = rng.normal(2.0, 3.0, (11, 3))
+        ours.update(torch.tensor(x))
+        theirs.update(x)
+    np.testing.assert_allclose(ours.mean.numpy(), theirs.mean, rtol=1e-12)
+    np.testing.assert_allclose(ours.var.numpy(), theirs.var, rtol=1e-12)
+
+
+def test_a_tiny_run_saves_an_agent_the_evaluator_loads(tmp_path):
+    from iscc_gym.agents.sb3_policy import SB3Policy
+
+    cfg = DevicePPOConfig(device="cpu", n_envs=8, n_steps=4, batch_size=16, n_epochs=1, total_timesteps=64,
+                          pool_size=4, net_arch=[8, 8], gamma=0.3)
+    s = train(cfg, out=tmp_path / "run")
+    assert s["timesteps"] == 64 and s["iterations"] == 2 and len(s["curve"]) == 2
+    pol = SB3Policy.load(tmp_path / "run")
+    assert pol.vecnormalize is not None
+    a, _ = pol.predict(np.zeros((3, pol.obs_shape[0]), np.float32))
+    assert a.shape == (3, 3) and np.all(np.abs(a) <= 1)
+    again = train(cfg)
+    assert again["curve"] == s["curve"]  # seeded: the same run
+
+
+def test_train_cli_device_checks(tmp_path):
+    from iscc_gym.train.cli import cli
+
+    with pytest.raises(SystemExit):
+        cli(["--device", "standin", "--optimize", "--out", str(tmp_path / "a")])
+    with pytest.raises(ValueError, match="residual"):  # the urban entry trains a residual
+        cli(["--device", "standin", "--env", "iscc_gym/ISCC-Urban-v0", "--out", str(tmp_path / "b")])
+    with pytest.raises(ValueError, match="--device"):
+        cli(["--device", "standin", "--algo", "sac", "--out", str(tmp_path / "c")])
+    s = cli(["--device", "standin", "--n-envs", "8", "--total-timesteps", "128", "--set", "batch_size=64",
+             "--out", str(tmp_path / "d"), "--quiet"])
+    assert s["timesteps"] == 128 and (tmp_path / "d" / "model.zip").exists()
+
+
+@pytest.mark.slow
+def test_device_bench_quick_runs_on_the_stand_in(tmp_path):
+    from iscc_gym.eval.bench import main
+
+    res = main(["--device", "standin", "--quick", "--quiet", "--json", str(tmp_path / "b.json")])
+    assert res["env"]["16"]["env_steps_per_s"] > 0 and res["ppo"]["steps_per_s"] > 0
+    assert res["time_to_myopic"]["checks"]  # checked against myopic at least once

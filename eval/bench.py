@@ -506,7 +506,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.bench") -> d
             raise ValueError("--write-docs writes the CPU table: drop --device")
         from iscc_gym.eval.bench_device import format_device, run_device
 
-        res = run_device(args.device, quick=args.quick, max_wall_s=args.max_wall_s)
+        res = run_device(args.device, quick=args.quick, max_wall_s=args.max_wall_s, cpu_row=vector_steps_per_second)
         print(format_device(res))
         if args.json:
             save_json(args.json, res)

@@ -2,7 +2,7 @@
 
 Rows: env-steps/s of :class:`iscc_gym.gpu.vector_env.DeviceVectorEnv` by batch size (paper task; urban and field at
 one size), a rollout with a torch MLP policy (2 x 64) on the device reading the env's tensors, PPO end to end
-(:mod:`iscc_gym.train.device_ppo`), the wall time for the paper task's device agent to come within 1 % of
+(:mod:`iscc_gym.agents.device_ppo`), the wall time for the paper task's device agent to come within 1 % of
 ``myopic``'s reward per slot on held-out missions (common random numbers: the same seeds and slots, played on the CPU
 env by :func:`iscc_gym.eval.evaluate.run_episodes`), and, from the same run, the CPU kernel's rows for comparison.
 """
@@ -96,16 +96,17 @@ class _DeviceAgent:
 
 def time_to_myopic(device: str, max_wall_s: float, eval_seeds: int = 8, eval_slots: int = 1000,
                    check_every: int = 10, cfg_overrides: dict | None = None, within: float = 0.01) -> dict:
-    """Train the paper task's device agent (``python -m train --device``'s configuration) until its deterministic
+    """Train the paper task's device agent (:func:`iscc_gym.agents.device_ppo.paper_config`, ``python -m train
+    --device``'s configuration) until its deterministic
     reward per slot on ``eval_seeds`` held-out missions of ``eval_slots`` slots comes within ``within`` (1 %) of
     ``myopic``'s on the same missions, checked every ``check_every`` updates, or ``max_wall_s`` of training passes.
     The wall time counts training only; the checks' time is reported apart.
     """
+    from iscc_gym.agents.device_ppo import paper_config, train
     from iscc_gym.agents.myopic import MyopicPolicy
     from iscc_gym.eval.evaluate import run_episodes
+
     from iscc_gym.protocol import CALLBACK_EVAL_SEED_START
-    from iscc_gym.train.cli import parse_args
-    from iscc_gym.train.device_ppo import config_from_args, train
 
     seeds = list(range(CALLBACK_EVAL_SEED_START, CALLBACK_EVAL_SEED_START + eval_seeds))
     t = time.perf_counter()
@@ -113,10 +114,7 @@ def time_to_myopic(device: str, max_wall_s: float, eval_seeds: int = 8, eval_slo
     myopic = _per_slot(ref)
     myopic_s = time.perf_counter() - t
     target = myopic - within * abs(myopic)
-    cfg = config_from_args(parse_args(["--out", "unused"]), device)
-    for k, v in (cfg_overrides or {}).items():
-        setattr(cfg, k, v)
-    cfg.total_timesteps = 10**12
+    cfg = paper_config(device, **{**(cfg_overrides or {}), "total_timesteps": 10**12})
     checks, check_s = [], [0.0]
 
     def callback(summary, pol, obs_rms):
@@ -140,12 +138,12 @@ def time_to_myopic(device: str, max_wall_s: float, eval_seeds: int = 8, eval_slo
                                                           "learning_rate", "gamma")}}
 
 
-def run_device(device: str, quick: bool = False, max_wall_s: float = 120.0) -> dict:
-    """Every device figure (``quick``: tiny sizes, the tests' smoke run) and the CPU kernel's rows of the same run."""
+def run_device(device: str, quick: bool = False, max_wall_s: float = 120.0, cpu_row=None) -> dict:
+    """Every device figure (``quick``: tiny sizes, the tests' smoke run) and, with ``cpu_row(num_envs, steps,
+    repeats)`` (:func:`iscc_gym.eval.bench.vector_steps_per_second`), the CPU vector env's row of the same run.
+    """
     import torch
-
-    from iscc_gym.eval.bench import vector_steps_per_second
-    from iscc_gym.train.device_ppo import DevicePPOConfig, train
+    from iscc_gym.agents.device_ppo import DevicePPOConfig, train
 
     if device == "cuda":
         from iscc_gym.gpu.cuda import cuda_available, simulator
@@ -173,8 +171,9 @@ def run_device(device: str, quick: bool = False, max_wall_s: float = 120.0) -> d
         device, max_wall_s=2.0 if quick else max_wall_s, eval_seeds=2 if quick else 8,
         eval_slots=20 if quick else 1000, check_every=1 if quick else 10,
         cfg_overrides={"n_envs": 16, "batch_size": 64, "pool_size": 16} if quick else None)
-    res["cpu_kernel"] = {str(n): vector_steps_per_second(n, 5 if quick else 50, 1 if quick else 3)
-                         for n in ((64,) if quick else (1024,))}
+    if cpu_row is not None:
+        res["cpu_kernel"] = {str(n): cpu_row(n, 5 if quick else 50, 1 if quick else 3)
+                             for n in ((64,) if quick else (1024,))}
     return res
 
 
@@ -191,7 +190,7 @@ def format_device(res: dict) -> str:
         lines.append(f"{'device env + torch MLP 2x64 policy, ' + n + ' envs':<58} {r['env_steps_per_s']:>14,.0f}")
     p = res["ppo"]
     lines.append(f"{'PPO end to end, ' + str(p['n_envs']) + ' envs':<58} {p['steps_per_s']:>14,.0f}")
-    for n, r in res["cpu_kernel"].items():
+    for n, r in res.get("cpu_kernel", {}).items():
         lines.append(f"{'CPU vector env (gymnasium.make_vec), paper, ' + n + ' envs':<58} "
                      f"{r['median_env_steps_per_s']:>14,.0f}")
     t = res["time_to_myopic"]

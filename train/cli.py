@@ -60,7 +60,7 @@ def build_parser(prog: str = "python -m train") -> argparse.ArgumentParser:
                     help="override a Scenario field of the env, e.g. --env-set observation_source=gnss")
     ap.add_argument("--device", choices=DEVICES, default="cpu",
                     help="cpu: SB3 on the CPU (the default, every option); cuda: PPO on the device env on a GPU "
-                         "(iscc_gym.train.device_ppo, the gpu extra; saves an SB3 model python -m eval loads); "
+                         "(iscc_gym.agents.device_ppo, the gpu extra; saves an SB3 model python -m eval loads); "
                          "standin: that trainer on the device env's CPU stand-in (no GPU needed)")
     add_study_arguments(ap)
     return ap
@@ -116,7 +116,7 @@ def cli(argv: list[str] | None = None, prog: str = "python -m train") -> dict:
     if ns.device != "cpu":
         if ns.optimize or ns.seeds is not None:
             ap.error(f"--device {ns.device} trains one run: --optimize and --seeds run SB3 on the CPU")
-        from iscc_gym.train.device_ppo import main as device_main
+        from iscc_gym.train.device import main as device_main
 
         summary = device_main(args, ns.device)
     elif ns.optimize or ns.seeds is not None:

@@ -19,10 +19,12 @@ import math
 import numpy as np
 from numba import njit
 
-from iscc_gym.sim.kernel import _REWARD, _TERM, _TRUNC, env_row_one, observe_one, split_one
+from iscc_gym.sim.kernel import env_row_one, observe_one, split_one
 from iscc_gym.sim.loop import WORK_MATS, WORK_VEC, work_from
-from iscc_gym.sim.noise import _GAMMA, _mix64, fill_slot_normals
-from iscc_gym.sim.schema import N_DRAWS
+from iscc_gym.sim.noise import GOLDEN_GAMMA as _GAMMA
+from iscc_gym.sim.noise import fill_slot_normals
+from iscc_gym.sim.noise import mix64 as _mix64
+from iscc_gym.sim.schema import COL, N_DRAWS
 
 __all__ = ["MAX_QUEUE_SLOTS", "N_INIT_DRAWS", "episode_key", "mission_index", "init_normals_key", "step_rows_cpu",
            "reset_rows_cpu", "cuda_kernels", "THREADS_PER_BLOCK"]
@@ -35,6 +37,7 @@ N_INIT_DRAWS = 7
 #: Threads per block of the device kernels (the measurement of ``../shared/notes/gpu.md``: 128 best).
 THREADS_PER_BLOCK = 128
 
+_REWARD, _TERM, _TRUNC = COL["reward"], COL["terminated"], COL["truncated"]
 _N_Z = N_DRAWS + 1  # a slot's draws with the queue's arrival (a constant: local arrays are sized at compile time)
 _INIT_SALT = np.uint64(0x5851F42D4C957F2D)  # separates a key's initial-state stream from its slots' streams
 _ONE = np.uint64(1)

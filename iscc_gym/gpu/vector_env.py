@@ -22,7 +22,7 @@ from iscc_gym.scenario import Scenario, make_scenario
 from iscc_gym.sim import loop
 from iscc_gym.sim.effects import task_effects
 from iscc_gym.sim.params import slot_params
-from iscc_gym.sim.schema import COL, OBS_BOUND, STEP_COLUMNS
+from iscc_gym.sim.schema import COL, OBS_BOUND, STEP_COLUMNS, obs_size
 from iscc_gym.tasks import get_task
 
 __all__ = ["DeviceVectorEnv", "DEVICES", "DEFAULT_POOL_SIZE"]
@@ -98,8 +98,6 @@ class DeviceVectorEnv:
             raise ValueError(f"queue_deadline_s = {s.queue_deadline_s} is {nq} slots; the device kernel holds at most "
                              f"{MAX_QUEUE_SLOTS} (iscc_gym.gpu.kernel.MAX_QUEUE_SLOTS): a shorter deadline or a "
                              "longer dt_s")
-        from iscc_gym.sim.functional import _output_sizes
-
         self._switches = (loop.blocked_switch(s), loop.field_switch(s))
         self.device = device
         self._cuda = None
@@ -114,7 +112,7 @@ class DeviceVectorEnv:
         else:
             self._sim = False
         self._torch_device = torch.device("cuda" if device == "cuda" and not self._sim else "cpu")
-        n, n_obs = self.num_envs, _output_sizes(s)[0]
+        n, n_obs = self.num_envs, obs_size(s)
         self.obs_size = n_obs
         self.single_action_space = spaces.Box(-1.0, 1.0, (3,), np.float32)
         self.single_observation_space = spaces.Box(-OBS_BOUND, OBS_BOUND, (n_obs,), np.float32)

@@ -27,7 +27,8 @@ from numpy.typing import ArrayLike
 
 from iscc_gym.sim.schema import N_DRAWS  # the layout of a slot's draws: iscc_gym.sim.schema.DRAWS
 
-__all__ = ["N_DRAWS", "draw_keys", "slot_normals", "standard_normals", "ZIGGURAT_R"]
+__all__ = ["N_DRAWS", "draw_keys", "slot_normals", "standard_normals", "ZIGGURAT_R", "fill_slot_normals", "mix64",
+           "GOLDEN_GAMMA"]
 
 
 #: Right edge of the ziggurat's base layer (NumPy's and Marsaglia & Tsang's 256-layer value).
@@ -85,6 +86,12 @@ def _mix64(z):
 def _uniform(word):
     """A double in [0, 1) from the top 53 bits of a 64-bit word."""
     return np.int64(word >> _S11) * (1.0 / 9007199254740992.0)
+
+
+#: SplitMix64's increment and output function under public names (the device env's episode keys,
+#: :mod:`iscc_gym.gpu.kernel`, derive from them).
+GOLDEN_GAMMA = _GAMMA
+mix64 = _mix64
 
 
 @njit(cache=True, error_model="numpy")

@@ -5,8 +5,9 @@ functions alike; imports under ``if TYPE_CHECKING:`` (annotations only, never ru
 
 - Layers of the core ``iscc_gym``: the base (``scenario``, ``scenario_checks``, ``trajectory``, ``units``,
   ``files`` and the other top-level helpers) imports none of the sub-packages; ``physics`` nothing of
-  ``sim``, ``envs`` or ``analysis``; ``sim`` nothing of ``envs`` or ``analysis``; ``envs`` and ``analysis``
-  nothing of each other. The package's ``__init__`` (its public face) may import any of them.
+  ``sim``, ``envs``, ``analysis`` or ``gpu``; ``sim`` nothing of ``envs``, ``analysis`` or ``gpu``; ``envs`` and
+  ``analysis`` nothing of each other nor of ``gpu``; ``gpu`` (the device env, the gpu extra) nothing of ``analysis``
+  and, of what lies outside the core, torch alone. The package's ``__init__`` (its public face) may import any of them.
 - The core imports nothing of ``agents``, ``train``, ``eval``, the experiment protocol
   (``iscc_gym.protocol``), torch, SB3 or optuna; ``agents`` nothing of ``train`` or ``eval``; ``train`` and
   ``eval``, siblings, nothing of each other (eval reaches training through the command line,
@@ -27,14 +28,17 @@ FOLDERS = {ROOT / "iscc_gym": "iscc_gym", ROOT / "agents": "iscc_gym.agents", RO
            ROOT / "eval": "iscc_gym.eval", ROOT / "experiments": "experiments"}
 OUTSIDE_CORE = ("iscc_gym.agents", "iscc_gym.train", "iscc_gym.eval", "iscc_gym.protocol", "agents", "train", "eval",
                 "experiments", "torch", "stable_baselines3", "sb3_contrib", "optuna")
-SUBPACKAGES = ("physics", "sim", "envs", "analysis")
+SUBPACKAGES = ("physics", "sim", "envs", "analysis", "gpu")
 #: layer -> names its modules must not import
 RULES = {
     "base": tuple(f"iscc_gym.{p}" for p in SUBPACKAGES) + OUTSIDE_CORE,
-    "physics": ("iscc_gym.sim", "iscc_gym.envs", "iscc_gym.analysis") + OUTSIDE_CORE,
-    "sim": ("iscc_gym.envs", "iscc_gym.analysis") + OUTSIDE_CORE,
-    "envs": ("iscc_gym.analysis",) + OUTSIDE_CORE,
-    "analysis": ("iscc_gym.envs",) + OUTSIDE_CORE,
+    "physics": ("iscc_gym.sim", "iscc_gym.envs", "iscc_gym.analysis", "iscc_gym.gpu") + OUTSIDE_CORE,
+    "sim": ("iscc_gym.envs", "iscc_gym.analysis", "iscc_gym.gpu") + OUTSIDE_CORE,
+    "envs": ("iscc_gym.analysis", "iscc_gym.gpu") + OUTSIDE_CORE,
+    "analysis": ("iscc_gym.envs", "iscc_gym.gpu") + OUTSIDE_CORE,
+    # the device env (the gpu extra): on top of the core's sim and envs, with torch; nothing of analysis or the
+    # project's outer folders
+    "gpu": ("iscc_gym.analysis",) + tuple(m for m in OUTSIDE_CORE if m != "torch"),
     "face": OUTSIDE_CORE,
     "protocol": tuple(f"iscc_gym.{p}" for p in SUBPACKAGES) + ("iscc_gym.agents", "iscc_gym.train", "iscc_gym.eval"),
     "agents": ("iscc_gym.train", "iscc_gym.eval", "train", "eval", "experiments"),

@@ -9,7 +9,7 @@ import pytest
 torch = pytest.importorskip("torch")
 pytest.importorskip("stable_baselines3")
 
-from iscc_gym.train.device_ppo import DevicePPOConfig, RunningMeanStd, gae, train  # noqa: E402
+from iscc_gym.agents.device_ppo import DevicePPOConfig, RunningMeanStd, gae, paper_config, train  # noqa: E402
 
 
 def test_gae_equals_sb3s_rollout_buffer():
@@ -83,3 +83,11 @@ def test_device_bench_quick_runs_on_the_stand_in(tmp_path):
     res = main(["--device", "standin", "--quick", "--quiet", "--json", str(tmp_path / "b.json")])
     assert res["env"]["16"]["env_steps_per_s"] > 0 and res["ppo"]["steps_per_s"] > 0
     assert res["time_to_myopic"]["checks"]  # checked against myopic at least once
+
+
+def test_the_benchs_paper_config_is_the_yaml_entry_python_m_train_reads():
+    from iscc_gym.train.cli import parse_args
+    from iscc_gym.train.device import config_from_args
+
+    # if the YAML entry changes, update iscc_gym.agents.device_ppo.paper_config to it
+    assert config_from_args(parse_args(["--out", "x"]), "standin") == paper_config("standin")

@@ -28,7 +28,8 @@ def import_cuda():
         numba-cuda is not installed (naming the extra that installs it).
     """
     if not hasattr(np, "row_stack"):  # NumPy >= 2.5 removed it; numba-cuda <= 0.30.4 still calls it
-        np.vstack = np.vstack
+        # setattr, not an assignment: ruff's NumPy-2 fix (NPY201) rewrites ``np.row_stack`` to ``np.vstack``
+        setattr(np, "row_stack", np.vstack)  # noqa: B010
     try:
         from numba import cuda
     except ImportError as e:  # pragma: no cover - depends on the install

@@ -76,3 +76,13 @@ def test_the_step_kernel_compiles_to_ptx_for_sm_90_without_allocating(env_id):
     assert ".entry" in ptx
     low = ptx.lower()
     assert "malloc" not in low and "nrt_" not in low  # no device heap: the scratch is per-thread local memory
+
+
+def test_import_cuda_restores_numpys_row_stack(monkeypatch):
+    import numpy as np
+
+    from iscc_gym.gpu.cuda import import_cuda
+
+    monkeypatch.delattr(np, "row_stack", raising=False)  # as NumPy >= 2.5
+    import_cuda()
+    assert getattr(np, "row_stack") is np.vstack  # noqa: B009 (getattr: ruff's NPY201 would rewrite the name)

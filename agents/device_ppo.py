@@ -21,11 +21,11 @@ import math
 import time
 import warnings
 from dataclasses import asdict, dataclass, field
-from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-__all__ = ["DevicePPOConfig", "RunningMeanStd", "gae", "train", "save_sb3", "paper_config", "DEVICE_DEFAULTS"]
+__all__ = ["DevicePPOConfig", "RunningMeanStd", "Trained", "gae", "train", "to_sb3", "paper_config", "DEVICE_DEFAULTS"]
 
 #: Settings of a device run where the task's YAML entry (sized for SB3 on a CPU) does not fit a GPU: many envs, a
 #: rollout of 16 steps, large minibatches.
@@ -124,11 +124,22 @@ def _policy(cfg: DevicePPOConfig, env, device):
     return pol.to(device)
 
 
-def train(cfg: DevicePPOConfig, out: str | Path | None = None, callback=None, quiet: bool = True) -> dict:
+@dataclass
+class Trained:
+    """What a device run learned: SB3's policy network (on the run's device) and the running observation and return
+    statistics (:func:`to_sb3` turns them into an SB3 model and its VecNormalize).
+    """
+
+    policy: Any
+    obs_rms: RunningMeanStd
+    ret_rms: RunningMeanStd
+
+
+def train(cfg: DevicePPOConfig, callback=None, quiet: bool = True) -> tuple[dict, Trained]:
     """Train a PPO agent on the device env; returns the summary (steps, wall time, throughput, the learning curve as
-    (steps, mean return per step of the rollouts)). ``callback(summary_so_far, policy, normalizer)`` after each
-    update may return True to stop (the bench's time-to-level). With ``out``, saves the SB3 model there
-    (:func:`save_sb3`).
+    (steps, mean reward per step of the update's rollout)) and the :class:`Trained` agent.
+    ``callback(summary_so_far, policy, obs_rms)`` after each update may return True to stop (the bench's
+    time-to-level).
     """
     import torch
 
@@ -175,7 +186,7 @@ def train(cfg: DevicePPOConfig, out: str | Path | None = None, callback=None, qu
                 raw, reward, term, trunc, _ = env.step(actions, check=False)
                 done = term | trunc
                 r = reward.double()
-                rsum += float(r.sum()) if t == t_len - 1 else 0.0
+                rsum = rsum + r.sum()  # on the device: read once an update
                 rew_buf[t] = r.float()
                 if cfg.normalize and cfg.norm_reward:  # VecNormalize's reward scaling
                     ret = ret * cfg.gamma + r
@@ -216,7 +227,7 @@ def train(cfg: DevicePPOConfig, out: str | Path | None = None, callback=None, qu
         update_s += time.perf_counter() - tb
         steps += batch
         iters += 1
-        curve.append((steps, rsum / n))
+        curve.append((steps, float(rsum) / batch))
         summary = {"timesteps": steps, "iterations": iters, "wall_time_s": time.perf_counter() - t0,
                    "rollout_s": rollout_s, "update_s": update_s, "curve": curve}
         if not quiet and iters % 20 == 0:
@@ -228,28 +239,23 @@ def train(cfg: DevicePPOConfig, out: str | Path | None = None, callback=None, qu
     summary = {"timesteps": steps, "iterations": iters, "wall_time_s": wall, "rollout_s": rollout_s,
                "update_s": update_s, "steps_per_s": steps / wall, "curve": curve, "config": asdict(cfg),
                "device": str(dev)}
-    if out is not None:
-        save_sb3(cfg, pol, obs_rms, ret_rms, out, summary)
     env.close()
-    return summary
+    return summary, Trained(pol, obs_rms, ret_rms)
 
 
-def save_sb3(cfg: DevicePPOConfig, pol, obs_rms, ret_rms, out: str | Path, summary: dict) -> Path:
-    """Save the policy as an SB3 PPO ``model.zip`` with its ``vecnormalize.pkl`` (the observation statistics) and a
-    ``config.yml`` saying how it was trained, each written under a temporary name, then renamed; loads with
-    :meth:`iscc_gym.agents.sb3_policy.SB3Policy.load` and ``python -m eval --policies ppo=OUT``.
+def to_sb3(cfg: DevicePPOConfig, trained: Trained, timesteps: int):
+    """``(model, vecnormalize)``: the trained agent as an SB3 PPO model on the CPU (the run's settings and SB3's
+    network with the trained weights) and a VecNormalize holding its observation and return statistics (None without
+    normalisation), what ``python -m train`` saves (:func:`iscc_gym.train.runs.save_unit`) and
+    :class:`iscc_gym.agents.sb3_policy.SB3Policy` loads.
     """
     import gymnasium as gym
     import torch
-    import yaml
     from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
     import iscc_gym  # noqa: F401  (the env ids)
-    from iscc_gym.files import write_atomic
 
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     venv = DummyVecEnv([lambda: gym.make(cfg.env_id, **cfg.env_overrides)])
     with warnings.catch_warnings():  # SB3 warns that a batch exceeds its (unused) one-env rollout buffer
         warnings.simplefilter("ignore", UserWarning)
@@ -258,40 +264,18 @@ def save_sb3(cfg: DevicePPOConfig, pol, obs_rms, ret_rms, out: str | Path, summa
                     ent_coef=cfg.ent_coef, vf_coef=cfg.vf_coef, max_grad_norm=cfg.max_grad_norm, device="cpu",
                     policy_kwargs={"net_arch": list(cfg.net_arch), "activation_fn": getattr(torch.nn, cfg.activation),
                                    "log_std_init": cfg.log_std_init})
-    model.policy.load_state_dict({k: v.detach().cpu() for k, v in pol.state_dict().items()})
-    model.num_timesteps = int(summary["timesteps"])
-    _save_atomic(lambda p: model.save(p), out / "model.zip")
-    if cfg.normalize:
-        vn = VecNormalize(venv, gamma=cfg.gamma, clip_obs=cfg.clip_obs, clip_reward=cfg.clip_reward,
-                          norm_reward=cfg.norm_reward)
-        vn.obs_rms.mean = obs_rms.mean.cpu().numpy().copy()
-        vn.obs_rms.var = obs_rms.var.cpu().numpy().copy()
-        vn.obs_rms.count = float(obs_rms.count)
-        vn.ret_rms.mean, vn.ret_rms.var = float(ret_rms.mean), float(ret_rms.var)
-        vn.ret_rms.count = float(ret_rms.count)
-        _save_atomic(lambda p: vn.save(p), out / "vecnormalize.pkl")
-    args = {"algo": "ppo", "normalize": bool(cfg.normalize), "residual": "none", "env_id": cfg.env_id,
-            "trainer": "device_ppo", **{k: v for k, v in asdict(cfg).items() if k != "env_id"}}
-    record = {"args": args, "timesteps": int(summary["timesteps"]), "wall_time_s": float(summary["wall_time_s"]),
-              "steps_per_s": float(summary.get("steps_per_s", 0.0))}
-    write_atomic(out / "config.yml", yaml.safe_dump(record, sort_keys=False))
-    return out
-
-
-def _save_atomic(save, path: Path) -> None:
-    """``save(tmp)`` to a temporary name beside ``path``, then a rename onto it."""
-    import os
-    import tempfile
-
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
-    os.close(fd)
-    try:
-        save(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
+    model.policy.load_state_dict({k: v.detach().cpu() for k, v in trained.policy.state_dict().items()})
+    model.num_timesteps = int(timesteps)
+    if not cfg.normalize:
+        return model, None
+    vn = VecNormalize(venv, gamma=cfg.gamma, clip_obs=cfg.clip_obs, clip_reward=cfg.clip_reward,
+                      norm_reward=cfg.norm_reward)
+    vn.obs_rms.mean = trained.obs_rms.mean.cpu().numpy().copy()
+    vn.obs_rms.var = trained.obs_rms.var.cpu().numpy().copy()
+    vn.obs_rms.count = float(trained.obs_rms.count)
+    vn.ret_rms.mean, vn.ret_rms.var = float(trained.ret_rms.mean), float(trained.ret_rms.var)
+    vn.ret_rms.count = float(trained.ret_rms.count)
+    return model, vn
 
 
 def paper_config(device: str = "cuda", **changes) -> DevicePPOConfig:

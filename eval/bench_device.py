@@ -128,7 +128,7 @@ def time_to_myopic(device: str, max_wall_s: float, eval_seeds: int = 8, eval_slo
         checks.append({"timesteps": summary["timesteps"], "train_wall_s": train_s, "reward_per_slot": value})
         return value >= target or train_s > max_wall_s
 
-    summary = train(cfg, callback=callback)
+    summary, _ = train(cfg, callback=callback)
     reached = [c for c in checks if c["reward_per_slot"] >= target]
     return {"myopic_reward_per_slot": myopic, "target_reward_per_slot": target, "myopic_eval_s": myopic_s,
             "reached": bool(reached), "train_wall_s": reached[0]["train_wall_s"] if reached else None,
@@ -164,7 +164,7 @@ def run_device(device: str, quick: bool = False, max_wall_s: float = 120.0, cpu_
     cfg = DevicePPOConfig(device=_dev(device), n_envs=n_ppo, n_steps=16 if not quick else 4,
                           batch_size=min(65_536, n_ppo * 16), total_timesteps=(n_ppo * 16 * 20) if not quick else 128,
                           pool_size=1024, gamma=0.3, gae_lambda=0.8)
-    ppo = train(cfg)
+    ppo, _ = train(cfg)
     res["ppo"] = {k: ppo[k] for k in ("timesteps", "wall_time_s", "steps_per_s", "rollout_s", "update_s")}
     res["ppo"]["n_envs"] = n_ppo
     res["time_to_myopic"] = time_to_myopic(

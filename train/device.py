@@ -4,9 +4,13 @@ task's YAML entry.
 
 from __future__ import annotations
 
-from pathlib import Path
+from dataclasses import asdict
 
-from iscc_gym.agents.device_ppo import DEVICE_DEFAULTS, DevicePPOConfig, train
+import yaml
+from iscc_gym.agents.device_ppo import DEVICE_DEFAULTS, DevicePPOConfig, to_sb3, train
+from iscc_gym.train.runs import prepare_out, save_unit
+
+from iscc_gym.envs.env import registered_scenario
 
 __all__ = ["config_from_args", "main"]
 
@@ -63,13 +67,25 @@ def config_from_args(args, device: str) -> DevicePPOConfig:
 
 
 def main(args, device: str) -> dict:
-    """``python -m train --device cuda|standin``: train on the device env into ``args.out`` (refusing a non-empty
-    folder unless ``--overwrite``); returns the summary.
+    """``python -m train --device cuda|standin``: train on the device env, then save the agent into ``args.out`` as a
+    unit of ``python -m train`` (:func:`iscc_gym.train.runs.save_unit`: ``model.zip``, ``vecnormalize.pkl``,
+    ``config.yml`` and the manifest, each under a temporary name first; the folder checked and, with ``--overwrite``,
+    cleared by :func:`iscc_gym.train.runs.prepare_out`, as an SB3 run's); returns the summary.
     """
-    out = Path(args.out)
-    if out.exists() and any(out.iterdir()) and not args.overwrite:
-        raise FileExistsError(f"{out} is not empty: pass --overwrite to replace its run, or another --out")
+    if args.resume:
+        raise ValueError(f"--resume: --device {device} keeps no checkpoints; train afresh (--overwrite) or drop "
+                         "--device")
     cfg = config_from_args(args, device)
-    summary = train(cfg, out=out, quiet=args.quiet)
+    prepare_out(args)
+    summary, trained = train(cfg, quiet=args.quiet)
+    model, vecnormalize = to_sb3(cfg, trained, summary["timesteps"])
+    run = {"algo": "ppo", "env_id": cfg.env_id, "scenario": registered_scenario(cfg.env_id),
+           "env_overrides": dict(cfg.env_overrides), "normalize": cfg.normalize, "residual": None,
+           "trainer": "device_ppo", "device": device}
+    record = {"args": {**run, **{k: v for k, v in asdict(cfg).items() if k not in run}},
+              "timesteps": int(summary["timesteps"]), "wall_time_s": float(summary["wall_time_s"]),
+              "steps_per_s": float(summary["steps_per_s"])}
+    out = save_unit(args.out, model, vecnormalize, texts={"config.yml": yaml.safe_dump(record, sort_keys=False)},
+                    timesteps=int(summary["timesteps"]), run=run)
     summary["out"] = str(out)
     return summary

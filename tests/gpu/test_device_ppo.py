@@ -9,7 +9,14 @@ import pytest
 torch = pytest.importorskip("torch")
 pytest.importorskip("stable_baselines3")
 
-from iscc_gym.agents.device_ppo import DevicePPOConfig, RunningMeanStd, gae, paper_config, train  # noqa: E402
+from iscc_gym.agents.device_ppo import (  # noqa: E402
+    DevicePPOConfig,
+    RunningMeanStd,
+    gae,
+    paper_config,
+    to_sb3,
+    train,
+)
 
 
 def test_gae_equals_sb3s_rollout_buffer():
@@ -47,19 +54,21 @@ def test_running_statistics_equal_sb3s():
     np.testing.assert_allclose(ours.var.numpy(), theirs.var, rtol=1e-12)
 
 
-def test_a_tiny_run_saves_an_agent_the_evaluator_loads(tmp_path):
-    from iscc_gym.agents.sb3_policy import SB3Policy
-
+def test_a_tiny_run_is_seeded_and_its_sb3_model_predicts_as_trained():
     cfg = DevicePPOConfig(device="cpu", n_envs=8, n_steps=4, batch_size=16, n_epochs=1, total_timesteps=64,
                           pool_size=4, net_arch=[8, 8], gamma=0.3)
-    s = train(cfg, out=tmp_path / "run")
+    s, trained = train(cfg)
     assert s["timesteps"] == 64 and s["iterations"] == 2 and len(s["curve"]) == 2
-    pol = SB3Policy.load(tmp_path / "run")
-    assert pol.vecnormalize is not None
-    a, _ = pol.predict(np.zeros((3, pol.obs_shape[0]), np.float32))
-    assert a.shape == (3, 3) and np.all(np.abs(a) <= 1)
-    again = train(cfg)
+    again, _ = train(cfg)
     assert again["curve"] == s["curve"]  # seeded: the same run
+    model, vn = to_sb3(cfg, trained, s["timesteps"])
+    obs = np.random.default_rng(0).normal(size=(5, vn.observation_space.shape[0])).astype(np.float32)
+    rms = trained.obs_rms  # the trainer's own statistics, as it normalised
+    normed = ((torch.as_tensor(obs, dtype=torch.float64) - rms.mean) / torch.sqrt(rms.var + 1e-8)).clamp(-10, 10)
+    with torch.no_grad():
+        ours = trained.policy._predict(normed.float(), deterministic=True).numpy()
+    theirs, _ = model.predict(vn.normalize_obs(obs), deterministic=True)
+    np.testing.assert_allclose(theirs, np.clip(ours, -1, 1), rtol=1e-6)
 
 
 def test_train_cli_device_checks(tmp_path):
@@ -71,9 +80,22 @@ def test_train_cli_device_checks(tmp_path):
         cli(["--device", "standin", "--env", "iscc_gym/ISCC-Urban-v0", "--out", str(tmp_path / "b")])
     with pytest.raises(ValueError, match="--device"):
         cli(["--device", "standin", "--algo", "sac", "--out", str(tmp_path / "c")])
+    with pytest.raises(ValueError, match="--resume"):
+        cli(["--device", "standin", "--resume", "--out", str(tmp_path / "e")])
     s = cli(["--device", "standin", "--n-envs", "8", "--total-timesteps", "128", "--set", "batch_size=64",
              "--out", str(tmp_path / "d"), "--quiet"])
-    assert s["timesteps"] == 128 and (tmp_path / "d" / "model.zip").exists()
+    assert s["timesteps"] == 128
+    from iscc_gym.agents.sb3_policy import SB3Policy
+
+    pol = SB3Policy.load(tmp_path / "d")  # a unit of python -m train: manifest, model, statistics
+    assert pol.vecnormalize is not None
+    a, _ = pol.predict(np.zeros((3, pol.obs_shape[0]), np.float32))
+    assert a.shape == (3, 3) and np.all(np.abs(a) <= 1)
+    (tmp_path / "f").mkdir()
+    (tmp_path / "f" / "mine.txt").write_text("not a run")
+    with pytest.raises(FileExistsError):  # a folder that is not a run is never written into
+        cli(["--device", "standin", "--n-envs", "8", "--total-timesteps", "64", "--out", str(tmp_path / "f")])
+    assert (tmp_path / "f" / "mine.txt").read_text() == "not a run"
 
 
 @pytest.mark.slow

@@ -149,7 +149,7 @@ def step_rows_cpu(cp, mats, x, x_hat, p, shadow, n, key, queue, mission, episode
     of buffers for the batch.
     """
     xl, xhl, pl, ql = np.empty(6), np.empty(6), np.empty((6, 6)), np.empty(MAX_QUEUE_SLOTS)
-    mbuf, vbuf, zbuf = np.empty(WORK_MATS), np.empty(WORK_VEC), np.empty(N_DRAWS + 1)
+    mbuf, vbuf, zbuf = np.empty(WORK_MATS), np.empty(WORK_VEC), np.empty(_N_Z)
     for i in range(x.shape[0]):
         step_row(i, cp, mats, x, x_hat, p, shadow, n, key, queue, mission, episode, ep_return, ep_length, pool, std0,
                  seed_key, max_steps, action, out, obs, reward, terminated, truncated, final_return, final_length,
@@ -161,7 +161,7 @@ def reset_rows_cpu(cp, x, x_hat, p, shadow, n, key, queue, mission, episode, ep_
                    seed_key, obs, rows):
     """:func:`reset_row` of the rows listed in ``rows`` (the CPU stand-in of the device reset kernel)."""
     c = cp[0]
-    zbuf = np.empty(N_DRAWS + 1)
+    zbuf = np.empty(_N_Z)
     for k in range(rows.shape[0]):
         reset_row(rows[k], c, x, x_hat, p, shadow, n, key, queue, mission, episode, ep_return, ep_length, pool, std0,
                   seed_key, obs, zbuf)

@@ -21,8 +21,9 @@ from iscc_gym.gpu.kernel import MAX_QUEUE_SLOTS, THREADS_PER_BLOCK, cuda_kernels
 from iscc_gym.scenario import Scenario, make_scenario
 from iscc_gym.sim import loop
 from iscc_gym.sim.effects import task_effects
+from iscc_gym.sim.functional import observe
 from iscc_gym.sim.params import slot_params
-from iscc_gym.sim.schema import COL, OBS_BOUND, STEP_COLUMNS, obs_size
+from iscc_gym.sim.schema import OBS_BOUND, STEP_COLUMNS, obs_size
 from iscc_gym.tasks import get_task
 
 __all__ = ["DeviceVectorEnv", "DEVICES", "DEFAULT_POOL_SIZE"]
@@ -128,6 +129,9 @@ class DeviceVectorEnv:
         self.final_length = torch.zeros(n, dtype=torch.int64, device=td)
         self.metrics = torch.zeros((n, len(STEP_COLUMNS)), dtype=torch.float64, device=td)
         self.actions = torch.zeros((n, 3), dtype=torch.float32, device=td)
+        # the kernels' views of those tensors (the same memory), made once: the tensors are never reallocated
+        self._views = tuple(self._view(t) for t in (self.actions, self.metrics, self.obs, self.reward, self.terminated,
+                                                    self.truncated, self.final_return, self.final_length))
         c, mats = slot_params(s)
         self._c, self._mats = self._to_device(np.array(c)), self._to_device(np.array(mats))
         self._std0 = self._to_device(np.array([s.initial_pos_std_m] * 3 + [s.initial_vel_std_mps] * 3))
@@ -148,10 +152,6 @@ class DeviceVectorEnv:
             return self._cuda.to_device(np.ascontiguousarray(a))
         return np.ascontiguousarray(a)
 
-    def _outputs(self):
-        return tuple(self._view(t) for t in (self.actions, self.metrics, self.obs, self.reward, self.terminated,
-                                             self.truncated, self.final_return, self.final_length))
-
     # --- API ---------------------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None):
         """Every row starts a new episode; returns ``(obs, info)``, ``obs`` the tensor :attr:`obs`.
@@ -160,6 +160,8 @@ class DeviceVectorEnv:
         those the CPU vector env draws at ``reset(seed=seed)`` (sub-env i from ``seed + i``); the rest, and every later
         episode, come from the seed's counter-based streams. None draws a fresh seed.
         """
+        import torch
+
         check_seed(seed, "seed")
         if seed is None:
             seed = int(np.random.SeedSequence().generate_state(1, np.uint32)[0])
@@ -178,8 +180,8 @@ class DeviceVectorEnv:
         host["mission"][:m] = np.arange(m)
         self._pool = self._to_device(first.ref)
         self._state = {k: self._to_device(v) for k, v in host.items()}
-        obs_first = loop_obs(s, first)[:m]
-        self.obs[:m] = _torch_from(obs_first, self._torch_device)
+        obs0 = observe(s, first.rows(np.arange(m)), np.ones(m), np.zeros(m))  # as the CPU vector env's reset
+        self.obs[:m] = torch.from_numpy(obs0).to(self.obs.device)
         if n > m:
             self._launch_reset(np.arange(m, n, dtype=np.int64))
         self.final_return.fill_(float("nan"))
@@ -227,7 +229,7 @@ class DeviceVectorEnv:
         st = self._state
         return (self._c, self._mats, st["x"], st["x_hat"], st["p"], st["shadow"], st["n"], st["key"], st["queue"],
                 st["mission"], st["episode"], st["ep_return"], st["ep_length"], self._pool, self._std0,
-                self._seed_key, np.int64(self.max_steps), *self._outputs())
+                self._seed_key, np.int64(self.max_steps), *self._views)
 
     @property
     def switches(self) -> tuple:
@@ -238,7 +240,7 @@ class DeviceVectorEnv:
         st = self._state
         args = (self._c, st["x"], st["x_hat"], st["p"], st["shadow"], st["n"], st["key"], st["queue"], st["mission"],
                 st["episode"], st["ep_return"], st["ep_length"], self._pool, self._std0, self._seed_key,
-                self._view(self.obs), self._to_device(rows))
+                self._views[2], self._to_device(rows))
         if self.device == "cpu":
             reset_rows_cpu(*args)
         else:
@@ -256,25 +258,6 @@ class DeviceVectorEnv:
     def close(self) -> None:
         """Free the device buffers."""
         self._state = self._pool = None
-
-    @property
-    def column(self) -> dict:
-        """Index of each step column in :attr:`metrics` (:data:`iscc_gym.sim.schema.COL`)."""
-        return dict(COL)
-
-
-def loop_obs(s: Scenario, state: loop.LoopState) -> np.ndarray:
-    """The observations of a batch of loop states at reset (:func:`iscc_gym.sim.functional.observe`)."""
-    from iscc_gym.sim.functional import observe
-
-    nb = state.x.shape[0]
-    return observe(s, state, np.ones(nb), np.zeros(nb))
-
-
-def _torch_from(a: np.ndarray, device):
-    import torch
-
-    return torch.from_numpy(np.ascontiguousarray(a)).to(device)
 
 
 def _blocks(n: int) -> int:

@@ -60,6 +60,23 @@ def _int_at_least(text: str, low: int) -> int:
     return value
 
 
+def parse_names(text: str, flag: str, choices=None) -> list[str]:
+    """Comma-separated distinct names (spaces around each dropped), at least one, each among ``choices`` if given;
+    ``ValueError`` naming the flag otherwise (issue 43.3: ``--variants ,`` played nothing and wrote an empty table).
+    """
+    names = [p.strip() for p in str(text).split(",") if p.strip()]
+    among = f"; choose among {', '.join(choices)}" if choices is not None else ""
+    if not names:
+        raise ValueError(f"{flag} {text!r} names nothing: give one name or more, comma-separated{among}")
+    unknown = [n for n in names if choices is not None and n not in choices]
+    if unknown:
+        raise ValueError(f"{flag} {text!r}: unknown {', '.join(map(repr, unknown))}{among}")
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        raise ValueError(f"{flag} {text!r}: {dup[0]!r} is given twice")
+    return names
+
+
 def parse_seeds(text: str, flag: str = "--seeds") -> list[int]:
     """Comma-separated distinct non-negative integer seeds; ``ValueError`` naming the flag otherwise."""
     parts = [p.strip() for p in str(text).split(",")]

@@ -22,7 +22,14 @@ import numpy as np
 from iscc_gym.agents.tasks import task_policies
 from iscc_gym.eval.engine import compare
 from iscc_gym.eval.evaluate import ci_bounds, mean_ci, oracle_share
-from iscc_gym.eval.options import Parser, check_writable_file, docs_command, positive_int, run_console
+from iscc_gym.eval.options import (
+    Parser,
+    check_writable_file,
+    docs_command,
+    parse_names,
+    positive_int,
+    run_console,
+)
 
 from iscc_gym.protocol import EVAL_SEED_START, seed_list
 from iscc_gym.tasks import FIELD_ENV_ID, get_task
@@ -39,6 +46,8 @@ def field_worlds(seeds, variants=None, max_steps: int | None = None, workers: in
     """
     task = get_task(FIELD_ENV_ID)
     names = [task.preset, *task.variants] if variants is None else list(variants)
+    # checked before anything is played (a name the engine refuses after the preset's run would waste it)
+    parse_names(",".join(names), "--variants", [task.preset, *task.variants])
     own = [n for n in names if n == task.preset]
     others = [n for n in names if n != task.preset]
     res = {}
@@ -99,9 +108,11 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.field
     args = build_parser(prog).parse_args(argv)
     from iscc_gym.docs import RESULTS_PATH, docs_path, write_section
 
+    task = get_task(FIELD_ENV_ID)
+    variants = None if args.variants is None else parse_names(args.variants, "--variants",
+                                                              [task.preset, *task.variants])
     if args.write_docs:
         check_writable_file(docs_path(RESULTS_PATH), "--write-docs")
-    variants = None if args.variants is None else [v.strip() for v in args.variants.split(",") if v.strip()]
     seeds = seed_list(EVAL_SEED_START, args.missions)
     t0 = time.perf_counter()
     rows = field_worlds(seeds, variants, args.max_steps, args.workers)

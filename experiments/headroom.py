@@ -24,7 +24,7 @@ import time
 
 from iscc_gym.eval.engine import compare
 from iscc_gym.eval.evaluate import ci_bounds
-from iscc_gym.eval.options import Parser, docs_command, positive_int, run_console
+from iscc_gym.eval.options import Parser, docs_command, parse_names, positive_int, run_console
 
 from iscc_gym.protocol import TUNE_SEED_START, seed_list
 from iscc_gym.tasks import ENV_ID, get_task
@@ -112,8 +112,10 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.headr
     if args.variants is not None and args.variants.strip() == "own":
         names = None
     else:
-        names = list(task.variants) if args.variants is None else [v.strip() for v in args.variants.split(",")
-                                                                     if v.strip()]
+        names = list(task.variants) if args.variants is None else parse_names(args.variants, "--variants",
+                                                                              [*task.variants, "own"])
+        if "own" in names:
+            raise ValueError(f"--variants {args.variants!r}: 'own' (the task's own missions) stands alone")
     if args.write_docs:
         from iscc_gym.eval.options import check_writable_file
 

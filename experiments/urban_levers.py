@@ -35,7 +35,7 @@ import numpy as np
 from iscc_gym.agents import LookaheadPolicy, MyopicPolicy
 from iscc_gym.agents.tuned_records import load_tuned, record_name
 from iscc_gym.eval.evaluate import ci_bounds, ci_side, mean_ci, run_episodes
-from iscc_gym.eval.options import Parser, docs_command, nonneg_int, positive_int, run_console
+from iscc_gym.eval.options import Parser, docs_command, nonneg_int, parse_names, positive_int, run_console
 from iscc_gym.eval.policies import pool_map
 from iscc_gym.eval.tune import tune_model_grid
 
@@ -178,10 +178,7 @@ def build_parser(prog: str = "python -m experiments.urban_levers") -> Parser:
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.urban_levers") -> list[dict]:
     args = build_parser(prog).parse_args(argv)
-    names = [v.strip() for v in args.variants.split(",") if v.strip()]
-    unknown = [v for v in names if v not in VARIANTS]
-    if unknown or not names:
-        raise ValueError(f"--variants {args.variants!r}: unknown {unknown}; choose among {list(VARIANTS)}")
+    names = parse_names(args.variants, "--variants", list(VARIANTS))
     if args.write_docs:
         from iscc_gym.eval.options import check_writable_file
 

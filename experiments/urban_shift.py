@@ -23,7 +23,7 @@ from iscc_gym.agents.shipped import URBAN_AGENT
 from iscc_gym.agents.tasks import TASK_POLICIES
 from iscc_gym.eval.engine import compare
 from iscc_gym.eval.evaluate import ci_bounds, ci_side
-from iscc_gym.eval.options import PICKLE_WARNING, Parser, docs_command, positive_int, run_console
+from iscc_gym.eval.options import PICKLE_WARNING, Parser, docs_command, parse_names, positive_int, run_console
 from iscc_gym.eval.policies import policy_name, resolve_specs
 
 from iscc_gym.protocol import EVAL_SEED_START, seed_list
@@ -92,10 +92,7 @@ def build_parser(prog: str = "python -m experiments.urban_shift") -> Parser:
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.urban_shift") -> dict:
     args = build_parser(prog).parse_args(argv)
-    names = [v.strip() for v in args.shifts.split(",") if v.strip()]
-    unknown = [v for v in names if v not in SHIFTS]
-    if unknown or not names:
-        raise ValueError(f"--shifts {args.shifts!r}: unknown {unknown}; choose among {list(SHIFTS)}")
+    names = parse_names(args.shifts, "--shifts", list(SHIFTS))
     items = resolve_specs(args.policies, URBAN_AGENT)
     if args.focus not in [policy_name(it) for it in items]:
         raise ValueError(f"--focus {args.focus!r} is not one of --policies {args.policies!r}")

@@ -77,7 +77,8 @@ def run(main: Callable[[list[str] | None], object], argv: list[str] | None = Non
 
     Returns 0 when ``main`` returns (whatever it returns), 2 after printing ``PROG: error: MESSAGE``
     to stderr for a :data:`USER_ERRORS` exception or a missing package of an extra (:data:`EXTRAS`), 130 on
-    Ctrl-C, 143 on SIGTERM (:class:`Terminated`, raised by the handler set for the call). argparse's own exits (``--help``, a bad flag) pass through.
+    Ctrl-C, 143 on SIGTERM (:class:`Terminated`, raised by the handler set for the call). argparse's own exits
+    (``--help``, a bad flag) pass through.
     """
     prog = invoked_prog(prog or os.path.basename(sys.argv[0]))
     # SIGTERM as a Ctrl-C (only the main thread may set a handler; a command called from another thread keeps its own)

@@ -35,7 +35,7 @@ from .myopic import MyopicPolicy
 from .sca import SCAResult, sca_allocation, solve_sca
 from .sca_slot import SCAPolicy
 from .search import SearchResult, evolutionary_search, grid_search
-from .tuned_records import is_params, load_tuned, record_name, task_of
+from .tuned_records import is_params, load_tuned, record_name, record_task
 
 __all__ = [
     "Policy",
@@ -71,7 +71,7 @@ def tuned_record(spec: str, scenario: Scenario | str = "paper") -> str | None:
     ``scenario``, or None for a spec that reads none (a fixed split, ``dpp:V``, the static SCA, ...).
     """
     s = make_scenario(scenario) if isinstance(scenario, str) else scenario
-    key, task = str(spec).strip().lower(), task_of(s)
+    key, task = str(spec).strip().lower(), record_task(s)
     if key == "myopic":
         return None if task == "paper" else record_name("myopic", task)
     if key in ("margin", "dpp"):
@@ -96,7 +96,7 @@ def make_policy(spec: str, scenario: Scenario | str = "paper", seed: int = 0, tu
         ``"margin"`` (the rule with the multiples tuned by ``python -m eval.tune margin``),
         ``"margin:4,1.3"`` (given m_ctrl, m_comm), ``"myopic"`` (:class:`MyopicPolicy`, cached per
         scenario: its tables are built once). On the urban task (a scenario with a queue or blockage:
-        :func:`iscc_gym.agents.tuned_records.task_of`) ``margin``, ``myopic``, ``dpp`` and ``mpc`` read the
+        :func:`iscc_gym.agents.tuned_records.record_task`) ``margin``, ``myopic``, ``dpp`` and ``mpc`` read the
         records ``<spec>-urban`` tuned there (``python -m eval.tune <spec> --scenario urban``); ``"dpp:2"``
         (given V), ``"oracle"`` (``mpc`` on the truth's preview: its ``scenario_overrides`` make the
         evaluation show it the realised channel ahead on the same missions), ``"mpc-hold"`` (``mpc`` blind to the
@@ -138,7 +138,7 @@ def make_policy(spec: str, scenario: Scenario | str = "paper", seed: int = 0, tu
         except ValueError:
             raise ValueError(f"spec {spec!r}: 'fixed:' takes three numbers, e.g. 'fixed:0.2,0.2,0.6'") from None
         return FixedSplitPolicy(validate_split(split, f"spec {spec!r}"), name=key)
-    task = task_of(s)
+    task = record_task(s)
     if key == "margin":
         p = params()
         return MarginPolicy(p["m_ctrl"], p["m_comm"], p["sensing_floor"])

@@ -12,15 +12,29 @@ from iscc_gym.agents.shipped import TUNED_DIR
 
 from iscc_gym.files import write_atomic
 
-__all__ = ["TUNED_DIR", "load_tuned", "save_tuned", "task_of", "task_mismatch", "is_params", "record_name"]
+__all__ = ["TUNED_DIR", "load_tuned", "save_tuned", "task_of", "record_task", "task_mismatch", "is_params",
+           "record_name"]
 
 
 def task_of(s) -> str:
-    """The task a scenario poses, which decides the tuning record its baselines read.
-
-    ``"urban"`` with blocked line of sight or a data queue (issue 25), else ``"paper"``.
+    """The task a scenario poses: ``"urban"`` with blocked line of sight or a data queue (issue 25), ``"field"``
+    with a world the designer's model does not know (a K-factor field or an RCS spread, issue 36), else
+    ``"paper"``. The env/scenario checks (:func:`task_mismatch`) compare it; the tuning records read
+    :func:`record_task`.
     """
-    return "urban" if (s.blockage != "none" or s.queue_deadline_slots > 0) else "paper"
+    if s.blockage != "none" or s.queue_deadline_slots > 0:
+        return "urban"
+    if s.rician_k_std_db > 0.0 or s.rcs_std_db > 0.0:
+        return "field"
+    return "paper"
+
+
+def record_task(s) -> str:
+    """The task whose tuning records a scenario's baselines read (:func:`record_name`): the urban task's own, else
+    the paper's. The field task's baselines are the paper's as designed and tuned there (the world they do not know
+    is the task's point; ``adaptive``, the field's own rung, has its own record, ``adaptive``).
+    """
+    return "urban" if task_of(s) == "urban" else "paper"
 
 
 def task_mismatch(env_id: str, scenario: str) -> tuple[str, str, str | None, str] | None:

@@ -38,7 +38,7 @@ from iscc_gym.agents import DriftPlusPenaltyPolicy, LookaheadPolicy, MyopicPolic
 from iscc_gym.agents.base import SplitPolicy
 from iscc_gym.agents.margin import margin_split, predicted_needs
 from iscc_gym.agents.sca_slot import PER_SLOT_RECORD, SCAPolicy
-from iscc_gym.agents.tuned_records import record_name, save_tuned, task_of
+from iscc_gym.agents.tuned_records import record_name, record_task, save_tuned, task_of
 from iscc_gym.eval.evaluate import run_episodes
 from iscc_gym.eval.options import (
     Parser,
@@ -53,7 +53,6 @@ from scipy import optimize
 
 from iscc_gym.protocol import TUNE_SEED_START, TUNE_SEEDS, check_outside_evaluation, seed_list
 from iscc_gym.scenario import make_scenario
-from iscc_gym.sim.effects import task_effects
 
 #: Default grid of ``python -m eval.tune margin``.
 MARGIN_GRID = {"m_ctrl": (2.5, 3.0, 3.5, 4.0, 5.0, 6.0, 8.0),
@@ -153,7 +152,7 @@ def tune_model_grid(policy: str, seeds=TUNE_SEEDS, scenario: str = "urban", log=
               for combo in np.stack(np.meshgrid(*grid.values(), indexing="ij"), -1).reshape(-1, len(names))]
     s = make_scenario(scenario)
     want = MODEL_TASKS[policy]
-    if (task_effects(s).field if want == "field" else task_of(s) == want) is False:
+    if task_of(s) != want:
         raise ValueError(f"--scenario {scenario!r}: {policy} is tuned on the {want} task (--scenario {want})")
     t0 = time.perf_counter()
     rewards = []
@@ -327,6 +326,11 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.tune") -> di
         check_writable_file(args.out, "--out")
     show = show_progress(args.quiet)
     task = task_of(make_scenario(args.scenario))
+    if task == "field" and MODEL_TASKS.get(args.policy) != "field":
+        raise ValueError(f"--scenario {args.scenario!r} is the field task, whose {args.policy} is the paper's as "
+                         "tuned there (the world it does not know is the task's point): tune it with --scenario "
+                         "paper, or tune the field's own rung (python -m eval.tune adaptive --scenario field)")
+    task = record_task(make_scenario(args.scenario))
     if args.policy in MODEL_GRIDS:
         total = int(np.prod([len(v) for v in MODEL_GRIDS[args.policy].values()]))
 

@@ -88,3 +88,16 @@ def test_adaptive_needs_the_field_and_is_causal():
     with pytest.raises(ValueError, match="k_window_slots"):
         AdaptivePolicy("field", k_window_slots=0.5)
     assert make_policy("adaptive", "field").name == "adaptive"
+
+
+def test_tuning_a_paper_baseline_on_the_field_task_is_refused_before_its_record_is_overwritten(tmp_path):
+    """Issue 43.4: with the field task the paper task to ``task_of``, ``python -m eval.tune margin --scenario field``
+    wrote the paper's ``margin`` record from field missions. The field's baselines read the paper's records."""
+    from iscc_gym.eval import tune
+
+    out = tmp_path / "margin.yml"
+    with pytest.raises(ValueError, match="'field' is the field task, whose margin is the paper's as tuned there"):
+        tune.main(["margin", "--scenario", "field", "--episodes", "1", "--out", str(out), "--quiet"])
+    assert not out.exists()
+    with pytest.raises(ValueError, match="adaptive is tuned on the field task"):
+        tune.tune_model_grid("adaptive", scenario="paper", max_steps=1)

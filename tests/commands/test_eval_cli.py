@@ -424,3 +424,23 @@ def test_a_scenario_of_another_task_than_the_env_is_refused(no_episodes, tmp_pat
     from iscc_gym.eval.options import env_scenario
 
     assert env_scenario(paper, "literal") == "literal" and env_scenario(urban, None) == "urban"
+
+
+@pytest.mark.parametrize("env, scenario, task, env_task, other", [
+    ("iscc_gym/ISCC-Field-v0", "paper", "paper", "field", "iscc_gym/ISCC-v0"),
+    ("iscc_gym/ISCC-Field-v0", "literal", "paper", "field", "iscc_gym/ISCC-v0"),
+    ("iscc_gym/ISCC-v0", "field", "field", "paper", "iscc_gym/ISCC-Field-v0"),
+    ("iscc_gym/ISCC-Urban-v0", "field", "field", "urban", "iscc_gym/ISCC-Field-v0"),
+])
+def test_the_field_task_is_a_task_of_its_own_to_the_env_scenario_checks(no_episodes, env, scenario, task, env_task,
+                                                                         other):
+    """Issue 43.4: ``--env iscc_gym/ISCC-Field-v0 --scenario paper`` played the paper's missions under the field
+    task's labels (``task_of`` knew paper and urban only), ``--env iscc_gym/ISCC-v0 --scenario field`` failed after a
+    third of the run, and the refusals named the field env the paper task. Refused before any work, naming both."""
+    with pytest.raises(ValueError, match=rf"--scenario '{scenario}' is the {task} task, but --env {env} is the "
+                                         rf"{env_task} task .*: use --env {other} for '{scenario}'"):
+        cli.main(["--env", env, "--scenario", scenario, "--policies", "myopic", "--quiet"])
+    from iscc_gym.agents.tuned_records import record_task, task_of
+    from iscc_gym.scenario import make_scenario
+
+    assert task_of(make_scenario("field")) == "field" and record_task(make_scenario("field")) == "paper"

@@ -220,3 +220,8 @@ def test_a_scenario_of_another_task_than_the_env_is_refused(tmp_path, monkeypatc
     with pytest.raises(ValueError, match="'urban' is the urban task, but iscc_gym/ISCC-v0 is the paper task"):
         check_args(Args(scenario="urban"))
     check_args(Args(scenario="literal"))
+    with pytest.raises(ValueError, match="'field' is the field task, but iscc_gym/ISCC-v0 is the paper task.*use "
+                                         "--env iscc_gym/ISCC-Field-v0"):  # issue 43.4
+        check_args(Args(scenario="field"))
+    with pytest.raises(ValueError, match="'paper' is the paper task, but iscc_gym/ISCC-Field-v0 is the field task"):
+        check_args(Args(env_id="iscc_gym/ISCC-Field-v0", scenario="paper"))

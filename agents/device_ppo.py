@@ -37,6 +37,7 @@ class DevicePPOConfig:
     """A device PPO run (SB3's PPO names and defaults where they exist)."""
 
     env_id: str = "iscc_gym/ISCC-v0"
+    scenario: str | None = None  # the Scenario preset; None: the one env_id is registered with
     device: str = "cuda"
     total_timesteps: int = 20_000_000
     n_envs: int = 4096
@@ -147,7 +148,7 @@ def train(cfg: DevicePPOConfig, callback=None, quiet: bool = True) -> tuple[dict
 
     torch.manual_seed(cfg.seed)
     env = DeviceVectorEnv(cfg.env_id, num_envs=cfg.n_envs, device=cfg.device, pool_size=min(cfg.pool_size, cfg.n_envs),
-                          **cfg.env_overrides)
+                          scenario=cfg.scenario, **cfg.env_overrides)
     dev = env.obs.device
     pol = _policy(cfg, env, dev)
     opt = torch.optim.Adam(pol.parameters(), lr=cfg.learning_rate, eps=1e-5)
@@ -256,7 +257,8 @@ def to_sb3(cfg: DevicePPOConfig, trained: Trained, timesteps: int):
 
     import iscc_gym  # noqa: F401  (the env ids)
 
-    venv = DummyVecEnv([lambda: gym.make(cfg.env_id, **cfg.env_overrides)])
+    scenario = {} if cfg.scenario is None else {"scenario": cfg.scenario}
+    venv = DummyVecEnv([lambda: gym.make(cfg.env_id, **scenario, **cfg.env_overrides)])
     with warnings.catch_warnings():  # SB3 warns that a batch exceeds its (unused) one-env rollout buffer
         warnings.simplefilter("ignore", UserWarning)
         model = PPO("MlpPolicy", venv, learning_rate=cfg.learning_rate, n_steps=cfg.n_steps, batch_size=cfg.batch_size,
@@ -283,7 +285,7 @@ def paper_config(device: str = "cuda", **changes) -> DevicePPOConfig:
     ``python -m train --device`` reads; ``tests/gpu/test_device_ppo.py`` checks the two agree) on the device's batch
     sizes (:data:`DEVICE_DEFAULTS`), with ``changes``.
     """
-    kw = dict(env_id="iscc_gym/ISCC-v0", device="cuda" if device == "cuda" else "cpu", total_timesteps=4_000_000,
+    kw = dict(env_id="iscc_gym/ISCC-v0", scenario="paper", device="cuda" if device == "cuda" else "cpu", total_timesteps=4_000_000,
               n_epochs=3, learning_rate=0.00022829724408019228, gamma=0.3, gae_lambda=0.8, clip_range=0.3,
               ent_coef=0.014029585467490158, net_arch=[32, 32], activation="Tanh", log_std_init=-0.7903302449680623,
               normalize=True, norm_reward=True, **DEVICE_DEFAULTS)

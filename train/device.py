@@ -56,7 +56,7 @@ def config_from_args(args, device: str) -> DevicePPOConfig:
         raise ValueError(f"hyperparameters {unknown} of {args.env_id}'s entry (or --set) have no meaning to the device "
                          "trainer; drop them or train with SB3 (drop --device)")
     return DevicePPOConfig(
-        env_id=args.env_id, device="cuda" if device == "cuda" else "cpu", total_timesteps=int(resolved.total_timesteps),
+        env_id=args.env_id, scenario=resolved.scenario, device="cuda" if device == "cuda" else "cpu", total_timesteps=int(resolved.total_timesteps),
         n_epochs=int(hp.get("n_epochs", 10)), learning_rate=float(lr), gamma=float(hp.get("gamma", 0.99)),
         gae_lambda=float(hp.get("gae_lambda", 0.95)), clip_range=float(hp.get("clip_range", 0.2)),
         ent_coef=float(hp.get("ent_coef", 0.0)), vf_coef=float(hp.get("vf_coef", 0.5)),
@@ -75,11 +75,14 @@ def main(args, device: str) -> dict:
     if args.resume:
         raise ValueError(f"--resume: --device {device} keeps no checkpoints; train afresh (--overwrite) or drop "
                          "--device")
+    from iscc_gym.train.config import check_args
+
+    check_args(args)  # the checks of an SB3 run: the env id, the seed, a scenario of another task, ...
     cfg = config_from_args(args, device)
     prepare_out(args)
     summary, trained = train(cfg, quiet=args.quiet)
     model, vecnormalize = to_sb3(cfg, trained, summary["timesteps"])
-    run = {"algo": "ppo", "env_id": cfg.env_id, "scenario": registered_scenario(cfg.env_id),
+    run = {"algo": "ppo", "env_id": cfg.env_id, "scenario": cfg.scenario or registered_scenario(cfg.env_id),
            "env_overrides": dict(cfg.env_overrides), "normalize": cfg.normalize, "residual": None,
            "trainer": "device_ppo", "device": device}
     record = {"args": {**run, **{k: v for k, v in asdict(cfg).items() if k not in run}},

@@ -113,3 +113,30 @@ def test_the_benchs_paper_config_is_the_yaml_entry_python_m_train_reads():
 
     # if the YAML entry changes, update iscc_gym.agents.device_ppo.paper_config to it
     assert config_from_args(parse_args(["--out", "x"]), "standin") == paper_config("standin")
+
+
+def test_train_device_plays_and_records_the_scenario_asked(tmp_path, monkeypatch):
+    """Issue 43.5: ``python -m train --device standin --scenario literal`` trained the env id's preset and recorded
+    ``scenario: paper``; a scenario of another task is refused as by an SB3 run."""
+    import yaml
+    from iscc_gym.gpu import vector_env
+    from iscc_gym.train.cli import cli
+
+    played = []
+    init = vector_env.DeviceVectorEnv.__init__
+
+    def spy(self, *a, **k):
+        init(self, *a, **k)
+        played.append(self.scenario)
+
+    monkeypatch.setattr(vector_env.DeviceVectorEnv, "__init__", spy)
+    cli(["--device", "standin", "--scenario", "literal", "--n-envs", "8", "--total-timesteps", "64", "--set",
+         "batch_size=64", "--out", str(tmp_path / "lit"), "--quiet"])
+    from iscc_gym.scenario import make_scenario
+
+    assert played == [make_scenario("literal")]
+    config = yaml.safe_load((tmp_path / "lit" / "config.yml").read_text())
+    assert config["args"]["scenario"] == "literal"
+    with pytest.raises(ValueError, match="'urban' is the urban task, but iscc_gym/ISCC-v0 is the paper task"):
+        cli(["--device", "standin", "--scenario", "urban", "--out", str(tmp_path / "u"), "--quiet"])
+    assert not (tmp_path / "u").exists()

@@ -25,6 +25,11 @@ if TYPE_CHECKING:  # pragma: no cover
 __all__ = ["validate", "reference_share", "CHOICES", "MAX_SLOTS", "MAX_WAYPOINTS", "MAX_MEAN_WAYPOINTS",
            "MIN_BOX_FRACTION"]
 
+#: The shortest correlation distance of a spatially consistent field (the LoS state's, the K-factor's), m: a
+#: centimetre, a wavelength at 30 GHz; large-scale parameters are not defined below the wavelength (TR 38.901's
+#: distances are 10-50 m). At about 1e-305 m the field's wave numbers overflowed and every value was NaN.
+MIN_CORRELATION_M = 0.01
+
 CHOICES: dict[str, tuple[str, ...]] = {
     "process_noise_reading": ("variance", "std"),
     "snr_convention": ("total_power", "per_subcarrier_power"),
@@ -101,7 +106,7 @@ _RANGES: dict[str, tuple[float, float, bool]] = {
     "gnss_pos_std_m": (0.0, 1e6, True),
     "gnss_vel_std_mps": (0.0, 1e4, True),
     "gnss_update_period_s": (0.0, 1e6, True),
-    "los_correlation_m": (0.0, 1e5, True),
+    "los_correlation_m": (MIN_CORRELATION_M, 1e5, False),
     "map_error_std": (0.0, 1.0, False),
     "queue_deadline_s": (0.0, 1e4, False),
     "queue_arrival_bps": (0.0, 1e12, False),
@@ -109,7 +114,7 @@ _RANGES: dict[str, tuple[float, float, bool]] = {
     "preview_slots": (0, 256, False),
     "preview_stride_slots": (1, 10**4, False),
     "rician_k_std_db": (0.0, 20.0, False),
-    "rician_k_correlation_m": (0.0, 1e5, True),
+    "rician_k_correlation_m": (MIN_CORRELATION_M, 1e5, False),
     "rcs_std_db": (0.0, 20.0, False),
 }
 #: At most this many slots per mission (the reference alone takes 72 bytes a slot per loop).
@@ -151,8 +156,12 @@ def reference_share(s: Scenario) -> float:
     return _reference_shares[key]
 
 
+_SHORT_FIELD = ("a spatially consistent field's correlation distance: below a centimetre (a wavelength at 30 GHz) it "
+                "is no large-scale field, and the field's wave numbers (1/distance) overflow")
 #: Why a range is what it is, said after it where the bound is not plain physics.
 _WHY = {
+    "los_correlation_m": _SHORT_FIELD,
+    "rician_k_correlation_m": _SHORT_FIELD,
     "carrier_freq_ghz": "the 0.5-100 GHz range of the 3GPP TR 38.901 channel models the path loss and K-factor "
                         "come from",
     "min_waypoints": f"a reset redraws the waypoints until the spline through them stays in the coverage region and "

@@ -237,6 +237,9 @@ def draw_field(rng: np.random.Generator, corr_distance_m: float, n_features: int
         k = z * (math.sqrt(2.0) / corr_distance_m)
     else:
         k = z / (corr_distance_m * np.maximum(w, 1e-300))[:, None]
+    if not (np.all(np.isfinite(k)) and np.max(np.abs(k)) < 1e150):  # a field value is cos(k . x): finite k . x
+        raise ValueError(f"corr_distance_m = {corr_distance_m!r} is too short: the field's wave numbers overflow; "
+                         "use a correlation distance of a centimetre or more")
     return np.column_stack([k, phase, np.full(n_features, math.sqrt(2.0 / n_features))])
 
 

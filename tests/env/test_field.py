@@ -142,3 +142,24 @@ def test_both_checkers_pass_on_the_field_env_without_warnings():
         sb3_check_env(gym.make(FIELD_ENV_ID), warn=True)
         sb3_check_env(gym.make(FIELD_ENV_ID, show_world=True).unwrapped, warn=True)
     assert [str(w.message) for w in caught] == []
+
+
+@pytest.mark.parametrize("name", ["rician_k_correlation_m", "los_correlation_m"])
+@pytest.mark.parametrize("value", [1e-305, 1e-310, 0.005])
+def test_a_correlation_distance_too_short_for_a_field_is_refused_by_name(name, value):
+    """Issue 43.6: ``rician_k_correlation_m`` of about 1e-305 passed the validator, overflowed the field's wave numbers
+    and made every K NaN (the episode ended after one slot with the loss-of-track penalty)."""
+    with pytest.raises(ValueError, match=rf"{name} = .*centimetre"):
+        make_scenario("field", **{name: value})
+
+
+def test_the_shortest_correlation_distance_accepted_flies_a_finite_mission():
+    from iscc_gym.physics.blockage import draw_field
+
+    env = gym.make(FIELD_ENV_ID, rician_k_correlation_m=0.01)
+    env.reset(seed=3)
+    for _ in range(20):
+        obs, reward, terminated, truncated, info = env.step(np.array([0.0, 0.3, 0.5], np.float32))
+        assert np.all(np.isfinite(obs)) and np.isfinite(reward) and not terminated
+    with pytest.raises(ValueError, match="too short"):
+        draw_field(np.random.default_rng(0), 1e-305)

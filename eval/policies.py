@@ -36,6 +36,11 @@ ENV_FIX = "compare it with --env set to the env it was trained on"
 WORLD_SUFFIX = "@world"
 #: Aliases of world-designed specs: ``aware`` is ``myopic`` given the world's true parameters (issue 36).
 WORLD_ALIASES = {"aware": "myopic" + WORLD_SUFFIX}
+#: The specs that read a field world's slot values (K, RCS) from the observation when designed on it (``show_world``);
+#: every other ``SPEC@world`` on a field world is designed on the world's law (its Scenario: the variant's mean K
+#: and RCS, their spreads), the observation the task's own (issue 43.7: ``sca@world`` was built for the shown
+#: world's observation and failed mid-run on the env's).
+WORLD_READERS = ("myopic",)
 
 
 def world_spec(item: str) -> tuple[str, bool]:
@@ -52,7 +57,8 @@ def build_policy(item: str, scenario: str = "paper", fix: str = ENV_FIX, world=N
     """``(name, policy)`` of one ``NAME=PATH`` (a trained agent) or :func:`agents.make_policy` spec; ``fix`` ends
     the error for an agent of another env's observations (the option of the calling command that fixes it).
     A spec ending in ``@world`` (or ``aware``) is built on ``world`` (the Scenario the missions are played on;
-    default ``scenario``) instead of ``scenario``: the designer knows the world.
+    default ``scenario``) instead of ``scenario``: the designer knows the world. On a field world, a spec of
+    :data:`WORLD_READERS` is shown the slot's world too; the others are designed on the world's law.
     """
     from iscc_gym.agents import make_policy
 
@@ -70,8 +76,8 @@ def build_policy(item: str, scenario: str = "paper", fix: str = ENV_FIX, world=N
     spec, designed = world_spec(item)
     if designed and world is not None:
         w = make_scenario(world) if isinstance(world, str) else world
-        if task_effects(w).field:  # a world that changes along the mission: the env shows it the slot's values
-            w = w.replace(show_world=True)
+        if task_effects(w).field and spec.strip().lower() in WORLD_READERS:
+            w = w.replace(show_world=True)  # a world that changes along the mission: the env shows it the slot's values
         return item, make_policy(spec, w)
     return item, make_policy(spec, scenario)
 

@@ -101,3 +101,23 @@ def test_tuning_a_paper_baseline_on_the_field_task_is_refused_before_its_record_
     assert not out.exists()
     with pytest.raises(ValueError, match="adaptive is tuned on the field task"):
         tune.tune_model_grid("adaptive", scenario="paper", max_steps=1)
+
+
+def test_a_world_designed_spec_that_reads_no_world_plays_the_field_task_on_the_worlds_law():
+    """Issue 43.7: ``sca@world`` (and ``sca-per-slot@world``) failed mid-run on the field task, after the other
+    policies had played, with an observation-shape message: they were built for the shown world's observation. Only
+    ``myopic@world`` (``aware``) reads the slot's world; the others are designed on the world's law."""
+    from iscc_gym.eval.engine import compare
+    from iscc_gym.eval.policies import build_policy
+    from iscc_gym.tasks import FIELD_ENV_ID, variant_scenario
+
+    res = compare(FIELD_ENV_ID, "myopic,sca@world,sca-per-slot@world,aware", [10000], variants=["K mean 4 dB"],
+                  max_steps=2, reference="myopic")
+    played = res["K mean 4 dB"]["policies"]
+    assert set(played) == {"myopic", "sca@world", "sca-per-slot@world", "aware"}
+    assert all(np.all(np.isfinite(p["episodes"]["reward"])) for p in played.values())
+    world = variant_scenario(FIELD_ENV_ID, "K mean 4 dB")
+    _, sca = build_policy("sca@world", "field", world=world)
+    assert getattr(sca, "scenario_overrides", None) is None
+    _, aware = build_policy("aware", "field", world=world)
+    assert aware.scenario_overrides == {"show_world": True}

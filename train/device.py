@@ -56,7 +56,8 @@ def config_from_args(args, device: str) -> DevicePPOConfig:
         raise ValueError(f"hyperparameters {unknown} of {args.env_id}'s entry (or --set) have no meaning to the device "
                          "trainer; drop them or train with SB3 (drop --device)")
     return DevicePPOConfig(
-        env_id=args.env_id, scenario=resolved.scenario, device="cuda" if device == "cuda" else "cpu", total_timesteps=int(resolved.total_timesteps),
+        env_id=args.env_id, scenario=resolved.scenario, device="cuda" if device == "cuda" else "cpu",
+        total_timesteps=int(resolved.total_timesteps),
         n_epochs=int(hp.get("n_epochs", 10)), learning_rate=float(lr), gamma=float(hp.get("gamma", 0.99)),
         gae_lambda=float(hp.get("gae_lambda", 0.95)), clip_range=float(hp.get("clip_range", 0.2)),
         ent_coef=float(hp.get("ent_coef", 0.0)), vf_coef=float(hp.get("vf_coef", 0.5)),

@@ -197,8 +197,31 @@ def latest_checkpoint(ckpt_dir: str | os.PathLike) -> tuple[Path | None, dict | 
     return None, None, skipped
 
 
+#: A temporary file of :func:`iscc_gym.files.atomic_target` (``.NAME.PID.HEX8.tmp``): what a save killed before its
+#: rename leaves.
+_TEMPORARY = re.compile(r"\.(?P<name>.+)\.\d+\.[0-9a-f]{8}\.tmp")
+
+
+def _leftovers(out: Path) -> list[str]:
+    """The names in ``out`` of temporary files a killed save of a run file (:data:`RUN_FILES`) left, and those a
+    killed replace_unit of ``best/`` left (``.best.*.tmp``, ``.best.*.old``).
+    """
+    names = []
+    for q in out.iterdir():
+        m = _TEMPORARY.fullmatch(q.name)
+        if (m and m.group("name") in RUN_FILES) or (q.name.startswith(".best.") and q.name.endswith((".tmp", ".old"))):
+            names.append(q.name)
+    return names
+
+
 def _is_run_dir(out: Path) -> bool:
-    """Whether ``out`` holds a run of python -m train (its config.yml or manifest), so ``overwrite`` may delete."""
+    """Whether ``out`` holds a run of python -m train (its config.yml or manifest), so ``overwrite`` may delete; or
+    only the run files and temporary files of a first save killed before its config.yml was in place (issue 43.8:
+    no command could recover such a folder).
+    """
+    leftovers = _leftovers(out)
+    if leftovers and all(q.name in RUN_FILES or q.name in leftovers for q in out.iterdir()):
+        return True
     for name, key in (("config.yml", "args"), (MANIFEST, "files")):
         try:
             if key in yaml.safe_load((out / name).read_text()):
@@ -260,9 +283,8 @@ def prepare_out(args: Args, hyperparams: dict | None = None) -> tuple[Path | Non
         if not _is_run_dir(out):
             raise FileExistsError(f"--overwrite: {out} holds no run of python -m train (no config.yml or "
                                   f"{MANIFEST} of one); nothing deleted: choose another --out")
-        # and what a killed replace_unit of best/ left beside it
-        leftovers = [q.name for q in out.glob(".best.*") if q.name.endswith((".tmp", ".old"))]
-        for name in (*RUN_FILES, *leftovers):
+        # and what a killed save left beside them (temporary files; a killed replace_unit of best/)
+        for name in (*RUN_FILES, *_leftovers(out)):
             p = out / name
             if p.is_dir() and not p.is_symlink():
                 shutil.rmtree(p)

@@ -109,6 +109,7 @@ def test_a_world_designed_spec_that_reads_no_world_plays_the_field_task_on_the_w
     ``myopic@world`` (``aware``) reads the slot's world; the others are designed on the world's law."""
     from iscc_gym.eval.engine import compare
     from iscc_gym.eval.policies import build_policy
+
     from iscc_gym.tasks import FIELD_ENV_ID, variant_scenario
 
     res = compare(FIELD_ENV_ID, "myopic,sca@world,sca-per-slot@world,aware", [10000], variants=["K mean 4 dB"],

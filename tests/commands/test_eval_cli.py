@@ -441,6 +441,7 @@ def test_the_field_task_is_a_task_of_its_own_to_the_env_scenario_checks(no_episo
                                          rf"{env_task} task .*: use --env {other} for '{scenario}'"):
         cli.main(["--env", env, "--scenario", scenario, "--policies", "myopic", "--quiet"])
     from iscc_gym.agents.tuned_records import record_task, task_of
+
     from iscc_gym.scenario import make_scenario
 
     assert task_of(make_scenario("field")) == "field" and record_task(make_scenario("field")) == "paper"

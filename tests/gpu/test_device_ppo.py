@@ -119,8 +119,9 @@ def test_train_device_plays_and_records_the_scenario_asked(tmp_path, monkeypatch
     """Issue 43.5: ``python -m train --device standin --scenario literal`` trained the env id's preset and recorded
     ``scenario: paper``; a scenario of another task is refused as by an SB3 run."""
     import yaml
-    from iscc_gym.gpu import vector_env
     from iscc_gym.train.cli import cli
+
+    from iscc_gym.gpu import vector_env
 
     played = []
     init = vector_env.DeviceVectorEnv.__init__
@@ -140,3 +141,29 @@ def test_train_device_plays_and_records_the_scenario_asked(tmp_path, monkeypatch
     with pytest.raises(ValueError, match="'urban' is the urban task, but iscc_gym/ISCC-v0 is the paper task"):
         cli(["--device", "standin", "--scenario", "urban", "--out", str(tmp_path / "u"), "--quiet"])
     assert not (tmp_path / "u").exists()
+
+
+@pytest.mark.parametrize("leftover", [".config.yml.4242.0123abcd.tmp", ".model.zip.7.deadbeef.tmp"])
+def test_overwrite_recovers_a_folder_left_by_a_kill_inside_the_first_save(tmp_path, leftover):
+    """Issue 43.8: after a kill inside a run's first save (``train --device``: before config.yml was in place) the
+    folder held only temporary files; a rerun said "pass --resume or --overwrite", --resume "keeps no checkpoints",
+    --overwrite "holds no run". Now --overwrite recognises what the killed save left and starts afresh; a folder that
+    holds anything else is still never written into."""
+    from iscc_gym.train.cli import cli
+
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / leftover).write_bytes(b"half a file")
+    argv = ["--device", "standin", "--n-envs", "8", "--total-timesteps", "64", "--set", "batch_size=64", "--out",
+            str(out), "--quiet"]
+    with pytest.raises(FileExistsError, match="--overwrite to start afresh"):
+        cli(argv)
+    cli([*argv, "--overwrite"])
+    assert not (out / leftover).exists() and (out / "model.zip").is_file()
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / leftover).write_bytes(b"half a file")
+    (mine / "notes.txt").write_text("mine")
+    with pytest.raises(FileExistsError, match="holds no run"):
+        cli([*argv[:-2], str(mine), "--quiet", "--overwrite"])
+    assert (mine / "notes.txt").read_text() == "mine" and (mine / leftover).exists()

@@ -329,7 +329,22 @@ def resolve_args(args: Args) -> tuple[Args, dict]:
         filled["env_overrides"] = {**env_kwargs, **args.env_overrides}
     if args.scenario is None:
         filled["scenario"] = registered_scenario(args.env_id)
+    check_no_world_shown(filled.get("env_overrides", args.env_overrides))
     return dataclasses.replace(args, **filled), hp
+
+
+def check_no_world_shown(env_overrides: dict) -> None:
+    """Refuse a run whose policy would observe the hidden world (``show_world``, by ``--env-set`` or the YAML's
+    ``env_kwargs``): the env shows it only to the model-knowledge bound (``aware``); a deployed policy reads the
+    observation, so ``python -m eval`` refuses such an agent ("trained on another env"), after its whole training
+    (issue 43.9). A privileged signal belongs in the training, not in the policy's observation.
+    """
+    value = env_overrides.get("show_world")
+    if value is not None and value is not False and str(value).strip().lower() not in ("false", "0", "no"):
+        raise ValueError(f"env_overrides show_world = {value!r}: the policy would observe the hidden world (the field "
+                         "task's K-factor and RCS), which the env shows only the aware bound; a deployed policy "
+                         "reads the observation, and python -m eval refuses an agent trained on it. Drop "
+                         "--env-set show_world=true (or env_kwargs' show_world)")
 
 
 def _closed(lo, hi):

@@ -225,3 +225,16 @@ def test_a_scenario_of_another_task_than_the_env_is_refused(tmp_path, monkeypatc
         check_args(Args(scenario="field"))
     with pytest.raises(ValueError, match="'paper' is the paper task, but iscc_gym/ISCC-Field-v0 is the field task"):
         check_args(Args(env_id="iscc_gym/ISCC-Field-v0", scenario="paper"))
+
+
+@pytest.mark.parametrize("device", ["cpu", "standin"])
+def test_a_run_whose_policy_would_observe_the_hidden_world_is_refused_before_any_work(device, tmp_path):
+    """Issue 43.9: ``--env-set show_world=true`` trained an agent on the hidden world's observation without a word;
+    python -m eval then refused it as trained on another env. Refused up front, naming the setting."""
+    from iscc_gym.train.cli import cli
+
+    out = tmp_path / "run"
+    with pytest.raises(ValueError, match="show_world = True: the policy would observe the hidden world"):
+        cli(["--env", "iscc_gym/ISCC-Field-v0", "--env-set", "show_world=true", "--device", device,
+             "--total-timesteps", "64", "--out", str(out), "--quiet"])
+    assert not out.exists()

@@ -9,6 +9,7 @@ kernels in numba-cuda's simulator (the tests' way to run the device path without
 
 from __future__ import annotations
 
+import os
 from typing import Any
 
 import numpy as np
@@ -22,6 +23,7 @@ from iscc_gym.scenario import Scenario, make_scenario
 from iscc_gym.sim import loop
 from iscc_gym.sim.effects import task_effects
 from iscc_gym.sim.functional import observe
+from iscc_gym.sim.mission import mission_columns
 from iscc_gym.sim.params import slot_params
 from iscc_gym.sim.schema import OBS_BOUND, STEP_COLUMNS, obs_size
 from iscc_gym.tasks import get_task
@@ -101,6 +103,7 @@ class DeviceVectorEnv:
                              "longer dt_s")
         self._switches = (loop.blocked_switch(s), loop.field_switch(s))
         self.device = device
+        need = memory_bytes(s, self.num_envs, self.pool_size)
         self._cuda = None
         if device == "cuda":
             from iscc_gym.gpu.cuda import import_cuda, simulator
@@ -113,6 +116,7 @@ class DeviceVectorEnv:
         else:
             self._sim = False
         self._torch_device = torch.device("cuda" if device == "cuda" and not self._sim else "cpu")
+        _check_memory(need, self.num_envs, self.pool_size, self._torch_device)
         n, n_obs = self.num_envs, obs_size(s)
         self.obs_size = n_obs
         self.single_action_space = spaces.Box(-1.0, 1.0, (3,), np.float32)
@@ -258,6 +262,53 @@ class DeviceVectorEnv:
     def close(self) -> None:
         """Free the device buffers."""
         self._state = self._pool = None
+
+
+def memory_bytes(s: Scenario, num_envs: int, pool_size: int) -> int:
+    """The bytes a :class:`DeviceVectorEnv` of ``num_envs`` rows and ``pool_size`` missions of scenario ``s`` holds:
+    its tensors (observation, reward, flags, returns, lengths, metrics, actions), its state rows (the loop's state,
+    the data queue, counters) and its mission pool (``n_slots + 1`` mission rows each), the host's copies that
+    :meth:`DeviceVectorEnv.reset` draws them into included (once more on a GPU).
+    """
+    tensors = obs_size(s) * 4 + 4 + 1 + 1 + 8 + 8 + len(STEP_COLUMNS) * 8 + 3 * 4
+    state = (6 + 6 + 36 + 1 + task_effects(s).queue_deadline_slots) * 8 + 7 * 8
+    mission = (s.n_slots + 1) * mission_columns(s) * 8
+    return int(num_envs) * (tensors + 2 * state) + int(pool_size) * 2 * mission
+
+
+def _available_bytes(device) -> int | None:
+    """Free memory of ``device`` (a torch device): the GPU's free memory, the host's MemAvailable; None if unknown."""
+    if device.type == "cuda":
+        import torch
+
+        return int(torch.cuda.mem_get_info(device)[0])
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    try:
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def _check_memory(need: int, num_envs: int, pool_size: int, device) -> None:
+    """``ValueError`` naming ``num_envs``, before any buffer is allocated, when the env would not fit in ``device``'s
+    free memory (issue 43.10: ``num_envs=10**8`` allocated buffer after buffer, then died on a ``MemoryError`` naming
+    its last small array).
+    """
+    free = _available_bytes(device)
+    if free is None or need <= free:
+        return
+    per_row = need / max(num_envs + pool_size, 1)
+    where = "the GPU" if device.type == "cuda" else "this machine"
+    fits = max(int(0.8 * free / per_row) - pool_size, 0)  # a margin for the temporaries of reset's draws
+    raise ValueError(f"num_envs = {num_envs:,} (pool_size = {pool_size:,}) needs about {need / 2**30:.1f} GiB; "
+                     f"{where} has {free / 2**30:.1f} GiB free: use num_envs <= about {fits:,} (or a smaller "
+                     "pool_size)")
 
 
 def _blocks(n: int) -> int:

@@ -154,3 +154,27 @@ def test_cuda_without_a_gpu_says_so():
         pytest.skip("this machine has a CUDA GPU (or runs the simulator)")
     with pytest.raises(RuntimeError, match="no CUDA GPU"):
         DeviceVectorEnv(num_envs=2, device="cuda")
+
+
+def test_an_env_too_large_for_the_memory_is_refused_up_front_with_what_it_needs(monkeypatch):
+    """Issue 43.10: ``DeviceVectorEnv(num_envs=10**8)`` allocated buffer after buffer and died on a MemoryError naming
+    its last small array (or the OOM killer). Refused before any allocation, naming the memory and a count that fits;
+    the estimate is of the buffers the env holds (checked against a small env's arrays)."""
+    import torch
+
+    from iscc_gym.gpu import vector_env
+
+    allocated = []
+    monkeypatch.setattr(torch, "zeros", lambda *a, **k: allocated.append(a) or pytest.fail("allocated"))
+    with pytest.raises(ValueError, match=r"num_envs = 100,000,000 .*needs about \d+\.\d GiB; this machine has "
+                                         r"\d+\.\d GiB free: use num_envs <= about [\d,]+"):
+        DeviceVectorEnv("iscc_gym/ISCC-v0", num_envs=10**8, device="cpu")
+    assert not allocated
+    monkeypatch.undo()
+    env = DeviceVectorEnv("iscc_gym/ISCC-Field-v0", num_envs=64, device="cpu", pool_size=8)
+    env.reset(seed=0)
+    held = sum(t.numel() * t.element_size() for t in (env.obs, env.reward, env.terminated, env.truncated,
+                                                          env.final_return, env.final_length, env.metrics, env.actions))
+    held += sum(a.nbytes for a in env._state.values()) + env._pool.nbytes
+    estimate = vector_env.memory_bytes(env.scenario, 64, 8)
+    assert held <= estimate <= 2.5 * held  # the host copies reset draws into are counted once more

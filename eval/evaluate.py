@@ -405,11 +405,25 @@ def format_table(res: dict) -> str:
     return "\n".join(lines)
 
 
+#: The fewest missions a share's resampled interval is given for: with fewer, the resamplings take so few distinct
+#: values (2 missions: 3 means) that the percentile interval is no interval (issue 43.11: ``0.37 [0.37, 0.38]`` from
+#: 2 missions). Below it the interval is None and :func:`share_bounds` says why.
+MIN_BOOTSTRAP_MISSIONS = 10
+
+
+def share_bounds(share: dict, fmt: str = "{:.2f}") -> str:
+    """``[low, high]`` of :func:`oracle_share`'s ``share_ci95``, or why there is none (too few missions)."""
+    if share.get("share_ci95") is None:
+        return f"[n/a: {share['missions']} missions, an interval needs {MIN_BOOTSTRAP_MISSIONS}]"
+    return ci_bounds(share["share_ci95"], fmt)
+
+
 def oracle_share(res: dict, agent: str = "ppo", oracle: str = "oracle", base: str = "myopic") -> dict | None:
     """The share of the oracle's gain an agent recovers, ``(agent - base) / (oracle - base)`` in mean episode
     reward on the same missions, with both gains' paired means and 95 % intervals, and the share's 95 % interval
     (``share_ci95``: the percentile interval of the ratio over 10,000 resamplings of the missions, seeded; the
-    missions are resampled whole, so both gains keep their pairing); None unless all three played.
+    missions are resampled whole, so both gains keep their pairing; None from fewer than
+    :data:`MIN_BOOTSTRAP_MISSIONS` missions, :func:`share_bounds` saying so); None unless all three played.
     The share is a ratio of means: where the oracle's interval includes zero it is not a measured fraction.
     """
     pol = res["policies"]
@@ -418,14 +432,17 @@ def oracle_share(res: dict, agent: str = "ppo", oracle: str = "oracle", base: st
     ref = np.asarray(pol[base]["episodes"]["reward"], dtype=float)
     gain = np.asarray(pol[agent]["episodes"]["reward"], dtype=float) - ref
     best = np.asarray(pol[oracle]["episodes"]["reward"], dtype=float) - ref
-    out = {"agent": agent, "oracle": oracle, "base": base, "agent_gain": mean_ci(gain), "oracle_gain": mean_ci(best)}
+    out = {"agent": agent, "oracle": oracle, "base": base, "agent_gain": mean_ci(gain), "oracle_gain": mean_ci(best),
+           "missions": len(ref)}
     out["share"] = float(gain.mean() / best.mean()) if best.mean() != 0.0 else math.nan
-    idx = np.random.default_rng(0).integers(0, len(ref), (10_000, len(ref)))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ratios = gain[idx].mean(axis=1) / best[idx].mean(axis=1)
-    ratios = ratios[np.isfinite(ratios)]
-    out["share_ci95"] = ((float(np.percentile(ratios, 2.5)), float(np.percentile(ratios, 97.5)))
-                         if len(ref) > 1 and ratios.size else (math.nan, math.nan))
+    out["share_ci95"] = None
+    if len(ref) >= MIN_BOOTSTRAP_MISSIONS:
+        idx = np.random.default_rng(0).integers(0, len(ref), (10_000, len(ref)))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratios = gain[idx].mean(axis=1) / best[idx].mean(axis=1)
+        ratios = ratios[np.isfinite(ratios)]
+        out["share_ci95"] = ((float(np.percentile(ratios, 2.5)), float(np.percentile(ratios, 97.5)))
+                             if ratios.size else (math.nan, math.nan))
     return out
 
 
@@ -438,8 +455,9 @@ def oracle_share_sentence(share: dict) -> str:
            f"the {b}'s gain is not distinguishable from zero on these missions")
     return (f"Share of the {b}'s gain over {base} that {a} recovers, ({a} - {base}) / ({b} - {base}): "
             f"{g:+.1f} {ci_bounds(gci, '{:+.1f}')} / {o:+.1f} {ci_bounds(oci, '{:+.1f}')} = "
-            f"{share['share']:.2f}" + (f" {ci_bounds(share['share_ci95'], '{:.2f}')} (missions resampled)."
-                                       if side == 1 and "share_ci95" in share
+            f"{share['share']:.2f}" + (f" {share_bounds(share)}" + (" (missions resampled)."
+                                                                     if share.get("share_ci95") else ".")
+                                       if side == 1 and "missions" in share
                                        else "." if side == 1 else f" ({why}, so the ratio measures nothing)."))
 
 

@@ -21,7 +21,7 @@ import time
 import numpy as np
 from iscc_gym.agents.tasks import task_policies
 from iscc_gym.eval.engine import compare
-from iscc_gym.eval.evaluate import ci_bounds, mean_ci, oracle_share
+from iscc_gym.eval.evaluate import ci_bounds, mean_ci, oracle_share, share_bounds
 from iscc_gym.eval.options import (
     Parser,
     check_writable_file,
@@ -66,7 +66,7 @@ def field_worlds(seeds, variants=None, max_steps: int | None = None, workers: in
                      "adaptive_gain": mean_ci(eps["adaptive"] - eps["myopic"]),
                      "aware_gain": mean_ci(eps["aware"] - eps["myopic"]),
                      "agent_vs_adaptive": mean_ci(eps["ppo"] - eps["adaptive"]),
-                     "share": share["share"], "share_ci95": share["share_ci95"]}
+                     "share": share["share"], "share_ci95": share["share_ci95"], "missions": share["missions"]}
     return out
 
 
@@ -85,7 +85,7 @@ def markdown(rows: dict, seeds, command: str) -> str:
         cells = [f"{m:+.1f} {ci_bounds(ci, '{:+.1f}')}" for m, ci in (r["adaptive_gain"], r["aware_gain"],
                                                                      r["agent_vs_adaptive"])]
         lines.append(f"| {name} | {why} | {r['myopic']:.1f} | " + " | ".join(cells)
-                     + f" | {r['share']:.2f} {ci_bounds(r['share_ci95'], '{:.2f}')} |")
+                     + f" | {r['share']:.2f} {share_bounds(r)} |")
     return "\n".join(lines)
 
 

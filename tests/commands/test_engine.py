@@ -96,7 +96,7 @@ def test_the_field_task_prints_its_ladder_with_the_share_of_the_gap(capsys):
     assert list(res["policies"]) == ["ppo", "myopic", "margin", "sca", "adaptive", "aware"]
     assert set(res["paired"]) == {f"{p}_vs_myopic" for p in ("ppo", "margin", "sca", "adaptive", "aware")}
     share = res["oracle_share"]
-    assert share["oracle"] == "aware" and len(share["share_ci95"]) == 2
+    assert share["oracle"] == "aware" and share["share_ci95"] is None  # 3 missions: no resampled interval
     assert "Share of the aware's gain over myopic that ppo recovers" in out
     with pytest.raises(ValueError, match="use one of"):
         eval_main(["--env", "iscc_gym/ISCC-Nope-v0"])

@@ -263,10 +263,15 @@ def test_the_share_of_the_oracles_gain_is_a_ratio_of_paired_means():
     share = oracle_share(res)
     assert share["agent_gain"][0] == pytest.approx(4.0 / 3.0) and share["oracle_gain"][0] == pytest.approx(4.0)
     assert share["share"] == pytest.approx(1.0 / 3.0)  # (4/3) / 4, by hand
+    # issue 43.11: 3 missions give no resampled interval (2 gave "0.37 [0.37, 0.38]"), and the sentence says why
+    assert share["share_ci95"] is None and share["missions"] == 3
+    assert "= 0.33 [n/a: 3 missions, an interval needs 10]." in oracle_share_sentence(share)
+    res = {"policies": {k: run(*(v["episodes"]["reward"] * 4)) for k, v in res["policies"].items()}}  # 12 missions
+    share = oracle_share(res)
     lo, hi = share["share_ci95"]  # the missions resampled (seeded): an interval around the ratio
-    assert lo <= share["share"] <= hi
+    assert lo <= share["share"] <= hi and lo < hi
     assert f"= 0.33 [{lo:.2f}, {hi:.2f}] (missions resampled)." in oracle_share_sentence(share)  # measured: +4 always
-    res["policies"]["oracle"] = run(-6.0, -24.0, -30.0)  # gains +4, -4, 0: not distinguishable from zero
+    res["policies"]["oracle"] = run(*[-6.0, -24.0, -30.0] * 4)  # gains +4, -4, 0: not distinguishable from zero
     assert "measures nothing" in oracle_share_sentence(oracle_share(res))
     del res["policies"]["oracle"]
     assert oracle_share(res) is None

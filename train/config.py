@@ -119,7 +119,8 @@ FIELD_HELP = {
     "algo": "SB3 algorithm: ppo | sac | td3 | ppo_lstm (sb3-contrib's RecurrentPPO) | ppo-lag (PPO with --cost-limit, "
             "by default "
             f"{PPO_LAG_LIMITS})",
-    "total_timesteps": "env steps to train (" + _or_default("total_timesteps", "YAML entry's n_timesteps") + ")",
+    "total_timesteps": "env steps to train (" + _or_default("total_timesteps", "YAML entry's n_timesteps") + "); "
+                       "PPO trains whole rollouts (n_envs x n_steps), so it rounds up to the next one, and says so",
     "n_envs": "parallel envs (" + _or_default("n_envs", "YAML entry's n_envs") + ")",
     "vec_env": "dummy | subproc | batched (the ISCC env's own batched env, fastest)",
     "seed": "training seed (envs, networks, sampling)",

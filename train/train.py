@@ -380,8 +380,20 @@ def _printer(args: Args):
     return say
 
 
+def whole_rollouts(model, start: int, total: int) -> int:
+    """The step an on-policy ``model`` (PPO: ``n_steps`` per env a rollout) stops at when asked to train from ``start``
+    to ``total``: SB3 ends on whole rollouts, so ``total`` rounds up to ``start`` plus whole rollouts; ``total`` for an
+    off-policy one (SAC, TD3: step by step).
+    """
+    n_steps = getattr(model, "n_steps", None)
+    if not isinstance(n_steps, int) or total <= start:
+        return total
+    rollout = n_steps * model.n_envs
+    return start + -(-(total - start) // rollout) * rollout
+
+
 def _clock(seconds: float) -> str:
-    s = int(round(seconds))
+    s = max(int(round(seconds)), 0)
     return f"{s // 3600}:{s % 3600 // 60:02d}:{s % 60:02d}"
 
 
@@ -611,12 +623,16 @@ def main(args: Args, callback_after_eval=None) -> dict:
     if args.checkpoint_freq > 0:  # after the evaluation of the same step: the checkpoint holds it
         callbacks.append(_checkpoint_callback(max(1, args.checkpoint_freq // per_env), checkpoint))
     bar = progress_bar_on(args)
-    if not args.quiet and not bar:
-        callbacks.append(_steps_callback(say, args.total_timesteps))
     remaining = args.total_timesteps - start
+    target = whole_rollouts(model, start, args.total_timesteps)
+    if target != args.total_timesteps and remaining > 0:  # issue 43.11: it trained 4,096 for 2,000 without a word
+        say(f"--total-timesteps {args.total_timesteps:,} rounds up to {target:,}: {args.algo} trains whole rollouts "
+            f"of {model.n_envs} envs x {model.n_steps} steps = {model.n_envs * model.n_steps:,}")
+    if not args.quiet and not bar:
+        callbacks.append(_steps_callback(say, target))
     t0 = time.perf_counter()
     if remaining > 0:
-        say(f"training from step {start:,} to {args.total_timesteps:,}")
+        say(f"training from step {start:,} to {target:,}")
         model.learn(remaining, callback=CallbackList(callbacks), reset_num_timesteps=ckpt is None,
                     progress_bar=bar, tb_log_name=args.algo)
     wall = time.perf_counter() - t0

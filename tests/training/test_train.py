@@ -238,3 +238,18 @@ def test_a_run_whose_policy_would_observe_the_hidden_world_is_refused_before_any
         cli(["--env", "iscc_gym/ISCC-Field-v0", "--env-set", "show_world=true", "--device", device,
              "--total-timesteps", "64", "--out", str(out), "--quiet"])
     assert not out.exists()
+
+
+def test_a_budget_that_is_not_whole_rollouts_is_rounded_up_and_said(tmp_path, capsys):
+    """Issue 43.11: ``--total-timesteps 2000`` printed ``step 2,560/2,000 ... ETA -1:59:58`` and trained 4,096 without
+    a word. The run says it rounds up to whole rollouts and counts its progress against what it trains."""
+    from iscc_gym.train.cli import cli
+    from iscc_gym.train.train import _clock
+
+    s = cli(["--total-timesteps", "100", "--n-envs", "2", "--set", "n_steps=32", "--set", "batch_size=64",
+             "--eval-freq", "0", "--checkpoint-freq", "0", "--out", str(tmp_path / "r")])
+    err = capsys.readouterr().err
+    assert s["timesteps"] == 128
+    assert "--total-timesteps 100 rounds up to 128: ppo trains whole rollouts of 2 envs x 32 steps = 64" in err
+    assert "training from step 0 to 128" in err
+    assert _clock(-5.0) == "0:00:00"

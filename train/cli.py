@@ -36,7 +36,9 @@ def build_parser(prog: str = "python -m train") -> argparse.ArgumentParser:
         prog=invoked_prog(prog), description=loop.__doc__.split("\n")[0],
         epilog="Writes into OUT: model.zip and vecnormalize.pkl (the final model and its statistics), best/ "
                "(the best model on the held-out missions, with its own statistics), checkpoints/step_<N>/ "
-               "(for --resume), eval/evaluations.npz, learning_curve.csv/.png, config.yml, summary.yml, tb/. "
+               "(for --resume), eval/evaluations.npz, learning_curve.csv/.png, config.yml, summary.yml, tb/ "
+               "(--device: model.zip, vecnormalize.pkl, config.yml, summary.yml and learning_curve.csv/.png, the "
+               "mean reward per step of each rollout). "
                + PICKLE_WARNING)
     defaults = Args()
     for f in dataclasses.fields(Args):

@@ -4,13 +4,16 @@ task's YAML entry.
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict
+from pathlib import Path
 
 import yaml
 from iscc_gym.agents.device_ppo import DEVICE_DEFAULTS, DevicePPOConfig, to_sb3, train
-from iscc_gym.train.runs import prepare_out, save_unit
+from iscc_gym.train.runs import plot_curve, prepare_out, save_unit
 
 from iscc_gym.envs.env import registered_scenario
+from iscc_gym.files import write_atomic
 
 __all__ = ["config_from_args", "main"]
 
@@ -77,11 +80,21 @@ def main(args, device: str) -> dict:
         raise ValueError(f"--resume: --device {device} keeps no checkpoints; train afresh (--overwrite) or drop "
                          "--device")
     from iscc_gym.train.config import check_args
+    from iscc_gym.train.train import _printer
 
     check_args(args)  # the checks of an SB3 run: the env id, the seed, a scenario of another task, ...
     cfg = config_from_args(args, device)
     prepare_out(args)
-    summary, trained = train(cfg, quiet=args.quiet)
+    say = _printer(args)
+    rollout = cfg.n_envs * cfg.n_steps
+    target = -(-cfg.total_timesteps // rollout) * rollout
+    if target != cfg.total_timesteps:  # issue 43.11: 65,536 steps for 2,000 asked, without a word
+        say(f"--total-timesteps {cfg.total_timesteps:,} rounds up to {target:,}: the device PPO trains whole rollouts "
+            f"of {cfg.n_envs:,} envs x {cfg.n_steps} steps = {rollout:,}")
+    say(f"training {target:,} steps on {cfg.n_envs:,} device envs ({device}) into {args.out}; the first rollout "
+        "compiles the device step")
+    rows = []
+    summary, trained = train(cfg, callback=_progress(say, target, rows), quiet=True)
     model, vecnormalize = to_sb3(cfg, trained, summary["timesteps"])
     run = {"algo": "ppo", "env_id": cfg.env_id, "scenario": cfg.scenario or registered_scenario(cfg.env_id),
            "env_overrides": dict(cfg.env_overrides), "normalize": cfg.normalize, "residual": None,
@@ -92,4 +105,44 @@ def main(args, device: str) -> dict:
     out = save_unit(args.out, model, vecnormalize, texts={"config.yml": yaml.safe_dump(record, sort_keys=False)},
                     timesteps=int(summary["timesteps"]), run=run)
     summary["out"] = str(out)
+    write_device_curve(out, rows)
+    write_atomic(out / "summary.yml", yaml.safe_dump(
+        {"out": str(out), "timesteps": int(summary["timesteps"]), "wall_time_s": float(summary["wall_time_s"]),
+         "env_steps_per_s": float(summary["steps_per_s"]), "rollout_s": float(summary["rollout_s"]),
+         "update_s": float(summary["update_s"]), "iterations": int(summary["iterations"]), "device": device,
+         "trainer": "device_ppo"}, sort_keys=False))
+    say(f"done: {summary['timesteps']:,} steps in {summary['wall_time_s']:.1f} s -> {out}")
     return summary
+
+
+def _progress(say, target: int, rows: list):
+    """The trainer's callback: records each update's row of the learning curve and says the progress every
+    :data:`iscc_gym.train.train.PROGRESS_EVERY_S` seconds and at the first and last update (steps, steps/s,
+    elapsed, ETA), as an SB3 run does.
+    """
+    from iscc_gym.train.train import PROGRESS_EVERY_S, _clock
+
+    last = [-math.inf]
+
+    def callback(summary, policy, obs_rms) -> bool:
+        done, wall = int(summary["timesteps"]), float(summary["wall_time_s"])
+        rows.append({"timesteps": done, "wall_s": wall, "reward_per_step": float(summary["curve"][-1][1])})
+        if wall - last[0] >= PROGRESS_EVERY_S or done >= target or len(rows) == 1:
+            last[0] = wall
+            rate = done / max(wall, 1e-9)
+            say(f"step {done:,}/{target:,}, {rate:,.0f} steps/s, elapsed {_clock(wall)}, "
+                f"ETA {_clock((target - done) / rate)}, reward per step {rows[-1]['reward_per_step']:.3f}")
+        return False
+
+    return callback
+
+
+def write_device_curve(out: Path, rows: list[dict]) -> None:
+    """A device run's ``learning_curve.csv`` (timesteps, wall time, the mean reward per step of each update's
+    rollout: the device env's rows rarely end an episode within a rollout, so no episode means) and its ``.png``.
+    """
+    lines = ["timesteps,wall_s,train_reward_per_step_mean"]
+    lines += [f"{r['timesteps']},{r['wall_s']:.3f},{r['reward_per_step']!r}" for r in rows]
+    write_atomic(out / "learning_curve.csv", "\n".join(lines) + "\n")
+    plot_curve(out, [([r["timesteps"] for r in rows], [r["reward_per_step"] for r in rows], "-", "train rollouts")],
+               "mean reward per step")

@@ -446,18 +446,28 @@ def write_curve(out: Path, rows: list[dict], evals: list[tuple[int, float]], png
     write_atomic(out / "learning_curve.csv", buf.getvalue())
     if not png:
         return
+    lines = []
+    if rows:
+        lines.append(([r["timesteps"] for r in rows], [r["train_ep_reward_mean"] for r in rows], "-", "train episodes"))
+    if evals:
+        lines.append((*zip(*evals, strict=True), "o-", "held-out eval"))
+    plot_curve(out, lines, "episode reward")
+
+
+def plot_curve(out: Path, lines: list[tuple], ylabel: str) -> None:
+    """``learning_curve.png`` in ``out`` (atomically): each of ``lines`` ``(steps, values, style, label)`` against env
+    steps.
+    """
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(6, 3.5), dpi=100)
     FigureCanvasAgg(fig)
     ax = fig.add_subplot(1, 1, 1)
-    if rows:
-        ax.plot([r["timesteps"] for r in rows], [r["train_ep_reward_mean"] for r in rows], label="train episodes")
-    if evals:
-        ax.plot(*zip(*evals, strict=True), "o-", label="held-out eval")
+    for x, y, style, label in lines:
+        ax.plot(x, y, style, label=label)
     ax.set_xlabel("env steps")
-    ax.set_ylabel("episode reward")
+    ax.set_ylabel(ylabel)
     ax.legend()
     fig.tight_layout()
     with atomic_target(out / "learning_curve.png") as tmp:

@@ -167,3 +167,23 @@ def test_overwrite_recovers_a_folder_left_by_a_kill_inside_the_first_save(tmp_pa
     with pytest.raises(FileExistsError, match="holds no run"):
         cli([*argv[:-2], str(mine), "--quiet", "--overwrite"])
     assert (mine / "notes.txt").read_text() == "mine" and (mine / leftover).exists()
+
+
+def test_train_device_says_its_budget_and_progress_and_writes_summary_and_curve(tmp_path, capsys):
+    """Issue 43.11: ``--device standin --total-timesteps 2000`` trained 65,536 steps without a word, printed no
+    progress and wrote no summary.yml or learning curve, though --help promises them."""
+    import yaml
+    from iscc_gym.train.cli import cli
+
+    out = tmp_path / "d"
+    cli(["--device", "standin", "--n-envs", "8", "--total-timesteps", "100", "--set", "n_steps=4", "--set",
+         "batch_size=32", "--out", str(out)])
+    err = capsys.readouterr().err
+    assert "--total-timesteps 100 rounds up to 128: the device PPO trains whole rollouts of 8 envs x 4 steps = 32" in err
+    assert "step 32/128" in err and "step 128/128" in err and "ETA" in err
+    summary = yaml.safe_load((out / "summary.yml").read_text())
+    assert summary["timesteps"] == 128 and summary["device"] == "standin"
+    rows = (out / "learning_curve.csv").read_text().splitlines()
+    assert rows[0] == "timesteps,wall_s,train_reward_per_step_mean" and [r.split(",")[0] for r in rows[1:]] == [
+        "32", "64", "96", "128"]
+    assert (out / "learning_curve.png").stat().st_size > 0

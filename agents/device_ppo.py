@@ -285,7 +285,8 @@ def paper_config(device: str = "cuda", **changes) -> DevicePPOConfig:
     ``python -m train --device`` reads; ``tests/gpu/test_device_ppo.py`` checks the two agree) on the device's batch
     sizes (:data:`DEVICE_DEFAULTS`), with ``changes``.
     """
-    kw = dict(env_id="iscc_gym/ISCC-v0", scenario="paper", device="cuda" if device == "cuda" else "cpu", total_timesteps=4_000_000,
+    kw = dict(env_id="iscc_gym/ISCC-v0", scenario="paper", device="cuda" if device == "cuda" else "cpu",
+              total_timesteps=4_000_000,
               n_epochs=3, learning_rate=0.00022829724408019228, gamma=0.3, gae_lambda=0.8, clip_range=0.3,
               ent_coef=0.014029585467490158, net_arch=[32, 32], activation="Tanh", log_std_init=-0.7903302449680623,
               normalize=True, norm_reward=True, **DEVICE_DEFAULTS)

@@ -179,7 +179,8 @@ def test_train_device_says_its_budget_and_progress_and_writes_summary_and_curve(
     cli(["--device", "standin", "--n-envs", "8", "--total-timesteps", "100", "--set", "n_steps=4", "--set",
          "batch_size=32", "--out", str(out)])
     err = capsys.readouterr().err
-    assert "--total-timesteps 100 rounds up to 128: the device PPO trains whole rollouts of 8 envs x 4 steps = 32" in err
+    assert ("--total-timesteps 100 rounds up to 128: the device PPO trains whole rollouts of 8 envs x 4 steps = 32"
+            in err)
     assert "step 32/128" in err and "step 128/128" in err and "ETA" in err
     summary = yaml.safe_load((out / "summary.yml").read_text())
     assert summary["timesteps"] == 128 and summary["device"] == "standin"

@@ -341,6 +341,65 @@ def run(n_steps: int = 5000, repeats: int = 5, quick: bool = False, ppo: bool = 
     return res
 
 
+#: One cold process of :func:`compile_times`: each env id made, reset and stepped once (its kernels compiled), then
+#: the device env's CPU stand-in of the single-drone ones, where numba-cuda is installed; a JSON line of the seconds.
+_COMPILE_SCRIPT = """
+import json, sys, time
+import numpy as np
+t = time.perf_counter()
+import gymnasium as gym, iscc_gym
+out = {"import": time.perf_counter() - t}
+for env_id in sys.argv[1:]:
+    t = time.perf_counter()
+    env = gym.make(env_id)
+    env.reset(seed=0)
+    env.action_space.seed(0)
+    env.step(env.action_space.sample())
+    out[env_id] = time.perf_counter() - t
+try:
+    import torch
+    from iscc_gym.gpu.vector_env import DeviceVectorEnv
+except ImportError:
+    DeviceVectorEnv = None
+for env_id in sys.argv[1:] if DeviceVectorEnv is not None else ():
+    if env_id != iscc_gym.MULTI_ENV_ID:
+        t = time.perf_counter()
+        d = DeviceVectorEnv(env_id, num_envs=8, device="cpu")
+        d.reset(seed=0)
+        d.step(torch.zeros(8, 3))
+        out[env_id + " (device stand-in)"] = time.perf_counter() - t
+print(json.dumps(out))
+"""
+
+
+def compile_times(env_ids=None) -> dict:
+    """Seconds to build the compiled kernels from a cold cache (a new process, numba's cache in an empty folder):
+    the package's import, then each task's env (``gym.make``, reset, a step), in the order given (a later task reuses
+    the functions an earlier one compiled), then the device env's stand-in of each single-drone task. What the
+    compile note (:mod:`iscc_gym.compile_note`) says is measured here.
+    """
+    import json
+    import subprocess
+    import tempfile
+
+    from iscc_gym.tasks import TASKS
+
+    env_ids = list(TASKS) if env_ids is None else list(env_ids)
+    with tempfile.TemporaryDirectory(prefix="iscc_gym-cold-") as cache:
+        env = {**os.environ, "NUMBA_CACHE_DIR": cache, "ISCC_GYM_QUIET": "1"}
+        r = subprocess.run([sys.executable, "-c", _COMPILE_SCRIPT, *env_ids], capture_output=True, text=True,
+                           env=env, timeout=1800)
+    if r.returncode != 0:
+        raise RuntimeError(f"the cold-cache process failed: {r.stderr.strip().splitlines()[-1:]}")
+    return json.loads(r.stdout.strip().splitlines()[-1])
+
+
+def format_compile(times: dict) -> str:
+    rows = [f"{name:<45} {seconds:6.1f} s" for name, seconds in times.items()]
+    return "\n".join(["Cold-cache build of the compiled kernels (a new process, an empty numba cache):", *rows,
+                      f"{'total':<45} {sum(times.values()):6.1f} s"])
+
+
 def format_report(res: dict) -> str:
     se = res["single_env"]
     ours, ref = se["iscc"]["median_steps_per_s"], se["reference_pendulum_v1"]["median_steps_per_s"]
@@ -486,6 +545,9 @@ def build_parser(prog: str = "python -m eval.bench") -> argparse.ArgumentParser:
     ap.add_argument("--max-wall-s", type=float, default=120.0, metavar="S",
                     help="with --device: training time allowed to the paper agent to come within 1%% of myopic "
                          "(default: 120)")
+    ap.add_argument("--compile", action="store_true",
+                    help="only the time to build the compiled kernels from a cold cache, per task (what the note "
+                         "printed on a first run says)")
     ap.add_argument("--write-docs", action="store_true",
                     help="write the figures into the project's docs/results.md and README.md (bench block; needs "
                          "--full and a source checkout)")
@@ -501,6 +563,14 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.bench") -> d
     if args.write_docs:
         for rel in (RESULTS_PATH, README_PATH):
             check_writable_file(docs_path(rel), "--write-docs")
+    if args.compile:
+        if args.write_docs or args.device != "cpu":
+            raise ValueError("--compile measures the CPU kernels' build alone: drop --write-docs and --device")
+        res = compile_times()
+        print(format_compile(res))
+        if args.json:
+            save_json(args.json, res)
+        return res
     if args.device != "cpu":
         if args.write_docs:
             raise ValueError("--write-docs writes the CPU table: drop --device")

@@ -1,8 +1,9 @@
 """One line on stderr when the compiled kernels are built rather than loaded from numba's cache.
 
-The env's slot and step are numba functions cached on disk (``cache=True``): the first use after an install or
-an upgrade compiles them, about ten seconds on a 2-core machine, and every later process loads them in a
-fraction of a second. So that a first run does not look hung, the first real compilation of one of this
+The env's slot and step are numba functions cached on disk (``cache=True``): the first use of each task after an
+install or an upgrade compiles its specialisation (``python -m eval.bench --compile``, a cold cache on 2 idle cores:
+about 15 s for the first task, 5 s for each further one, 4-6 s for the device env's stand-in; several times that
+beside busy processes), and every later process loads them in a fraction of a second. So that a first run does not look hung, the first real compilation of one of this
 package's functions prints one note to stderr (numba's ``numba:compile`` event fires on a cache miss only, never
 on a cache hit). ``ISCC_GYM_QUIET=1`` in the environment silences it.
 
@@ -24,8 +25,9 @@ from numba.core import event
 __all__ = ["NOTE", "RUN_ENV", "CompileNote"]
 
 #: The line printed once per run.
-NOTE = ("iscc_gym: building the compiled env kernels on first use (about 10 s once after an install or upgrade; "
-        "cached for later runs)")
+NOTE = ("iscc_gym: building the compiled env kernels, once per task after an install or upgrade (on 2 idle cores "
+        "about 15 s for the first task, 5 s for another, 5 s for the device env; longer on a busy machine; "
+        "python -m eval.bench --compile measures it); cached for later runs")
 #: The environment variable naming the run's marker file (set by the run's first process, inherited by its workers).
 RUN_ENV = "ISCC_GYM_COMPILE_NOTE"
 

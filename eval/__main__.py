@@ -265,13 +265,18 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> dict:
         print(f"trained PPO: {summary['timesteps']} steps in {summary['wall_time_s']:.0f} s -> {args.train_out}")
     t0 = time.perf_counter()
     record = 1 if args.plots else 0
+    # the time left from each policy's own pace (eval.policies.TimeLeft), not tqdm's from the slots done overall
     bar = progress_bar(len(items) * sum(horizon_slots(w, args.max_steps) for w in played.values()), "evaluating",
-                       unit="slot", enabled=show, unit_scale=True)
+                       unit="slot", enabled=show, unit_scale=True,
+                       bar_format="{desc}: {percentage:3.0f}%|{bar}| {n_fmt}/{total_fmt} [{elapsed}{postfix}]")
+    time_left = getattr(bar, "set_time_left", None) or (
+        lambda s: bar.set_postfix_str("" if s is None else f"about {s:.0f} s left", refresh=False))
     try:
         results = compare(args.env, items, seeds, variants=args.variants, scenario=args.scenario, reference=reference,
                           focus=focus, max_steps=args.max_steps, record=record,
                           workers=args.workers if len(items) * len(played) > 1 else 1,
-                          torch_threads=args.torch_threads, progress=bar.update if show else None, check=False)
+                          torch_threads=args.torch_threads, progress=bar.update if show else None, check=False,
+                          time_left=time_left if show else None)
     finally:
         bar.close()
     variants = task.task.variants if args.variants is not None else {}

@@ -77,7 +77,8 @@ def compare(env_id: str, policies: Sequence[str] | str | None = None, seeds: Seq
             variants: Sequence[str] | str | None = None, scenario: str | None = None,
             reference: str | None = None, focus: str | None = None, max_steps: int | None = None,
             record: int = 0, workers: int = 1, torch_threads: int = 1,
-            progress: Callable[[int], None] | None = None, check: bool = True) -> dict[str, dict]:
+            progress: Callable[[int], None] | None = None, check: bool = True,
+            time_left: Callable[[float | None], None] | None = None) -> dict[str, dict]:
     """Play every policy on every variant's missions of task ``env_id`` on ``seeds``; one
     :func:`~iscc_gym.eval.evaluate.summarize` result per variant, keyed by its name (without ``variants``: one
     entry, keyed by the preset's name).
@@ -104,6 +105,9 @@ def compare(env_id: str, policies: Sequence[str] | str | None = None, seeds: Seq
         Processes playing the runs side by side (1: all in this one); torch threads of a learned policy.
     progress : callable, optional
         Called with the slots played since its last call.
+    time_left : callable, optional
+        Called after ``progress`` with the seconds left (:class:`~iscc_gym.eval.policies.TimeLeft`: each policy's
+        own pace), or None before an estimate can be made.
     check : bool
         Check every policy item before any mission is played (:func:`~iscc_gym.eval.policies.check_specs`;
         False where the caller has).
@@ -127,5 +131,5 @@ def compare(env_id: str, policies: Sequence[str] | str | None = None, seeds: Seq
         check_specs(items, base)
     played = worlds(env_id, variants, base)
     runs = play(items, seeds, base, worlds=played, max_steps=max_steps, record=record, workers=workers,
-                torch_threads=torch_threads, progress=progress)
+                torch_threads=torch_threads, progress=progress, time_left=time_left)
     return {v: summarize(runs[v], seeds, reference, focus) for v in played}

@@ -218,6 +218,7 @@ class LineProgress:
         self.t0 = self.last = clock()
         self.timed_from = None  # (time, done) at the first report: the rate is measured from there
         self.postfix, self.closed = "", False
+        self.told = None  # (time, seconds left or None) of the caller's own estimates (set_time_left); None: the rate's
 
     def _line(self, text: str) -> None:
         print(f"[{self.desc}] {text}", file=self.stream, flush=True)
@@ -227,7 +228,10 @@ class LineProgress:
         elapsed = now - self.t0
         done = f"{self.n:,.0f}/{self.total:,.0f} {self.unit}" if self.total else f"{self.n:,.0f} {self.unit}"
         eta = ""
-        if self.total and self.n < self.total and self.timed_from is not None:
+        if self.told is not None:  # the caller's estimate only, once it gives them
+            if self.n < self.total and self.told[1] is not None:
+                eta = f", about {max(self.told[1] - (now - self.told[0]), 0.0):.0f} s left"
+        elif self.total and self.n < self.total and self.timed_from is not None:
             t1, n1 = self.timed_from
             if self.n > n1 and now > t1:
                 eta = f", about {(now - t1) * (self.total - self.n) / (self.n - n1):.0f} s left"
@@ -250,6 +254,12 @@ class LineProgress:
     def write(self, s: str) -> None:
         """A message line on stdout, as ``tqdm.write`` prints one."""
         print(s, flush=True)
+
+    def set_time_left(self, seconds: float | None) -> None:
+        """The caller's estimate of the seconds left (it knows its jobs' paces), shown instead of the rate's; None:
+        none yet (no estimate shown).
+        """
+        self.told = (self.clock(), None if seconds is None else float(seconds))
 
     def set_postfix_str(self, s: str) -> None:
         self.postfix = s

@@ -179,15 +179,72 @@ def _run_item(index: int, item: str, seeds, scenario: str, max_steps, record: in
                               progress=progress)
 
 
+class TimeLeft:
+    """Seconds left of jobs of very different paces (the main job's myopic and per-slot SCA take 31 s and 17 s, its
+    four other policies 0.4-1.7 s each: ``python -m eval --workers 1 --json PATH``) played in order by ``workers``
+    processes, from each job's own pace rather than the slots done overall (issue 43.11: that estimate, the slow
+    policies' pace applied to every slot left, ran 5x high mid-run).
+
+    A job's pace (seconds a slot) is measured from its first report on (its start-up excluded); a job not yet measured
+    takes the mean pace of the measured jobs of its class (``slow``: :data:`SLOW_SPECS`, started first), or, with
+    none: a slow job the slowest pace measured, a fast one none (negligible beside the slow ones, as measured above).
+    The jobs left are then scheduled on the workers in their order, each to the first worker free (as the pool
+    does); the estimate is when the last one ends. ``clock``: seconds (tests pass their own).
+    """
+
+    def __init__(self, horizons: list[int], slow: list[bool], workers: int, clock=None):
+        import time
+
+        self.horizons, self.slow, self.workers = list(horizons), list(slow), max(1, int(workers))
+        self.clock = clock or time.monotonic
+        self.first: dict[int, tuple[float, int]] = {}
+        self.last: dict[int, tuple[float, int]] = {}
+
+    def report(self, i: int, done: int) -> None:
+        """Job ``i`` has played ``done`` slots (cumulative)."""
+        now = self.clock()
+        self.first.setdefault(i, (now, done))
+        self.last[i] = (now, min(done, self.horizons[i]))
+
+    def _pace(self, i: int) -> float | None:
+        if i not in self.first:
+            return None
+        (t0, n0), (t1, n1) = self.first[i], self.last[i]
+        return (t1 - t0) / (n1 - n0) if n1 > n0 and t1 > t0 else None
+
+    def seconds(self) -> float | None:
+        """The estimate, None until a pace is measured."""
+        n = len(self.horizons)
+        paces = {i: p for i in range(n) if (p := self._pace(i)) is not None}
+        if not paces:
+            return None
+
+        def pace(i):
+            if i in paces:
+                return paces[i]
+            same = [p for j, p in paces.items() if self.slow[j] == self.slow[i]]
+            return sum(same) / len(same) if same else max(paces.values()) if self.slow[i] else 0.0
+
+        left = {i: (h - self.last.get(i, (0.0, 0))[1]) * pace(i) for i, h in enumerate(self.horizons)
+                if self.last.get(i, (0.0, 0))[1] < h}
+        running = [left[i] for i in left if i in self.first]
+        free = sorted(running[:self.workers] + [0.0] * max(self.workers - len(running), 0))
+        for i in sorted(i for i in left if i not in self.first):
+            free[0] += left[i]
+            free.sort()
+        return max(free)
+
+
 def play(items: list[str], seeds, scenario: str = "paper", worlds: dict | None = None, max_steps=None,
-         record: int = 0, workers: int = 2, torch_threads: int = 1, progress=None) -> dict:
+         record: int = 0, workers: int = 2, torch_threads: int = 1, progress=None, time_left=None) -> dict:
     """``{world: {name: run_episodes result}}``: every policy item (built for preset ``scenario``) played on each
     of ``worlds`` (``{name: Scenario or preset}``; default ``{scenario: scenario}``) on the same seeds, in
     ``workers`` processes (spawned, one numba thread each; 1: in this process). Every run is seeded, so the results
     are those of one process.
 
     ``progress(n)``, if given, is called in this process with the slots played since its last call (the
-    workers report through a queue; a run's calls add up to its horizon when it finishes). The first
+    workers report through a queue; a run's calls add up to its horizon when it finishes); ``time_left(s)``, if given
+    too, after it with the estimate of :class:`TimeLeft` (seconds, or None before one can be made). The first
     error of a worker is raised as soon as it happens (the runs not started are cancelled).
     """
     import multiprocessing
@@ -202,7 +259,10 @@ def play(items: list[str], seeds, scenario: str = "paper", worlds: dict | None =
     jobs = [(w, it) for it in sorted(items, key=lambda it: world_spec(it.split("=")[0])[0] not in SLOW_SPECS)
             for w in worlds]
     horizons = [horizon_slots(worlds[w], max_steps) for w, _ in jobs]
-    if workers <= 1 or len(jobs) <= 1:
+    serial = workers <= 1 or len(jobs) <= 1
+    clock = TimeLeft(horizons, [world_spec(it.split("=")[0])[0] in SLOW_SPECS for _, it in jobs],
+                     1 if serial else workers)
+    if serial:
         if torch_threads and any("=" in it for it in items):
             import torch
 
@@ -210,7 +270,10 @@ def play(items: list[str], seeds, scenario: str = "paper", worlds: dict | None =
         results = {}
         for i, (w, it) in enumerate(jobs):
             name, policy = build_policy(it, scenario, world=worlds[w])
-            results[i] = name, run_episodes(policy, seeds, worlds[w], max_steps, record, progress=progress)
+            results[i] = name, run_episodes(policy, seeds, worlds[w], max_steps, record,
+                                            progress=None if progress is None else _job_progress(
+                                                i, progress, clock, time_left))
+            clock.report(i, horizons[i])
         return _by_world(results, jobs, items, worlds)
     ctx = multiprocessing.get_context("spawn")
     queue = ctx.Queue() if progress is not None else None
@@ -224,16 +287,20 @@ def play(items: list[str], seeds, scenario: str = "paper", worlds: dict | None =
             i, n = queue.get(timeout=0.2) if block else queue.get_nowait()
             while True:
                 done[i] = max(done[i], min(n, horizons[i]))
+                clock.report(i, done[i])
                 i, n = queue.get_nowait()
         except Empty:
             pass
         for i, f in futures.items():
-            if f.done() and not f.cancelled() and f.exception() is None:
+            if f.done() and not f.cancelled() and f.exception() is None and done[i] < horizons[i]:
                 done[i] = horizons[i]
+                clock.report(i, done[i])
         total = sum(done)
         if total > reported:
             progress(total - reported)
             reported = total
+            if time_left is not None:
+                time_left(clock.seconds())
 
     with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init,
                              initargs=(torch_threads, queue)) as pool:
@@ -256,6 +323,20 @@ def play(items: list[str], seeds, scenario: str = "paper", worlds: dict | None =
     if queue is not None:
         queue.close()
     return _by_world(results, jobs, items, worlds)
+
+
+def _job_progress(i: int, progress, clock: TimeLeft, time_left):
+    """The progress callback of job ``i`` played in this process: passes the slots on, feeds ``clock``."""
+    done = [0]
+
+    def report(n: int) -> None:
+        done[0] += n
+        clock.report(i, done[0])
+        progress(n)
+        if time_left is not None:
+            time_left(clock.seconds())
+
+    return report
 
 
 def _by_world(results: dict, jobs: list, items: list[str], worlds: dict) -> dict:

@@ -310,3 +310,36 @@ def test_one_mission_gives_no_interval_and_no_verdict():
         "no interval from one mission", "")
     shifted = urban_shift.markdown({next(iter(urban_shift.SHIFTS)): res}, "ppo", "python -m experiments.urban_shift")
     assert "-10.0; +2.0 [n/a: 1 mission]" in shifted and "interval below zero" not in shifted
+
+
+def test_the_time_left_follows_each_jobs_own_pace_on_the_workers():
+    """Issue 43.11: the main job's estimate ran 5x high mid-run (the slow policies' pace applied to every slot left).
+    Two slow jobs (0.01 and 0.006 s a slot) and four fast ones (0.0002 s a slot) of 1,000 slots on 2 workers, the
+    slow ones first, as the engine orders them: the estimate is when the pool ends."""
+    from iscc_gym.eval.policies import TimeLeft
+
+    now = [0.0]
+    clock = TimeLeft([1000] * 6, [True, True, False, False, False, False], workers=2, clock=lambda: now[0])
+    assert clock.seconds() is None
+    clock.report(0, 0)
+    clock.report(1, 0)
+    now[0] = 3.0
+    clock.report(0, 300)  # 0.01 s a slot: 7 s left
+    clock.report(1, 500)  # 0.006 s a slot: 3 s left, then the four fast jobs (not measured: negligible)
+    assert clock.seconds() == pytest.approx(7.0)
+    now[0] = 6.0
+    clock.report(1, 1000)  # job 1 done; its worker starts the fast ones
+    clock.report(0, 600)
+    clock.report(2, 0)
+    now[0] = 6.1
+    clock.report(2, 500)  # 0.0002 s a slot: the three fast ones left take 0.2 s each, 0.7 s in all on worker 2
+    assert clock.seconds() == pytest.approx(4.0)  # job 0 still rules: 0.01 x 400
+    now[0] = 9.5
+    clock.report(0, 950)  # 0.5 s left
+    assert clock.seconds() == pytest.approx(0.7)  # then the fast ones share the two workers: 0.1 + 0.2 + 0.2, 0.5 + 0.2
+    now[0] = 0.0
+    serial = TimeLeft([100, 100], [True, False], workers=1, clock=lambda: now[0])
+    serial.report(0, 0)
+    now[0] = 1.0
+    serial.report(0, 50)  # 0.02 s a slot, the fast one not measured
+    assert serial.seconds() == pytest.approx(1.0)

@@ -24,18 +24,37 @@ SB3 models alike:
 from __future__ import annotations
 
 import functools
+import importlib
+from typing import TYPE_CHECKING
 
 from iscc_gym.scenario import Scenario, make_scenario
 
-from .base import EqualSplitPolicy, FixedSplitPolicy, Policy, SplitPolicy, validate_split
-from .dpp import DriftPlusPenaltyPolicy
-from .margin import MarginPolicy
-from .mpc import LookaheadPolicy
-from .myopic import MyopicPolicy
-from .sca import SCAResult, sca_allocation, solve_sca
-from .sca_slot import SCAPolicy
-from .search import SearchResult, evolutionary_search, grid_search
 from .tuned_records import is_params, load_tuned, record_name, record_task
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .base import FixedSplitPolicy
+    from .myopic import MyopicPolicy
+
+#: The policies and searches, imported on first use (PEP 562): ``import iscc_gym.agents`` (and the task table
+#: ``iscc_gym.agents.tasks`` a command's parser reads) loads no compiled physics, so a command refuses a mistake
+#: before it loads them (issue 43.12).
+_LAZY = {"Policy": "base", "SplitPolicy": "base", "FixedSplitPolicy": "base", "EqualSplitPolicy": "base",
+         "validate_split": "base", "DriftPlusPenaltyPolicy": "dpp", "MarginPolicy": "margin",
+         "LookaheadPolicy": "mpc", "MyopicPolicy": "myopic", "SCAResult": "sca", "sca_allocation": "sca",
+         "solve_sca": "sca", "SCAPolicy": "sca_slot", "SearchResult": "search", "evolutionary_search": "search",
+         "grid_search": "search"}
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        value = getattr(importlib.import_module(f"{__name__}.{_LAZY[name]}"), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted([*globals(), *_LAZY])
 
 __all__ = [
     "Policy",
@@ -117,6 +136,12 @@ def make_policy(spec: str, scenario: Scenario | str = "paper", seed: int = 0, tu
         Unknown spec (the message lists the valid ones), a malformed fixed split, ``tuned`` for a spec that
         reads no record or not a mapping of numbers (one of other names fails as the policy's constructor does).
     """
+    from .base import EqualSplitPolicy, FixedSplitPolicy, validate_split
+    from .dpp import DriftPlusPenaltyPolicy
+    from .margin import MarginPolicy
+    from .mpc import LookaheadPolicy
+    from .sca_slot import SCAPolicy
+
     if not isinstance(spec, str):
         raise ValueError(f"spec must be a string, one of {list(POLICY_SPECS)}; got {spec!r}")
     s = make_scenario(scenario) if isinstance(scenario, str) else scenario
@@ -189,6 +214,9 @@ def make_policy(spec: str, scenario: Scenario | str = "paper", seed: int = 0, tu
 @functools.lru_cache(maxsize=16)
 def _searched(s: Scenario, method: str, seed: int) -> FixedSplitPolicy:
     """The policy of a search (deterministic, so cached per scenario, method and seed)."""
+    from .base import FixedSplitPolicy
+    from .search import evolutionary_search, grid_search
+
     res = grid_search(s) if method == "grid" else evolutionary_search(s, seed=seed)
     return FixedSplitPolicy(res.alpha, name=method)
 
@@ -198,4 +226,6 @@ def _myopic(s: Scenario, params: tuple | None) -> MyopicPolicy:
     """The myopic policy of a scenario (stateless; its tables are built once, so cached); on the urban task its
     data weight is the one tuned there (the queue's greedy price, ``myopic-urban``), ``params`` (its items).
     """
+    from .myopic import MyopicPolicy
+
     return MyopicPolicy(s) if params is None else MyopicPolicy(s, **dict(params))

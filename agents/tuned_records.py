@@ -43,9 +43,8 @@ def task_mismatch(env_id: str, scenario: str) -> tuple[str, str, str | None, str
     task is the same (a variant such as ``literal`` on ``iscc_gym/ISCC-v0``). An unknown preset raises as
     :func:`iscc_gym.scenario.make_scenario` does.
     """
-    from iscc_gym.envs.env import registered_scenario
     from iscc_gym.scenario import make_scenario
-    from iscc_gym.tasks import TASKS
+    from iscc_gym.tasks import TASKS, registered_scenario
 
     own = registered_scenario(env_id)
     task, env_task = task_of(make_scenario(scenario)), task_of(make_scenario(own))

@@ -125,7 +125,7 @@ def env_scenario(env: str, scenario: str | None, write_docs: bool = False) -> st
     """
     from iscc_gym.agents.tuned_records import task_mismatch
 
-    from iscc_gym.envs.env import registered_scenario
+    from iscc_gym.tasks import registered_scenario
 
     own = registered_scenario(env)
     if scenario is None:

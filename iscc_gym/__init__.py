@@ -13,14 +13,32 @@ The repository's ``agents/``, ``train/`` and ``eval/`` folders install as ``iscc
 ``iscc_gym.train`` and ``iscc_gym.eval`` (``pyproject.toml``'s ``package-dir``); this core never imports them.
 """
 
+import importlib as _importlib
+
 import gymnasium as _gym
 
 from iscc_gym import compile_note as _compile_note  # noqa: F401 (a note on stderr when the kernels are first built)
-from iscc_gym.envs.env import ISCCEnv
 from iscc_gym.scenario import SCENARIOS, Scenario, make_scenario
-from iscc_gym.sim.fleet import N_DRONES
-from iscc_gym.sim.task import action_to_split, split_to_action
 from iscc_gym.tasks import ENV_ID, FIELD_ENV_ID, MULTI_ENV_ID, TASKS, URBAN_ENV_ID
+
+#: The names imported on first use (PEP 562): the env and the compiled physics behind it are not loaded by
+#: ``import iscc_gym`` itself (nor by a command checking its arguments, issue 43.12: a mistake was refused only after
+#: the whole package, the compiled kernels included, had loaded); ``gymnasium.make`` loads them by entry point.
+_LAZY = {"ISCCEnv": "iscc_gym.envs.env", "N_DRONES": "iscc_gym.sim.fleet", "action_to_split": "iscc_gym.sim.task",
+         "split_to_action": "iscc_gym.sim.task"}
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        value = getattr(_importlib.import_module(_LAZY[name]), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'iscc_gym' has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted([*globals(), *_LAZY])
+
 
 __all__ = ["Scenario", "SCENARIOS", "make_scenario", "ISCCEnv", "action_to_split", "split_to_action",
            "ENV_ID", "URBAN_ENV_ID", "MULTI_ENV_ID", "FIELD_ENV_ID", "TASKS", "parallel_env"]
@@ -32,10 +50,11 @@ for _task in TASKS.values():  # every env id from the one task table (iscc_gym.t
 __version__ = "0.1.0"
 
 
-def parallel_env(n_drones: int = N_DRONES, **kwargs):
+def parallel_env(n_drones: int | None = None, **kwargs):
     """The PettingZoo ``ParallelEnv`` of the multi-drone env, one agent per drone
     (:func:`iscc_gym.envs.multi_pz.parallel_env`; needs ``pip install pettingzoo``, imported on first use).
     """
     from iscc_gym.envs.multi_pz import parallel_env as make
+    from iscc_gym.sim.fleet import N_DRONES
 
-    return make(n_drones=n_drones, **kwargs)
+    return make(n_drones=N_DRONES if n_drones is None else n_drones, **kwargs)

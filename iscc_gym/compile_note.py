@@ -3,9 +3,10 @@
 The env's slot and step are numba functions cached on disk (``cache=True``): the first use of each task after an
 install or an upgrade compiles its specialisation (``python -m eval.bench --compile``, a cold cache on 2 idle cores:
 about 15 s for the first task, 5 s for each further one, 4-6 s for the device env's stand-in; several times that
-beside busy processes), and every later process loads them in a fraction of a second. So that a first run does not look hung, the first real compilation of one of this
-package's functions prints one note to stderr (numba's ``numba:compile`` event fires on a cache miss only, never
-on a cache hit). ``ISCC_GYM_QUIET=1`` in the environment silences it.
+beside busy processes), and every later process loads them in a fraction of a second. So that a first run does not
+look hung, the first real compilation of one of this package's functions prints one note to stderr (numba's
+``numba:compile`` event fires on a cache miss only, never on a cache hit). ``ISCC_GYM_QUIET=1`` in the environment
+silences it.
 
 Once per run, not per process: the first process importing the package names a marker file in the environment
 (:data:`RUN_ENV`), which its worker processes inherit (spawned, forked, forkserver); the process that prints the

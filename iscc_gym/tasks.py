@@ -21,7 +21,7 @@ from typing import Any
 from iscc_gym.scenario import SCENARIOS, make_scenario
 
 __all__ = ["Variant", "Task", "TASKS", "ENV_ID", "URBAN_ENV_ID", "MULTI_ENV_ID", "FIELD_ENV_ID", "get_task",
-           "variant_scenario"]
+           "variant_scenario", "registered_scenario"]
 
 #: The registered id of the paper's task.
 ENV_ID = "iscc_gym/ISCC-v0"
@@ -194,3 +194,18 @@ def variant_scenario(env_id: str, name: str, base: str | None = None):
     if name not in task.variants:
         raise ValueError(f"variant {name!r} is not one of {env_id}'s: {', '.join(task.variants) or 'it has none'}")
     return make_scenario(base or task.preset, **task.variants[name].overrides)
+
+
+def registered_scenario(env_id: str) -> str:
+    """The Scenario preset ``env_id`` is registered with (:data:`iscc_gym.tasks.TASKS`; ``iscc_gym/ISCC-Urban-v0``:
+    ``urban``); for an id registered elsewhere, its ``scenario`` keyword or ``paper``.
+    """
+    if env_id in TASKS:
+        return TASKS[env_id].preset
+    import gymnasium as gym
+
+    try:
+        kwargs = gym.spec(env_id).kwargs or {}
+    except gym.error.Error:
+        return "paper"
+    return str(kwargs.get("scenario", "paper"))

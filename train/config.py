@@ -18,9 +18,8 @@ from iscc_gym.agents.sb3_policy import ALGOS as SB3_ALGOS
 from iscc_gym.agents.sb3_policy import algo_class
 
 from iscc_gym import ENV_ID, FIELD_ENV_ID, MULTI_ENV_ID, URBAN_ENV_ID
-from iscc_gym.envs.env import registered_scenario
 from iscc_gym.protocol import INIT_SEED_START, check_outside_evaluation
-from iscc_gym.tasks import TASKS
+from iscc_gym.tasks import TASKS, registered_scenario
 
 HYPERPARAMS = Path(__file__).with_name("hyperparams.yml")
 ALGOS = SB3_ALGOS  # ppo, sac, td3 and ppo_lstm (sb3-contrib's RecurrentPPO, rl-zoo3's name for it)

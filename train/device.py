@@ -12,8 +12,8 @@ import yaml
 from iscc_gym.agents.device_ppo import DEVICE_DEFAULTS, DevicePPOConfig, to_sb3, train
 from iscc_gym.train.runs import plot_curve, prepare_out, save_unit
 
-from iscc_gym.envs.env import registered_scenario
 from iscc_gym.files import write_atomic
+from iscc_gym.tasks import registered_scenario
 
 __all__ = ["config_from_args", "main"]
 

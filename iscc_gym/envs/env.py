@@ -18,7 +18,7 @@ from iscc_gym.scenario import Scenario, make_scenario
 from iscc_gym.sim import loop
 from iscc_gym.sim.functional import env_step, observe, reset_info_arrays, step_info
 from iscc_gym.sim.schema import COL, OBS_BOUND, obs_size
-from iscc_gym.tasks import ENV_ID, TASKS, URBAN_ENV_ID
+from iscc_gym.tasks import ENV_ID, TASKS, URBAN_ENV_ID, registered_scenario
 
 __all__ = ["ISCCEnv", "ENV_ID", "URBAN_ENV_ID", "REGISTERED_MAX_EPISODE_STEPS", "check_seed", "check_keywords",
            "real_array", "warn_time_limit", "TimeLimitCheck", "registered_scenario"]
@@ -85,19 +85,6 @@ def real_array(x: ArrayLike, name: str = "action") -> np.ndarray:
 
 #: The registered ``max_episode_steps`` of ``iscc_gym/ISCC-v0`` (the paper's mission: 500 s / 0.1 s).
 REGISTERED_MAX_EPISODE_STEPS = TASKS[ENV_ID].max_episode_steps
-
-
-def registered_scenario(env_id: str) -> str:
-    """The Scenario preset ``env_id`` is registered with (:data:`iscc_gym.tasks.TASKS`; ``iscc_gym/ISCC-Urban-v0``:
-    ``urban``); for an id registered elsewhere, its ``scenario`` keyword or ``paper``.
-    """
-    if env_id in TASKS:
-        return TASKS[env_id].preset
-    try:
-        kwargs = gym.spec(env_id).kwargs or {}
-    except gym.error.Error:
-        return "paper"
-    return str(kwargs.get("scenario", "paper"))
 
 
 def warn_time_limit(s: Scenario, env_id: str, steps: int | None = None) -> None:

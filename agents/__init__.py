@@ -208,7 +208,11 @@ def make_policy(spec: str, scenario: Scenario | str = "paper", seed: int = 0, tu
         return _searched(s, "grid", 0)
     if key == "evolutionary":
         return _searched(s, "evolutionary", seed)
-    raise ValueError(f"unknown policy spec {spec!r}; valid specs: {list(POLICY_SPECS)}")
+    import difflib
+
+    near = difflib.get_close_matches(key, [p.split(":")[0] for p in POLICY_SPECS], n=1, cutoff=0.6)
+    raise ValueError(f"unknown policy spec {spec!r}" + (f" (did you mean {near[0]!r}?)" if near else "")
+                     + f"; valid specs: {list(POLICY_SPECS)}")
 
 
 @functools.lru_cache(maxsize=16)

@@ -95,3 +95,15 @@ class MarginPolicy(SplitPolicy):
 
     def __repr__(self) -> str:
         return f"MarginPolicy(m_ctrl={self.m_ctrl:g}, m_comm={self.m_comm:g}, sensing_floor={self.sensing_floor:g})"
+
+
+class RowMarginPolicy(SplitPolicy):
+    """The margin rule with its own multiples per batch row: a tuning grid's points x seeds played in one batch
+    (``python -m eval.tune margin``).
+    """
+
+    def __init__(self, m_ctrl, m_comm, sensing_floor):
+        self.m_ctrl, self.m_comm, self.sensing_floor = (np.asarray(v) for v in (m_ctrl, m_comm, sensing_floor))
+
+    def split_batch(self, obs, state=None, episode_start=None):
+        return margin_split(*predicted_needs(obs), self.m_ctrl, self.m_comm, self.sensing_floor), state

@@ -22,7 +22,7 @@ from iscc_gym.units import db_to_lin
 from .base import SplitPolicy, validate_split
 from .geometry import predicted_sensing
 from .sca import LOSS_MODELS, MODES, SOLVERS, SCAProblem, SCAResult, check_choice, sca_allocation, solve_sca
-from .tuned_records import load_tuned
+from .tuned_records import PER_SLOT_RECORD, load_tuned
 
 __all__ = ["SCAPolicy", "per_slot_loss_design_fraction"]
 
@@ -87,7 +87,6 @@ class _Constant:
 
 
 #: Name of per-slot SCA's tuning record (``agents/tuned/sca-per-slot.yml``, ``python -m eval.tune sca-per-slot``).
-PER_SLOT_RECORD = "sca-per-slot"
 
 
 def per_slot_loss_design_fraction(path=None) -> float:

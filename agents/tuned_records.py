@@ -12,8 +12,12 @@ from iscc_gym.agents.shipped import TUNED_DIR
 
 from iscc_gym.files import write_atomic
 
-__all__ = ["TUNED_DIR", "load_tuned", "save_tuned", "task_of", "record_task", "task_mismatch", "is_params",
-           "record_name"]
+__all__ = ["TUNED_DIR", "PER_SLOT_RECORD", "load_tuned", "save_tuned", "task_of", "record_task", "task_mismatch",
+           "is_params", "record_name"]
+
+
+#: The tuning record of per-slot SCA's design loss (``python -m eval.tune sca-per-slot``).
+PER_SLOT_RECORD = "sca-per-slot"
 
 
 def task_of(s) -> str:

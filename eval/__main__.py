@@ -30,17 +30,9 @@ import time
 from pathlib import Path
 
 import numpy as np
+from iscc_gym.agents.shipped import PPO_AGENT as SHIPPED_AGENT  # noqa: F401 (a name of this command)
 from iscc_gym.agents.tasks import TASK_POLICIES, task_policies
 from iscc_gym.eval.engine import compare, runs_items, worlds
-from iscc_gym.eval.evaluate import (  # noqa: F401
-    evaluate,
-    format_table,
-    horizon_slots,
-    markdown_table,
-    oracle_share,
-    oracle_share_sentence,
-    summarize,
-)
 from iscc_gym.eval.options import (
     PICKLE_WARNING,
     Parser,
@@ -55,7 +47,6 @@ from iscc_gym.eval.options import (
     show_progress,
 )
 from iscc_gym.eval.policies import (  # noqa: F401
-    SHIPPED_AGENT,
     build_policies,
     build_policy,
     check_specs,
@@ -71,6 +62,20 @@ from iscc_gym.cli import invoked_prog, run
 from iscc_gym.docs import README_PATH, RESULTS_PATH, docs_path, publish, save_json, write_section
 from iscc_gym.protocol import EVAL_SEED_START, seed_list
 from iscc_gym.tasks import TASKS
+
+#: Names this module offers from :mod:`iscc_gym.eval.evaluate`, imported on first use (PEP 562): the rollout loop
+#: loads the compiled env, so a mistake in the arguments is refused before it loads (issue 43.12).
+_LAZY = ("evaluate", "format_table", "horizon_slots", "markdown_table", "oracle_share", "oracle_share_sentence",
+         "summarize")
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        from iscc_gym.eval import evaluate as module
+
+        return getattr(module, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 #: The default comparison on the paper's task (each task's: :data:`iscc_gym.agents.tasks.TASK_POLICIES`).
 DEFAULT_POLICIES = TASK_POLICIES[ENV_ID].policies
@@ -265,6 +270,8 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> dict:
         print(f"trained PPO: {summary['timesteps']} steps in {summary['wall_time_s']:.0f} s -> {args.train_out}")
     t0 = time.perf_counter()
     record = 1 if args.plots else 0
+    from iscc_gym.eval.evaluate import format_table, horizon_slots, markdown_table, oracle_share, oracle_share_sentence
+
     # the time left from each policy's own pace (eval.policies.TimeLeft), not tqdm's from the slots done overall
     bar = progress_bar(len(items) * sum(horizon_slots(w, args.max_steps) for w in played.values()), "evaluating",
                        unit="slot", enabled=show, unit_scale=True,
@@ -284,6 +291,8 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> dict:
         if variants:
             print(f"\nmissions: {name} ({variants[name].why})")
         print(format_table(res))
+        for note in res.get("notes", []):
+            print(f"note: {note}")
         share = oracle_share(res, oracle="oracle" if "oracle" in res["policies"] else "aware")
         if share is not None:
             res["oracle_share"] = share

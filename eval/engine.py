@@ -23,8 +23,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from iscc_gym.agents.tasks import task_policies
-from iscc_gym.eval.evaluate import summarize
-from iscc_gym.eval.policies import check_specs, play, policy_name, resolve_specs
+from iscc_gym.eval.policies import check_specs, play, policy_name, resolve_specs, world_spec
 
 from iscc_gym.scenario import Scenario, make_scenario
 from iscc_gym.tasks import get_task, variant_scenario
@@ -130,6 +129,34 @@ def compare(env_id: str, policies: Sequence[str] | str | None = None, seeds: Seq
     if check:
         check_specs(items, base)
     played = worlds(env_id, variants, base)
+    from iscc_gym.eval.evaluate import summarize
+
+    notes = world_notes(items, played, base)
     runs = play(items, seeds, base, worlds=played, max_steps=max_steps, record=record, workers=workers,
                 torch_threads=torch_threads, progress=progress, time_left=time_left)
-    return {v: summarize(runs[v], seeds, reference, focus) for v in played}
+    out = {v: summarize(runs[v], seeds, reference, focus) for v in played}
+    for v, lines in notes.items():
+        out[v]["notes"] = lines
+    return out
+
+
+def world_notes(items: list[str], played: dict[str, Scenario], base: str) -> dict[str, list[str]]:
+    """``{world: notes}``: where a world-designed item (``aware``, ``SPEC@world``) plays a world that is the model
+    its plain spec is designed on (the preset's own missions, no hidden world), a note that it plays as that spec
+    (issue 43.12: ``aware`` on the paper task played ``myopic`` without a word).
+    """
+    from iscc_gym.agents.tuned_records import task_of
+
+    model = make_scenario(base)
+    out: dict[str, list[str]] = {}
+    for w, s in played.items():
+        if s != model or task_of(s) == "field":
+            continue
+        for item in items:
+            spec, designed = world_spec(item) if "=" not in item else (item, False)
+            if designed:
+                out.setdefault(w, []).append(
+                    f"{policy_name(item)} is {spec} designed on the world played, and these missions' world is the "
+                    f"model {spec} is designed on ({base!r}, no hidden world): it plays as {spec}; play it on a "
+                    "variant (--variants) or the field task for a bound")
+    return out

@@ -9,11 +9,11 @@ import importlib.util
 from pathlib import Path
 
 from iscc_gym.agents.shipped import PPO_AGENT
-from iscc_gym.eval.evaluate import run_episodes
 
 from iscc_gym.scenario import make_scenario
-from iscc_gym.sim.effects import task_effects
-from iscc_gym.sim.schema import obs_size
+
+# the rollout loop and the compiled physics (eval.evaluate, iscc_gym.sim) are imported where a policy is built or
+# played, so that the specs are checked before they load (issue 43.12)
 
 __all__ = ["build_policy", "build_policies", "play", "run_parallel", "world_spec", "WORLD_SUFFIX", "resolve_specs",
            "check_specs", "policy_name",
@@ -61,6 +61,9 @@ def build_policy(item: str, scenario: str = "paper", fix: str = ENV_FIX, world=N
     :data:`WORLD_READERS` is shown the slot's world too; the others are designed on the world's law.
     """
     from iscc_gym.agents import make_policy
+
+    from iscc_gym.sim.effects import task_effects
+    from iscc_gym.sim.schema import obs_size
 
     if "=" in item:
         name, path = item.split("=", 1)
@@ -117,15 +120,37 @@ def resolve_specs(specs: str, agent: Path | None = SHIPPED_AGENT) -> list[str]:
 
 
 
+#: What ``--policies`` takes besides :data:`iscc_gym.agents.POLICY_SPECS`, as its help and errors name them.
+COMMAND_SPECS = ("ppo (the task's shipped agent)", "NAME=PATH (a trained agent)",
+                 "aware (myopic designed on the world played)", "SPEC@world (SPEC designed on the world played)")
+
+
+def check_spec_name(item: str) -> None:
+    """``ValueError`` for a scripted item whose name is no policy's (issue 43.12: the message named neither ``aware``,
+    ``ppo`` nor ``NAME=PATH`` and suggested no near name): it names every kind of policy and the nearest name.
+    """
+    import difflib
+
+    from iscc_gym.agents import POLICY_SPECS
+
+    spec = world_spec(item)[0].strip().lower()
+    heads = {p.split(":")[0] + (":" if ":" in p else ""): p for p in POLICY_SPECS}
+    if (spec.split(":")[0] + ":" if ":" in spec else spec) in heads:
+        return
+    names = ["ppo", "aware", *(p.split(":")[0] for p in POLICY_SPECS)]
+    near = difflib.get_close_matches(item.strip().lower(), names, n=1, cutoff=0.6)
+    raise ValueError(f"--policies {item!r}: no such policy" + (f" (did you mean {near[0]!r}?)" if near else "")
+                     + "; choose among " + ", ".join(COMMAND_SPECS) + " and the scripted specs "
+                     + ", ".join(POLICY_SPECS))
+
+
 def check_specs(items: list[str], scenario: str = "paper") -> None:
     """Check every item before any episode is played: a trained agent's path holds a model (and torch and
     SB3 are installed), a scripted spec is one :func:`agents.make_policy` understands. ``OSError`` /
     ``ValueError`` with one line naming the item otherwise. Builds only the cheap scripted policies.
     """
-    from iscc_gym.agents import make_policy
-
     learned = False
-    for item in items:
+    for item in items:  # names and paths first: nothing heavy is loaded for a mistake there
         if "=" in item:
             name, path = item.split("=", 1)
             p = Path(path).expanduser()
@@ -134,8 +159,14 @@ def check_specs(items: list[str], scenario: str = "paper") -> None:
                 raise FileNotFoundError(f"--policies {name}={path}: no trained agent there (give a run directory "
                                         "of python -m train holding model.zip, or a model .zip file)")
             learned = True
-        elif (spec := world_spec(item)[0]).strip().lower() not in _KNOWN_SPECS:
-            make_policy(spec, scenario)  # cheap for the others; raises ValueError naming the valid specs
+        else:
+            check_spec_name(item)
+    if any("=" not in item and world_spec(item)[0].strip().lower() not in _KNOWN_SPECS for item in items):
+        from iscc_gym.agents import make_policy
+
+        for item in items:
+            if "=" not in item and (spec := world_spec(item)[0]).strip().lower() not in _KNOWN_SPECS:
+                make_policy(spec, scenario)  # cheap for the others; raises ValueError naming what is wrong
     if learned:
         missing = [m for m in ("torch", "stable_baselines3") if importlib.util.find_spec(m) is None]
         if missing:
@@ -166,6 +197,8 @@ def _worker_init(torch_threads: int, progress_queue=None) -> None:
 
 
 def _run_item(index: int, item: str, seeds, scenario: str, max_steps, record: int, world=None):
+    from iscc_gym.eval.evaluate import run_episodes
+
     name, policy = build_policy(item, scenario, world=world)
     progress = None
     if _PROGRESS is not None:
@@ -251,7 +284,7 @@ def play(items: list[str], seeds, scenario: str = "paper", worlds: dict | None =
     from concurrent.futures import FIRST_EXCEPTION, ProcessPoolExecutor, wait
     from queue import Empty
 
-    from iscc_gym.eval.evaluate import horizon_slots
+    from iscc_gym.eval.evaluate import horizon_slots, run_episodes
 
     worlds = {scenario: scenario} if worlds is None else dict(worlds)
     seeds = list(seeds)

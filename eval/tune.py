@@ -34,12 +34,7 @@ import sys
 import time
 
 import numpy as np
-from iscc_gym.agents import DriftPlusPenaltyPolicy, LookaheadPolicy, MyopicPolicy
-from iscc_gym.agents.base import SplitPolicy
-from iscc_gym.agents.margin import margin_split, predicted_needs
-from iscc_gym.agents.sca_slot import PER_SLOT_RECORD, SCAPolicy
-from iscc_gym.agents.tuned_records import record_name, record_task, save_tuned, task_of
-from iscc_gym.eval.evaluate import run_episodes
+from iscc_gym.agents.tuned_records import PER_SLOT_RECORD, record_name, record_task, save_tuned, task_of
 from iscc_gym.eval.options import (
     Parser,
     check_writable_file,
@@ -49,8 +44,9 @@ from iscc_gym.eval.options import (
     run_console,
     show_progress,
 )
-from scipy import optimize
 
+# the policies, the rollout loop and scipy's optimisers are imported where they are used, so that the arguments are
+# checked before the compiled env loads (issue 43.12)
 from iscc_gym.protocol import TUNE_SEED_START, TUNE_SEEDS, check_outside_evaluation, seed_list
 from iscc_gym.scenario import make_scenario
 
@@ -64,16 +60,6 @@ PARAMS = ("m_ctrl", "m_comm", "sensing_floor")
 SCA_FRACTION_GRID = (0.005, 0.01, 0.015, 0.02, 0.03, 0.05, 0.07, 0.1, 0.2)
 #: Most bounded-search evaluations of :func:`tune_sca_per_slot`.
 MAX_SCALAR_REFINE = 8
-
-
-class _RowMargins(SplitPolicy):
-    """The margin rule with its own parameters per batch row (grid points x seeds in one batch)."""
-
-    def __init__(self, m_ctrl, m_comm, sensing_floor):
-        self.m_ctrl, self.m_comm, self.sensing_floor = (np.asarray(v) for v in (m_ctrl, m_comm, sensing_floor))
-
-    def split_batch(self, obs, state=None, episode_start=None):
-        return margin_split(*predicted_needs(obs), self.m_ctrl, self.m_comm, self.sensing_floor), state
 
 
 def check_tuning_seeds(seeds) -> list[int]:
@@ -102,13 +88,16 @@ def margin_rewards(points, seeds, scenario="paper", progress=None) -> np.ndarray
     (k, 3), played in batches of up to :data:`MAX_BATCH` loops (common random numbers: every point
     on the same seeds). ``progress(1)``, if given, is called after each batch.
     """
+    from iscc_gym.agents.margin import RowMarginPolicy
+    from iscc_gym.eval.evaluate import run_episodes
+
     pts = np.asarray(points, dtype=float).reshape(-1, 3)
     n = len(seeds)
     per = max(1, MAX_BATCH // n)
     out = []
     for i in range(0, len(pts), per):
         rows = np.repeat(pts[i:i + per], n, axis=0)
-        run = run_episodes(_RowMargins(rows[:, 0], rows[:, 1], rows[:, 2]), list(seeds) * (len(rows) // n),
+        run = run_episodes(RowMarginPolicy(rows[:, 0], rows[:, 1], rows[:, 2]), list(seeds) * (len(rows) // n),
                            scenario)
         out.append(run["episodes"]["reward"].reshape(-1, n).mean(axis=1))
         if progress is not None:
@@ -129,6 +118,8 @@ MODEL_TASKS = {"myopic": "urban", "dpp": "urban", "mpc": "urban", "adaptive": "f
 
 
 def _grid_policy(policy: str, scenario, params: dict):
+    from iscc_gym.agents import DriftPlusPenaltyPolicy, LookaheadPolicy, MyopicPolicy
+
     if policy == "adaptive":
         from iscc_gym.agents.adaptive import AdaptivePolicy
 
@@ -145,6 +136,8 @@ def tune_model_grid(policy: str, seeds=TUNE_SEEDS, scenario: str = "urban", log=
     """The parameters of ``policy`` on the grid of :data:`MODEL_GRIDS` (every combination), every point on the same
     tuning seeds; returns the tuning record. ``progress(1)`` after each point; ``max_steps`` cuts the missions.
     """
+    from iscc_gym.eval.evaluate import run_episodes
+
     seeds = check_tuning_seeds(seeds)
     grid = MODEL_GRIDS[policy] if grid is None else grid
     names = list(grid)
@@ -188,6 +181,8 @@ def tune_margin(seeds=TUNE_SEEDS, grid=None, scenario: str = "paper", refine: bo
     tuning seeds; returns the tuning record (see the module). ``progress(1)``, if given, is called
     after each batch of the grid (:func:`n_batches`) and each Nelder-Mead evaluation.
     """
+    from scipy import optimize
+
     seeds = check_tuning_seeds(seeds)
     grid = grid or MARGIN_GRID
     t0 = time.perf_counter()
@@ -231,6 +226,9 @@ def sca_per_slot_reward(fraction: float, seeds, scenario="paper", max_steps: int
     """Mean episode reward over ``seeds`` of per-slot SCA designed at ``fraction`` x eps* (``max_steps`` slots
     per mission, default all).
     """
+    from iscc_gym.agents.sca_slot import SCAPolicy
+    from iscc_gym.eval.evaluate import run_episodes
+
     policy = SCAPolicy(make_scenario(scenario), mode="per_slot", loss_design_fraction=float(fraction))
     return float(run_episodes(policy, list(seeds), scenario, max_steps=max_steps)["episodes"]["reward"].mean())
 
@@ -241,6 +239,8 @@ def tune_sca_per_slot(seeds=TUNE_SEEDS, grid=SCA_FRACTION_GRID, scenario: str = 
     grid point's neighbours, every point on the same tuning seeds; returns the tuning record.
     ``progress(1)``, if given, is called after each evaluation; ``max_steps`` cuts the missions (tests).
     """
+    from scipy import optimize
+
     seeds = check_tuning_seeds(seeds)
     grid = sorted(float(g) for g in grid)
     if not grid or grid[0] <= 0.0 or grid[-1] > 1.0:

@@ -8,8 +8,20 @@ The runs that produce this repository's shipped agents (``experiments.ship``, ``
 ``experiments.pareto_agents``) are the checkout's ``experiments/``, not installed.
 """
 
-from iscc_gym.train.cli import cli, console, parse_args
+import importlib as _importlib
+
 from iscc_gym.train.config import Args, load_hyperparams
-from iscc_gym.train.train import main
+
+#: Imported on first use (PEP 562): the training loop loads torch and SB3, and the command checks its arguments
+#: before (issue 43.12).
+_LAZY = {"cli": "cli", "console": "cli", "parse_args": "cli", "main": "train"}
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        value = getattr(_importlib.import_module(f"{__name__}.{_LAZY[name]}"), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 __all__ = ["Args", "main", "cli", "console", "parse_args", "load_hyperparams"]

@@ -11,7 +11,6 @@ import dataclasses
 from typing import Any
 
 import yaml
-from iscc_gym.train import train as loop
 from iscc_gym.train.config import FIELD_HELP, Args, expand_algo
 from iscc_gym.train.study import add_study_arguments, run_cli
 
@@ -33,7 +32,7 @@ def build_parser(prog: str = "python -m train") -> argparse.ArgumentParser:
     ``--optimize``, ``--seeds``.
     """
     ap = argparse.ArgumentParser(
-        prog=invoked_prog(prog), description=loop.__doc__.split("\n")[0],
+        prog=invoked_prog(prog), description="Train an SB3 agent (PPO by default; SAC, TD3) on ``iscc_gym/ISCC-v0``.",
         epilog="Writes into OUT: model.zip and vecnormalize.pkl (the final model and its statistics), best/ "
                "(the best model on the held-out missions, with its own statistics), checkpoints/step_<N>/ "
                "(for --resume), eval/evaluations.npz, learning_curve.csv/.png, config.yml, summary.yml, tb/ "
@@ -124,6 +123,11 @@ def cli(argv: list[str] | None = None, prog: str = "python -m train") -> dict:
     elif ns.optimize or ns.seeds is not None:
         return run_cli(ap, ns, args)
     else:
+        from iscc_gym.train.config import check_args
+
+        check_args(args)  # before the training loop loads torch and SB3 (issue 43.12)
+        from iscc_gym.train import train as loop
+
         summary = loop.main(args)
     if not args.quiet:
         print(f"trained {summary['timesteps']} steps in {summary['wall_time_s']:.1f} s -> {summary['out']}")

@@ -545,6 +545,7 @@ def check_args(args: Args) -> None:
         raise ValueError(f"seed = {args.seed}; use an integer in [0, 2**32)")
     if args.scenario is not None and args.env_id in ISCC_ENV_IDS:
         check_task(args.env_id, args.scenario)
+    check_no_world_shown(args.env_overrides)  # the flag's (the YAML's env_kwargs: resolve_args)
     if has_residual(args):
         if args.env_id not in ISCC_ENV_IDS or args.env_id == MULTI_ENV_ID:
             raise ValueError(f"residual = {args.residual!r}: a scripted base policy plays the single-drone tasks "

@@ -80,12 +80,14 @@ def main(args, device: str) -> dict:
         raise ValueError(f"--resume: --device {device} keeps no checkpoints; train afresh (--overwrite) or drop "
                          "--device")
     from iscc_gym.train.config import check_args
-    from iscc_gym.train.train import _printer
 
     check_args(args)  # the checks of an SB3 run: the env id, the seed, a scenario of another task, ...
     cfg = config_from_args(args, device)
     prepare_out(args)
-    say = _printer(args)
+    from iscc_gym.train.train import printer  # after the checks: it loads SB3
+
+
+    say = printer(args)
     rollout = cfg.n_envs * cfg.n_steps
     target = -(-cfg.total_timesteps // rollout) * rollout
     if target != cfg.total_timesteps:  # issue 43.11: 65,536 steps for 2,000 asked, without a word
@@ -120,7 +122,7 @@ def _progress(say, target: int, rows: list):
     :data:`iscc_gym.train.train.PROGRESS_EVERY_S` seconds and at the first and last update (steps, steps/s,
     elapsed, ETA), as an SB3 run does.
     """
-    from iscc_gym.train.train import PROGRESS_EVERY_S, _clock
+    from iscc_gym.train.train import PROGRESS_EVERY_S, progress_text
 
     last = [-math.inf]
 
@@ -130,8 +132,7 @@ def _progress(say, target: int, rows: list):
         if wall - last[0] >= PROGRESS_EVERY_S or done >= target or len(rows) == 1:
             last[0] = wall
             rate = done / max(wall, 1e-9)
-            say(f"step {done:,}/{target:,}, {rate:,.0f} steps/s, elapsed {_clock(wall)}, "
-                f"ETA {_clock((target - done) / rate)}, reward per step {rows[-1]['reward_per_step']:.3f}")
+            say(f"{progress_text(done, target, rate, wall)}, reward per step {rows[-1]['reward_per_step']:.3f}")
         return False
 
     return callback

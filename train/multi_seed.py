@@ -21,7 +21,6 @@ from iscc_gym.train.config import (
     resolve_args,
     resolve_policy_kwargs,
 )
-from iscc_gym.train.train import main
 
 from iscc_gym.files import write_atomic
 from iscc_gym.protocol import CALLBACK_EVAL_SEED_START
@@ -129,6 +128,8 @@ def run_seeds(args: Args, seeds: list[int]) -> dict:
     for seed in seeds:
         run = dataclasses.replace(args, seed=seed, out=str(Path(args.out) / f"seed_{seed}"))
         t0 = time.perf_counter()
+        from iscc_gym.train.train import main
+
         summary = main(run)
         mean, std = evaluate_run(run)
         rows.append({"seed": seed, "out": run.out, "final_reward_mean": mean, "final_reward_std": std,

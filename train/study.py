@@ -55,7 +55,6 @@ from typing import TYPE_CHECKING, Any
 
 import yaml
 from iscc_gym.train.config import Args, load_hyperparams, resolve_args, run_settings
-from iscc_gym.train.train import main
 
 if TYPE_CHECKING:  # pragma: no cover
     import optuna
@@ -360,6 +359,8 @@ def make_objective(args: Args, study: StudyArgs) -> Callable[[optuna.Trial], flo
         trial.set_user_attr("worker", f"{socket.gethostname()}:{os.getpid()}")
         callback = _trial_callback(trial)
         t0 = time.perf_counter()
+        from iscc_gym.train.train import main
+
         summary = main(run, callback_after_eval=callback)
         trial.set_user_attr("wall_time_s", time.perf_counter() - t0)
         trial.set_user_attr("timesteps", summary["timesteps"])

@@ -369,7 +369,7 @@ def progress_bar_on(args: Args) -> bool:
     return bool(on) and all(importlib.util.find_spec(m) is not None for m in ("tqdm", "rich"))
 
 
-def _printer(args: Args):
+def printer(args: Args):
     """``say(text)``: a progress line ``train: text`` on stderr (flushed, so it shows without a terminal
     too), nothing with ``quiet``.
     """
@@ -392,9 +392,16 @@ def whole_rollouts(model, start: int, total: int) -> int:
     return start + -(-(total - start) // rollout) * rollout
 
 
-def _clock(seconds: float) -> str:
+def clock(seconds: float) -> str:
+    """``H:MM:SS`` of ``seconds`` (0 for a negative time)."""
     s = max(int(round(seconds)), 0)
     return f"{s // 3600}:{s % 3600 // 60:02d}:{s % 60:02d}"
+
+
+def progress_text(done: int, total: int, rate: float, elapsed_s: float) -> str:
+    """One progress line of a training run: steps done of ``total``, steps/s, elapsed time, time left."""
+    eta = clock((total - done) / rate) if rate > 0 else "?"
+    return f"step {done:,}/{total:,}, {rate:,.0f} steps/s, elapsed {clock(elapsed_s)}, ETA {eta}"
 
 
 def _steps_callback(say, total: int):
@@ -414,8 +421,7 @@ def _steps_callback(say, total: int):
                 self.last = now
                 done = int(self.num_timesteps)
                 rate = (done - self.start) / max(now - self.t0, 1e-9)
-                eta = _clock((total - done) / rate) if rate > 0 else "?"
-                say(f"step {done:,}/{total:,}, {rate:,.0f} steps/s, elapsed {_clock(now - self.t0)}, ETA {eta}")
+                say(progress_text(done, total, rate, now - self.t0))
             return True
 
     return Steps()
@@ -505,7 +511,7 @@ def main(args: Args, callback_after_eval=None) -> dict:
 
     import iscc_gym  # noqa: F401  (registers the env)
 
-    say = _printer(args)
+    say = printer(args)
     args = expand_algo(args)
     check_args(args)
     if callback_after_eval is not None and args.eval_freq <= 0:

@@ -216,18 +216,18 @@ def test_shifted_missions_change_the_env_and_leave_the_policies_as_tuned(monkeyp
     """``experiments.urban_shift``: every policy is built for the urban preset, only the env's missions are shifted; the
     table pairs the focus with every other policy on each shift.
     """
-    from iscc_gym.eval import policies
+    from iscc_gym.eval import evaluate
 
     from experiments import urban_shift
 
     seen = []
-    real = policies.run_episodes
+    real = evaluate.run_episodes
 
     def spy(policy, seeds, scenario, *args, **kw):
         seen.append((getattr(policy, "scenario", U), scenario))
         return real(policy, seeds, scenario, *args, **kw)
 
-    monkeypatch.setattr(policies, "run_episodes", spy)  # the engine's one rollout loop (iscc_gym.eval.engine)
+    monkeypatch.setattr(evaluate, "run_episodes", spy)  # the engine's one rollout loop (iscc_gym.eval.engine)
     res = urban_shift.main(["--shifts", "none,umi_av", "--policies", "myopic,margin", "--focus", "myopic",
                             "--episodes", "2", "--max-steps", "5"])
     assert list(res) == ["none", "umi_av"] and set(res["umi_av"]["focus_paired"]) == {"myopic_vs_margin"}

@@ -108,3 +108,16 @@ def test_a_bare_ppo_where_no_agent_ships_names_the_fix():
     with pytest.raises(ValueError, match="ships no agent; name a trained one, ppo=RUN_DIR"):
         resolve_specs("myopic,ppo", None)
     assert resolve_specs("myopic,ppo=runs/x", None) == ["myopic", "ppo=runs/x"]
+
+
+def test_aware_where_the_world_is_the_model_says_it_plays_as_myopic(capsys):
+    """Issue 43.12: ``aware`` on a task without a hidden world played ``myopic`` without a note."""
+    from iscc_gym.eval.__main__ import main as eval_main
+
+    res = eval_main(["--policies", "myopic,aware", "--episodes", "1", "--max-steps", "2", "--workers", "1"])
+    out = capsys.readouterr().out
+    assert "note: aware is myopic designed on the world played" in out and "it plays as myopic" in out
+    assert res["notes"] and res["policies"]["aware"]["episodes"]["reward"] == res["policies"]["myopic"]["episodes"][
+        "reward"]
+    shifted = compare(ENV_ID, "myopic,aware", SEEDS[:1], variants=["rcs -10 dB"], max_steps=2)
+    assert "notes" not in shifted["rcs -10 dB"]  # a variant's world is not the model: aware is the bound there

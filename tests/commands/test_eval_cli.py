@@ -445,3 +445,39 @@ def test_the_field_task_is_a_task_of_its_own_to_the_env_scenario_checks(no_episo
     from iscc_gym.scenario import make_scenario
 
     assert task_of(make_scenario("field")) == "field" and record_task(make_scenario("field")) == "paper"
+
+
+#: Each command given a mistake, in one new process: the exit code and which heavy modules were loaded by then.
+REFUSED_LIGHT = """
+import sys, json
+from iscc_gym.eval.__main__ import console as eval_console
+from iscc_gym.train.cli import console as train_console
+from iscc_gym.eval.tune import main as tune_main
+from iscc_gym.cli import run
+codes = [eval_console(["--policies", "myopc"]),
+         eval_console(["--env", "iscc_gym/ISCC-Field-v0", "--scenario", "paper"]), eval_console(["--seeds", "1,1"]),
+         train_console(["--total-timesteps", "0", "--out", "x"]), train_console(["--env", "nope", "--out", "x"]),
+         train_console(["--env", "iscc_gym/ISCC-Field-v0", "--env-set", "show_world=true", "--out", "x"]),
+         train_console(["--device", "standin", "--algo", "sac", "--out", "x"]),
+         run(tune_main, ["margin", "--scenario", "field"], "python -m eval.tune")]
+heavy = ("torch", "stable_baselines3", "iscc_gym.sim.kernel", "iscc_gym.envs.env", "iscc_gym.agents.myopic")
+print(json.dumps([codes, [m for m in heavy if m in sys.modules]]))
+"""
+
+
+def test_a_mistake_is_refused_before_torch_sb3_or_the_compiled_env_load(tmp_path):
+    """Issue 43.12: every mistake was refused only after the whole package had loaded (torch, SB3, the compiled
+    kernels: 40-146 s on a busy 2-core machine). python -m eval, python -m train and python -m eval.tune check their
+    arguments first (the packages' heavy names load on first use)."""
+    import json
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, "-c", REFUSED_LIGHT], cwd=tmp_path, capture_output=True, text=True,
+                       timeout=300)
+    assert r.returncode == 0, r.stderr
+    codes, loaded = json.loads(r.stdout.splitlines()[-1])
+    assert codes == [2] * 8, r.stderr
+    assert loaded == [], loaded
+    assert "did you mean 'myopic'?" in r.stderr and "aware (myopic designed on the world played)" in r.stderr
+    assert "NAME=PATH (a trained agent)" in r.stderr

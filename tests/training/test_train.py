@@ -244,7 +244,7 @@ def test_a_budget_that_is_not_whole_rollouts_is_rounded_up_and_said(tmp_path, ca
     """Issue 43.11: ``--total-timesteps 2000`` printed ``step 2,560/2,000 ... ETA -1:59:58`` and trained 4,096 without
     a word. The run says it rounds up to whole rollouts and counts its progress against what it trains."""
     from iscc_gym.train.cli import cli
-    from iscc_gym.train.train import _clock
+    from iscc_gym.train.train import clock
 
     s = cli(["--total-timesteps", "100", "--n-envs", "2", "--set", "n_steps=32", "--set", "batch_size=64",
              "--eval-freq", "0", "--checkpoint-freq", "0", "--out", str(tmp_path / "r")])
@@ -252,4 +252,4 @@ def test_a_budget_that_is_not_whole_rollouts_is_rounded_up_and_said(tmp_path, ca
     assert s["timesteps"] == 128
     assert "--total-timesteps 100 rounds up to 128: ppo trains whole rollouts of 2 envs x 32 steps = 64" in err
     assert "training from step 0 to 128" in err
-    assert _clock(-5.0) == "0:00:00"
+    assert clock(-5.0) == "0:00:00"

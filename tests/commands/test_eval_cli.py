@@ -70,7 +70,7 @@ def test_output_paths_are_checked_before_any_episode(tmp_path, no_episodes):
     (["--seeds", "-1"], "negative"),
     (["--policies", "sca,equal", "--reference", "margin"], "--reference 'margin'"),
     (["--policies", "ppo=/no/such/run"], "no trained agent"),
-    (["--policies", "bogus"], "unknown policy spec"),
+    (["--policies", "bogus"], "no such policy"),
     (["--policies", "fixed:0.5,0.5,0.5"], "fixed:0.5,0.5,0.5"),
     (["--scenario", "nope"], "--scenario 'nope'"),
 ])

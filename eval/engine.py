@@ -67,9 +67,12 @@ def seed_runs(root: str | Path) -> dict[int, Path]:
     return dict(sorted(runs.items()))
 
 
-def runs_items(root: str | Path) -> list[str]:
-    """The policy items ``seed_<s>=ROOT/seed_<s>`` of every seed's run under ``root`` (:func:`seed_runs`)."""
-    return [f"seed_{s}={p}" for s, p in seed_runs(root).items()]
+def runs_items(root: str | Path | dict[int, Path]) -> list[str]:
+    """The policy items ``seed_<s>=ROOT/seed_<s>`` of every seed's run under ``root`` (:func:`seed_runs`; or of
+    ``root`` itself, a ``{seed: run directory}`` it returned, the folder listed once).
+    """
+    runs = root if isinstance(root, dict) else seed_runs(root)
+    return [f"seed_{s}={p}" for s, p in runs.items()]
 
 
 def compare(env_id: str, policies: Sequence[str] | str | None = None, seeds: Sequence[int] = (),

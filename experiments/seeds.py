@@ -49,14 +49,15 @@ SECTIONS = {ENV_ID: ("seeds", "The shipped configuration over 5 training seeds")
 
 
 def compare_seeds(root, seeds, scenario: str = "paper", scripted=SCRIPTED, max_steps: int | None = None,
-                  progress=None, reference: str = "sca", env_id: str = ENV_ID) -> dict:
+                  progress=None, reference: str = "sca", env_id: str = ENV_ID, runs: dict | None = None) -> dict:
     """Evaluate every seed's agent and the scripted policies on ``seeds`` (the engine,
     :func:`iscc_gym.eval.engine.compare`); per-seed paired differences against ``reference`` (one of ``scripted``;
-    the row's ``vs_<reference>``) and the best scripted policy. ``progress(n)``: slots played.
+    the row's ``vs_<reference>``) and the best scripted policy. ``progress(n)``: slots played. ``runs``: the runs
+    under ``root`` where the caller listed them already (:func:`iscc_gym.eval.engine.seed_runs`).
     """
-    runs = seed_runs(root)
+    runs = seed_runs(root) if runs is None else runs
     # each agent checked against the env it is compared on (check_specs: the scenario's observation size)
-    res = compare(env_id, [*scripted, *runs_items(root)], seeds, scenario=scenario, max_steps=max_steps,
+    res = compare(env_id, [*scripted, *runs_items(runs)], seeds, scenario=scenario, max_steps=max_steps,
                   reference=reference, progress=progress, torch_threads=1)
     res = next(iter(res.values()))
     eps = {name: np.asarray(p["episodes"]["reward"]) for name, p in res["policies"].items()}
@@ -128,7 +129,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.seeds
     runs = seed_runs(args.root)  # FileNotFoundError with one line: the exit code 2 of iscc_gym.cli.run
     from iscc_gym.eval.policies import check_specs
 
-    check_specs(runs_items(args.root), args.scenario)  # torch and SB3 installed, before the outputs are checked
+    check_specs(runs_items(runs), args.scenario)  # torch and SB3 installed, before the outputs are checked
     from iscc_gym.docs import RESULTS_PATH, docs_path
 
     if args.json:
@@ -141,7 +142,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.seeds
                       unit="slot", enabled=show, unit_scale=True) as bar:
         res = compare_seeds(args.root, seed_list(args.seed_start, args.episodes), args.scenario,
                             scripted, max_steps=args.max_steps, progress=bar.update if show else None,
-                            reference=reference, env_id=args.env)
+                            reference=reference, env_id=args.env, runs=runs)
     cmd = docs_command("python -m experiments.seeds", argv)
     table = markdown(res, cmd)
     print(table)

@@ -26,7 +26,8 @@ RUN_FILES = ("model.zip", "vecnormalize.pkl", MANIFEST, "config.yml", "summary.y
              "learning_curve.png", "checkpoints", "best", "eval", "tb", LAGRANGE_FILE)
 #: What a resumed run must share with the run it continues (SAC/TD3: ``n_envs`` too, the replay buffer's
 #: shape), besides the constraints (``cost_limit``, ``lagrange_lr``) and the hyperparameters.
-IDENTITY = ("env_id", "algo", "scenario", "env_overrides", "normalize", "eval_episodes", "eval_max_steps")
+IDENTITY = ("env_id", "algo", "scenario", "env_overrides", "normalize", "norm_reward", "eval_episodes",
+            "eval_max_steps")
 #: A checkpoint's record of everything else a resume needs (a file of its unit, listed in its manifest):
 #: the learning curve and wall time, the evaluations and their schedule, the best score, the multipliers.
 RESUME_FILE = "resume.yml"
@@ -268,6 +269,8 @@ def prepare_out(args: Args, hyperparams: dict | None = None) -> tuple[Path | Non
             now = {k: v for k, v in now.items() if k not in ("cost_limit", "lagrange_lr")}
         if "residual_params" not in was:  # an older checkpoint: its base reads its tuning record, as it did
             now.pop("residual_params")
+        if "norm_reward" not in was:  # an older checkpoint recorded no reward scaling (issue 43.15: now it does)
+            now.pop("norm_reward")
         was, now = _flat_identity(was), _flat_identity(now)
         diff = [f"{k} {was.get(k)!r} -> {now.get(k)!r}" for k in dict.fromkeys([*now, *was])
                 if was.get(k) != now.get(k)]

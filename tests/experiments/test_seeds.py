@@ -53,3 +53,35 @@ def test_command_writes_json_and_checks_its_outputs_first(root, tmp_path, capsys
     assert "| 0 |" in capsys.readouterr().out
     with pytest.raises(OSError, match="--json"):
         eval_seeds.main([str(root), "--episodes", "2", "--max-steps", "5", "--json", str(path / "x.json")])
+
+
+def test_the_run_folder_is_listed_once(tmp_path, monkeypatch):
+    """Issue 43.15 (left from earlier notes): experiments.seeds listed the seed runs' folder twice (seed_runs, then
+    runs_items, then again in compare_seeds)."""
+    from iscc_gym.eval import engine
+
+    from experiments import seeds
+
+    for s in (0, 1):
+        (tmp_path / f"seed_{s}").mkdir()
+        (tmp_path / f"seed_{s}" / "model.zip").write_bytes(b"")
+    listed = []
+    real = engine.seed_runs
+
+    def spy(root):
+        listed.append(root)
+        return real(root)
+
+    monkeypatch.setattr(seeds, "seed_runs", spy)
+    monkeypatch.setattr(engine, "seed_runs", spy)
+    class Played(Exception):
+        pass
+
+    def play(*a, runs=None, **k):
+        assert runs is not None  # the listing passed on
+        raise Played
+
+    monkeypatch.setattr(seeds, "compare_seeds", play)
+    with pytest.raises(Played):
+        seeds.main([str(tmp_path), "--episodes", "2", "--quiet"])
+    assert len(listed) == 1, listed

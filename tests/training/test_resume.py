@@ -384,6 +384,26 @@ def test_resume_refuses_constraints_added_to_a_plain_run(run_256, tmp_path):
         main(_args(out, total_timesteps=384, resume=True, quiet=True, **LAG))
 
 
+def test_resume_refuses_another_reward_scaling(run_256, tmp_path):
+    """Issue 43.15: norm_reward was not part of a run's identity: a resume with it changed went on silently with the
+    checkpoint's VecNormalize (scaling the rewards or not as the first part did)."""
+    out = _copy(run_256, tmp_path)
+    with pytest.raises(ValueError, match=r"norm_reward True -> False"):
+        main(_args(out, total_timesteps=384, resume=True, quiet=True, norm_reward=False))
+    ckpt, manifest, _ = latest_checkpoint(out / "checkpoints")
+    assert manifest["run"]["norm_reward"] is True
+
+
+def test_resume_of_a_checkpoint_that_recorded_no_reward_scaling_goes_on(run_256, tmp_path):
+    out = _copy(run_256, tmp_path)
+    for unit in (out / "checkpoints").iterdir():  # as an older python -m train wrote them
+        m = yaml.safe_load((unit / "manifest.yml").read_text())
+        m["run"].pop("norm_reward")
+        files = m.pop("files")
+        write_manifest(unit, files, **m)
+    main(_args(out, total_timesteps=384, resume=True, quiet=True))
+
+
 # --- 5. the best model ------------------------------------------------------------------------------------
 
 def _scores(monkeypatch, means):

@@ -637,6 +637,21 @@ def run_settings(args: Args) -> dict:
     return out
 
 
+def run_flags(args: Args) -> dict:
+    """What a run of resolved ``args`` plays beside its hyperparameters and :func:`run_settings`, as a study's
+    export must say it: a scenario preset that is not the env id's own, the env overrides (Scenario fields) and the
+    constraints (``cost_limit``, ``lagrange_lr``); only those in use.
+    """
+    out: dict[str, Any] = {}
+    if args.scenario is not None and args.scenario != registered_scenario(args.env_id):
+        out["scenario"] = str(args.scenario)
+    if args.env_overrides:
+        out["env_overrides"] = dict(args.env_overrides)
+    if args.cost_limit:
+        out.update(cost_limit=str(args.cost_limit), lagrange_lr=float(args.lagrange_lr))
+    return out
+
+
 def has_residual(args: Args) -> bool:
     """Whether ``args`` trains a residual agent (``residual`` in use)."""
     return _in_use(args.residual)

@@ -54,7 +54,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import yaml
-from iscc_gym.train.config import Args, load_hyperparams, resolve_args, run_settings
+from iscc_gym.train.config import Args, load_hyperparams, resolve_args, run_flags, run_settings
 
 if TYPE_CHECKING:  # pragma: no cover
     import optuna
@@ -354,6 +354,7 @@ def make_objective(args: Args, study: StudyArgs) -> Callable[[optuna.Trial], flo
         trial.set_user_attr("n_timesteps", budget)
         trial.set_user_attr("normalize", bool(resolved.normalize))
         trial.set_user_attr("settings", run_settings(resolved))  # warm start, residual, randomisation
+        trial.set_user_attr("run", run_flags(resolved))  # scenario, env overrides, constraints (issue 43.15)
         trial.set_user_attr("hyperparams", kwargs)
         trial.set_user_attr("out", str(Path(run.out).resolve()))
         trial.set_user_attr("worker", f"{socket.gethostname()}:{os.getpid()}")

@@ -455,6 +455,9 @@ def best_entry(trial: optuna.trial.FrozenTrial, env_id: str, algo: str) -> dict:
         hp["policy_kwargs"] = format_policy_kwargs(hp["policy_kwargs"])
     entry = {"n_timesteps": int(attrs["n_timesteps"]), "n_envs": int(attrs["n_envs"]),
              "normalize": bool(attrs["normalize"]), **hp}
+    flags = attrs.get("run") or {}  # what the trial played beside its hyperparameters (older trials recorded none)
+    if flags.get("env_overrides"):  # rl-zoo3's env_kwargs, which python -m train reads as Scenario overrides
+        entry["env_kwargs"] = dict(flags["env_overrides"])
     own: dict = {"algo": algo}
     if attrs.get("settings"):  # the trial's warm start / residual / randomisation (older trials recorded none)
         own["settings"] = {env_id: dict(attrs["settings"])}
@@ -486,14 +489,19 @@ def export_best(s: optuna.Study, env_id: str, algo: str, path: str | os.PathLike
     if best is None:
         raise ValueError(f"study {s.study_name!r} has no completed trial to export yet")
     entry = best_entry(best, env_id, algo)
+    flags = best.user_attrs.get("run") or {}
+    extra = "".join(f" --{k.replace('_', '-')} {v}" for k, v in flags.items() if k != "env_overrides")
     header = (f"# Best trial #{best.number} of Optuna study {s.study_name!r}: final held-out mean episode reward "
               f"{best.value:.4f}\n# ({len(s.trials)} trials in the study when exported). Train it with:\n"
-              f"#   python -m train --algo {algo} --env {env_id} --hyperparams {path}\n")
+              f"#   python -m train --algo {algo} --env {env_id}{extra} --hyperparams {path}\n")
     settings = entry[OWN_SECTION].get("settings", {}).get(env_id)
-    if settings:  # rl-zoo3 reads the entry alone: it would train a plain agent, not the trial's
-        shown = ", ".join(f"{k}={v}" for k, v in settings.items())
-        header += (f"# (python -m train only: rl-zoo3 ignores the run settings under {OWN_SECTION}.settings, "
-                   f"{shown},\n# and would train a plain {algo} agent instead)\n")
+    if extra:  # the trial's scenario and constraints are flags (issue 43.15: the export left them out)
+        header += (f"# (the trial played{extra}: give them as above; env_kwargs holds its Scenario overrides)\n")
+    if settings or extra:  # rl-zoo3 reads the entry alone: it would train a plain agent, not the trial's
+        shown = ", ".join([*(f"{k}={v}" for k, v in (settings or {}).items()), *(f"{k}={v}" for k, v in flags.items()
+                                                                                 if k != "env_overrides")])
+        header += (f"# (python -m train only: rl-zoo3 ignores the run settings under {OWN_SECTION}.settings and "
+                   f"the flags, {shown},\n# and would train a plain {algo} agent instead)\n")
     else:
         header += (f"# or rl-zoo3 (its layout): python -m rl_zoo3.train --algo {algo} --env {env_id} "
                    f"--gym-packages iscc_gym -conf {path}\n")

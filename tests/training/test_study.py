@@ -346,3 +346,27 @@ def test_seeds_score_a_recurrent_run(tmp_path):
                 overrides={"n_steps": 8, "batch_size": 16, "n_epochs": 1})
     result = run_seeds(args, [0])
     assert [r["seed"] for r in result["runs"]] == [0] and np.isfinite(result["final_reward_mean"])
+
+
+def test_a_trials_scenario_overrides_and_constraints_are_exported(tmp_path):
+    """Issue 43.15: a study run with --cost-limit, --env-set or --scenario exported its best trial without them. The
+    Scenario overrides go into the entry (rl-zoo3's env_kwargs, which python -m train reads); the scenario and the
+    constraints into the command the header gives, and rl-zoo3 is not offered."""
+    from iscc_gym.train.config import run_flags
+
+    resolved, _ = resolve_args(Args(scenario="literal", env_overrides={"w_rate": 2.0}, cost_limit="rate=0.05",
+                                    lagrange_lr=0.1))
+    flags = run_flags(resolved)
+    assert flags == {"scenario": "literal", "env_overrides": {"w_rate": 2.0}, "cost_limit": "rate=0.05",
+                     "lagrange_lr": 0.1}
+    assert run_flags(resolve_args(Args())[0]) == {}
+    s = optuna.create_study(direction="maximize")
+    attrs = {"n_timesteps": 1000, "n_envs": 8, "normalize": True, "hyperparams": {"gamma": 0.9}, "run": flags}
+    s.add_trial(optuna.trial.create_trial(value=1.0, user_attrs=attrs))
+    path = tmp_path / "best.yml"
+    text = export_best(s, "iscc_gym/ISCC-v0", "ppo", path)
+    assert ("#   python -m train --algo ppo --env iscc_gym/ISCC-v0 --scenario literal --cost-limit rate=0.05 "
+            f"--lagrange-lr 0.1 --hyperparams {path}") in text
+    assert "python -m rl_zoo3" not in text
+    args, hp = resolve_args(Args(hyperparams=str(path), scenario="literal"))
+    assert args.env_overrides == {"w_rate": 2.0} and hp == {"gamma": 0.9}

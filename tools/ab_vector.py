@@ -1,6 +1,6 @@
-"""A/B of the native vector env's speed between two revisions of this repository, in fresh processes.
+"""A/B of the native vector env's speed between revisions of this repository, in fresh processes.
 
-Each revision is checked out into a temporary git worktree; every round runs one fresh process per revision, in
+Each revision (two or more: a bisection's candidates in one run) is checked out into a temporary git worktree; every round runs one fresh process per revision, in
 alternating order, each importing ``iscc_gym`` from its worktree (``PYTHONPATH``) with one numba thread, warming the
 compiled kernels (numba caches them in each worktree: the first round of a revision compiles), then timing the best
 of ``--repeats`` runs of ``--steps`` batched steps of ``gym.make_vec(ENV, num_envs=N,
@@ -61,17 +61,19 @@ def _run(tree: Path, args) -> float:
 
 def main(argv: list[str] | None = None) -> dict:
     ap = argparse.ArgumentParser(prog="python tools/ab_vector.py", description=__doc__.split("\n")[0])
-    ap.add_argument("a", help="the first revision (a commit, tag or branch)")
-    ap.add_argument("b", help="the second revision")
+    ap.add_argument("revs", nargs="+", metavar="REV",
+                    help="revisions (commits, tags or branches), two or more; ratios against the first")
     ap.add_argument("--env", default="iscc_gym/ISCC-v0", help="env id (default: iscc_gym/ISCC-v0)")
     ap.add_argument("--num-envs", type=int, default=1024, help="vector env size (default: 1024)")
     ap.add_argument("--steps", type=int, default=50, help="batched steps per timed run (default: 50)")
     ap.add_argument("--repeats", type=int, default=5, help="timed runs per process, the best kept (default: 5)")
     ap.add_argument("--rounds", type=int, default=7, help="fresh processes per revision, alternating (default: 7)")
     args = ap.parse_args(argv)
+    if len(args.revs) < 2 or len(set(args.revs)) < len(args.revs):
+        ap.error("give two or more distinct revisions")
     with tempfile.TemporaryDirectory(prefix="iscc_gym-ab-") as tmp:
         trees = {}
-        for name in (args.a, args.b):
+        for name in args.revs:
             tree = Path(tmp) / name.replace("/", "_")
             subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", "-q", str(tree), name], check=True)
             trees[name] = tree
@@ -90,7 +92,8 @@ def main(argv: list[str] | None = None) -> dict:
     med = {name: statistics.median(r) for name, r in rounds.items()}
     print(f"{args.env}, {args.num_envs} envs, one numba thread, best of {args.repeats} x {args.steps} steps, "
           f"median of {args.rounds} rounds (env-steps/s): " + ", ".join(f"{n} {m:,.0f}" for n, m in med.items())
-          + f"; {args.b} / {args.a} = {med[args.b] / med[args.a]:.3f}")
+          + "; against " + args.revs[0] + ": "
+          + ", ".join(f"{n} {med[n] / med[args.revs[0]]:.3f}" for n in args.revs[1:]))
     out = {"median": med, "rounds": rounds}
     print(json.dumps(out))
     return out

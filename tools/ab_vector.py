@@ -1,11 +1,11 @@
 """A/B of the native vector env's speed between revisions of this repository, in fresh processes.
 
-Each revision (two or more: a bisection's candidates in one run) is checked out into a temporary git worktree; every round runs one fresh process per revision, in
-alternating order, each importing ``iscc_gym`` from its worktree (``PYTHONPATH``) with one numba thread, warming the
-compiled kernels (numba caches them in each worktree: the first round of a revision compiles), then timing the best
-of ``--repeats`` runs of ``--steps`` batched steps of ``gym.make_vec(ENV, num_envs=N,
-vectorization_mode="vector_entry_point")``. The median over rounds of each revision's best is reported, with every
-round's figures, so one noisy round does not decide. Run it on a quiet machine::
+Each revision (two or more: a bisection's candidates in one run) is checked out into a temporary git worktree; every
+round runs one fresh process per revision, in alternating order, each importing ``iscc_gym`` from its worktree
+(``PYTHONPATH``) with one numba thread, warming the compiled kernels (numba caches them in each worktree: the first
+round of a revision compiles), then timing the best of ``--repeats`` runs of ``--steps`` batched steps of
+``gym.make_vec(ENV, num_envs=N, vectorization_mode="vector_entry_point")``. The median over rounds of each
+revision's best is reported, with every round's figures, so one noisy round does not decide. Run it on a quiet machine::
 
     python tools/ab_vector.py 5852000 HEAD --rounds 7
 

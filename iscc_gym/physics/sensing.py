@@ -39,6 +39,7 @@ __all__ = [
     "fim_terms_one",
     "position_info_one",
     "crlb_local_one",
+    "crlb_amp_one",
     "crlb_from_info_one",
     "crlb_from_info",
     "whitened_rows_one",
@@ -271,11 +272,25 @@ def position_info_one(c, dist, cp, j_tau, j_tt, j_pp, j_tp):
 
 @njit(cache=True, error_model="numpy", inline="always")
 def _info_one(c, a_sen, dist, ct, st, cp, sp, shadow_db, fading):
+    return _info_amp_one(c, a_sen, echo_amplitude_one(c, dist, shadow_db, fading), dist, ct, st, cp, sp)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _info_amp_one(c, a_sen, amp, dist, ct, st, cp, sp):
     eta_sq, d_tt, d_pp, d_tp = signature_one(c, ct, st, cp, sp)
-    amp = echo_amplitude_one(c, dist, shadow_db, fading)
     j_tau, j_nu, j_tt, j_pp, j_tp = fim_terms_one(c, a_sen, amp, eta_sq, d_tt, d_pp, d_tp)
     i_r, i_az, i_x, i_el = position_info_one(c, dist, cp, j_tau, j_tt, j_pp, j_tp)
     return i_r, i_az, i_x, i_el, j_nu
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def crlb_amp_one(c, a_sen, amp, dist, ct, st, cp, sp):
+    """:func:`crlb_local_one` from the slot's echo power ``amp`` (:func:`echo_amplitude_one`), for a caller that
+    reports it too (the slot's ``echo_snr_db``: computed once, not twice, issue 43.14). ``(m_r, m_tt, m_tp, m_pp,
+    crlb_vr)``.
+    """
+    i_r, i_az, i_x, i_el, j_nu = _info_amp_one(c, a_sen, amp, dist, ct, st, cp, sp)
+    return crlb_from_info_one(i_r, i_az, i_x, i_el, j_nu, c.prior, c.lam_half_sq)
 
 
 @njit(cache=True, error_model="numpy")

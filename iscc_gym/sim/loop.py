@@ -39,7 +39,7 @@ from iscc_gym.physics.dynamics import input_one, lqg_command_one, propagate_one
 from iscc_gym.physics.fbl import ctrl_bler_one, delivered_one, link_terms_one, rate_one
 from iscc_gym.physics.kalman import kf_predict_one, kf_update_whitened_one
 from iscc_gym.physics.queue import arrival_bits_one, queue_step_one
-from iscc_gym.physics.sensing import crlb_local_one, echo_amplitude_one, whitened_rows_one
+from iscc_gym.physics.sensing import crlb_amp_one, echo_amplitude_one, whitened_rows_one
 from iscc_gym.scenario import Scenario
 from iscc_gym.sim.effects import task_effects
 from iscc_gym.sim.mission import MC, mission_columns, mission_rows
@@ -402,7 +402,8 @@ def step_one(c, mats, xi, x_hat, p, shadow, ni, ref, a_sen, a_ctrl, a_comm, zi,
         shadow_echo -= ref[ni, wk + 1]
     snr = rician_gain_one(ric_los, ric_scat, zi[Z_FADE_COMM], zi[Z_FADE_COMM + 1]) * snr_ls
     g_sen = rician_gain_one(ric_los, ric_scat, zi[Z_FADE_SEN], zi[Z_FADE_SEN + 1])
-    m_r, m_tt, m_tp, m_pp, crlb_vr = crlb_local_one(c, a_sen, dist, ct, st, cp, sp, shadow_echo, g_sen)
+    echo = echo_amplitude_one(c, dist, shadow_echo, g_sen)  # the CRLB's echo power, and the slot's echo_snr_db
+    m_r, m_tt, m_tp, m_pp, crlb_vr = crlb_amp_one(c, a_sen, echo, dist, ct, st, cp, sp)
     # measurement, whitened (ISAC or GNSS), and the Kalman measurement update
     if c.gnss == 1.0:
         w = w6
@@ -463,7 +464,7 @@ def step_one(c, mats, xi, x_hat, p, shadow, ni, ref, a_sen, a_ctrl, a_comm, zi,
     mt[_RATE_COMM] = rate_comm
     mt[_RATE_CTRL] = rate_ctrl
     mt[_DIVERGED] = 0.0 if err <= c.max_tracking_error_m else 1.0
-    mt[_ECHO] = 10.0 * math.log10(echo_amplitude_one(c, dist, shadow_echo, g_sen) / c.sen_noise_w)
+    mt[_ECHO] = 10.0 * math.log10(echo / c.sen_noise_w)
     return shadow_next
 
 

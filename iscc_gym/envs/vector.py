@@ -77,6 +77,8 @@ class ISCCVectorEnv(TimeLimitCheck, VectorEnv):
         With ``n_drones``: each drone's rate requirement (default the scenario's ``rate_min_bps`` / K;
         :func:`iscc_gym.sim.fleet.drone_scenario`).
 
+    Notes
+    -----
     ``reset(seed=s)`` seeds sub-env i with ``s + i``; ``reset(seed=[s_0, ...])`` with ``s_i``;
     ``reset(options={"reset_mask": mask})`` resets only the masked sub-envs. The reset ``info`` carries
     the keys of a step's info (the single env's reset values: initial tracking error, zero costs, NaN

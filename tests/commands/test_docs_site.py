@@ -106,6 +106,15 @@ def test_site_builds_with_warnings_as_errors(tmp_path):
     assert "ctrl_bler_one" in pages["api/physics.html"] and "ISCCMultiEnv" in pages["api/envs.html"]
     assert "rises when its dynamics change" in pages["versioning.html"]
     assert "Unreleased" in pages["changelog.html"]
+    # issue 43.13: no role left unrendered (a docstring paragraph numpydoc read as parameters showed ":func:`...`"),
+    # on any page, outside code literals; the getting-started page names every task
+    for page in sorted(out.rglob("*.html")):
+        text = re.sub(r'<code class="docutils literal[^"]*">.*?</code>', "", page.read_text(), flags=re.S)
+        assert not re.search(r":(func|class|meth|mod|data|attr):`", text), page
+    from iscc_gym.tasks import TASKS
+
+    assert all(env_id in pages["getting-started.html"] for env_id in TASKS)
+    assert "tasks/field.html" in pages["getting-started.html"]
 
 
 def test_citation_cff_names_the_project_and_the_seed_paper():

@@ -24,9 +24,9 @@ SB3 models alike:
 from __future__ import annotations
 
 import functools
-import importlib
 from typing import TYPE_CHECKING
 
+from iscc_gym.lazy import lazy_names
 from iscc_gym.scenario import Scenario, make_scenario
 
 from .tuned_records import is_params, load_tuned, record_name, record_task
@@ -35,26 +35,14 @@ if TYPE_CHECKING:  # pragma: no cover
     from .base import FixedSplitPolicy
     from .myopic import MyopicPolicy
 
-#: The policies and searches, imported on first use (PEP 562): ``import iscc_gym.agents`` (and the task table
-#: ``iscc_gym.agents.tasks`` a command's parser reads) loads no compiled physics, so a command refuses a mistake
-#: before it loads them (issue 43.12).
-_LAZY = {"Policy": "base", "SplitPolicy": "base", "FixedSplitPolicy": "base", "EqualSplitPolicy": "base",
-         "validate_split": "base", "DriftPlusPenaltyPolicy": "dpp", "MarginPolicy": "margin",
-         "LookaheadPolicy": "mpc", "MyopicPolicy": "myopic", "SCAResult": "sca", "sca_allocation": "sca",
-         "solve_sca": "sca", "SCAPolicy": "sca_slot", "SearchResult": "search", "evolutionary_search": "search",
-         "grid_search": "search"}
-
-
-def __getattr__(name: str):
-    if name in _LAZY:
-        value = getattr(importlib.import_module(f"{__name__}.{_LAZY[name]}"), name)
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-def __dir__():
-    return sorted([*globals(), *_LAZY])
+#: The policies and searches, imported on first use (:mod:`iscc_gym.lazy`): ``import iscc_gym.agents`` (and the
+#: task table ``iscc_gym.agents.tasks`` a command's parser reads) loads no compiled physics, so a command refuses a
+#: mistake before it loads them (issue 43.12).
+__getattr__, __dir__ = lazy_names(__name__, {
+    **dict.fromkeys(("Policy", "SplitPolicy", "FixedSplitPolicy", "EqualSplitPolicy", "validate_split"), ".base"),
+    "DriftPlusPenaltyPolicy": ".dpp", "MarginPolicy": ".margin", "LookaheadPolicy": ".mpc", "MyopicPolicy": ".myopic",
+    **dict.fromkeys(("SCAResult", "sca_allocation", "solve_sca"), ".sca"), "SCAPolicy": ".sca_slot",
+    **dict.fromkeys(("SearchResult", "evolutionary_search", "grid_search"), ".search")}, globals())
 
 __all__ = [
     "Policy",

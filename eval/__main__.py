@@ -60,21 +60,15 @@ from iscc_gym.eval.training import run_training
 from iscc_gym import ENV_ID, FIELD_ENV_ID, MULTI_ENV_ID, URBAN_ENV_ID
 from iscc_gym.cli import invoked_prog, run
 from iscc_gym.docs import README_PATH, RESULTS_PATH, docs_path, publish, save_json, write_section
+from iscc_gym.lazy import lazy_names
 from iscc_gym.protocol import EVAL_SEED_START, seed_list
 from iscc_gym.tasks import TASKS
 
-#: Names this module offers from :mod:`iscc_gym.eval.evaluate`, imported on first use (PEP 562): the rollout loop
-#: loads the compiled env, so a mistake in the arguments is refused before it loads (issue 43.12).
-_LAZY = ("evaluate", "format_table", "horizon_slots", "markdown_table", "oracle_share", "oracle_share_sentence",
-         "summarize")
-
-
-def __getattr__(name: str):
-    if name in _LAZY:
-        from iscc_gym.eval import evaluate as module
-
-        return getattr(module, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+#: Names this module offers from :mod:`iscc_gym.eval.evaluate`, imported on first use (:mod:`iscc_gym.lazy`): the
+#: rollout loop loads the compiled env, so a mistake in the arguments is refused before it loads (issue 43.12).
+_EVALUATE_NAMES = ("evaluate", "format_table", "horizon_slots", "markdown_table", "oracle_share",
+                   "oracle_share_sentence", "summarize")
+__getattr__, __dir__ = lazy_names(__name__, dict.fromkeys(_EVALUATE_NAMES, "iscc_gym.eval.evaluate"), globals())
 
 
 #: The default comparison on the paper's task (each task's: :data:`iscc_gym.agents.tasks.TASK_POLICIES`).

@@ -13,32 +13,19 @@ The repository's ``agents/``, ``train/`` and ``eval/`` folders install as ``iscc
 ``iscc_gym.train`` and ``iscc_gym.eval`` (``pyproject.toml``'s ``package-dir``); this core never imports them.
 """
 
-import importlib as _importlib
-
 import gymnasium as _gym
 
 from iscc_gym import compile_note as _compile_note  # noqa: F401 (a note on stderr when the kernels are first built)
+from iscc_gym.lazy import lazy_names as _lazy_names
 from iscc_gym.scenario import SCENARIOS, Scenario, make_scenario
 from iscc_gym.tasks import ENV_ID, FIELD_ENV_ID, MULTI_ENV_ID, TASKS, URBAN_ENV_ID
 
-#: The names imported on first use (PEP 562): the env and the compiled physics behind it are not loaded by
-#: ``import iscc_gym`` itself (nor by a command checking its arguments, issue 43.12: a mistake was refused only after
-#: the whole package, the compiled kernels included, had loaded); ``gymnasium.make`` loads them by entry point.
-_LAZY = {"ISCCEnv": "iscc_gym.envs.env", "N_DRONES": "iscc_gym.sim.fleet", "action_to_split": "iscc_gym.sim.task",
-         "split_to_action": "iscc_gym.sim.task"}
-
-
-def __getattr__(name: str):
-    if name in _LAZY:
-        value = getattr(_importlib.import_module(_LAZY[name]), name)
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module 'iscc_gym' has no attribute {name!r}")
-
-
-def __dir__():
-    return sorted([*globals(), *_LAZY])
-
+#: The names imported on first use (:mod:`iscc_gym.lazy`): the env and the compiled physics behind it are not loaded
+#: by ``import iscc_gym`` itself (nor by a command checking its arguments, issue 43.12: a mistake was refused only
+#: after the whole package, the compiled kernels included, had loaded); ``gymnasium.make`` loads them by entry point.
+__getattr__, __dir__ = _lazy_names(__name__, {"ISCCEnv": "iscc_gym.envs.env", "N_DRONES": "iscc_gym.sim.fleet",
+                                              "action_to_split": "iscc_gym.sim.task",
+                                              "split_to_action": "iscc_gym.sim.task"}, globals())
 
 __all__ = ["Scenario", "SCENARIOS", "make_scenario", "ISCCEnv", "action_to_split", "split_to_action",
            "ENV_ID", "URBAN_ENV_ID", "MULTI_ENV_ID", "FIELD_ENV_ID", "TASKS", "parallel_env"]

@@ -8,20 +8,13 @@ The runs that produce this repository's shipped agents (``experiments.ship``, ``
 ``experiments.pareto_agents``) are the checkout's ``experiments/``, not installed.
 """
 
-import importlib as _importlib
-
 from iscc_gym.train.config import Args, load_hyperparams
 
-#: Imported on first use (PEP 562): the training loop loads torch and SB3, and the command checks its arguments
-#: before (issue 43.12).
-_LAZY = {"cli": "cli", "console": "cli", "parse_args": "cli", "main": "train"}
+from iscc_gym.lazy import lazy_names as _lazy_names
 
-
-def __getattr__(name: str):
-    if name in _LAZY:
-        value = getattr(_importlib.import_module(f"{__name__}.{_LAZY[name]}"), name)
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+#: Imported on first use (:mod:`iscc_gym.lazy`): the training loop loads torch and SB3, and the command checks its
+#: arguments before (issue 43.12).
+__getattr__, __dir__ = _lazy_names(__name__, {"cli": ".cli", "console": ".cli", "parse_args": ".cli",
+                                              "main": ".train"}, globals())
 
 __all__ = ["Args", "main", "cli", "console", "parse_args", "load_hyperparams"]

@@ -270,8 +270,10 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> dict:
     bar = progress_bar(len(items) * sum(horizon_slots(w, args.max_steps) for w in played.values()), "evaluating",
                        unit="slot", enabled=show, unit_scale=True,
                        bar_format="{desc}: {percentage:3.0f}%|{bar}| {n_fmt}/{total_fmt} [{elapsed}{postfix}]")
-    time_left = getattr(bar, "set_time_left", None) or (
-        lambda s: bar.set_postfix_str("" if s is None else f"about {s:.0f} s left", refresh=False))
+    time_left = getattr(bar, "set_time_left", None)
+    if time_left is None and hasattr(bar, "set_postfix_str"):  # tqdm on a terminal
+        def time_left(s):
+            bar.set_postfix_str("" if s is None else f"about {s:.0f} s left", refresh=False)
     try:
         results = compare(args.env, items, seeds, variants=args.variants, scenario=args.scenario, reference=reference,
                           focus=focus, max_steps=args.max_steps, record=record,

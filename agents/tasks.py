@@ -2,7 +2,8 @@
 agent is shipped for it. Every command reads this table (``python -m eval``, its studies,
 ``python -m experiments.ship``); the env side (preset, variants, docs page) is :data:`iscc_gym.tasks.TASKS`.
 
-A new task adds one :class:`TaskPolicies` here beside its :class:`iscc_gym.tasks.Task`.
+Each :class:`TaskPolicies` is read from its task's file (:mod:`iscc_gym.tasks`: the policy side as strings); a new
+task adds nothing here.
 """
 
 from __future__ import annotations
@@ -10,11 +11,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from iscc_gym.agents.shipped import FIELD_AGENT, PPO_AGENT, URBAN_AGENT, multi_agent_dir
+from iscc_gym.agents.shipped import agent_dir, multi_agent_dir
 
-from iscc_gym.tasks import ENV_ID, FIELD_ENV_ID, MULTI_ENV_ID, TASKS, URBAN_ENV_ID, Task
+from iscc_gym.tasks import TASKS, Task
 
-__all__ = ["TaskPolicies", "TASK_POLICIES", "task_policies", "SHIPPED_AGENTS"]
+__all__ = ["TaskPolicies", "TASK_POLICIES", "task_policies", "policies_of", "SHIPPED_AGENTS"]
 
 
 @dataclass(frozen=True)
@@ -79,30 +80,17 @@ class TaskPolicies:
         return multi_agent_dir(n_drones)
 
 
-#: Every task's policies, keyed by env id.
-TASK_POLICIES: dict[str, TaskPolicies] = {
-    ENV_ID: TaskPolicies(ENV_ID, "ppo,sca,sca-per-slot,margin,myopic,equal", "sca", ("sca", "margin", "myopic"),
-                         "comparison", "Learned vs scripted allocation", agent=PPO_AGENT, readme=True,
-                         agent_docs=("agent", "The shipped PPO agent", "ppo_learning_curve.png")),
-    # the urban task: the shipped agent, the per-slot rules, the queue's drift-plus-penalty, the look-ahead planner
-    # and its oracle bound; myopic, the model's per-slot optimum, is the reference (mpc is within noise of it)
-    URBAN_ENV_ID: TaskPolicies(URBAN_ENV_ID, "ppo,myopic,margin,dpp,mpc,oracle", "myopic",
-                               ("myopic", "margin", "dpp", "mpc"), "urban-comparison",
-                               "The urban task: the learned agent, look-ahead and per-slot policies",
-                               agent=URBAN_AGENT, agent_docs=("urban-agent", "The shipped PPO agent of the urban task",
-                                                              "ppo_urban_learning_curve.png")),
-    MULTI_ENV_ID: TaskPolicies(MULTI_ENV_ID, "equal-sca,joint-sca,margin,margin-starved", "joint-sca",
-                               ("equal-sca", "joint-sca", "margin"), "multi", "Many drones, one base station",
-                               focus="agent"),
-    # the field task: the shipped agent (a residual on adaptive), the designer's per-slot policies on the paper's
-    # model, the adaptive rung that re-estimates the world, and the model-knowledge bound (aware: myopic shown the
-    # world's hidden values); every difference against myopic, the agent's against every rung
-    FIELD_ENV_ID: TaskPolicies(FIELD_ENV_ID, "ppo,myopic,margin,sca,adaptive,aware", "myopic",
-                               ("myopic", "margin", "sca", "adaptive"), "field-comparison",
-                               "The field task: the agent and the baseline ladder where the world is not the model",
-                               agent=FIELD_AGENT, agent_docs=("field-agent", "The shipped PPO agent of the field task",
-                                                              "ppo_field_learning_curve.png")),
-}
+def policies_of(task: Task) -> TaskPolicies:
+    """The policy side of ``task``, read from its task file (:class:`iscc_gym.tasks.Task`'s strings; the shipped
+    agent's folder resolved under the package's trained agents).
+    """
+    return TaskPolicies(task.env_id, task.policies, task.reference, tuple(task.scripted), task.results_section,
+                        task.results_title, focus=task.focus, agent=agent_dir(task.env_id), readme=task.readme,
+                        agent_docs=tuple(task.agent_docs))
+
+
+#: Every task's policies, keyed by env id (each from its task file, :mod:`iscc_gym.tasks`).
+TASK_POLICIES: dict[str, TaskPolicies] = {env_id: policies_of(task) for env_id, task in TASKS.items()}
 assert set(TASK_POLICIES) == set(TASKS), "every task needs its policies (iscc_gym.agents.tasks)"
 #: The shipped agent of each task that ships one (``python -m experiments.ship --env ENV``; ``python -m eval --env
 #: ENV``'s ``ppo``).
@@ -111,7 +99,8 @@ SHIPPED_AGENTS = {e: t.agent for e, t in TASK_POLICIES.items() if t.ships_agent}
 
 def task_policies(env_id: str) -> TaskPolicies:
     """The policies of ``env_id``'s task; ``ValueError`` naming the tasks if it is none of them."""
-    try:
+    if isinstance(env_id, str) and env_id in TASK_POLICIES:
         return TASK_POLICIES[env_id]
-    except (KeyError, TypeError):
-        raise ValueError(f"{env_id!r} is not a registered env id; use one of {', '.join(TASK_POLICIES)}") from None
+    if isinstance(env_id, str) and env_id in TASKS:  # a task added at run time (iscc_gym.tasks.add_task)
+        return policies_of(TASKS[env_id])
+    raise ValueError(f"{env_id!r} is not a registered env id; use one of {', '.join(TASKS)}")

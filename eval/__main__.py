@@ -214,8 +214,8 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> dict:
 
         return multi_main(rest, prog=f"{prog} --env {MULTI_ENV_ID}")
     args = build_parser(prog).parse_args(argv)
-    if args.env not in TASK_POLICIES or task_policies(args.env).fleet:
-        raise ValueError(f"--env {args.env!r}: use one of {', '.join(TASK_POLICIES)}")
+    if task_policies(args.env).fleet:  # ValueError naming the tasks for an unknown one
+        raise ValueError(f"--env {args.env!r}: use one of {', '.join(TASKS)}")
     task = task_policies(args.env)
     args.scenario = env_scenario(args.env, args.scenario, args.write_docs)  # the env's own, or a variant of its task
     if args.policies is None:

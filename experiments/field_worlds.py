@@ -2,7 +2,7 @@
 
 Issue 36's out-of-range table: every rung left as designed, tuned or trained on the ``field`` preset (``myopic`` on
 the paper's model, ``adaptive`` tuned on the preset's training missions, the shipped agent trained there), played on
-each variant of :data:`iscc_gym.tasks.FIELD_VARIANTS` (a K-factor spread or mean, an RCS spread beyond their
+each variant of :data:`iscc_gym.tasks.field.FIELD_VARIANTS` (a K-factor spread or mean, an RCS spread beyond their
 sources' ranges) and on the preset's own missions, held-out seeds, common random numbers (the engine,
 :func:`iscc_gym.eval.engine.compare`). ``aware`` is shown each world's true values. Per world: ``myopic``'s reward,
 ``adaptive`` - ``myopic``, ``aware`` - ``myopic``, the agent minus ``adaptive`` and the share of the gap the agent

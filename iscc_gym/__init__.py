@@ -18,7 +18,7 @@ import gymnasium as _gym
 from iscc_gym import compile_note as _compile_note  # noqa: F401 (a note on stderr when the kernels are first built)
 from iscc_gym.lazy import lazy_names as _lazy_names
 from iscc_gym.scenario import SCENARIOS, Scenario, make_scenario
-from iscc_gym.tasks import ENV_ID, FIELD_ENV_ID, MULTI_ENV_ID, TASKS, URBAN_ENV_ID
+from iscc_gym.tasks import ENV_ID, FIELD_ENV_ID, MULTI_ENV_ID, TASKS, URBAN_ENV_ID, Task, add_task
 
 #: The names imported on first use (:mod:`iscc_gym.lazy`): the env and the compiled physics behind it are not loaded
 #: by ``import iscc_gym`` itself (nor by a command checking its arguments, issue 43.12: a mistake was refused only
@@ -28,12 +28,24 @@ __getattr__, __dir__ = _lazy_names(__name__, {"ISCCEnv": "iscc_gym.envs.env", "N
                                               "split_to_action": "iscc_gym.sim.task"}, globals())
 
 __all__ = ["Scenario", "SCENARIOS", "make_scenario", "ISCCEnv", "action_to_split", "split_to_action",
-           "ENV_ID", "URBAN_ENV_ID", "MULTI_ENV_ID", "FIELD_ENV_ID", "TASKS", "parallel_env"]
+           "ENV_ID", "URBAN_ENV_ID", "MULTI_ENV_ID", "FIELD_ENV_ID", "TASKS", "Task", "register_task", "parallel_env"]
 
-for _task in TASKS.values():  # every env id from the one task table (iscc_gym.tasks)
-    if _task.env_id not in _gym.registry:
-        _gym.register(id=_task.env_id, entry_point=_task.entry_point, vector_entry_point=_task.vector_entry_point,
-                      max_episode_steps=_task.max_episode_steps, kwargs=_task.kwargs)
+
+
+def register_task(task: Task) -> Task:
+    """Add ``task`` (:class:`iscc_gym.tasks.Task`, e.g. a user's own task file's ``TASK``) to the task table
+    (:func:`iscc_gym.tasks.add_task`) and register its env id with Gymnasium, once; returns it. The commands then
+    play, train and compare it like the shipped tasks.
+    """
+    add_task(task)
+    if task.env_id not in _gym.registry:
+        _gym.register(id=task.env_id, entry_point=task.entry_point, vector_entry_point=task.vector_entry_point,
+                      max_episode_steps=task.max_episode_steps, kwargs=task.kwargs)
+    return task
+
+
+for _task in list(TASKS.values()):  # every env id from the task files (iscc_gym.tasks)
+    register_task(_task)
 __version__ = "0.1.0"
 
 

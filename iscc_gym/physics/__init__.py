@@ -10,3 +10,8 @@ Compiled scalar ``*_one`` functions, which the compiled slot (:mod:`iscc_gym.sim
 array forms. Imports nothing of :mod:`iscc_gym.sim`, :mod:`iscc_gym.envs` or :mod:`iscc_gym.analysis`
 (``tests/commands/test_imports.py``).
 """
+
+from iscc_gym.lazy import lazy_names as _lazy_names
+
+# a submodule on first use (iscc_gym.physics.<module> after import iscc_gym, as when iscc_gym imported the env eagerly)
+__getattr__, __dir__ = _lazy_names(__name__, {}, globals())

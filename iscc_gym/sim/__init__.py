@@ -9,3 +9,8 @@ composition: split -> slot -> observation -> reward, batched).
 
 Imports :mod:`iscc_gym.physics` and the scenario, never :mod:`iscc_gym.envs` or :mod:`iscc_gym.analysis`.
 """
+
+from iscc_gym.lazy import lazy_names as _lazy_names
+
+# a submodule on first use (iscc_gym.sim.<module> after import iscc_gym, as when iscc_gym imported the env eagerly)
+__getattr__, __dir__ = _lazy_names(__name__, {}, globals())

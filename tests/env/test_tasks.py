@@ -57,3 +57,32 @@ def test_every_command_reads_the_tasks_reference_and_shifts_from_the_table():
     assert list(SHIFTS) == list(TASKS[URBAN_ENV_ID].shifts)
     assert RANDOMIZE["urban-shifts"] == TASKS[URBAN_ENV_ID].shift_overrides()
     assert list(RANDOMIZE["urban-shifts"]) == [s for s in TASKS[URBAN_ENV_ID].shifts if s != "none"]
+
+
+def test_a_task_added_at_run_time_is_played_by_python_m_eval(capsys):
+    """Issue 44 (first part): a task is one Task of both sides as data; one registered at run time
+    (``iscc_gym.register_task``) is made by Gymnasium and compared by ``python -m eval`` with no other edit."""
+    import gymnasium as gym
+    from iscc_gym.agents.tasks import task_policies
+    from iscc_gym.eval.__main__ import main as eval_main
+
+    import iscc_gym
+    from iscc_gym.tasks import TASKS, Task
+
+    toy = Task("iscc_gym/ISCC-Toy-v0", "literal", "iscc_gym.envs.env:ISCCEnv", "iscc_gym.envs.vector:ISCCVectorEnv",
+               "a toy task: the paper's loop on the literal preset", "tasks/paper", policies="myopic,margin,equal",
+               reference="myopic", scripted=("myopic", "margin"), results_section="toy", results_title="Toy")
+    try:
+        iscc_gym.register_task(toy)
+        assert iscc_gym.register_task(toy) is toy  # once
+        env = gym.make(toy.env_id)
+        assert env.unwrapped.scenario.snr_convention == iscc_gym.make_scenario("literal").snr_convention
+        pol = task_policies(toy.env_id)
+        assert pol.policies == "myopic,margin,equal" and pol.agent is None and not pol.fleet
+        res = eval_main(["--env", toy.env_id, "--episodes", "1", "--max-steps", "2", "--workers", "1"])
+        assert list(res["policies"]) == ["myopic", "margin", "equal"] and res["reference"] == "myopic"
+        with pytest.raises(ValueError, match="another task's already"):
+            iscc_gym.register_task(Task(toy.env_id, "paper", toy.entry_point, toy.vector_entry_point, "other", "x"))
+    finally:
+        TASKS.pop(toy.env_id, None)
+        gym.registry.pop(toy.env_id, None)

@@ -1,0 +1,37 @@
+"""The field task, ``iscc_gym/ISCC-Field-v0`` (issue 36): the paper's loop in a world its model does not know (preset
+``field``: the links' K-factor a field along the path, the drone's RCS drawn per mission).
+
+Its env side (preset, entry points, the worlds outside its preset's ranges) and its policy side (the baseline
+ladder, the reference, the shipped agent, its docs sections), as data.
+"""
+
+from __future__ import annotations
+
+from iscc_gym.tasks.task import Task, Variant
+
+__all__ = ["FIELD_ENV_ID", "FIELD_VARIANTS", "TASK"]
+
+#: The field task (issue 36): the paper's loop in a world its designer's model does not know.
+FIELD_ENV_ID = "iscc_gym/ISCC-Field-v0"
+
+#: The field task's worlds outside the ranges its preset draws from (the out-of-range table: every policy left as
+#: designed, tuned or trained on the preset).
+FIELD_VARIANTS: dict[str, Variant] = {
+    "K spread 8 dB": Variant({"rician_k_std_db": 8.0}, "the K-factor's spread 8 dB, beyond TR 38.901's largest "
+                                                         "LoS sigma_K (5 dB, UMi)"),
+    "K mean 4 dB": Variant({"rician_k_db": 4.0}, "the K-factor's mean 5 dB below the model's 9 dB (more scattering "
+                                                 "than TR 38.901's LoS means, 7-9 dB)"),
+    "RCS spread 6 dB": Variant({"rcs_std_db": 6.0}, "the RCS's spread 6 dB, beyond Rel-19's 3.74 dB of a small UAV"),
+}
+
+# the shipped agent (a residual on adaptive), the designer's per-slot policies on the paper's model, the adaptive rung
+# that re-estimates the world, and the model-knowledge bound (aware: myopic shown the world's hidden values); every
+# difference against myopic, the agent's against every rung
+TASK = Task(FIELD_ENV_ID, "field", "iscc_gym.envs.env:ISCCEnv", "iscc_gym.envs.vector:ISCCVectorEnv",
+            "the paper's loop in a world its model does not know: the links' K-factor a field along the path, the "
+            "drone's RCS drawn per mission", "tasks/field", FIELD_VARIANTS,
+            policies="ppo,myopic,margin,sca,adaptive,aware", reference="myopic",
+            scripted=("myopic", "margin", "sca", "adaptive"), results_section="field-comparison",
+            results_title="The field task: the agent and the baseline ladder where the world is not the model",
+            agent="ppo_field",
+            agent_docs=("field-agent", "The shipped PPO agent of the field task", "ppo_field_learning_curve.png"))

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from iscc_gym import ENV_ID, URBAN_ENV_ID
+from iscc_gym import ENV_ID
 
 __all__ = ["SB3Policy", "residual_policy", "MANIFEST", "LAGRANGE_FILE", "write_manifest", "read_manifest", "ALGOS",
            "algo_class"]
@@ -361,14 +361,16 @@ def residual_policy(agent: SB3Policy, run: dict, where: str = "the run", fix: st
 
 
 def _obs_shape(env_id: str):
-    """The observation shape of ``env_id`` (the ISCC env's without building one), or None if unknown."""
-    if env_id == ENV_ID:
-        from iscc_gym.sim.schema import OBS_NAMES
+    """The observation shape of ``env_id`` (a single-drone task's, read from its task file's preset without building
+    an env: issue 44, the field agent's env had none), or None for another env (the multi-drone task's, whose shape
+    is K drones', or an env id of no task).
+    """
+    from iscc_gym.tasks import TASKS
 
-        return (len(OBS_NAMES),)
-    if env_id == URBAN_ENV_ID:
-        from iscc_gym import SCENARIOS
-        from iscc_gym.sim.schema import obs_size
+    task = TASKS.get(env_id)
+    if task is None or task.fleet:
+        return None
+    from iscc_gym.scenario import make_scenario
+    from iscc_gym.sim.schema import obs_size
 
-        return (obs_size(SCENARIOS["urban"]),)
-    return None
+    return (obs_size(make_scenario(task.preset)),)

@@ -64,7 +64,7 @@ class TaskPolicies:
     @property
     def fleet(self) -> bool:
         """Whether the task's env is the multi-drone one (its comparison: ``iscc_gym.eval.multi``)."""
-        return self.task.entry_point.endswith(":ISCCMultiEnv")
+        return self.task.fleet
 
     @property
     def ships_agent(self) -> bool:

@@ -57,7 +57,7 @@ from iscc_gym.eval.policies import (  # noqa: F401
 )
 from iscc_gym.eval.training import run_training
 
-from iscc_gym import ENV_ID, FIELD_ENV_ID, MULTI_ENV_ID, URBAN_ENV_ID
+from iscc_gym import ENV_ID, MULTI_ENV_ID, URBAN_ENV_ID
 from iscc_gym.cli import invoked_prog, run
 from iscc_gym.docs import README_PATH, RESULTS_PATH, docs_path, publish, save_json, write_section
 from iscc_gym.lazy import lazy_names
@@ -135,12 +135,13 @@ def save_plots(res: dict, out_dir: str | Path, dt_s: float = 0.1) -> list[str]:
 
 def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
     ap = Parser(prog=prog, description=__doc__.split("\n")[0], epilog=PICKLE_WARNING)
+    single = [e for e, t in TASKS.items() if not t.fleet]
     ap.add_argument("--env", default=ENV_ID, metavar="ID",
-                    help=f"env id (default: iscc_gym/ISCC-v0); {URBAN_ENV_ID}: the urban task (scenario 'urban', "
-                         f"policies {URBAN_POLICIES}, reference {TASK_POLICIES[URBAN_ENV_ID].reference}); "
-                         f"{FIELD_ENV_ID}: the field task (policies {TASK_POLICIES[FIELD_ENV_ID].policies}); "
-                         "iscc_gym/ISCC-Multi-v0 runs python -m eval.multi with the other flags (--n-drones K, "
-                         "--k-scan, ...: python -m eval.multi --help)")
+                    help=f"env id (default: {ENV_ID}): " + "; ".join(
+                        f"{e}: {TASKS[e].title} (preset {TASKS[e].preset!r}, policies {task_policies(e).policies}, "
+                        f"reference {task_policies(e).reference})" for e in single)
+                    + "; " + ", ".join(e for e, t in TASKS.items() if t.fleet) + " runs python -m eval.multi with the "
+                    "other flags (--n-drones K, --k-scan, ...: python -m eval.multi --help)")
     ap.add_argument("--policies", default=None, metavar="LIST",
                     help="comma-separated policies: NAME=PATH (a trained agent: a run directory of python -m train "
                          "or a model .zip; loads that directory's vecnormalize.pkl too, both pickles: only files "
@@ -148,8 +149,7 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
                          "sca-ignore-loss, equal, fixed:A_SEN,A_CTRL,A_COMM, grid, evolutionary, margin, "
                          "margin:M_CTRL,M_COMM, myopic, aware (myopic designed on the world played: the "
                          "model-knowledge bound), on the field task adaptive, and on the urban task dpp, dpp:V, mpc, "
-                         "oracle (default: "
-                         f"{DEFAULT_POLICIES}; on the urban task {URBAN_POLICIES})")
+                         "oracle (default: the task's comparison, in --env's help)")
     ap.add_argument("--episodes", type=positive_int, default=20, metavar="N",
                     help="held-out episodes (missions) per policy (default: 20)")
     ap.add_argument("--seed-start", type=nonneg_int, default=EVAL_SEED_START, metavar="SEED",
@@ -157,7 +157,8 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
     ap.add_argument("--seeds", metavar="LIST",
                     help="explicit comma-separated distinct seeds, instead of --episodes/--seed-start")
     ap.add_argument("--scenario", default=None,
-                    help="scenario preset (default: paper; urban with --env iscc_gym/ISCC-Urban-v0)")
+                    help="scenario preset (default: the env's own, in --env's help; a variant of the same task, "
+                         "e.g. literal on the paper's)")
     ap.add_argument("--reference", metavar="NAME",
                     help="policy the paired differences are taken against (default: the task's reference, if "
                          f"evaluated: {', '.join(f'{t.reference} on {e}' for e, t in TASK_POLICIES.items())})")

@@ -84,7 +84,7 @@ class DeviceVectorEnv:
         import torch
 
         task = get_task(env_id)
-        if task.entry_point.endswith("ISCCMultiEnv"):
+        if task.fleet:
             raise ValueError(f"env_id {env_id!r}: the multi-drone task has no device env (its K drones share one "
                              "band through a per-base-station split the row kernel does not hold); use "
                              "gymnasium.make_vec for it, or a single-drone task")

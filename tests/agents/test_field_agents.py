@@ -122,3 +122,17 @@ def test_a_world_designed_spec_that_reads_no_world_plays_the_field_task_on_the_w
     assert getattr(sca, "scenario_overrides", None) is None
     _, aware = build_policy("aware", "field", world=world)
     assert aware.scenario_overrides == {"show_world": True}
+
+
+def test_the_loaders_shape_check_knows_every_single_drone_task():
+    """Issue 44: agents/sb3_policy.py's observation-shape check knew the paper and urban envs only (the field agent
+    passed unchecked against its env); it reads each task's preset from its task file."""
+    pytest.importorskip("stable_baselines3")
+    from iscc_gym.agents.sb3_policy import SB3Policy
+    from iscc_gym.agents.shipped import FIELD_AGENT
+
+    from iscc_gym.tasks import FIELD_ENV_ID
+
+    assert SB3Policy.load(FIELD_AGENT, check_env=FIELD_ENV_ID).obs_shape == (25,)
+    with pytest.raises(ValueError, match="iscc_gym/ISCC-v0 gives \\(23,\\): it was trained on another env"):
+        SB3Policy.load(FIELD_AGENT, check_env="iscc_gym/ISCC-v0")

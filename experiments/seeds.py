@@ -37,15 +37,15 @@ from iscc_gym.eval.options import (
     show_progress,
 )
 
-from iscc_gym import ENV_ID, FIELD_ENV_ID, URBAN_ENV_ID
+from iscc_gym import ENV_ID
 from iscc_gym.protocol import EVAL_SEED_START, seed_list
+from iscc_gym.tasks import TASKS
 
 #: Scripted policies every seed is compared with on the paper's task (each task's: ``TaskPolicies.scripted``).
 SCRIPTED = task_policies(ENV_ID).scripted
-#: The env ids whose training configuration is studied, with their docs section and its title.
-SECTIONS = {ENV_ID: ("seeds", "The shipped configuration over 5 training seeds"),
-            URBAN_ENV_ID: ("urban-seeds", "The urban task's shipped configuration over 5 training seeds"),
-            FIELD_ENV_ID: ("field-seeds", "The field task's shipped configuration over 5 training seeds")}
+#: The env ids whose training configuration is studied, with their docs section and its title (each task file's
+#: ``seeds_docs``).
+SECTIONS = {e: tuple(t.seeds_docs) for e, t in TASKS.items() if t.seeds_docs}
 
 
 def compare_seeds(root, seeds, scenario: str = "paper", scripted=SCRIPTED, max_steps: int | None = None,
@@ -96,14 +96,14 @@ def build_parser(prog: str = "python -m experiments.seeds") -> Parser:
                     help="held-out missions, >= 2 (default: 20)")
     ap.add_argument("--seed-start", type=nonneg_int, default=EVAL_SEED_START, metavar="SEED",
                     help="seed of the first mission (default: 10000)")
-    urban = task_policies(URBAN_ENV_ID)
     ap.add_argument("--env", default=ENV_ID, choices=list(SECTIONS),
-                    help=f"the env the runs were trained on (default: {ENV_ID}); {URBAN_ENV_ID}: scenario urban, "
-                         f"compared with {', '.join(urban.scripted)} (minus {urban.reference})")
+                    help=f"the env the runs were trained on (default: {ENV_ID}); " + "; ".join(
+                        f"{e}: scenario {TASKS[e].preset}, compared with {', '.join(task_policies(e).scripted)} "
+                        f"(minus {task_policies(e).reference})" for e in SECTIONS))
     ap.add_argument("--reference", metavar="NAME",
-                    help="the scripted policy of the per-seed differences (default: the task's reference, sca on "
-                         f"{ENV_ID}, {urban.reference} on {URBAN_ENV_ID})")
-    ap.add_argument("--scenario", default=None, help="scenario preset (default: the env's, paper or urban)")
+                    help="the scripted policy of the per-seed differences (default: the task's reference, in "
+                         "--env's help)")
+    ap.add_argument("--scenario", default=None, help="scenario preset (default: the env's own)")
     ap.add_argument("--max-steps", type=positive_int, metavar="N",
                     help="slots per mission, >= 1 (default: the whole mission)")
     ap.add_argument("--write-docs", action="store_true",

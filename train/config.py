@@ -30,7 +30,9 @@ VEC_ENVS = ("dummy", "subproc", "batched")
 #: env, the field task).
 ISCC_ENV_IDS = tuple(TASKS)
 #: ``--randomize NAME``: the shifted statistics a randomised run trains over, beside the env's own.
-RANDOMIZE = {"urban-shifts": TASKS[URBAN_ENV_ID].shift_overrides()}
+RANDOMIZE = {f"{t.preset}-shifts": t.shift_overrides() for t in TASKS.values() if t.shifts}
+#: The task whose missions each set of :data:`RANDOMIZE` draws (``<preset>-shifts``: the task of that preset).
+RANDOMIZE_TASKS = {f"{t.preset}-shifts": e for e, t in TASKS.items() if t.shifts}
 #: ``--algo ppo-lag``: PPO with the Lagrangian of train/lagrangian.py, at these limits unless
 #: ``--cost-limit`` gives others.
 PPO_LAG_LIMITS = "rate=0.05,stability=0.0"
@@ -557,9 +559,10 @@ def check_args(args: Args) -> None:
     if randomized(args):
         if args.randomize not in RANDOMIZE:
             raise ValueError(f"randomize = {args.randomize!r}; use one of {sorted(RANDOMIZE)} or none")
-        if args.env_id != URBAN_ENV_ID or args.vec_env != "batched":
-            raise ValueError(f"randomize = {args.randomize!r} draws urban missions on the batched env; use --env "
-                             f"{URBAN_ENV_ID} with vec_env = 'batched'")
+        env = RANDOMIZE_TASKS[args.randomize]
+        if args.env_id != env or args.vec_env != "batched":
+            raise ValueError(f"randomize = {args.randomize!r} draws {TASKS[env].preset} missions on the batched env; "
+                             f"use --env {env} with vec_env = 'batched'")
     if args.residual_scale is not None:
         from iscc_gym.agents.residual import check_scale
 

@@ -32,4 +32,5 @@ TASK = Task(ENV_ID, "paper", "iscc_gym.envs.env:ISCCEnv", "iscc_gym.envs.vector:
             "the paper's closed loop: one drone, Rician LoS link, 500 s mission", "tasks/paper", PAPER_VARIANTS,
             policies="ppo,sca,sca-per-slot,margin,myopic,equal", reference="sca", scripted=("sca", "margin", "myopic"),
             results_section="comparison", results_title="Learned vs scripted allocation", agent="ppo_iscc",
-            readme=True, agent_docs=("agent", "The shipped PPO agent", "ppo_learning_curve.png"))
+            readme=True, agent_docs=("agent", "The shipped PPO agent", "ppo_learning_curve.png"),
+            seeds_docs=("seeds", "The shipped configuration over 5 training seeds"))

@@ -64,6 +64,9 @@ class Task:
         Whether the task's comparison is the README's main table too.
     agent_docs : tuple of str
         ``(results section, title, learning-curve figure)`` that ``python -m experiments.ship --env ENV`` writes.
+    seeds_docs : tuple of str
+        ``(results section, title)`` of the shipped configuration over training seeds (``python -m experiments.seeds
+        ROOT --env ENV --write-docs``); empty where the study does not run on the task.
     """
 
     env_id: str
@@ -83,6 +86,7 @@ class Task:
     agent: str | None = None
     readme: bool = False
     agent_docs: tuple[str, ...] = ()
+    seeds_docs: tuple[str, ...] = ()
 
     def __post_init__(self):
         if self.preset not in SCENARIOS:

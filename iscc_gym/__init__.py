@@ -28,7 +28,7 @@ __getattr__, __dir__ = _lazy_names(__name__, {"ISCCEnv": "iscc_gym.envs.env", "N
                                               "split_to_action": "iscc_gym.sim.task"}, globals())
 
 __all__ = ["Scenario", "SCENARIOS", "make_scenario", "ISCCEnv", "action_to_split", "split_to_action",
-           "ENV_ID", "URBAN_ENV_ID", "MULTI_ENV_ID", "FIELD_ENV_ID", "TASKS", "Task", "register_task", "parallel_env"]
+           "ENV_ID", "URBAN_ENV_ID", "MULTI_ENV_ID", "FIELD_ENV_ID", "TASKS", "register_task", "parallel_env"]
 
 
 

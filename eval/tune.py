@@ -49,6 +49,7 @@ from iscc_gym.eval.options import (
 # checked before the compiled env loads (issue 43.12)
 from iscc_gym.protocol import TUNE_SEED_START, TUNE_SEEDS, check_outside_evaluation, seed_list
 from iscc_gym.scenario import make_scenario
+from iscc_gym.tasks import TASKS
 
 #: Default grid of ``python -m eval.tune margin``.
 MARGIN_GRID = {"m_ctrl": (2.5, 3.0, 3.5, 4.0, 5.0, 6.0, 8.0),
@@ -114,7 +115,7 @@ MODEL_GRIDS = {"myopic": {"rate_weight": (0.1, 0.3, 0.6, 1.0, 2.0, 4.0)},
                # the field task's adaptive rung: its estimators' memory (python -m eval.tune adaptive --scenario field)
                "adaptive": {"k_window_slots": (10.0, 20.0, 40.0, 80.0), "echo_weight": (0.0, 0.5, 1.0)}}
 #: The task each grid-tuned baseline is tuned on (the preset ``--scenario`` must pose it).
-MODEL_TASKS = {"myopic": "urban", "dpp": "urban", "mpc": "urban", "adaptive": "field"}
+MODEL_TASKS = {policy: task.preset for task in TASKS.values() for policy in task.tuned}  # from each task file
 
 
 def _grid_policy(policy: str, scenario, params: dict):

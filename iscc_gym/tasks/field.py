@@ -35,4 +35,5 @@ TASK = Task(FIELD_ENV_ID, "field", "iscc_gym.envs.env:ISCCEnv", "iscc_gym.envs.v
             results_title="The field task: the agent and the baseline ladder where the world is not the model",
             agent="ppo_field",
             agent_docs=("field-agent", "The shipped PPO agent of the field task", "ppo_field_learning_curve.png"),
-            seeds_docs=("field-seeds", "The field task's shipped configuration over 5 training seeds"))
+            seeds_docs=("field-seeds", "The field task's shipped configuration over 5 training seeds"),
+            tuned=("adaptive",))

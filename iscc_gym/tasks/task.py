@@ -67,6 +67,10 @@ class Task:
     seeds_docs : tuple of str
         ``(results section, title)`` of the shipped configuration over training seeds (``python -m experiments.seeds
         ROOT --env ENV --write-docs``); empty where the study does not run on the task.
+    tuned : tuple of str
+        The model-based baselines tuned on this task's missions (``python -m eval.tune <policy> --scenario
+        <preset>``: their grids are ``iscc_gym.eval.tune.MODEL_GRIDS``; records ``<policy>-<preset>``, or the
+        policy's own name for the field task's ``adaptive``).
     """
 
     env_id: str
@@ -87,6 +91,7 @@ class Task:
     readme: bool = False
     agent_docs: tuple[str, ...] = ()
     seeds_docs: tuple[str, ...] = ()
+    tuned: tuple[str, ...] = ()
 
     def __post_init__(self):
         if self.preset not in SCENARIOS:

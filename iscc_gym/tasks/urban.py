@@ -58,4 +58,5 @@ TASK = Task(URBAN_ENV_ID, "urban", "iscc_gym.envs.env:ISCCEnv", "iscc_gym.envs.v
             scripted=("myopic", "margin", "dpp", "mpc"), results_section="urban-comparison",
             results_title="The urban task: the learned agent, look-ahead and per-slot policies", agent="ppo_urban",
             agent_docs=("urban-agent", "The shipped PPO agent of the urban task", "ppo_urban_learning_curve.png"),
-            seeds_docs=("urban-seeds", "The urban task's shipped configuration over 5 training seeds"))
+            seeds_docs=("urban-seeds", "The urban task's shipped configuration over 5 training seeds"),
+            tuned=("myopic", "dpp", "mpc"))

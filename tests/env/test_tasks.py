@@ -86,3 +86,11 @@ def test_a_task_added_at_run_time_is_played_by_python_m_eval(capsys):
     finally:
         TASKS.pop(toy.env_id, None)
         gym.registry.pop(toy.env_id, None)
+
+
+def test_every_grid_tuned_baseline_is_tuned_on_the_task_whose_file_names_it():
+    """Issue 44: eval.tune's policy -> task table came from the task files (``Task.tuned``), not a list by hand."""
+    from iscc_gym.eval.tune import MODEL_GRIDS, MODEL_TASKS
+
+    assert set(MODEL_TASKS) == set(MODEL_GRIDS)
+    assert MODEL_TASKS == {"myopic": "urban", "dpp": "urban", "mpc": "urban", "adaptive": "field"}

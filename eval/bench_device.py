@@ -13,6 +13,8 @@ import time
 
 import numpy as np
 
+from iscc_gym.tasks import ENV_ID, TASKS
+
 __all__ = ["run_device", "format_device", "env_rate", "rollout_rate", "time_to_myopic", "SIZES"]
 
 #: Batch sizes of the env rows: on a GPU 1k to 1M envs; on the CPU stand-in small ones.
@@ -61,7 +63,7 @@ def rollout_rate(device: str, num_envs: int, steps: int) -> dict:
 
     from iscc_gym.gpu.vector_env import DeviceVectorEnv
 
-    env = DeviceVectorEnv("iscc_gym/ISCC-v0", num_envs=num_envs, device=_dev(device), pool_size=min(1024, num_envs))
+    env = DeviceVectorEnv(ENV_ID, num_envs=num_envs, device=_dev(device), pool_size=min(1024, num_envs))
     net = torch.nn.Sequential(torch.nn.Linear(env.obs_size, 64), torch.nn.Tanh(), torch.nn.Linear(64, 64),
                               torch.nn.Tanh(), torch.nn.Linear(64, 3)).to(env.obs.device)
     obs, _ = env.reset(seed=0)
@@ -155,10 +157,10 @@ def run_device(device: str, quick: bool = False, max_wall_s: float = 120.0, cpu_
     steps = 3 if quick else (200 if device == "cuda" else 20)
     res = {"device": device, "gpu": torch.cuda.get_device_name(0) if device == "cuda" else None,
            "torch": torch.__version__}
-    res["env"] = {str(n): env_rate(device, "iscc_gym/ISCC-v0", n, steps) for n in sizes}
+    res["env"] = {str(n): env_rate(device, ENV_ID, n, steps) for n in sizes}
     big = sizes[min(2, len(sizes) - 1)]
-    res["tasks"] = {env_id: env_rate(device, env_id, big, steps)
-                    for env_id in ("iscc_gym/ISCC-Urban-v0", "iscc_gym/ISCC-Field-v0")}
+    res["tasks"] = {env_id: env_rate(device, env_id, big, steps)  # every other task the device env runs
+                    for env_id, task in TASKS.items() if env_id != ENV_ID and not task.fleet}
     res["rollout"] = {str(n): rollout_rate(device, n, steps) for n in sizes[-2:]}
     n_ppo = 16 if quick else (131_072 if device == "cuda" else 1024)
     cfg = DevicePPOConfig(device=_dev(device), n_envs=n_ppo, n_steps=16 if not quick else 4,

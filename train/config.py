@@ -17,7 +17,7 @@ import yaml
 from iscc_gym.agents.sb3_policy import ALGOS as SB3_ALGOS
 from iscc_gym.agents.sb3_policy import algo_class
 
-from iscc_gym import ENV_ID, FIELD_ENV_ID, MULTI_ENV_ID, URBAN_ENV_ID
+from iscc_gym import ENV_ID, MULTI_ENV_ID
 from iscc_gym.protocol import INIT_SEED_START, check_outside_evaluation
 from iscc_gym.tasks import TASKS, registered_scenario
 
@@ -125,8 +125,8 @@ FIELD_HELP = {
     "n_envs": "parallel envs (" + _or_default("n_envs", "YAML entry's n_envs") + ")",
     "vec_env": "dummy | subproc | batched (the ISCC env's own batched env, fastest)",
     "seed": "training seed (envs, networks, sampling)",
-    "scenario": "Scenario preset of the env (default: the env id's own: paper, urban for "
-                f"{URBAN_ENV_ID}, field for {FIELD_ENV_ID})",
+    "scenario": "Scenario preset of the env (default: the env id's own: "
+                + ", ".join(f"{t.preset} for {e}" for e, t in TASKS.items()) + ")",
     "out": "run directory; must be empty or new unless --resume or --overwrite",
     "hyperparams": "hyperparameter YAML in rl-zoo3's layout (env id -> hyperparameters; see train/hyperparams.yml)",
     "normalize": "VecNormalize observations and rewards (" + _or_default("normalize", "YAML entry's normalize") + ")",

@@ -20,25 +20,27 @@ __all__ = ["TRAINED_DIR", "PPO_AGENT", "URBAN_AGENT", "FIELD_AGENT", "MULTI_DIR"
 
 #: The folder of the trained agents.
 TRAINED_DIR = Path(__file__).resolve().parent / "trained"
-#: The trained PPO agent of ``iscc_gym/ISCC-v0`` (``python -m eval``'s ``ppo``; the folder its task file names).
-PPO_AGENT = TRAINED_DIR / TASKS[ENV_ID].agent
-#: The trained PPO agent of ``iscc_gym/ISCC-Urban-v0`` (``python -m eval --env iscc_gym/ISCC-Urban-v0``'s ``ppo``).
-URBAN_AGENT = TRAINED_DIR / TASKS[URBAN_ENV_ID].agent
-#: The trained agent of ``iscc_gym/ISCC-Field-v0``: a residual on ``adaptive`` (``python -m eval --env
-#: iscc_gym/ISCC-Field-v0``'s ``ppo``).
-FIELD_AGENT = TRAINED_DIR / TASKS[FIELD_ENV_ID].agent
-#: The multi-drone agents, one folder per drone count (``k4``, ``k4_lag``, ...).
-MULTI_DIR = TRAINED_DIR / "multi"
-#: The Pareto study's learned operating points, ``<family>/<label>``.
-PARETO_DIR = TRAINED_DIR / "pareto"
-#: The scripted baselines' tuning records.
-TUNED_DIR = Path(__file__).resolve().parent / "tuned"
 
 
 def agent_dir(env_id: str) -> Path | None:
     """The shipped agent's folder of task ``env_id`` (the folder its task file names), None where none ships."""
     folder = TASKS[env_id].agent
     return None if folder is None else TRAINED_DIR / folder
+
+
+#: The trained PPO agent of ``iscc_gym/ISCC-v0`` (``python -m eval``'s ``ppo``; the folder its task file names).
+PPO_AGENT = agent_dir(ENV_ID)
+#: The trained PPO agent of ``iscc_gym/ISCC-Urban-v0`` (``python -m eval --env iscc_gym/ISCC-Urban-v0``'s ``ppo``).
+URBAN_AGENT = agent_dir(URBAN_ENV_ID)
+#: The trained agent of ``iscc_gym/ISCC-Field-v0``: a residual on ``adaptive`` (``python -m eval --env
+#: iscc_gym/ISCC-Field-v0``'s ``ppo``).
+FIELD_AGENT = agent_dir(FIELD_ENV_ID)
+#: The multi-drone agents, one folder per drone count (``k4``, ``k4_lag``, ...).
+MULTI_DIR = TRAINED_DIR / "multi"
+#: The Pareto study's learned operating points, ``<family>/<label>``.
+PARETO_DIR = TRAINED_DIR / "pareto"
+#: The scripted baselines' tuning records.
+TUNED_DIR = Path(__file__).resolve().parent / "tuned"
 
 
 def multi_agent_dir(n_drones: int) -> Path:

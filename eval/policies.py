@@ -161,12 +161,13 @@ def check_specs(items: list[str], scenario: str = "paper") -> None:
             learned = True
         else:
             check_spec_name(item)
-    if any("=" not in item and world_spec(item)[0].strip().lower() not in _KNOWN_SPECS for item in items):
+    cheap = [spec for item in items if "=" not in item
+             and (spec := world_spec(item)[0]).strip().lower() not in _KNOWN_SPECS]
+    if cheap:
         from iscc_gym.agents import make_policy
 
-        for item in items:
-            if "=" not in item and (spec := world_spec(item)[0]).strip().lower() not in _KNOWN_SPECS:
-                make_policy(spec, scenario)  # cheap for the others; raises ValueError naming what is wrong
+        for spec in cheap:
+            make_policy(spec, scenario)  # cheap for the others; raises ValueError naming what is wrong
     if learned:
         missing = [m for m in ("torch", "stable_baselines3") if importlib.util.find_spec(m) is None]
         if missing:

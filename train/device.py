@@ -84,15 +84,11 @@ def main(args, device: str) -> dict:
     check_args(args)  # the checks of an SB3 run: the env id, the seed, a scenario of another task, ...
     cfg = config_from_args(args, device)
     prepare_out(args)
-    from iscc_gym.train.train import printer  # after the checks: it loads SB3
-
+    from iscc_gym.train.train import printer, say_rounding, whole_rollouts  # after the checks: it loads SB3
 
     say = printer(args)
-    rollout = cfg.n_envs * cfg.n_steps
-    target = -(-cfg.total_timesteps // rollout) * rollout
-    if target != cfg.total_timesteps:  # issue 43.11: 65,536 steps for 2,000 asked, without a word
-        say(f"--total-timesteps {cfg.total_timesteps:,} rounds up to {target:,}: the device PPO trains whole rollouts "
-            f"of {cfg.n_envs:,} envs x {cfg.n_steps} steps = {rollout:,}")
+    target = whole_rollouts(0, cfg.total_timesteps, cfg.n_envs, cfg.n_steps)
+    say_rounding(say, cfg.total_timesteps, target, "the device PPO", cfg.n_envs, cfg.n_steps)
     say(f"training {target:,} steps on {cfg.n_envs:,} device envs ({device}) into {args.out}; the first rollout "
         "compiles the device step")
     rows = []

@@ -380,16 +380,24 @@ def printer(args: Args):
     return say
 
 
-def whole_rollouts(model, start: int, total: int) -> int:
-    """The step an on-policy ``model`` (PPO: ``n_steps`` per env a rollout) stops at when asked to train from ``start``
-    to ``total``: SB3 ends on whole rollouts, so ``total`` rounds up to ``start`` plus whole rollouts; ``total`` for an
-    off-policy one (SAC, TD3: step by step).
+def whole_rollouts(start: int, total: int, n_envs: int, n_steps: int | None) -> int:
+    """The step an on-policy run (``n_steps`` per env a rollout) stops at when asked to train from ``start`` to
+    ``total``: it ends on whole rollouts, so ``total`` rounds up to ``start`` plus whole rollouts; ``total`` where
+    ``n_steps`` is None (SAC, TD3: step by step).
     """
-    n_steps = getattr(model, "n_steps", None)
-    if not isinstance(n_steps, int) or total <= start:
+    if n_steps is None or total <= start:
         return total
-    rollout = n_steps * model.n_envs
+    rollout = n_steps * n_envs
     return start + -(-(total - start) // rollout) * rollout
+
+
+def say_rounding(say, asked: int, target: int, trainer: str, n_envs: int, n_steps: int | None) -> None:
+    """Say where a budget of ``asked`` steps rounds up to ``target`` (:func:`whole_rollouts`; issue 43.11: runs
+    trained 4,096 steps for 2,000 asked without a word).
+    """
+    if target != asked:
+        say(f"--total-timesteps {asked:,} rounds up to {target:,}: {trainer} trains whole rollouts of {n_envs:,} envs "
+            f"x {n_steps} steps = {n_envs * n_steps:,}")
 
 
 def clock(seconds: float) -> str:
@@ -630,10 +638,9 @@ def main(args: Args, callback_after_eval=None) -> dict:
         callbacks.append(_checkpoint_callback(max(1, args.checkpoint_freq // per_env), checkpoint))
     bar = progress_bar_on(args)
     remaining = args.total_timesteps - start
-    target = whole_rollouts(model, start, args.total_timesteps)
-    if target != args.total_timesteps and remaining > 0:  # issue 43.11: it trained 4,096 for 2,000 without a word
-        say(f"--total-timesteps {args.total_timesteps:,} rounds up to {target:,}: {args.algo} trains whole rollouts "
-            f"of {model.n_envs} envs x {model.n_steps} steps = {model.n_envs * model.n_steps:,}")
+    n_steps = model.n_steps if isinstance(getattr(model, "n_steps", None), int) else None  # on-policy only
+    target = whole_rollouts(start, args.total_timesteps, model.n_envs, n_steps)
+    say_rounding(say, args.total_timesteps, target, args.algo, model.n_envs, n_steps)
     if not args.quiet and not bar:
         callbacks.append(_steps_callback(say, target))
     t0 = time.perf_counter()

@@ -32,8 +32,9 @@ from pathlib import Path
 import numpy as np
 from iscc_gym.agents.shipped import PPO_AGENT as SHIPPED_AGENT  # noqa: F401 (a name of this command)
 from iscc_gym.agents.tasks import TASK_POLICIES, task_policies
-from iscc_gym.eval.engine import compare, runs_items, worlds
-from iscc_gym.eval.options import (
+from iscc_gym.commands.cli import invoked_prog, run
+from iscc_gym.commands.docs import README_PATH, RESULTS_PATH, docs_path, publish, save_json, write_section
+from iscc_gym.commands.options import (
     PICKLE_WARNING,
     Parser,
     check_writable_dir,
@@ -46,6 +47,8 @@ from iscc_gym.eval.options import (
     progress_bar,
     show_progress,
 )
+from iscc_gym.commands.protocol import EVAL_SEED_START, seed_list
+from iscc_gym.eval.engine import compare, runs_items, worlds
 from iscc_gym.eval.policies import (  # noqa: F401
     build_policies,
     build_policy,
@@ -58,10 +61,7 @@ from iscc_gym.eval.policies import (  # noqa: F401
 from iscc_gym.eval.training import run_training
 
 from iscc_gym import ENV_ID, MULTI_ENV_ID, URBAN_ENV_ID
-from iscc_gym.cli import invoked_prog, run
-from iscc_gym.docs import README_PATH, RESULTS_PATH, docs_path, publish, save_json, write_section
 from iscc_gym.lazy import lazy_names
-from iscc_gym.protocol import EVAL_SEED_START, seed_list
 from iscc_gym.tasks import TASKS
 
 #: Names this module offers from :mod:`iscc_gym.eval.evaluate`, imported on first use (:mod:`iscc_gym.lazy`): the
@@ -134,7 +134,7 @@ def save_plots(res: dict, out_dir: str | Path, dt_s: float = 0.1) -> list[str]:
 
 
 def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
-    ap = Parser(prog=prog, description=__doc__.split("\n")[0], epilog=PICKLE_WARNING)
+    ap = Parser(prog=prog, gym_packages=True, description=__doc__.split("\n")[0], epilog=PICKLE_WARNING)
     single = [e for e, t in TASKS.items() if not t.fleet]
     ap.add_argument("--env", default=ENV_ID, metavar="ID",
                     help=f"env id (default: {ENV_ID}): " + "; ".join(
@@ -329,7 +329,7 @@ def _multi_argv(argv: list[str]) -> list[str] | None:
 
 def console(argv: list[str] | None = None, prog: str | None = None) -> int:
     """The ``iscc-eval`` command: :func:`main`, ending with exit code 0 on success, 2 after a one-line
-    error for a user's mistake, 130 on Ctrl-C (:func:`iscc_gym.cli.run`).
+    error for a user's mistake, 130 on Ctrl-C (:func:`iscc_gym.commands.cli.run`).
     """
     prog = invoked_prog(prog or os.path.basename(sys.argv[0]) or PROG)  # python -m iscc_gym.eval, as typed
     return run(functools.partial(main, prog=prog), argv, prog)

@@ -33,11 +33,11 @@ import time
 
 import gymnasium as gym
 import numpy as np
-from iscc_gym.eval.options import Parser, Stages, check_writable_file, positive_int, run_console
+from iscc_gym.commands.docs import README_PATH, RESULTS_PATH, docs_path, publish, save_json
+from iscc_gym.commands.options import Parser, Stages, check_writable_file, positive_int, run_console
 
 import iscc_gym
 from iscc_gym import threads
-from iscc_gym.docs import README_PATH, RESULTS_PATH, docs_path, publish, save_json
 
 
 def env_steps_per_second(env_id: str, n_steps: int, repeats: int, seed: int = 0, **kwargs) -> dict:
@@ -349,6 +349,9 @@ import numpy as np
 t = time.perf_counter()
 import gymnasium as gym, iscc_gym
 out = {"import": time.perf_counter() - t}
+import importlib, os
+for module in filter(None, os.environ.get("ISCC_GYM_PACKAGES", "").split(",")):
+    importlib.import_module(module)
 for env_id in sys.argv[1:]:
     t = time.perf_counter()
     env = gym.make(env_id)
@@ -372,6 +375,15 @@ print(json.dumps(out))
 """
 
 
+def bench_env_ids() -> list[str]:
+    """The env ids whose kernels :func:`compile_times` builds: every task of the task table (a task registered at
+    run time, by ``--gym-packages``, too).
+    """
+    from iscc_gym.tasks import TASKS
+
+    return list(TASKS)
+
+
 def compile_times(env_ids=None) -> dict:
     """Seconds to build the compiled kernels from a cold cache (a new process, numba's cache in an empty folder):
     the package's import, then each task's env (``gym.make``, reset, a step), in the order given (a later task reuses
@@ -382,11 +394,12 @@ def compile_times(env_ids=None) -> dict:
     import subprocess
     import tempfile
 
-    from iscc_gym.tasks import TASKS
+    from iscc_gym.commands.options import GYM_PACKAGES
 
-    env_ids = list(TASKS) if env_ids is None else list(env_ids)
+    env_ids = bench_env_ids() if env_ids is None else list(env_ids)
     with tempfile.TemporaryDirectory(prefix="iscc_gym-cold-") as cache:
-        env = {**os.environ, "NUMBA_CACHE_DIR": cache, "ISCC_GYM_QUIET": "1"}
+        env = {**os.environ, "NUMBA_CACHE_DIR": cache, "ISCC_GYM_QUIET": "1",
+               "ISCC_GYM_PACKAGES": ",".join(GYM_PACKAGES)}  # the modules that registered tasks of their own
         r = subprocess.run([sys.executable, "-c", _COMPILE_SCRIPT, *env_ids], capture_output=True, text=True,
                            env=env, timeout=1800)
     if r.returncode != 0:
@@ -526,7 +539,8 @@ def markdown(res: dict) -> str:
 
 
 def build_parser(prog: str = "python -m eval.bench") -> argparse.ArgumentParser:
-    ap = Parser(prog=prog, description=__doc__.split("\n")[0] + f" Default: a short run ({PROFILES['short'][0]}; "
+    ap = Parser(prog=prog, gym_packages=True,
+                description=__doc__.split("\n")[0] + f" Default: a short run ({PROFILES['short'][0]}; "
                 f"{PROFILES['short'][1]} on a quiet 2-core machine); --full: {PROFILES['full'][0]} "
                 f"({PROFILES['full'][1]}).")
     ap.add_argument("--full", action="store_true", help="every figure (the README's table; needed by --write-docs)")

@@ -15,10 +15,15 @@ import numpy as np
 
 from iscc_gym.tasks import ENV_ID, TASKS
 
-__all__ = ["run_device", "format_device", "env_rate", "rollout_rate", "time_to_myopic", "SIZES"]
+__all__ = ["run_device", "format_device", "env_rate", "rollout_rate", "time_to_myopic", "SIZES", "device_env_ids"]
 
 #: Batch sizes of the env rows: on a GPU 1k to 1M envs; on the CPU stand-in small ones.
 SIZES = {"cuda": (1024, 16_384, 131_072, 1_048_576), "standin": (64, 1024), "quick": (16,)}
+
+
+def device_env_ids() -> list[str]:
+    """The tasks the device env runs (every single-drone task of the task table, read when asked)."""
+    return [env_id for env_id, task in TASKS.items() if not task.fleet]
 
 
 def _sync(device: str) -> None:
@@ -106,9 +111,8 @@ def time_to_myopic(device: str, max_wall_s: float, eval_seeds: int = 8, eval_slo
     """
     from iscc_gym.agents.device_ppo import paper_config, train
     from iscc_gym.agents.myopic import MyopicPolicy
+    from iscc_gym.commands.protocol import CALLBACK_EVAL_SEED_START
     from iscc_gym.eval.evaluate import run_episodes
-
-    from iscc_gym.protocol import CALLBACK_EVAL_SEED_START
 
     seeds = list(range(CALLBACK_EVAL_SEED_START, CALLBACK_EVAL_SEED_START + eval_seeds))
     t = time.perf_counter()
@@ -160,7 +164,7 @@ def run_device(device: str, quick: bool = False, max_wall_s: float = 120.0, cpu_
     res["env"] = {str(n): env_rate(device, ENV_ID, n, steps) for n in sizes}
     big = sizes[min(2, len(sizes) - 1)]
     res["tasks"] = {env_id: env_rate(device, env_id, big, steps)  # every other task the device env runs
-                    for env_id, task in TASKS.items() if env_id != ENV_ID and not task.fleet}
+                    for env_id in device_env_ids() if env_id != ENV_ID}
     res["rollout"] = {str(n): rollout_rate(device, n, steps) for n in sizes[-2:]}
     n_ppo = 16 if quick else (131_072 if device == "cuda" else 1024)
     cfg = DevicePPOConfig(device=_dev(device), n_envs=n_ppo, n_steps=16 if not quick else 4,

@@ -24,8 +24,8 @@ from pathlib import Path
 
 from iscc_gym.agents.sb3_policy import LAGRANGE_FILE
 from iscc_gym.agents.tasks import TASK_POLICIES
-from iscc_gym.eval.evaluate import Entry, ci_bounds, ci_cell, evaluate, format_table, horizon_slots, markdown_table
-from iscc_gym.eval.options import (
+from iscc_gym.commands.docs import RESULTS_PATH, docs_path, write_section
+from iscc_gym.commands.options import (
     PICKLE_WARNING,
     Parser,
     check_writable_file,
@@ -35,11 +35,11 @@ from iscc_gym.eval.options import (
     run_console,
     show_progress,
 )
+from iscc_gym.commands.protocol import MULTI_SEED_START as SEED_START
+from iscc_gym.commands.protocol import held_out_seeds
+from iscc_gym.eval.evaluate import Entry, ci_bounds, ci_cell, evaluate, format_table, horizon_slots, markdown_table
 
 from iscc_gym import MULTI_ENV_ID
-from iscc_gym.docs import RESULTS_PATH, docs_path, write_section
-from iscc_gym.protocol import MULTI_SEED_START as SEED_START
-from iscc_gym.protocol import held_out_seeds
 from iscc_gym.scenario import make_scenario
 from iscc_gym.sim.fleet import N_DRONES, check_n_drones, drone_scenario
 
@@ -157,7 +157,7 @@ def build_parser(prog: str = "python -m eval.multi") -> Parser:
 
 def main(argv: list[str] | None = None, prog: str = "python -m eval.multi") -> dict:
     from iscc_gym.agents.multi import MULTI_POLICY_SPECS
-    from iscc_gym.eval.options import docs_command
+    from iscc_gym.commands.options import docs_command
 
     args = build_parser(prog).parse_args(argv)
     try:

@@ -24,11 +24,11 @@ import sys
 from collections.abc import Callable
 
 import numpy as np
+from iscc_gym.commands.options import Parser, Stages, nonneg_int, positive_int, run_console
+from iscc_gym.commands.protocol import seed_list
 from iscc_gym.eval.evaluate import run_episodes
-from iscc_gym.eval.options import Parser, Stages, nonneg_int, positive_int, run_console
 from iscc_gym.eval.tune import TUNE_SEED_START, check_tuning_seeds
 
-from iscc_gym.protocol import seed_list
 from iscc_gym.scenario import Scenario, make_scenario
 
 __all__ = ["FAMILIES", "build", "outage", "find_knob", "main"]

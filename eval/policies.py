@@ -173,7 +173,7 @@ def check_specs(items: list[str], scenario: str = "paper") -> None:
         if missing:
             raise ModuleNotFoundError(f"a trained agent needs {' and '.join(missing)}: pip install 'iscc-gym[train]' "
                                       "(or evaluate scripted policies only, e.g. --policies sca,margin,myopic)",
-                                      name=missing[0])  # iscc_gym.cli.run: one line, exit code 2
+                                      name=missing[0])  # iscc_gym.commands.cli.run: one line, exit code 2
 
 
 #: Specs whose evaluation takes longest (an optimisation every slot): started first by the workers.

@@ -35,7 +35,7 @@ import time
 
 import numpy as np
 from iscc_gym.agents.tuned_records import PER_SLOT_RECORD, record_name, record_task, save_tuned, task_of
-from iscc_gym.eval.options import (
+from iscc_gym.commands.options import (
     Parser,
     check_writable_file,
     nonneg_int,
@@ -47,7 +47,8 @@ from iscc_gym.eval.options import (
 
 # the policies, the rollout loop and scipy's optimisers are imported where they are used, so that the arguments are
 # checked before the compiled env loads (issue 43.12)
-from iscc_gym.protocol import TUNE_SEED_START, TUNE_SEEDS, check_outside_evaluation, seed_list
+from iscc_gym.commands.protocol import TUNE_SEED_START, TUNE_SEEDS, check_outside_evaluation, seed_list
+
 from iscc_gym.scenario import make_scenario
 from iscc_gym.tasks import TASKS
 
@@ -298,7 +299,7 @@ def _fmt(x) -> str:
 
 
 def build_parser(prog: str = "python -m eval.tune") -> Parser:
-    ap = Parser(prog=prog, description=__doc__.split("\n")[0])
+    ap = Parser(prog=prog, gym_packages=True, description=__doc__.split("\n")[0])
     ap.add_argument("policy", choices=["margin", PER_SLOT_RECORD, *MODEL_GRIDS],
                     help="the baseline to tune (myopic, dpp, mpc: on the urban task, --scenario urban; adaptive: on "
                          "the field task, --scenario field)")

@@ -21,10 +21,10 @@ import numpy as np
 from iscc_gym.agents import make_policy
 from iscc_gym.agents.sb3_policy import SB3Policy
 from iscc_gym.agents.tasks import task_policies
-from iscc_gym.eval.options import Parser, check_writable_file, docs_command, positive_int, run_console
+from iscc_gym.commands.options import Parser, check_writable_file, docs_command, positive_int, run_console
+from iscc_gym.commands.protocol import EVAL_SEED_START, seed_list
 
 from iscc_gym.envs.vector import ISCCVectorEnv
-from iscc_gym.protocol import EVAL_SEED_START, seed_list
 from iscc_gym.scenario import make_scenario
 from iscc_gym.sim.mission import world_column
 from iscc_gym.sim.task import action_to_split
@@ -147,7 +147,7 @@ def build_parser(prog: str = "python -m experiments.field_learned") -> Parser:
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.field_learned") -> dict:
     args = build_parser(prog).parse_args(argv)
-    from iscc_gym.docs import RESULTS_PATH, docs_path, write_section
+    from iscc_gym.commands.docs import RESULTS_PATH, docs_path, write_section
 
     if args.write_docs:
         check_writable_file(docs_path(RESULTS_PATH), "--write-docs")

@@ -20,9 +20,7 @@ import time
 
 import numpy as np
 from iscc_gym.agents.tasks import task_policies
-from iscc_gym.eval.engine import compare
-from iscc_gym.eval.evaluate import ci_bounds, mean_ci, oracle_share, share_bounds
-from iscc_gym.eval.options import (
+from iscc_gym.commands.options import (
     Parser,
     check_writable_file,
     docs_command,
@@ -30,8 +28,10 @@ from iscc_gym.eval.options import (
     positive_int,
     run_console,
 )
+from iscc_gym.commands.protocol import EVAL_SEED_START, seed_list
+from iscc_gym.eval.engine import compare
+from iscc_gym.eval.evaluate import ci_bounds, mean_ci, oracle_share, share_bounds
 
-from iscc_gym.protocol import EVAL_SEED_START, seed_list
 from iscc_gym.tasks import FIELD_ENV_ID, get_task
 
 __all__ = ["field_worlds", "markdown", "main"]
@@ -106,7 +106,7 @@ def build_parser(prog: str = "python -m experiments.field_worlds") -> Parser:
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.field_worlds") -> dict:
     args = build_parser(prog).parse_args(argv)
-    from iscc_gym.docs import RESULTS_PATH, docs_path, write_section
+    from iscc_gym.commands.docs import RESULTS_PATH, docs_path, write_section
 
     task = get_task(FIELD_ENV_ID)
     variants = None if args.variants is None else parse_names(args.variants, "--variants",

@@ -5,7 +5,8 @@ variants: the paper task's RCS, process-noise and link offsets), ``myopic`` desi
 designer builds) plays against ``aware``, ``myopic`` designed on the variant's true parameters (the model-knowledge
 bound, not a causal policy), on the same missions (common random numbers). The table gives each variant's
 ``myopic`` reward and ``aware`` - ``myopic`` (paired, 95 % interval) with its share of ``myopic``'s |reward|: the
-room an adaptive or learned policy has. Missions are training seeds (from :data:`iscc_gym.protocol.TUNE_SEED_START`),
+room an adaptive or learned policy has. Missions are training seeds (from
+:data:`iscc_gym.commands.protocol.TUNE_SEED_START`),
 never the held-out ones: this chooses the task's effects.
 
 Example::
@@ -22,11 +23,11 @@ from __future__ import annotations
 import sys
 import time
 
+from iscc_gym.commands.options import Parser, docs_command, parse_names, positive_int, run_console
+from iscc_gym.commands.protocol import TUNE_SEED_START, seed_list
 from iscc_gym.eval.engine import compare
 from iscc_gym.eval.evaluate import ci_bounds
-from iscc_gym.eval.options import Parser, docs_command, parse_names, positive_int, run_console
 
-from iscc_gym.protocol import TUNE_SEED_START, seed_list
 from iscc_gym.tasks import ENV_ID, get_task
 
 __all__ = ["headroom", "markdown", "main"]
@@ -117,9 +118,8 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.headr
         if "own" in names:
             raise ValueError(f"--variants {args.variants!r}: 'own' (the task's own missions) stands alone")
     if args.write_docs:
-        from iscc_gym.eval.options import check_writable_file
-
-        from iscc_gym.docs import RESULTS_PATH, docs_path
+        from iscc_gym.commands.docs import RESULTS_PATH, docs_path
+        from iscc_gym.commands.options import check_writable_file
 
         check_writable_file(docs_path(RESULTS_PATH), "--write-docs")
     seeds = seed_list(TUNE_SEED_START, args.missions)
@@ -129,7 +129,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.headr
     print(table)
     print(f"played {len(rows)} worlds in {time.perf_counter() - t0:.0f} s")
     if args.write_docs:
-        from iscc_gym.docs import RESULTS_PATH, docs_path, write_section
+        from iscc_gym.commands.docs import RESULTS_PATH, docs_path, write_section
 
         section = f"headroom-{task.docs_page.rsplit('/', 1)[-1]}"
         write_section(docs_path(RESULTS_PATH), section,

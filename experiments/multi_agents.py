@@ -28,9 +28,8 @@ import sys
 from pathlib import Path
 
 from iscc_gym.agents.shipped import MULTI_DIR
+from iscc_gym.commands.cli import invoked_prog
 from iscc_gym.train.config import MULTI_ENV_ID, Args
-
-from iscc_gym.cli import invoked_prog
 
 __all__ = ["MULTI_DIR", "K_VALUES", "MULTI_LAG_LIMITS", "K_SETTINGS", "run_args", "train_all", "cli"]
 
@@ -97,6 +96,6 @@ def cli(argv: list[str] | None = None) -> dict:
 
 
 if __name__ == "__main__":
-    from iscc_gym.cli import run
+    from iscc_gym.commands.cli import run
 
     sys.exit(run(cli, None, "python -m experiments.multi_agents"))

@@ -26,14 +26,14 @@ from pathlib import Path
 
 import numpy as np
 from iscc_gym.agents.shipped import PARETO_DIR
+from iscc_gym.commands.docs import RESULTS_PATH, docs_path, write_section
+from iscc_gym.commands.options import Parser, Stages, check_writable_file, nonneg_int, positive_int, run_console
+from iscc_gym.commands.protocol import PARETO_RATE_MIN_BPS, TUNE_SEED_START, held_out_seeds, seed_list
+from iscc_gym.commands.protocol import PARETO_SEED_START as SEED_START
 from iscc_gym.eval.evaluate import ci_bounds, mean_ci, run_episodes
-from iscc_gym.eval.options import Parser, Stages, check_writable_file, nonneg_int, positive_int, run_console
 from iscc_gym.eval.outage import build, find_knob
 from iscc_gym.eval.tune import check_tuning_seeds
 
-from iscc_gym.docs import RESULTS_PATH, docs_path, write_section
-from iscc_gym.protocol import PARETO_RATE_MIN_BPS, TUNE_SEED_START, held_out_seeds, seed_list
-from iscc_gym.protocol import PARETO_SEED_START as SEED_START
 from iscc_gym.scenario import make_scenario
 
 __all__ = ["KNOBS", "RATE_MIN_BPS", "points", "non_dominated", "select", "at_target", "markdown", "main"]
@@ -310,7 +310,7 @@ def _learned(items) -> dict:
 
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.pareto") -> dict:
-    from iscc_gym.eval.options import docs_command
+    from iscc_gym.commands.options import docs_command
 
     args = build_parser(prog).parse_args(argv)
     families = [f.strip() for f in args.families.split(",") if f.strip() and f.strip() != "none"]

@@ -1,7 +1,7 @@
 """``python -m experiments.pareto_agents``: train the learned points of the Pareto fronts (issue 15 item 3).
 
 Six PPO runs on ``iscc_gym/ISCC-v0`` at the Pareto comparison's rate requirement
-(:data:`iscc_gym.protocol.PARETO_RATE_MIN_BPS`), each ``python -m train`` with the configuration of
+(:data:`iscc_gym.commands.protocol.PARETO_RATE_MIN_BPS`), each ``python -m train`` with the configuration of
 ``train/hyperparams.yml`` (seed 0) plus the flags of :data:`RUNS`:
 
 * ``ppo/w<x>``: the fixed-weight reward with the rate-shortfall weight ``w_rate = x``;
@@ -25,10 +25,9 @@ import sys
 from pathlib import Path
 
 from iscc_gym.agents.shipped import PARETO_DIR
+from iscc_gym.commands.cli import invoked_prog
+from iscc_gym.commands.protocol import PARETO_RATE_MIN_BPS
 from iscc_gym.train.config import Args
-
-from iscc_gym.cli import invoked_prog
-from iscc_gym.protocol import PARETO_RATE_MIN_BPS
 
 __all__ = ["RUNS", "PARETO_DIR", "STABILITY_LIMIT", "run_args", "train_all", "cli"]
 
@@ -82,6 +81,6 @@ def cli(argv: list[str] | None = None) -> dict:
 
 
 if __name__ == "__main__":
-    from iscc_gym.cli import run
+    from iscc_gym.commands.cli import run
 
     sys.exit(run(cli, None, "python -m experiments.pareto_agents"))

@@ -26,8 +26,7 @@ import numpy as np
 from iscc_gym.agents import MarginPolicy, MyopicPolicy
 from iscc_gym.agents.base import SplitPolicy
 from iscc_gym.agents.margin import margin_split, predicted_needs
-from iscc_gym.eval.evaluate import ci_bounds, mean_ci, run_episodes
-from iscc_gym.eval.options import (
+from iscc_gym.commands.options import (
     Parser,
     docs_command,
     nonneg_int,
@@ -36,9 +35,10 @@ from iscc_gym.eval.options import (
     run_console,
     show_progress,
 )
+from iscc_gym.commands.protocol import seed_list
+from iscc_gym.eval.evaluate import ci_bounds, mean_ci, run_episodes
 from iscc_gym.eval.tune import TUNE_SEED_START, check_tuning_seeds
 
-from iscc_gym.protocol import seed_list
 from iscc_gym.sim.schema import OBS_NAMES
 
 _TIME_LEFT = OBS_NAMES.index("time_left")
@@ -140,9 +140,8 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.probe
         raise ValueError(f"--episodes {args.episodes}: use at least 2 (a confidence interval needs two missions)")
     seeds = check_tuning_seeds(seed_list(args.seed_start, args.episodes))
     if args.write_docs:
-        from iscc_gym.eval.options import check_writable_file
-
-        from iscc_gym.docs import RESULTS_PATH, docs_path
+        from iscc_gym.commands.docs import RESULTS_PATH, docs_path
+        from iscc_gym.commands.options import check_writable_file
 
         check_writable_file(docs_path(RESULTS_PATH), "--write-docs")
     show = show_progress(args.quiet)
@@ -152,7 +151,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.probe
     table = markdown(rows, cmd, seeds)
     print(table)
     if args.write_docs:
-        from iscc_gym.docs import write_section
+        from iscc_gym.commands.docs import write_section
 
         write_section(docs_path(RESULTS_PATH), "probes", "## Non-myopic probes of the scripted rules\n\n" + table)
         print(f"wrote {docs_path(RESULTS_PATH)}")

@@ -22,9 +22,7 @@ import sys
 
 import numpy as np
 from iscc_gym.agents.tasks import task_policies
-from iscc_gym.eval.engine import compare, runs_items, seed_runs
-from iscc_gym.eval.evaluate import ci_bounds, horizon_slots, mean_ci
-from iscc_gym.eval.options import (
+from iscc_gym.commands.options import (
     PICKLE_WARNING,
     Parser,
     check_writable_file,
@@ -36,9 +34,11 @@ from iscc_gym.eval.options import (
     run_console,
     show_progress,
 )
+from iscc_gym.commands.protocol import EVAL_SEED_START, seed_list
+from iscc_gym.eval.engine import compare, runs_items, seed_runs
+from iscc_gym.eval.evaluate import ci_bounds, horizon_slots, mean_ci
 
 from iscc_gym import ENV_ID
-from iscc_gym.protocol import EVAL_SEED_START, seed_list
 from iscc_gym.tasks import TASKS
 
 #: Scripted policies every seed is compared with on the paper's task (each task's: ``TaskPolicies.scripted``).
@@ -126,11 +126,11 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.seeds
                          f"{', '.join(scripted)}")
     section, title = SECTIONS[args.env]
     args.scenario = env_scenario(args.env, args.scenario, args.write_docs)  # the task's scenario, or a variant of it
-    runs = seed_runs(args.root)  # FileNotFoundError with one line: the exit code 2 of iscc_gym.cli.run
+    runs = seed_runs(args.root)  # FileNotFoundError with one line: the exit code 2 of iscc_gym.commands.cli.run
     from iscc_gym.eval.policies import check_specs
 
     check_specs(runs_items(runs), args.scenario)  # torch and SB3 installed, before the outputs are checked
-    from iscc_gym.docs import RESULTS_PATH, docs_path
+    from iscc_gym.commands.docs import RESULTS_PATH, docs_path
 
     if args.json:
         check_writable_file(args.json, "--json")
@@ -147,12 +147,12 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.seeds
     table = markdown(res, cmd)
     print(table)
     if args.write_docs:
-        from iscc_gym.docs import write_section
+        from iscc_gym.commands.docs import write_section
 
         write_section(docs_path(RESULTS_PATH), section, f"## {title}\n\n" + table)
         print(f"wrote {docs_path(RESULTS_PATH)}")
     if args.json:
-        from iscc_gym.docs import save_json
+        from iscc_gym.commands.docs import save_json
 
         save_json(args.json, res)
     return res

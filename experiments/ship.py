@@ -22,12 +22,12 @@ import yaml
 from iscc_gym.agents.sb3_policy import LAGRANGE_FILE
 from iscc_gym.agents.shipped import PPO_AGENT
 from iscc_gym.agents.tasks import SHIPPED_AGENTS, task_policies
+from iscc_gym.commands.cli import invoked_prog
 from iscc_gym.train.config import Args, has_residual, resolve_args
 from iscc_gym.train.runs import recover_unit
 from iscc_gym.train.train import main
 
 from iscc_gym import ENV_ID
-from iscc_gym.cli import invoked_prog
 from iscc_gym.files import atomic_dir, atomic_target
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -82,7 +82,7 @@ def publish(args: Args, summary: dict, dest: Path | None = None, write_docs: boo
         for name in names:
             shutil.copy2(Path(args.out) / name, tmp / name)
     if write_docs:
-        from iscc_gym.docs import RESULTS_PATH, write_section
+        from iscc_gym.commands.docs import RESULTS_PATH, write_section
 
         section, title, figure = task_policies(args.env_id).agent_docs
         flag = "" if args.env_id == ENV_ID else f" --env {args.env_id}"
@@ -155,6 +155,6 @@ def cli(argv: list[str] | None = None) -> dict:
 
 
 if __name__ == "__main__":
-    from iscc_gym.cli import run
+    from iscc_gym.commands.cli import run
 
     sys.exit(run(cli, None, "python -m experiments.ship"))

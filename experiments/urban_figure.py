@@ -17,15 +17,15 @@ from pathlib import Path
 
 import numpy as np
 from iscc_gym.agents.shipped import URBAN_AGENT
+from iscc_gym.commands.docs import RESULTS_PATH, docs_path, write_section
+from iscc_gym.commands.options import PICKLE_WARNING, Parser, check_writable_file, docs_command, nonneg_int, run_console
+from iscc_gym.commands.protocol import URBAN_SEED_START, seed_list
 from iscc_gym.eval.evaluate import run_episodes
 from iscc_gym.eval.figures import new_figure, save_figure
-from iscc_gym.eval.options import PICKLE_WARNING, Parser, check_writable_file, docs_command, nonneg_int, run_console
 from iscc_gym.eval.policies import build_policy, resolve_specs
 
 from experiments.urban_task import mission_stats
 from iscc_gym import URBAN_ENV_ID
-from iscc_gym.docs import RESULTS_PATH, docs_path, write_section
-from iscc_gym.protocol import URBAN_SEED_START, seed_list
 from iscc_gym.scenario import make_scenario
 from iscc_gym.sim.mission import MC
 
@@ -38,7 +38,8 @@ BLOCKED_SHARE = 0.1
 
 
 def pick_mission(scenario="urban", share: float = BLOCKED_SHARE, tries: int = 200) -> int:
-    """The first held-out mission from :data:`iscc_gym.protocol.URBAN_SEED_START` whose flight is blocked for at
+    """The first held-out mission from :data:`iscc_gym.commands.protocol.URBAN_SEED_START` whose flight is blocked
+    for at
     least ``share`` of it (a mission that shows what the task is about).
     """
     s = make_scenario(scenario)

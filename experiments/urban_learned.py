@@ -17,7 +17,7 @@ from __future__ import annotations
 import sys
 
 import numpy as np
-from iscc_gym.eval.options import (
+from iscc_gym.commands.options import (
     PICKLE_WARNING,
     Parser,
     check_writable_file,
@@ -26,9 +26,9 @@ from iscc_gym.eval.options import (
     positive_int,
     run_console,
 )
+from iscc_gym.commands.protocol import EVAL_SEED_START, seed_list
 
 from experiments.urban_figure import mission_policies, pick_mission, play_mission
-from iscc_gym.protocol import EVAL_SEED_START, seed_list
 from iscc_gym.scenario import make_scenario
 from iscc_gym.sim.mission import MC
 
@@ -127,7 +127,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.urban
     args = build_parser(prog).parse_args(argv)
     if not (args.window_s > 0 and np.isfinite(args.window_s)):
         raise ValueError(f"--window-s {args.window_s}: use a positive number of seconds")
-    from iscc_gym.docs import docs_path
+    from iscc_gym.commands.docs import docs_path
 
     learning = docs_path("docs/learning.md")
     if args.write_docs:
@@ -152,7 +152,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.urban
                  "backlog, tracking error and split over time, blocked slots shaded:\n\n"
                  "![the urban agent beside myopic and mpc](figures/urban_learned.png)")
     if args.write_docs:
-        from iscc_gym.docs import write_section
+        from iscc_gym.commands.docs import write_section
 
         write_section(learning, "urban-learned", "### What the urban agent does, phase by phase\n\n" + text)
         print(f"wrote {learning}")

@@ -5,7 +5,8 @@ weight, the map's error: :data:`VARIANTS`, each within the range its source stat
 
 1. ``myopic``'s data weight and the planner's (``rate_weight``; its other parameters those of its record,
    ``agents/tuned/mpc-urban.yml``) are tuned for the variant (:data:`RATE_WEIGHT_GRID` times the variant's
-   ``w_rate``) on :data:`TUNE_MISSIONS` tuning missions (from :data:`iscc_gym.protocol.TUNE_SEED_START`), so that
+   ``w_rate``) on :data:`TUNE_MISSIONS` tuning missions (from :data:`iscc_gym.commands.protocol.TUNE_SEED_START`), so
+   that
    both are as strong on the variant as on the preset;
 2. ``myopic``, ``mpc``, ``mpc-hold`` (the planner blind to the preview) and ``oracle`` (the planner shown the truth
    ahead), the last two with ``mpc``'s parameters, play the next ``--missions`` training missions (``--skip`` more
@@ -34,13 +35,13 @@ import time
 import numpy as np
 from iscc_gym.agents import LookaheadPolicy, MyopicPolicy
 from iscc_gym.agents.tuned_records import load_tuned, record_name
+from iscc_gym.commands.options import Parser, docs_command, nonneg_int, parse_names, positive_int, run_console
+from iscc_gym.commands.protocol import TUNE_SEED_START, seed_list
 from iscc_gym.eval.evaluate import ci_bounds, ci_side, mean_ci, run_episodes
-from iscc_gym.eval.options import Parser, docs_command, nonneg_int, parse_names, positive_int, run_console
 from iscc_gym.eval.policies import pool_map
 from iscc_gym.eval.tune import tune_model_grid
 
 from experiments.urban_task import task_stats
-from iscc_gym.protocol import TUNE_SEED_START, seed_list
 from iscc_gym.scenario import make_scenario
 from iscc_gym.tasks import TASKS, URBAN_ENV_ID
 
@@ -180,9 +181,8 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.urban
     args = build_parser(prog).parse_args(argv)
     names = parse_names(args.variants, "--variants", list(VARIANTS))
     if args.write_docs:
-        from iscc_gym.eval.options import check_writable_file
-
-        from iscc_gym.docs import RESULTS_PATH, docs_path
+        from iscc_gym.commands.docs import RESULTS_PATH, docs_path
+        from iscc_gym.commands.options import check_writable_file
 
         check_writable_file(docs_path(RESULTS_PATH), "--write-docs")
     row = functools.partial(lever_row, missions=args.missions, tune_missions=args.tune_missions,
@@ -195,7 +195,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.urban
     table = markdown(rows, docs_command(prog, argv))
     print(table)
     if args.write_docs:
-        from iscc_gym.docs import RESULTS_PATH, docs_path, write_section
+        from iscc_gym.commands.docs import RESULTS_PATH, docs_path, write_section
 
         write_section(docs_path(RESULTS_PATH), "urban-levers", "## What makes looking ahead pay\n\n" + table)
         print(f"wrote {docs_path(RESULTS_PATH)}")

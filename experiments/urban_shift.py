@@ -5,7 +5,7 @@ the scripted baselines with their tuning records and built for the preset (their
 the blockage and the queue are the preset's), and only the env's missions change (:data:`SHIFTS`: the other
 3GPP scenario, another altitude band, another data rate and deadline, the map's error doubled). On each
 shift, every policy plays the same held-out missions (common random numbers; seeds from
-:data:`iscc_gym.protocol.EVAL_SEED_START`), and the table gives each one's episode reward and the agent's
+:data:`iscc_gym.commands.protocol.EVAL_SEED_START`), and the table gives each one's episode reward and the agent's
 paired difference against it (95 % interval).
 
 Examples::
@@ -21,12 +21,12 @@ import time
 
 from iscc_gym.agents.shipped import URBAN_AGENT
 from iscc_gym.agents.tasks import TASK_POLICIES
+from iscc_gym.commands.options import PICKLE_WARNING, Parser, docs_command, parse_names, positive_int, run_console
+from iscc_gym.commands.protocol import EVAL_SEED_START, seed_list
 from iscc_gym.eval.engine import compare
 from iscc_gym.eval.evaluate import ci_bounds, ci_side
-from iscc_gym.eval.options import PICKLE_WARNING, Parser, docs_command, parse_names, positive_int, run_console
 from iscc_gym.eval.policies import policy_name, resolve_specs
 
-from iscc_gym.protocol import EVAL_SEED_START, seed_list
 from iscc_gym.tasks import TASKS, URBAN_ENV_ID
 
 __all__ = ["SHIFTS", "POLICIES", "markdown", "main"]
@@ -100,9 +100,8 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.urban
 
     check_specs(items, "urban")
     if args.write_docs:
-        from iscc_gym.eval.options import check_writable_file
-
-        from iscc_gym.docs import RESULTS_PATH, docs_path
+        from iscc_gym.commands.docs import RESULTS_PATH, docs_path
+        from iscc_gym.commands.options import check_writable_file
 
         check_writable_file(docs_path(RESULTS_PATH), "--write-docs")
     seeds = seed_list(EVAL_SEED_START, args.episodes)
@@ -114,7 +113,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.urban
     print(table)
     print(f"evaluated {len(names)} shifts in {time.perf_counter() - t0:.0f} s")
     if args.write_docs:
-        from iscc_gym.docs import RESULTS_PATH, docs_path, write_section
+        from iscc_gym.commands.docs import RESULTS_PATH, docs_path, write_section
 
         # the shipped agent's table, or another focus's beside it (e.g. ppo-rand=runs/urban_rand)
         shipped = args.focus == "ppo" and f"ppo={URBAN_AGENT}" in items

@@ -18,10 +18,10 @@ import sys
 
 import numpy as np
 from gymnasium.utils import seeding
-from iscc_gym.eval.options import Parser, docs_command, positive_int, run_console
+from iscc_gym.commands.options import Parser, docs_command, positive_int, run_console
+from iscc_gym.commands.protocol import URBAN_SEED_START, held_out_seeds
 
 from iscc_gym.physics.fbl import comm_rate_bps
-from iscc_gym.protocol import URBAN_SEED_START, held_out_seeds
 from iscc_gym.scenario import SCENARIOS, Scenario, make_scenario
 from iscc_gym.sim import loop
 from iscc_gym.sim.mission import MC
@@ -108,9 +108,8 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.urban
     s = make_scenario(args.scenario, **({} if args.blockage is None else {"blockage": args.blockage}))
     seeds = held_out_seeds(URBAN_SEED_START, args.missions)
     if args.write_docs:
-        from iscc_gym.eval.options import check_writable_file
-
-        from iscc_gym.docs import RESULTS_PATH, docs_path
+        from iscc_gym.commands.docs import RESULTS_PATH, docs_path
+        from iscc_gym.commands.options import check_writable_file
 
         check_writable_file(docs_path(RESULTS_PATH), "--write-docs")
     st = task_stats(s, seeds)
@@ -118,7 +117,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.urban
     table = markdown(st, name, docs_command(prog, argv), seeds)
     print(table)
     if args.write_docs:
-        from iscc_gym.docs import write_section
+        from iscc_gym.commands.docs import write_section
 
         write_section(docs_path(RESULTS_PATH), "urban-task", "## The urban task's missions\n\n" + table)
         print(f"wrote {docs_path(RESULTS_PATH)}")

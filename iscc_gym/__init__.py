@@ -9,8 +9,9 @@ imports run one way (``tests/commands/test_imports.py``):
 - :mod:`iscc_gym.envs`: the Gymnasium and PettingZoo faces;
 - :mod:`iscc_gym.analysis`: the steady-state evaluator, off the step path.
 
-The repository's ``agents/``, ``train/`` and ``eval/`` folders install as ``iscc_gym.agents``,
-``iscc_gym.train`` and ``iscc_gym.eval`` (``pyproject.toml``'s ``package-dir``); this core never imports them.
+The repository's ``agents/``, ``commands/``, ``train/`` and ``eval/`` folders install as ``iscc_gym.agents``,
+``iscc_gym.commands``, ``iscc_gym.train`` and ``iscc_gym.eval`` (``pyproject.toml``'s ``package-dir``); this core
+never imports them.
 """
 
 import gymnasium as _gym

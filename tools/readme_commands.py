@@ -7,7 +7,7 @@ with the first failing command's status, so CI (``.ci/run``) runs nothing the RE
 package installed by hand on the machine cannot hide a missing step.
 
 ``--write-docs`` writes the measured times into the README's ``setup-times`` block (through the new venv's
-``iscc_gym.docs.write_section``, the one writer of generated sections). ``--only main``, ``--only tests`` or
+``iscc_gym.commands.docs.write_section``, the one writer of generated sections). ``--only main``, ``--only tests`` or
 ``--only slow`` runs one command (the others' times are then not written). Standard library only: it runs before
 anything is installed.
 """
@@ -104,7 +104,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.write_docs:
             if args.only:
                 ap.error("--write-docs needs every command (no --only)")
-            code = ("import sys; from iscc_gym.docs import write_section, docs_path, README_PATH; "
+            code = ("import sys; from iscc_gym.commands.docs import write_section, docs_path, README_PATH; "
                     "write_section(docs_path(README_PATH), 'setup-times', sys.stdin.read())")
             subprocess.run([str(env_dir / "bin" / "python"), "-c", code], input=text, text=True, check=True,
                            cwd=ROOT)

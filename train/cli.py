@@ -11,10 +11,10 @@ import dataclasses
 from typing import Any
 
 import yaml
+from iscc_gym.commands.cli import invoked_prog, run
+from iscc_gym.commands.options import PICKLE_WARNING, Parser
 from iscc_gym.train.config import FIELD_HELP, Args, expand_algo
 from iscc_gym.train.study import add_study_arguments, run_cli
-
-from iscc_gym.cli import invoked_prog, run
 
 __all__ = ["build_parser", "args_from_namespace", "parse_value", "parse_args", "cli", "console", "PICKLE_WARNING"]
 
@@ -22,8 +22,6 @@ __all__ = ["build_parser", "args_from_namespace", "parse_value", "parse_args", "
 #: Where ``python -m train`` trains (``--device``).
 DEVICES = ("cpu", "cuda", "standin")
 
-PICKLE_WARNING = ("Model files (.zip) and vecnormalize.pkl are pickles: loading one executes code it holds. "
-                  "Load only files you trust (and --resume only runs of your own).")
 
 
 def build_parser(prog: str = "python -m train") -> argparse.ArgumentParser:
@@ -31,14 +29,15 @@ def build_parser(prog: str = "python -m train") -> argparse.ArgumentParser:
     ``--set`` / ``--env-set`` override hyperparameters / Scenario fields, and :mod:`train.study` adds
     ``--optimize``, ``--seeds``.
     """
-    ap = argparse.ArgumentParser(
-        prog=invoked_prog(prog), description="Train an SB3 agent (PPO by default; SAC, TD3) on ``iscc_gym/ISCC-v0``.",
+    ap = Parser(
+        prog=prog, gym_packages=True,
+        description="Train an SB3 agent (PPO by default; SAC, TD3) on ``iscc_gym/ISCC-v0``.",
         epilog="Writes into OUT: model.zip and vecnormalize.pkl (the final model and its statistics), best/ "
                "(the best model on the held-out missions, with its own statistics), checkpoints/step_<N>/ "
                "(for --resume), eval/evaluations.npz, learning_curve.csv/.png, config.yml, summary.yml, tb/ "
                "(--device: model.zip, vecnormalize.pkl, config.yml, summary.yml and learning_curve.csv/.png, the "
                "mean reward per step of each rollout). "
-               + PICKLE_WARNING)
+               + PICKLE_WARNING + " --resume only runs of your own.")
     defaults = Args()
     for f in dataclasses.fields(Args):
         if f.name in ("overrides", "env_overrides"):
@@ -136,8 +135,8 @@ def cli(argv: list[str] | None = None, prog: str = "python -m train") -> dict:
 
 def console(argv: list[str] | None = None, prog: str = "iscc-train") -> int:
     """The ``iscc-train`` / ``python -m train`` entry point: exit code 0 on success, 2 with one line
-    for a user's mistake (:func:`iscc_gym.cli.run`); ``python -m train`` is named as invoked
-    (:func:`iscc_gym.cli.invoked_prog`: ``python -m iscc_gym.train`` under the installed name).
+    for a user's mistake (:func:`iscc_gym.commands.cli.run`); ``python -m train`` is named as invoked
+    (:func:`iscc_gym.commands.cli.invoked_prog`: ``python -m iscc_gym.train`` under the installed name).
     """
     prog = invoked_prog(prog)
     return run(lambda a: cli(a, prog=prog), argv, prog)

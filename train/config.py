@@ -16,9 +16,9 @@ import numpy as np
 import yaml
 from iscc_gym.agents.sb3_policy import ALGOS as SB3_ALGOS
 from iscc_gym.agents.sb3_policy import algo_class
+from iscc_gym.commands.protocol import INIT_SEED_START, check_outside_evaluation
 
 from iscc_gym import ENV_ID, MULTI_ENV_ID
-from iscc_gym.protocol import INIT_SEED_START, check_outside_evaluation
 from iscc_gym.tasks import TASKS, registered_scenario
 
 HYPERPARAMS = Path(__file__).with_name("hyperparams.yml")
@@ -26,13 +26,15 @@ ALGOS = SB3_ALGOS  # ppo, sac, td3 and ppo_lstm (sb3-contrib's RecurrentPPO, rl-
 #: The on-policy algorithms (rollouts of n_steps per env, advantages normalised per mini-batch).
 ON_POLICY = ("ppo", "ppo_lstm")
 VEC_ENVS = ("dummy", "subproc", "batched")
-#: The ids the native batched env serves: every task of the table (the paper's env, the urban task, the multi-drone
-#: env, the field task).
-ISCC_ENV_IDS = tuple(TASKS)
-#: ``--randomize NAME``: the shifted statistics a randomised run trains over, beside the env's own.
-RANDOMIZE = {f"{t.preset}-shifts": t.shift_overrides() for t in TASKS.values() if t.shifts}
-#: The task whose missions each set of :data:`RANDOMIZE` draws (``<preset>-shifts``: the task of that preset).
-RANDOMIZE_TASKS = {f"{t.preset}-shifts": e for e, t in TASKS.items() if t.shifts}
+
+
+def randomize_sets() -> dict[str, tuple[str, dict[str, dict]]]:
+    """``--randomize NAME`` -> ``(env id, {shift: overrides})``: the shifted statistics a randomised run trains over
+    beside the env's own (``<preset>-shifts``: the shifts of the task of that preset), read from the task table
+    when asked, so a task registered at run time counts too.
+    """
+    return {f"{t.preset}-shifts": (e, t.shift_overrides()) for e, t in TASKS.items() if t.shifts}
+
 #: ``--algo ppo-lag``: PPO with the Lagrangian of train/lagrangian.py, at these limits unless
 #: ``--cost-limit`` gives others.
 PPO_LAG_LIMITS = "rate=0.05,stability=0.0"
@@ -284,9 +286,11 @@ def load_hyperparams(path: str | os.PathLike, env_id: str, algo: str, overrides:
     if not isinstance(table, dict):
         raise ValueError(f"{path}: expected a mapping of env ids to hyperparameters (rl-zoo3's layout)")
     entries, settings = _entries(table, path, algo, env_id)
-    if env_id not in entries:
-        raise ValueError(f"env_id {env_id!r} has no entry in {path}; add one (keys: {sorted(entries)})")
-    entry = entries[env_id]
+    key = env_id if env_id in entries or env_id not in TASKS else TASKS[env_id].hyperparams_key
+    if key not in entries:
+        raise ValueError(f"env_id {env_id!r} has no entry in {path}; add one (keys: {sorted(entries)}), or name "
+                         "the task's train_like")
+    entry = entries[key]
     if isinstance(entry, dict) and entry and set(entry) <= set(ALGOS) and all(isinstance(v, dict) for v in
                                                                              entry.values()):
         if algo not in entry:  # the older layout: env id -> algo -> hyperparameters
@@ -294,7 +298,7 @@ def load_hyperparams(path: str | os.PathLike, env_id: str, algo: str, overrides:
         entry = entry[algo]
     if not isinstance(entry, dict):
         raise ValueError(f"{path}: the entry of {env_id} is {entry!r}; use a mapping of hyperparameters")
-    hp = {**dict(settings.get(env_id) or {}), **entry}
+    hp = {**dict(settings.get(key) or {}), **entry}
     hp.update(overrides or {})
     if "policy_kwargs" in hp:
         hp["policy_kwargs"] = parse_policy_kwargs(hp["policy_kwargs"])
@@ -518,7 +522,7 @@ def expand_algo(args: Args) -> Args:
 
 def check_args(args: Args) -> None:
     if args.env_id not in gym.registry:  # before any setting that depends on the env (vec_env, the YAML entry)
-        raise ValueError(f"env_id {args.env_id!r} is not a registered env id; use one of {', '.join(ISCC_ENV_IDS)} "
+        raise ValueError(f"env_id {args.env_id!r} is not a registered env id; use one of {', '.join(TASKS)} "
                          "(or another registered Gymnasium id, e.g. Pendulum-v1)")
     if args.algo not in (*ALGOS, "ppo-lag"):
         raise ValueError(f"algo = {args.algo!r}; use one of {', '.join((*ALGOS, 'ppo-lag'))}")
@@ -531,9 +535,9 @@ def check_args(args: Args) -> None:
         parse_cost_limits(args.cost_limit)
         if not (args.lagrange_lr > 0.0 and math.isfinite(args.lagrange_lr)):
             raise ValueError(f"lagrange_lr = {args.lagrange_lr!r}; use a positive number, e.g. 0.05")
-        if args.env_id not in ISCC_ENV_IDS:
-            raise ValueError(f"cost_limit: {args.env_id} has no ISCC costs in info; use one of {list(ISCC_ENV_IDS)}")
-    if args.vec_env == "batched" and args.env_id not in ISCC_ENV_IDS:
+        if args.env_id not in TASKS:
+            raise ValueError(f"cost_limit: {args.env_id} has no ISCC costs in info; use one of {list(TASKS)}")
+    if args.vec_env == "batched" and args.env_id not in TASKS:
         raise ValueError("vec_env = 'batched' is the ISCC env's own batched env; use dummy or subproc for "
                          f"{args.env_id}")
     for name in ("total_timesteps", "n_envs", "eval_episodes", "eval_max_steps", "torch_threads", "numba_threads",
@@ -545,21 +549,22 @@ def check_args(args: Args) -> None:
             raise ValueError(f"{name} = {getattr(args, name)}; use an integer >= 0 (0: none)")
     if not 0 <= args.seed < 2**32:
         raise ValueError(f"seed = {args.seed}; use an integer in [0, 2**32)")
-    if args.scenario is not None and args.env_id in ISCC_ENV_IDS:
+    if args.scenario is not None and args.env_id in TASKS:
         check_task(args.env_id, args.scenario)
     check_no_world_shown(args.env_overrides)  # the flag's (the YAML's env_kwargs: resolve_args)
     if has_residual(args):
-        if args.env_id not in ISCC_ENV_IDS or args.env_id == MULTI_ENV_ID:
+        if args.env_id not in TASKS or args.env_id == MULTI_ENV_ID:
             raise ValueError(f"residual = {args.residual!r}: a scripted base policy plays the single-drone tasks "
-                             f"({', '.join(e for e in ISCC_ENV_IDS if e != MULTI_ENV_ID)}) only, not {args.env_id}; "
+                             f"({', '.join(e for e in TASKS if e != MULTI_ENV_ID)}) only, not {args.env_id}; "
                              "unset residual")
         if has_warm_start(args):
             raise ValueError(f"residual = {args.residual!r} and init_policy = {args.init_policy!r}: use one (a "
                              "residual agent starts at its base policy already)")
     if randomized(args):
-        if args.randomize not in RANDOMIZE:
-            raise ValueError(f"randomize = {args.randomize!r}; use one of {sorted(RANDOMIZE)} or none")
-        env = RANDOMIZE_TASKS[args.randomize]
+        sets = randomize_sets()
+        if args.randomize not in sets:
+            raise ValueError(f"randomize = {args.randomize!r}; use one of {sorted(sets)} or none")
+        env = sets[args.randomize][0]
         if args.env_id != env or args.vec_env != "batched":
             raise ValueError(f"randomize = {args.randomize!r} draws {TASKS[env].preset} missions on the batched env; "
                              f"use --env {env} with vec_env = 'batched'")
@@ -614,9 +619,10 @@ def randomized(args: Args) -> bool:
 
 def randomized_overrides(args: Args) -> list[dict]:
     """The Scenario overrides of each share of the envs of a randomised run: the run's own (``env_overrides``),
-    then each of :data:`RANDOMIZE`'s sets on top of them.
+    then each of :func:`randomize_sets`'s sets on top of them.
     """
-    return [dict(args.env_overrides)] + [{**args.env_overrides, **o} for o in RANDOMIZE[args.randomize].values()]
+    shifts = randomize_sets()[args.randomize][1]
+    return [dict(args.env_overrides)] + [{**args.env_overrides, **o} for o in shifts.values()]
 
 
 def run_settings(args: Args) -> dict:
@@ -662,7 +668,7 @@ def has_residual(args: Args) -> bool:
 
 def _seed_ranges(args: Args) -> list[tuple[str, int, int]]:
     """The seeds a resolved run trains on, as (what, first, last): the training envs' (``seed`` + i, SB3's
-    convention) and the warm start's (:data:`iscc_gym.protocol.INIT_SEED_START` + 1000 ``seed`` + i).
+    convention) and the warm start's (:data:`iscc_gym.commands.protocol.INIT_SEED_START` + 1000 ``seed`` + i).
     """
     ranges = [("the training envs' seeds", args.seed, args.seed + args.n_envs - 1)]
     if has_warm_start(args):
@@ -674,7 +680,7 @@ def _seed_ranges(args: Args) -> list[tuple[str, int, int]]:
 def check_resolved(args: Args, hyperparams: dict) -> None:
     """Checks of a run's resolved settings (:func:`resolve_args`), before any work: the run settings the
     YAML may fill (``init_*``, as :func:`check_args` does for the flags), PPO's rollout size, an env for each
-    mission set of a randomised run, and training seeds outside :data:`iscc_gym.protocol.EVAL_SEED_RANGES` (the
+    mission set of a randomised run, and training seeds outside :data:`iscc_gym.commands.protocol.EVAL_SEED_RANGES` (the
     held-out missions stay unseen in training).
 
     Raises

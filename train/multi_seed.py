@@ -7,10 +7,10 @@ from __future__ import annotations
 import dataclasses
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 import yaml
+from iscc_gym.commands.protocol import CALLBACK_EVAL_SEED_START
 from iscc_gym.train.config import (
     Args,
     algo_class,
@@ -23,28 +23,8 @@ from iscc_gym.train.config import (
 )
 
 from iscc_gym.files import write_atomic
-from iscc_gym.protocol import CALLBACK_EVAL_SEED_START
 
-if TYPE_CHECKING:  # pragma: no cover
-    pass
 from .study_io import StudyConfigError
-
-
-def parse_seeds(text: str) -> list[int]:
-    """``"0,1,2"`` -> ``[0, 1, 2]``.
-
-    Raises
-    ------
-    StudyConfigError
-        Empty, non-integer, negative or repeated seeds.
-    """
-    try:
-        seeds = [int(s) for s in text.split(",")]
-    except ValueError:
-        raise StudyConfigError(f"--seeds {text!r}: use comma-separated integers, e.g. --seeds 0,1,2,3,4") from None
-    if any(s < 0 for s in seeds) or len(set(seeds)) != len(seeds):
-        raise StudyConfigError(f"--seeds {text!r}: use distinct non-negative integers, e.g. --seeds 0,1,2,3,4")
-    return seeds
 
 
 def evaluate_run(args: Args) -> tuple[float, float]:

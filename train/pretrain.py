@@ -3,7 +3,7 @@
 ``python -m train`` with ``init_policy: myopic`` in the YAML entry (or ``--init-policy SPEC``, any
 :func:`agents.make_policy` spec) first plays the scripted policy on ``init_envs`` envs of its own for
 ``init_steps`` steps each (whole missions by default, so every phase of a mission is seen; seeds
-from :data:`iscc_gym.protocol.INIT_SEED_START`, training seeds disjoint from every evaluation seed),
+from :data:`iscc_gym.commands.protocol.INIT_SEED_START`, training seeds disjoint from every evaluation seed),
 gathering VecNormalize statistics on the way (they become the training env's). It then fits the
 actor's mean action to the scripted actions and the critic to the discounted (normalised) returns
 of those steps, both by Adam on mean-squared error, and sets the action noise to ``init_log_std``.

@@ -11,7 +11,8 @@ Usage::
 
 Each trial samples PPO hyperparameters (:func:`sample_ppo_params`), trains with
 :func:`iscc_gym.train.train.main` into ``OUT/trial_<n>`` and reports every held-out evaluation of the
-EvalCallback (mean episode reward on the seeds from :data:`iscc_gym.protocol.CALLBACK_EVAL_SEED_START`) to Optuna,
+EvalCallback (mean episode reward on the seeds from :data:`iscc_gym.commands.protocol.CALLBACK_EVAL_SEED_START`) to
+Optuna,
 which may prune it. The objective, maximised, is the final model's mean reward on the same held-out
 episodes. The best trial is exported as a ``hyperparams.yml`` entry, ``OUT/best_hyperparams.yml``,
 which ``python -m train --hyperparams OUT/best_hyperparams.yml`` trains directly.
@@ -59,7 +60,9 @@ from iscc_gym.train.config import Args, load_hyperparams, resolve_args, run_flag
 if TYPE_CHECKING:  # pragma: no cover
     import optuna
 
-from .multi_seed import check_run_config, evaluate_run, parse_seeds, run_seeds
+from iscc_gym.commands.options import parse_seeds
+
+from .multi_seed import check_run_config, evaluate_run, run_seeds
 from .study_io import (
     PRUNERS,
     SAMPLERS,
@@ -171,6 +174,14 @@ def study_args_from_namespace(ns: argparse.Namespace) -> StudyArgs:
     return StudyArgs(**{f.name: getattr(ns, f.name) for f in dataclasses.fields(StudyArgs)})
 
 
+def study_seeds(text: str) -> list[int]:
+    """``--seeds`` of a seeds run (:func:`iscc_gym.commands.options.parse_seeds`), as a :class:`StudyConfigError`."""
+    try:
+        return parse_seeds(text, "--seeds")
+    except ValueError as e:
+        raise StudyConfigError(str(e)) from None
+
+
 def run_cli(ap: argparse.ArgumentParser, ns: argparse.Namespace, args: Args) -> dict:
     """``python -m train --optimize`` / ``--seeds``: run, print, and turn bad input into a one-line error.
 
@@ -195,7 +206,7 @@ def run_cli(ap: argparse.ArgumentParser, ns: argparse.Namespace, args: Args) -> 
             result = optimize(args, study_args_from_namespace(ns))
             print(result["report"])
             return result
-        return run_seeds(args, parse_seeds(ns.seeds))
+        return run_seeds(args, study_seeds(ns.seeds))
     except StudyConfigError as e:
         ap.exit(2, f"{ap.prog}: error: {e}\n")
 

@@ -44,12 +44,12 @@ import yaml
 from iscc_gym.agents.residual import RECORD_KEYS
 from iscc_gym.agents.sb3_logging import stdout_logger
 from iscc_gym.agents.sb3_policy import LAGRANGE_FILE
+from iscc_gym.commands.protocol import CALLBACK_EVAL_SEED_START, INIT_SEED_START
 
 from iscc_gym.files import write_atomic
-from iscc_gym.protocol import CALLBACK_EVAL_SEED_START, INIT_SEED_START
+from iscc_gym.tasks import TASKS
 
 from .config import (
-    ISCC_ENV_IDS,
     MULTI_ENV_ID,
     Args,
     action_noise,
@@ -122,7 +122,7 @@ def make_train_env(args: Args, residual: dict | None = None):
             venv = ISCCBatchedVecEnv(args.n_envs, scenario=args.scenario, info_keys=keys, **batched_kwargs(args))
         venv.seed(args.seed)
         return VecMonitor(with_residual(venv, args, residual))
-    kwargs = {"scenario": args.scenario, **args.env_overrides} if args.env_id in ISCC_ENV_IDS else {}
+    kwargs = {"scenario": args.scenario, **args.env_overrides} if args.env_id in TASKS else {}
     kwargs["env_id"] = args.env_id  # made by make_env, which a subproc worker imports iscc_gym for
     cls = SubprocVecEnv if args.vec_env == "subproc" else DummyVecEnv
     # make_vec_env wraps each env in a Monitor already (below the residual: it records the env's rewards)
@@ -165,7 +165,7 @@ def make_eval_env(args: Args, residual: dict | None = None):
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import DummyVecEnv, VecMonitor
 
-    if args.env_id in ISCC_ENV_IDS:
+    if args.env_id in TASKS:
         from iscc_gym.agents.sb3_vec_env import ISCCBatchedVecEnv
 
         venv = ISCCBatchedVecEnv(args.eval_episodes, scenario=args.scenario, **batched_kwargs(args))

@@ -12,11 +12,11 @@ import sys
 
 import numpy as np
 from iscc_gym.agents import FixedSplitPolicy
+from iscc_gym.commands.docs import docs_path, write_section
+from iscc_gym.commands.options import Parser, check_writable_file, positive_int, run_console
 from iscc_gym.eval.evaluate import run_episodes
-from iscc_gym.eval.options import Parser, check_writable_file, positive_int, run_console
 
 from iscc_gym.analysis import static_model
-from iscc_gym.docs import docs_path, write_section
 from iscc_gym.scenario import make_scenario
 
 MODEL_PATH = "docs/model.md"

@@ -30,6 +30,8 @@ import time
 
 import numpy as np
 from iscc_gym.agents.base import SplitPolicy
+from iscc_gym.commands.protocol import FADING_SEED_START as SEED_START
+from iscc_gym.commands.protocol import held_out_seeds
 
 from experiments.paper.fading_draw import draw
 from iscc_gym import SCENARIOS
@@ -38,8 +40,6 @@ from iscc_gym.analysis.averages import mean_snr, sample_positions
 from iscc_gym.physics.dynamics import model_matrices
 from iscc_gym.physics.fbl import ctrl_bler
 from iscc_gym.physics.stability import alpha_ctrl_star, spectral_radius, stability_matrix
-from iscc_gym.protocol import FADING_SEED_START as SEED_START
-from iscc_gym.protocol import held_out_seeds
 from iscc_gym.scenario import Scenario, make_scenario
 
 __all__ = ["run", "draw", "main", "mission_seeds", "rollout", "summarize_missions", "ALPHA_CTRL_GRID",
@@ -382,14 +382,14 @@ def _report(res: dict) -> None:
 
 
 def build_parser(prog: str = "python -m experiments.paper.fading"):
-    from iscc_gym.eval.options import claims_parser
+    from iscc_gym.commands.options import claims_parser
 
     return claims_parser(prog, __doc__.splitlines()[0], missions=MISSIONS, quick_missions=QUICK_MISSIONS,
                          seed_base=SEED_START, figures_default="runs/fading/figures")
 
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.paper.fading") -> dict:
-    from iscc_gym.eval.options import run_claims_command
+    from iscc_gym.commands.options import run_claims_command
 
     args = build_parser(prog).parse_args(argv)
     return run_claims_command(args, run, draw,
@@ -397,6 +397,6 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.paper
 
 
 if __name__ == "__main__":
-    from iscc_gym.cli import run as _run_cli
+    from iscc_gym.commands.cli import run as _run_cli
 
     sys.exit(_run_cli(main, None, "python -m experiments.paper.fading"))

@@ -19,7 +19,7 @@ values. The scheme level (:mod:`experiments.paper.schemes`) measures tracking er
 modules of :data:`OTHER_MODULES` (issue 13's stability-under-fading and sensitivity studies), where
 present, run too: their claims and figures join this command's. ``--write-docs`` regenerates the
 project's committed figures in ``docs/figures``, this command's sections of ``docs/results.md`` and the
-README's ``reproduce`` block (:func:`iscc_gym.docs.write_section`); without it nothing under
+README's ``reproduce`` block (:func:`iscc_gym.commands.docs.write_section`); without it nothing under
 ``docs/`` is touched.
 """
 
@@ -35,7 +35,9 @@ from pathlib import Path
 
 import numpy as np
 import scipy.linalg
-from iscc_gym.eval.options import Parser, Stages, check_writable_dir, check_writable_file, nonneg_int, show_progress
+from iscc_gym.commands.docs import README_PATH, RESULTS_PATH, docs_path
+from iscc_gym.commands.options import Parser, Stages, check_writable_dir, check_writable_file, nonneg_int, show_progress
+from iscc_gym.commands.protocol import CALIBRATION_SEED_START, seed_list
 from scipy.optimize import brentq
 
 from experiments.paper import paper_figures
@@ -43,7 +45,6 @@ from experiments.paper import schemes as scheme_level
 from experiments.paper.reproduce_docs import LARGE_ALPHA_CTRL, format_table, write_docs
 from iscc_gym import SCENARIOS, Scenario, make_scenario
 from iscc_gym.analysis.averages import TrajectorySample, mean_bounds, mean_comm_rate_bps, mean_snr, sample_positions
-from iscc_gym.docs import README_PATH, RESULTS_PATH, docs_path
 from iscc_gym.files import write_atomic
 from iscc_gym.physics.channel import geometry
 from iscc_gym.physics.dynamics import model_matrices
@@ -67,7 +68,6 @@ from iscc_gym.physics.stability import (
     spectral_radius,
     stability_matrix,
 )
-from iscc_gym.protocol import CALIBRATION_SEED_START, seed_list
 from iscc_gym.units import lin_to_db, w_to_dbm
 
 #: The paper's reported model-level figures (its Fig. 4 in Sec. IV-C.1, Sec. V Table II and text).
@@ -478,8 +478,8 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.paper
 
 
 def console(argv: list[str] | None = None, prog: str = "python -m experiments.paper.reproduce") -> int:
-    """``python -m experiments.paper.reproduce``: :func:`main` with exit codes (:func:`iscc_gym.cli.run`)."""
-    from iscc_gym.cli import run as run_cli
+    """``python -m experiments.paper.reproduce``: :func:`main` with exit codes (:func:`iscc_gym.commands.cli.run`)."""
+    from iscc_gym.commands.cli import run as run_cli
 
     return run_cli(functools.partial(main, prog=prog), argv, prog)
 

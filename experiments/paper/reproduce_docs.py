@@ -7,9 +7,10 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+from iscc_gym.commands.docs import README_PATH, RESULTS_PATH, write_section
+
 from experiments.paper import paper_figures
 from experiments.paper import schemes as scheme_level
-from iscc_gym.docs import README_PATH, RESULTS_PATH, write_section
 
 #: The large control share at which the paper reads rho(M) off its Fig. 4(b) (~0.1).
 LARGE_ALPHA_CTRL = 0.2

@@ -28,14 +28,14 @@ from pathlib import Path
 
 import numpy as np
 from iscc_gym.agents.sca import sca_allocation
+from iscc_gym.commands.protocol import SENSITIVITY_SEED_START as SEED_START
+from iscc_gym.commands.protocol import held_out_seeds
 from iscc_gym.eval.figures import new_figure, save_figure
 
 from experiments.paper.fading import rollout, summarize_missions
 from iscc_gym import SCENARIOS
 from iscc_gym.analysis import TRUST_LOSS_FRACTION, static_model
 from iscc_gym.analysis.averages import mean_bounds, sample_positions
-from iscc_gym.protocol import SENSITIVITY_SEED_START as SEED_START
-from iscc_gym.protocol import held_out_seeds
 
 __all__ = ["run", "draw", "main", "mission_seeds", "RATE_MIN_MBPS", "LOSS_DESIGN_FRACTIONS", "PEB_TABLE2_M",
            "SEED_START"]
@@ -309,14 +309,14 @@ def _report(res: dict) -> None:
 
 
 def build_parser(prog: str = "python -m experiments.paper.sensitivity"):
-    from iscc_gym.eval.options import claims_parser
+    from iscc_gym.commands.options import claims_parser
 
     return claims_parser(prog, __doc__.splitlines()[0], missions=MISSIONS, quick_missions=QUICK_MISSIONS,
                          seed_base=SEED_START, figures_default="runs/sensitivity/figures")
 
 
 def main(argv: list[str] | None = None, prog: str = "python -m experiments.paper.sensitivity") -> dict:
-    from iscc_gym.eval.options import run_claims_command
+    from iscc_gym.commands.options import run_claims_command
 
     args = build_parser(prog).parse_args(argv)
     return run_claims_command(args, run, draw,
@@ -324,6 +324,6 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.paper
 
 
 if __name__ == "__main__":
-    from iscc_gym.cli import run as _run_cli
+    from iscc_gym.commands.cli import run as _run_cli
 
     sys.exit(_run_cli(main, None, "python -m experiments.paper.sensitivity"))

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import importlib
 
-from iscc_gym.scenario import make_scenario
+from iscc_gym.scenario import SCENARIOS, make_scenario
 from iscc_gym.tasks.field import FIELD_ENV_ID
 from iscc_gym.tasks.multi import MULTI_ENV_ID
 from iscc_gym.tasks.paper import ENV_ID
@@ -40,6 +40,8 @@ def add_task(task: Task) -> Task:
         raise TypeError(f"task must be an iscc_gym.tasks.Task, got {type(task).__name__}")
     if TASKS.get(task.env_id, task) != task:
         raise ValueError(f"env id {task.env_id!r} is another task's already; give the task its own id")
+    if task.base is not None:
+        SCENARIOS.setdefault(task.preset, task.scenario)  # Task checked it is new or the same scenario
     TASKS[task.env_id] = task
     return task
 

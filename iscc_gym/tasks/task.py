@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Any
 
-from iscc_gym.scenario import SCENARIOS
+from iscc_gym.scenario import SCENARIOS, Scenario, make_scenario
 
 __all__ = ["Variant", "Task"]
 
@@ -71,6 +71,13 @@ class Task:
         The model-based baselines tuned on this task's missions (``python -m eval.tune <policy> --scenario
         <preset>``: their grids are ``iscc_gym.eval.tune.MODEL_GRIDS``; records ``<policy>-<preset>``, or the
         policy's own name for the field task's ``adaptive``).
+    base, overrides : str or None, Mapping
+        A task on a preset of its own: ``preset`` is then a new name, the Scenario ``base`` (a preset) with
+        ``overrides`` (validated here); :func:`iscc_gym.tasks.add_task` adds it to the presets, so every command
+        that takes ``--scenario`` takes its name. None (the default): ``preset`` is an existing preset.
+    train_like : str
+        The env id whose entry of the hyperparameter YAML (``train/hyperparams.yml``) ``python -m train`` trains
+        this task with where the file holds none of its own (default: its own env id, which then needs one).
     """
 
     env_id: str
@@ -92,19 +99,43 @@ class Task:
     agent_docs: tuple[str, ...] = ()
     seeds_docs: tuple[str, ...] = ()
     tuned: tuple[str, ...] = ()
+    base: str | None = None
+    overrides: Mapping[str, Any] = field(default_factory=dict)
+    train_like: str = ""
 
     def __post_init__(self):
-        if self.preset not in SCENARIOS:
-            raise ValueError(f"task {self.env_id}: preset {self.preset!r} is not one of {sorted(SCENARIOS)}")
+        if self.base is None and self.overrides:
+            raise ValueError(f"task {self.env_id}: overrides need a base preset (base=...) and a new preset name")
+        if self.base is not None:
+            if self.base not in SCENARIOS:
+                raise ValueError(f"task {self.env_id}: base {self.base!r} is not one of {sorted(SCENARIOS)}")
+            own = make_scenario(self.base, **self.overrides)  # validated field by field
+            if self.preset in SCENARIOS and SCENARIOS[self.preset] != own:
+                raise ValueError(f"task {self.env_id}: preset {self.preset!r} is another scenario already; give "
+                                 "the task's preset a new name")
+        elif self.preset not in SCENARIOS:
+            raise ValueError(f"task {self.env_id}: preset {self.preset!r} is not one of {sorted(SCENARIOS)}; or "
+                             "give base= and overrides= to define it")
         unknown = [v for v in self.shifts if v not in self.variants]
         if unknown:
             raise ValueError(f"task {self.env_id}: shifts {unknown} are not among its variants {list(self.variants)}")
         object.__setattr__(self, "variants", MappingProxyType(dict(self.variants)))
+        object.__setattr__(self, "overrides", MappingProxyType(dict(self.overrides)))
+
+    @property
+    def scenario(self) -> Scenario:
+        """The task's Scenario: its preset, or ``base`` with ``overrides``."""
+        return make_scenario(self.base, **self.overrides) if self.base is not None else SCENARIOS[self.preset]
 
     @property
     def max_episode_steps(self) -> int:
         """The registered TimeLimit: the preset's whole mission."""
-        return SCENARIOS[self.preset].n_slots
+        return self.scenario.n_slots
+
+    @property
+    def hyperparams_key(self) -> str:
+        """The env id of the YAML entry the task trains with where the file has none of its own."""
+        return self.train_like or self.env_id
 
     @property
     def fleet(self) -> bool:

@@ -9,14 +9,14 @@ import sys
 from pathlib import Path
 
 import pytest
+from iscc_gym.commands import docs
+from iscc_gym.commands.options import parse_seeds, show_progress
 from iscc_gym.eval import __main__ as cli
 from iscc_gym.eval import bench, tune
-from iscc_gym.eval.options import parse_seeds, show_progress
 from iscc_gym.eval.policies import SHIPPED_AGENT, check_specs, resolve_specs
 
 from experiments import probes, seeds
 from experiments.paper import evaluator_check, reproduce
-from iscc_gym import docs
 
 ROOT = Path(__file__).resolve().parents[2]
 PARSERS = {"eval": cli.build_parser, "reproduce": reproduce.build_parser, "seeds": seeds.build_parser,
@@ -179,11 +179,11 @@ def test_console_exit_codes(capsys, tmp_path):
                           (probes.main, ["--episodes", "1"]), (reproduce.main, ["--json", str(a_file / "x")]),
                           (bench.main, ["--json", str(tmp_path)]),
                           (evaluator_check.main, ["--max-steps", "0"])):
-        from iscc_gym.eval.options import run_console
+        from iscc_gym.commands.options import run_console
 
         try:
             code = run_console(console, args, "cmd")
-        except SystemExit as e:  # argparse's own exit passes through iscc_gym.cli.run
+        except SystemExit as e:  # argparse's own exit passes through iscc_gym.commands.cli.run
             code = e.code
         assert code == 2, console.__module__
         err = capsys.readouterr().err
@@ -192,7 +192,7 @@ def test_console_exit_codes(capsys, tmp_path):
 
 def test_progress_is_a_bar_on_a_terminal_and_lines_elsewhere(monkeypatch):
     """Issue 23: without a terminal a long command still reports progress, as plain lines; --quiet silences it."""
-    from iscc_gym.eval.options import LineProgress, progress_bar
+    from iscc_gym.commands.options import LineProgress, progress_bar
 
     assert show_progress(quiet=True) is False
     monkeypatch.setattr(sys, "stderr", io.StringIO())
@@ -210,7 +210,7 @@ def test_progress_is_a_bar_on_a_terminal_and_lines_elsewhere(monkeypatch):
 
 
 def test_line_progress_prints_stages_every_interval_and_the_end():
-    from iscc_gym.eval.options import LineProgress
+    from iscc_gym.commands.options import LineProgress
 
     out = io.StringIO()
     with LineProgress(100, "cmd", unit="slot", stream=out, interval=3600) as p:
@@ -229,7 +229,7 @@ def test_line_progress_prints_stages_every_interval_and_the_end():
 def test_line_progress_writes_messages_as_tqdm_does(capsys):
     """``bar.write`` (what ``eval.tune`` logs through) exists off a terminal too: the message on stdout, not the
     progress stream (``python -m eval.tune`` failed with stderr redirected)."""
-    from iscc_gym.eval.options import LineProgress
+    from iscc_gym.commands.options import LineProgress
 
     out = io.StringIO()
     LineProgress(3, "cmd", stream=out).write("grid: best v = 1")
@@ -301,7 +301,7 @@ def test_a_failing_worker_stops_the_others_at_once():
 
 
 def test_docs_quote_the_command_without_its_output_flags():
-    from iscc_gym.eval.options import docs_command
+    from iscc_gym.commands.options import docs_command
 
     assert docs_command("python -m eval", ["--json", "/tmp/x.json", "--write-docs", "--episodes", "20",
                                            "--plots=figs", "--quiet"]) == "python -m eval --episodes 20"
@@ -378,7 +378,7 @@ def test_line_progress_estimates_from_the_work_after_start_up():
     """``python -m eval``'s first line said ``about 14898 s left`` for a 2.6-minute run: the start-up (spawning,
     imports, compiling the kernels) counted as if slots were played in it. Here 15,000 slots, 10 s of start-up,
     then 100 slots/s: every estimate shown is within 20 % of the time really left."""
-    from iscc_gym.eval.options import LineProgress
+    from iscc_gym.commands.options import LineProgress
 
     now = [0.0]
     out = io.StringIO()
@@ -401,8 +401,9 @@ def test_line_progress_estimates_from_the_work_after_start_up():
                                      "experiments.urban_learned", "experiments.urban_figure"])
 def test_commands_that_load_agents_say_they_are_pickles(command, capsys):
     """Every command that loads a trained agent (``NAME=PATH``, ``--agent``) says so in its --help, in the one
-    wording of :data:`iscc_gym.eval.options.PICKLE_WARNING` (experiments.urban_levers plays scripted policies only)."""
-    from iscc_gym.eval.options import PICKLE_WARNING
+    wording of :data:`iscc_gym.commands.options.PICKLE_WARNING` (experiments.urban_levers plays scripted policies
+    only)."""
+    from iscc_gym.commands.options import PICKLE_WARNING
 
     assert " ".join(PICKLE_WARNING.split()) in " ".join(_help(command, capsys).split())
 
@@ -421,7 +422,7 @@ def test_a_scenario_of_another_task_than_the_env_is_refused(no_episodes, tmp_pat
         cli.main(["--scenario", "literal", "--write-docs", "--quiet"])
     with pytest.raises(ValueError, match=rf"--scenario 'paper' is the paper task, but --env {urban}"):
         seeds.main([str(tmp_path), "--env", urban, "--scenario", "paper", "--quiet"])
-    from iscc_gym.eval.options import env_scenario
+    from iscc_gym.commands.options import env_scenario
 
     assert env_scenario(paper, "literal") == "literal" and env_scenario(urban, None) == "urban"
 
@@ -453,7 +454,7 @@ import sys, json
 from iscc_gym.eval.__main__ import console as eval_console
 from iscc_gym.train.cli import console as train_console
 from iscc_gym.eval.tune import main as tune_main
-from iscc_gym.cli import run
+from iscc_gym.commands.cli import run
 codes = [eval_console(["--policies", "myopc"]),
          eval_console(["--env", "iscc_gym/ISCC-Field-v0", "--scenario", "paper"]), eval_console(["--seeds", "1,1"]),
          train_console(["--total-timesteps", "0", "--out", "x"]), train_console(["--env", "nope", "--out", "x"]),

@@ -100,9 +100,8 @@ def fake_checkout(root):
 
 def test_eval_write_docs_owns_only_its_sections_of_the_checkout(tmp_path, monkeypatch):
     """--write-docs writes the checkout's README and docs (found from the package), not the working directory's."""
+    from iscc_gym.commands import docs
     from iscc_gym.eval.__main__ import main
-
-    from iscc_gym import docs
 
     repo = tmp_path / "repo"
     monkeypatch.setattr(docs, "PACKAGE_DIR", fake_checkout(repo))

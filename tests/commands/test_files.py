@@ -132,7 +132,7 @@ def test_directory_is_refused_naming_it(tmp_path):
 def test_writable_check_accepts_what_is_written_through(tmp_path):
     """``--json /dev/stdout`` passes the commands' check before the run (it probed /dev for a new file,
     which only root may create) and a link is checked where its target is written."""
-    from iscc_gym.eval.options import check_writable_file
+    from iscc_gym.commands.options import check_writable_file
 
     assert check_writable_file("/dev/stdout", "--json") == Path("/dev/stdout")
     assert check_writable_file("/dev/null", "--json") == Path("/dev/null")

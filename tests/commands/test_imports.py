@@ -8,8 +8,9 @@ functions alike; imports under ``if TYPE_CHECKING:`` (annotations only, never ru
   ``sim``, ``envs``, ``analysis`` or ``gpu``; ``sim`` nothing of ``envs``, ``analysis`` or ``gpu``; ``envs`` and
   ``analysis`` nothing of each other nor of ``gpu``; ``gpu`` (the device env, the gpu extra) nothing of ``analysis``
   and, of what lies outside the core, torch alone. The package's ``__init__`` (its public face) may import any of them.
-- The core imports nothing of ``agents``, ``train``, ``eval``, the experiment protocol
-  (``iscc_gym.protocol``), torch, SB3 or optuna; ``agents`` nothing of ``train`` or ``eval``; ``train`` and
+- The core imports nothing of ``agents``, the command tooling (``iscc_gym.commands``: the console convention,
+  options, protocol, docs writing), ``train``, ``eval``, torch, SB3 or optuna; ``agents`` nothing of ``commands``,
+  ``train`` or ``eval``; ``commands`` nothing of torch, SB3, ``train`` or ``eval``; ``train`` and
   ``eval``, siblings, nothing of each other (eval reaches training through the command line,
   :mod:`iscc_gym.eval.training`).
 - No circle: the graph of imports between the project's modules (all four folders) has no cycle.
@@ -24,10 +25,11 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
 #: folder -> the package it installs as (pyproject's package-dir)
-FOLDERS = {ROOT / "iscc_gym": "iscc_gym", ROOT / "agents": "iscc_gym.agents", ROOT / "train": "iscc_gym.train",
+FOLDERS = {ROOT / "iscc_gym": "iscc_gym", ROOT / "agents": "iscc_gym.agents", ROOT / "commands": "iscc_gym.commands",
+           ROOT / "train": "iscc_gym.train",
            ROOT / "eval": "iscc_gym.eval", ROOT / "experiments": "experiments"}
-OUTSIDE_CORE = ("iscc_gym.agents", "iscc_gym.train", "iscc_gym.eval", "iscc_gym.protocol", "agents", "train", "eval",
-                "experiments", "torch", "stable_baselines3", "sb3_contrib", "optuna")
+OUTSIDE_CORE = ("iscc_gym.agents", "iscc_gym.train", "iscc_gym.eval", "iscc_gym.commands", "agents", "commands",
+                "train", "eval", "experiments", "torch", "stable_baselines3", "sb3_contrib", "optuna")
 SUBPACKAGES = ("physics", "sim", "envs", "analysis", "gpu")
 #: layer -> names its modules must not import
 RULES = {
@@ -40,8 +42,10 @@ RULES = {
     # project's outer folders
     "gpu": ("iscc_gym.analysis",) + tuple(m for m in OUTSIDE_CORE if m != "torch"),
     "face": OUTSIDE_CORE,
-    "protocol": tuple(f"iscc_gym.{p}" for p in SUBPACKAGES) + ("iscc_gym.agents", "iscc_gym.train", "iscc_gym.eval"),
-    "agents": ("iscc_gym.train", "iscc_gym.eval", "train", "eval", "experiments"),
+    # the command tooling: on top of the core, below the commands; nothing of torch or SB3
+    "commands": ("iscc_gym.train", "iscc_gym.eval", "train", "eval", "experiments", "torch", "stable_baselines3",
+                 "sb3_contrib", "optuna"),
+    "agents": ("iscc_gym.train", "iscc_gym.eval", "iscc_gym.commands", "commands", "train", "eval", "experiments"),
     "train": ("iscc_gym.eval", "eval", "experiments"),
     "eval": ("iscc_gym.train", "train", "experiments"),
     # the studies of this repository's docs (not installed): on top of everything, imported by nothing installed
@@ -55,7 +59,7 @@ def modules() -> dict[str, Path]:
     for folder, package in FOLDERS.items():
         for path in sorted(folder.rglob("*.py")):
             rel = path.relative_to(folder).with_suffix("").parts
-            if package == "iscc_gym" and rel[0] in ("agents", "train", "eval"):
+            if package == "iscc_gym" and rel[0] in ("agents", "commands", "train", "eval"):
                 continue  # an installed copy inside the package folder (never in a checkout)
             parts = rel[:-1] if rel[-1] == "__init__" else rel
             out[".".join((package, *parts))] = path
@@ -69,10 +73,8 @@ def layer(name: str) -> str:
         return "face"
     if parts[0] == "experiments":
         return "experiments"
-    if parts[1] in ("agents", "train", "eval"):
+    if parts[1] in ("agents", "commands", "train", "eval"):
         return parts[1]
-    if parts[1] == "protocol":
-        return "protocol"
     return parts[1] if parts[1] in SUBPACKAGES else "base"
 
 

@@ -130,9 +130,19 @@ def test_wheel_holds_only_the_iscc_gym_namespace(installed):
                for folder in ("trained", "tuned") for p in (ROOT / "agents" / folder).rglob("*") if p.is_file()}
     assert "iscc_gym/agents/trained/ppo_field/model.zip" in shipped
     assert not shipped - set(names), sorted(shipped - set(names))
+    # every task's shipped agent, from the task files (issue 44): its folder, its model and statistics
+    from iscc_gym.tasks import TASKS
+
+    agents = [t.agent for t in TASKS.values() if t.agent is not None]
+    assert "ppo_field" in agents and len(agents) >= 3
+    for agent in agents:
+        folder = f"iscc_gym/agents/trained/{agent}/"
+        files = {n for n in names if n.startswith(folder)}
+        assert {folder + "model.zip", folder + "vecnormalize.pkl"} <= files, agent
+        assert files == {n for n in shipped if n.startswith(folder)}, agent
     site = installed["site"]
     assert (site / "iscc_gym" / "agents" / "__init__.py").is_file()
-    for generic in ("agents", "train", "eval"):
+    for generic in ("agents", "commands", "train", "eval"):
         assert not (site / generic).exists(), f"{generic}/ installed at the top of site-packages"
 
 

@@ -1,7 +1,8 @@
 """Issue 43.2: SIGTERM (``kill PID``, ``timeout``, a scheduler's stop) on a pooled command ends its workers too.
 
 Before the fix ``python -m eval`` died at once on SIGTERM and its two spawned workers and the resource tracker
-ran on (60 s later). :func:`iscc_gym.cli.run` now turns SIGTERM into :class:`iscc_gym.cli.Terminated` (a
+ran on (60 s later). :func:`iscc_gym.commands.cli.run` now turns SIGTERM into
+:class:`iscc_gym.commands.cli.Terminated` (a
 ``KeyboardInterrupt``), so the pool's clean-up ends its processes, and the command exits 143.
 """
 
@@ -89,9 +90,9 @@ def test_sigterm_on_a_pooled_command_leaves_no_child(tmp_path):
 
 
 def test_sigterm_raises_terminated_in_a_command_and_exits_143(capsys):
-    """In process: the handler :func:`iscc_gym.cli.run` sets for the call turns SIGTERM into ``Terminated`` (so
+    """In process: the handler :func:`iscc_gym.commands.cli.run` sets for the call turns SIGTERM into ``Terminated`` (so
     ``except BaseException`` clean-ups run), the exit code is 143, and the previous handler is back afterwards."""
-    from iscc_gym.cli import Terminated, run
+    from iscc_gym.commands.cli import Terminated, run
 
     seen = []
 

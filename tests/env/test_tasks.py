@@ -46,7 +46,7 @@ def test_a_task_refuses_an_unknown_preset_a_shift_outside_its_variants_and_an_un
 def test_every_command_reads_the_tasks_reference_and_shifts_from_the_table():
     """The urban task's reference was myopic in python -m eval and mpc in python -m experiments.seeds (issue 35)."""
     from iscc_gym.eval.__main__ import build_parser
-    from iscc_gym.train.config import RANDOMIZE
+    from iscc_gym.train.config import randomize_sets
 
     from experiments.seeds import build_parser as seeds_parser
     from experiments.urban_shift import SHIFTS
@@ -55,8 +55,8 @@ def test_every_command_reads_the_tasks_reference_and_shifts_from_the_table():
     assert f"reference {urban.reference}" in " ".join(build_parser().format_help().split())
     assert f"(minus {urban.reference})" in " ".join(seeds_parser().format_help().split())
     assert list(SHIFTS) == list(TASKS[URBAN_ENV_ID].shifts)
-    assert RANDOMIZE["urban-shifts"] == TASKS[URBAN_ENV_ID].shift_overrides()
-    assert list(RANDOMIZE["urban-shifts"]) == [s for s in TASKS[URBAN_ENV_ID].shifts if s != "none"]
+    assert randomize_sets()["urban-shifts"] == (URBAN_ENV_ID, TASKS[URBAN_ENV_ID].shift_overrides())
+    assert list(randomize_sets()["urban-shifts"][1]) == [s for s in TASKS[URBAN_ENV_ID].shifts if s != "none"]
 
 
 def test_a_task_added_at_run_time_is_played_by_python_m_eval(capsys):

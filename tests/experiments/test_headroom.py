@@ -65,7 +65,7 @@ def test_an_empty_list_is_refused_before_anything_is_played_or_written(module, f
     ``field-worlds`` section of docs/results.md with an empty table. Every study's name list refuses an empty one."""
     import importlib
 
-    from iscc_gym import docs
+    from iscc_gym.commands import docs
 
     written = []
     monkeypatch.setattr(docs, "write_section", lambda *a, **k: written.append(a))

@@ -224,7 +224,7 @@ def test_evaluator_check_rows_and_table():
 def test_figures_go_to_the_output_directory_unless_write_docs(tmp_path, monkeypatch):
     """Without --write-docs the committed docs/figures are never the target: runs/reproduce/figures (relative
     to the working directory) or --figures; with it, the checkout's docs/figures."""
-    from iscc_gym import docs
+    from iscc_gym.commands import docs
 
     seen = []
 

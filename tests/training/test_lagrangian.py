@@ -128,8 +128,9 @@ def test_algo_ppo_lag_is_ppo_with_the_lagrangian():
 
 
 def test_the_pareto_runs_train_at_the_comparisons_rate_and_ship_their_multipliers(tmp_path, monkeypatch):
+    from iscc_gym.commands.protocol import PARETO_RATE_MIN_BPS as RATE_MIN_BPS
+
     from experiments import pareto_agents as TP
-    from iscc_gym.protocol import PARETO_RATE_MIN_BPS as RATE_MIN_BPS
 
     a = TP.run_args("ppo-lag/0.10")
     assert a.algo == "ppo-lag" and a.cost_limit.startswith("rate=0.1,") and a.env_overrides == {"rate_min_bps":

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 import yaml
 from iscc_gym.agents.sb3_policy import SB3Policy, read_manifest, write_manifest
+from iscc_gym.commands.protocol import EVAL_SEED_RANGES
 from iscc_gym.train import Args, main
 from iscc_gym.train import train as T
 from iscc_gym.train.cli import console
@@ -25,8 +26,6 @@ from stable_baselines3.common import evaluation
 from stable_baselines3.common.callbacks import BaseCallback
 from tiny_runs import TINY
 from tiny_runs import tiny_args as _args
-
-from iscc_gym.protocol import EVAL_SEED_RANGES
 
 TINY_FLAGS = ["--total-timesteps", "64", "--n-envs", "2", "--set", "n_steps=32", "--set", "batch_size=64",
               "--set", "n_epochs=1", "--no-tensorboard", "--init-policy", "none"]
@@ -91,9 +90,8 @@ def test_sac_ranges(tmp_path):
 
 def test_the_protocol_puts_every_default_where_it_belongs():
     """Evaluation defaults inside the held-out ranges, training and tuning defaults outside (one protocol)."""
+    from iscc_gym.commands import protocol as P
     from iscc_gym.eval.__main__ import build_parser
-
-    from iscc_gym import protocol as P
 
     def held_out(seed):
         return any(lo <= seed < hi for lo, hi in EVAL_SEED_RANGES)

@@ -161,9 +161,9 @@ def _minimize_study(tmp_path) -> str:
     (["--optimize", "--storage", "journal:"], r"--storage journal:: name the journal file"),
     (["--optimize", "--storage", "MIN", "--study-name", "lower-is-better"],
      r"--study-name lower-is-better: .* has direction minimize; .* choose another --study-name"),
-    (["--seeds", "0,x"], r"--seeds '0,x': use comma-separated integers"),
-    (["--seeds", "1,1"], r"--seeds '1,1': use distinct non-negative integers"),
-    (["--seeds", "-1"], r"--seeds '-1': use distinct non-negative integers"),
+    (["--seeds", "0,x"], r"--seeds '0,x': give comma-separated integers"),
+    (["--seeds", "1,1"], r"--seeds: seed 1 is given twice"),
+    (["--seeds", "-1"], r"--seeds: seed -1 is negative"),
     (["--seeds", "0", "--optimize"], r"--optimize and --seeds: use one"),
 ])
 def test_bad_input_exits_with_one_line_naming_the_flag(flags, message, tmp_path, capsys):

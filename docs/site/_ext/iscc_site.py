@@ -267,6 +267,23 @@ def task_rows(env_id: str) -> list[list[str]]:
     return rows
 
 
+def task_index_rows() -> list[list[str]]:
+    """One row per task of the task table (:data:`iscc_gym.tasks.TASKS`, so a task registered at run time too):
+    env id, title, preset, page on this site.
+    """
+    import iscc_gym  # noqa: F401 (registers the ids)
+    from iscc_gym.tasks import TASKS
+
+    return [[e, t.title, t.preset, t.docs_page] for e, t in TASKS.items()]
+
+
+class TaskIndex(Directive):
+    """``task-index``: every task of the task table, read from the task files."""
+
+    def run(self):
+        return [table_node(["env id", "task", "preset", "page"], task_index_rows(), literal_col=0)]
+
+
 class TaskFacts(Directive):
     """``task-facts ENV_ID``: a task's registration and settings, read from the code."""
 
@@ -281,4 +298,5 @@ def setup(app):
     app.add_directive("obs-table", ObsTable)
     app.add_directive("env-doc", EnvDoc)
     app.add_directive("task-facts", TaskFacts)
+    app.add_directive("task-index", TaskIndex)
     return {"version": "1", "parallel_read_safe": True, "parallel_write_safe": True}

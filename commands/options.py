@@ -1,7 +1,7 @@
 """What every ``python -m eval...`` command shares on its command line: one-line errors, checked numbers,
 seeds and output paths (checked before any work starts), and progress bars on a terminal.
 
-The checks raise ``ValueError``/``OSError`` with one line naming the flag; :func:`iscc_gym.cli.run` turns
+The checks raise ``ValueError``/``OSError`` with one line naming the flag; :func:`iscc_gym.commands.cli.run` turns
 them into ``PROG: error: MESSAGE`` and exit code 2, and Python callers get the exception.
 """
 
@@ -9,18 +9,20 @@ from __future__ import annotations
 
 import argparse
 import functools
+import importlib
 import os
 import sys
 import tempfile
 import time
 from pathlib import Path
 
-from iscc_gym.cli import invoked_prog
+from iscc_gym.commands.cli import invoked_prog
+
 from iscc_gym.files import destination
 
-__all__ = ["Parser", "PICKLE_WARNING", "positive_int", "nonneg_int", "parse_seeds", "check_writable_file",
-           "check_writable_dir", "show_progress", "progress_bar", "LineProgress", "Stages", "run_console",
-           "docs_command", "env_scenario"]
+__all__ = ["Parser", "import_gym_packages", "GYM_PACKAGES", "PICKLE_WARNING", "positive_int", "nonneg_int",
+           "parse_seeds", "check_writable_file", "check_writable_dir", "show_progress", "progress_bar", "LineProgress",
+           "Stages", "run_console", "docs_command", "env_scenario"]
 
 #: Said in ``--help`` wherever a path to a trained model is accepted.
 PICKLE_WARNING = ("A model .zip and its vecnormalize.pkl are pickles: loading them executes code they contain, so "
@@ -29,15 +31,60 @@ PICKLE_WARNING = ("A model .zip and its vecnormalize.pkl are pickles: loading th
 
 class Parser(argparse.ArgumentParser):
     """An ``ArgumentParser`` whose errors are one line, ``PROG: error: MESSAGE (see --help)``, exit code 2, and
-    whose ``prog`` is the command as invoked (:func:`iscc_gym.cli.invoked_prog`: ``python -m experiments.seeds``
-    for ``python -m experiments.seeds`` when run under the installed name).
+    whose ``prog`` is the command as invoked (:func:`iscc_gym.commands.cli.invoked_prog`: ``python -m
+    experiments.seeds`` for ``python -m experiments.seeds`` when run under the installed name). With
+    ``gym_packages=True`` it takes rl-zoo3's ``--gym-packages MODULE...`` and imports them before it reads the
+    other flags (:func:`import_gym_packages`).
     """
 
-    def __init__(self, *args, prog: str | None = None, **kwargs):
+    def __init__(self, *args, prog: str | None = None, gym_packages: bool = False, **kwargs):
         super().__init__(*args, prog=invoked_prog(prog) if prog else None, **kwargs)
+        self.gym_packages = gym_packages
+        if gym_packages:
+            self.add_argument("--gym-packages", nargs="+", default=[], metavar="MODULE",
+                              help="modules to import before anything else: a module that registers a task of its "
+                                   "own (iscc_gym.register_task) or other envs; rl-zoo3's flag of the same name")
 
     def error(self, message: str):  # noqa: D102 (argparse's hook)
         self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
+
+    def parse_known_args(self, args=None, namespace=None):  # noqa: D102 (argparse's hook)
+        if self.gym_packages:
+            try:
+                import_gym_packages(sys.argv[1:] if args is None else list(args))
+            except ValueError as e:
+                self.error(str(e))
+        return super().parse_known_args(args, namespace)
+
+
+#: The modules ``--gym-packages`` imported in this process (a command that starts another Python passes them on).
+GYM_PACKAGES: list[str] = []
+
+
+def import_gym_packages(argv: list[str]) -> list[str]:
+    """Import the modules that ``--gym-packages`` names in ``argv`` (before the arguments are read: a module
+    registers the env ids the other flags name); returns their names. ``ValueError`` for one that does not import.
+    """
+    names, taking = [], False
+    for a in map(str, argv):
+        if a.startswith("--gym-packages="):
+            names.append(a.split("=", 1)[1])
+            taking = False
+        elif a == "--gym-packages":
+            taking = True
+        elif taking and not a.startswith("-"):
+            names.append(a)
+        else:
+            taking = False
+    for name in names:
+        try:
+            importlib.import_module(name)
+        except ModuleNotFoundError as e:
+            raise ValueError(f"--gym-packages {name}: no module named {e.name!r} (a module on the Python path, "
+                             "e.g. my_tasks for my_tasks.py in the working directory)") from None
+        if name not in GYM_PACKAGES:
+            GYM_PACKAGES.append(name)
+    return names
 
 
 def positive_int(text: str) -> int:
@@ -322,10 +369,10 @@ class Stages:
 
 
 def run_console(main, argv: list[str] | None, prog: str) -> int:
-    """``main(argv, prog=prog)`` ended with an exit code (:func:`iscc_gym.cli.run`): 0 on success, 2 after
+    """``main(argv, prog=prog)`` ended with an exit code (:func:`iscc_gym.commands.cli.run`): 0 on success, 2 after
     a one-line error for a user's mistake, 130 on Ctrl-C. For ``sys.exit`` in a command's ``__main__``.
     """
-    from iscc_gym.cli import run
+    from iscc_gym.commands.cli import run
 
     return run(functools.partial(main, prog=prog), argv, prog)
 

@@ -265,9 +265,10 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> dict:
         print(f"trained PPO: {summary['timesteps']} steps in {summary['wall_time_s']:.0f} s -> {args.train_out}")
     t0 = time.perf_counter()
     record = 1 if args.plots else 0
-    from iscc_gym.eval.evaluate import format_table, horizon_slots, markdown_table, oracle_share, oracle_share_sentence
+    from iscc_gym.eval.evaluate import horizon_slots
 
     # the time left from each policy's own pace (eval.policies.TimeLeft), not tqdm's from the slots done overall
+    from iscc_gym.eval.report import format_table, markdown_table, oracle_share, oracle_share_sentence
     bar = progress_bar(len(items) * sum(horizon_slots(w, args.max_steps) for w in played.values()), "evaluating",
                        unit="slot", enabled=show, unit_scale=True,
                        bar_format="{desc}: {percentage:3.0f}%|{bar}| {n_fmt}/{total_fmt} [{elapsed}{postfix}]")

@@ -37,7 +37,8 @@ from iscc_gym.commands.options import (
 )
 from iscc_gym.commands.protocol import MULTI_SEED_START as SEED_START
 from iscc_gym.commands.protocol import held_out_seeds
-from iscc_gym.eval.evaluate import Entry, ci_bounds, ci_cell, evaluate, format_table, horizon_slots, markdown_table
+from iscc_gym.eval.evaluate import Entry, evaluate, horizon_slots
+from iscc_gym.eval.report import ci_bounds, ci_cell, format_table, markdown_table
 
 from iscc_gym import MULTI_ENV_ID
 from iscc_gym.scenario import make_scenario

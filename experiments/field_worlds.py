@@ -30,7 +30,7 @@ from iscc_gym.commands.options import (
 )
 from iscc_gym.commands.protocol import EVAL_SEED_START, seed_list
 from iscc_gym.eval.engine import compare
-from iscc_gym.eval.evaluate import ci_bounds, mean_ci, oracle_share, share_bounds
+from iscc_gym.eval.report import ci_bounds, mean_ci, oracle_share, share_bounds
 
 from iscc_gym.tasks import FIELD_ENV_ID, get_task
 

@@ -26,7 +26,7 @@ import time
 from iscc_gym.commands.options import Parser, docs_command, parse_names, positive_int, run_console
 from iscc_gym.commands.protocol import TUNE_SEED_START, seed_list
 from iscc_gym.eval.engine import compare
-from iscc_gym.eval.evaluate import ci_bounds
+from iscc_gym.eval.report import ci_bounds
 
 from iscc_gym.tasks import ENV_ID, get_task
 

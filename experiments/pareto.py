@@ -30,8 +30,9 @@ from iscc_gym.commands.docs import RESULTS_PATH, docs_path, write_section
 from iscc_gym.commands.options import Parser, Stages, check_writable_file, nonneg_int, positive_int, run_console
 from iscc_gym.commands.protocol import PARETO_RATE_MIN_BPS, TUNE_SEED_START, held_out_seeds, seed_list
 from iscc_gym.commands.protocol import PARETO_SEED_START as SEED_START
-from iscc_gym.eval.evaluate import ci_bounds, mean_ci, run_episodes
+from iscc_gym.eval.evaluate import run_episodes
 from iscc_gym.eval.outage import build, find_knob
+from iscc_gym.eval.report import ci_bounds, mean_ci
 from iscc_gym.eval.tune import check_tuning_seeds
 
 from iscc_gym.scenario import make_scenario

@@ -36,7 +36,8 @@ from iscc_gym.commands.options import (
     show_progress,
 )
 from iscc_gym.commands.protocol import seed_list
-from iscc_gym.eval.evaluate import ci_bounds, mean_ci, run_episodes
+from iscc_gym.eval.evaluate import run_episodes
+from iscc_gym.eval.report import ci_bounds, mean_ci
 from iscc_gym.eval.tune import TUNE_SEED_START, check_tuning_seeds
 
 from iscc_gym.sim.schema import OBS_NAMES

@@ -36,7 +36,8 @@ from iscc_gym.commands.options import (
 )
 from iscc_gym.commands.protocol import EVAL_SEED_START, seed_list
 from iscc_gym.eval.engine import compare, runs_items, seed_runs
-from iscc_gym.eval.evaluate import ci_bounds, horizon_slots, mean_ci
+from iscc_gym.eval.evaluate import horizon_slots
+from iscc_gym.eval.report import ci_bounds, mean_ci
 
 from iscc_gym import ENV_ID
 from iscc_gym.tasks import TASKS

@@ -37,8 +37,9 @@ from iscc_gym.agents import LookaheadPolicy, MyopicPolicy
 from iscc_gym.agents.tuned_records import load_tuned, record_name
 from iscc_gym.commands.options import Parser, docs_command, nonneg_int, parse_names, positive_int, run_console
 from iscc_gym.commands.protocol import TUNE_SEED_START, seed_list
-from iscc_gym.eval.evaluate import ci_bounds, ci_side, mean_ci, run_episodes
+from iscc_gym.eval.evaluate import run_episodes
 from iscc_gym.eval.policies import pool_map
+from iscc_gym.eval.report import ci_bounds, ci_side, mean_ci
 from iscc_gym.eval.tune import tune_model_grid
 
 from experiments.urban_task import task_stats

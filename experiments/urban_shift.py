@@ -24,8 +24,8 @@ from iscc_gym.agents.tasks import TASK_POLICIES
 from iscc_gym.commands.options import PICKLE_WARNING, Parser, docs_command, parse_names, positive_int, run_console
 from iscc_gym.commands.protocol import EVAL_SEED_START, seed_list
 from iscc_gym.eval.engine import compare
-from iscc_gym.eval.evaluate import ci_bounds, ci_side
 from iscc_gym.eval.policies import policy_name, resolve_specs
+from iscc_gym.eval.report import ci_bounds, ci_side
 
 from iscc_gym.tasks import TASKS, URBAN_ENV_ID
 

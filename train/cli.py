@@ -13,7 +13,7 @@ from typing import Any
 import yaml
 from iscc_gym.commands.cli import invoked_prog, run
 from iscc_gym.commands.options import PICKLE_WARNING, Parser
-from iscc_gym.train.config import FIELD_HELP, Args, expand_algo
+from iscc_gym.train.args import FIELD_HELP, Args, expand_algo, flag_type
 from iscc_gym.train.study import add_study_arguments, run_cli
 
 __all__ = ["build_parser", "args_from_namespace", "parse_value", "parse_args", "cli", "console", "PICKLE_WARNING"]
@@ -40,20 +40,18 @@ def build_parser(prog: str = "python -m train") -> argparse.ArgumentParser:
                + PICKLE_WARNING + " --resume only runs of your own.")
     defaults = Args()
     for f in dataclasses.fields(Args):
-        if f.name in ("overrides", "env_overrides"):
+        if f.name in ("overrides", "env_overrides"):  # --set, --env-set below
             continue
         flag = "--" + f.name.replace("_", "-")
         flags = (flag, "--env") if f.name == "env_id" else (flag,)  # --env: python -m eval's name of it
-        default = getattr(defaults, f.name)
+        default, kind = getattr(defaults, f.name), flag_type(f.name)
         help_ = FIELD_HELP[f.name]
-        if isinstance(default, bool) or f.name in ("normalize", "norm_reward", "progress_bar"):
+        if kind is bool:
             ap.add_argument(*flags, action=argparse.BooleanOptionalAction, default=default, help=help_)
-        elif default is None:  # a run setting the YAML fills (RUN_KEYS), or numba's default
-            kind = {"init_policy": str, "init_log_std": float, "cost_limit": str, "scenario": str, "residual": str,
-                    "residual_scale": float, "residual_space": str, "randomize": str}.get(f.name, int)
+        elif default is None:  # a run setting the YAML fills (RUN_KEYS), or numba's default: said in its help
             ap.add_argument(*flags, type=kind, default=None, help=help_)
         else:
-            ap.add_argument(*flags, type=type(default), default=default, help=help_ + f" (default: {default})")
+            ap.add_argument(*flags, type=kind, default=default, help=help_ + f" (default: {default})")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="override a hyperparameter of the YAML, e.g. --set n_steps=256 (value read as YAML)")
     ap.add_argument("--env-set", action="append", default=[], metavar="FIELD=VALUE",

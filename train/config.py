@@ -1,5 +1,5 @@
-"""Configuration of a training run: :class:`Args` (command-line settings), the hyperparameter file in
-rl-zoo3's layout (``train/hyperparams.yml``) and their resolution and checks.
+"""Configuration of a training run: the hyperparameter file in rl-zoo3's layout (``train/hyperparams.yml``), its
+resolution against the command line's :class:`~iscc_gym.train.args.Args` and their checks.
 """
 
 from __future__ import annotations
@@ -7,8 +7,6 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
-from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
@@ -18,172 +16,31 @@ from iscc_gym.agents.sb3_policy import ALGOS as SB3_ALGOS
 from iscc_gym.agents.sb3_policy import algo_class
 from iscc_gym.commands.protocol import INIT_SEED_START, check_outside_evaluation
 
-from iscc_gym import ENV_ID, MULTI_ENV_ID
+from iscc_gym import MULTI_ENV_ID
 from iscc_gym.tasks import TASKS, registered_scenario
 
-HYPERPARAMS = Path(__file__).with_name("hyperparams.yml")
+from .args import (  # noqa: F401 (re-exported: the settings of a run, read by train, studies and tests)
+    FIELD_HELP,
+    HYPERPARAMS,
+    PPO_LAG_LIMITS,
+    RUN_DEFAULTS,
+    RUN_KEYS,
+    RUN_TYPES,
+    Args,
+    expand_algo,
+    has_residual,
+    has_warm_start,
+    randomize_sets,
+    randomized,
+    randomized_overrides,
+    run_flags,
+    run_settings,
+)
+
 ALGOS = SB3_ALGOS  # ppo, sac, td3 and ppo_lstm (sb3-contrib's RecurrentPPO, rl-zoo3's name for it)
 #: The on-policy algorithms (rollouts of n_steps per env, advantages normalised per mini-batch).
 ON_POLICY = ("ppo", "ppo_lstm")
 VEC_ENVS = ("dummy", "subproc", "batched")
-
-
-def randomize_sets() -> dict[str, tuple[str, dict[str, dict]]]:
-    """``--randomize NAME`` -> ``(env id, {shift: overrides})``: the shifted statistics a randomised run trains over
-    beside the env's own (``<preset>-shifts``: the shifts of the task of that preset), read from the task table
-    when asked, so a task registered at run time counts too.
-    """
-    return {f"{t.preset}-shifts": (e, t.shift_overrides()) for e, t in TASKS.items() if t.shifts}
-
-#: ``--algo ppo-lag``: PPO with the Lagrangian of train/lagrangian.py, at these limits unless
-#: ``--cost-limit`` gives others.
-PPO_LAG_LIMITS = "rate=0.05,stability=0.0"
-
-
-@dataclass
-class Args:
-    """Everything a training run depends on (``python -m train --help`` lists them; :data:`FIELD_HELP`)."""
-
-    env_id: str = ENV_ID
-    algo: str = "ppo"  # ppo | sac | td3 | ppo_lstm
-    # None: the YAML entry's ``n_timesteps`` / ``n_envs`` (rl-zoo3's keys), else RUN_DEFAULTS
-    total_timesteps: int | None = None
-    n_envs: int | None = None
-    vec_env: str = "batched"  # dummy | subproc | batched (the native batched env)
-    seed: int = 0
-    scenario: str | None = None  # None: the preset the env id is registered with (urban for ISCC-Urban-v0)
-    env_overrides: dict = field(default_factory=dict)  # Scenario field overrides, e.g. {"observation_source": "gnss"}
-    out: str = "runs/ppo"
-    hyperparams: str = str(HYPERPARAMS)
-    overrides: dict = field(default_factory=dict)  # hyperparameter overrides, e.g. {"n_steps": 64}
-    normalize: bool | None = None  # VecNormalize of observations and rewards (None: the YAML's, else True)
-    # VecNormalize's reward scaling with normalize on (None: the YAML's settings, else True); off where a rare
-    # huge penalty (a lost drone) inflates the return statistics until every slot's reward vanishes
-    norm_reward: bool | None = None
-    # warm start by behaviour cloning of a scripted policy (agents.make_policy spec; train/pretrain.py);
-    # None: the YAML's init_policy / init_envs / init_steps (steps per env) / init_log_std
-    init_policy: str | None = None
-    init_envs: int | None = None
-    init_steps: int | None = None
-    init_log_std: float | None = None
-    # residual learning (agents/residual.py): the agent corrects this scripted policy's action (an
-    # agents.make_policy spec; None: the YAML's residual, else none) by at most residual_scale
-    residual: str | None = None
-    residual_scale: float | None = None
-    # where the correction acts (agents/residual.py): "action" (added to the base's action) or "split" (the
-    # base's shares' logits); None: the YAML's, else action
-    residual_space: str | None = None
-    # training over randomised missions: "urban-shifts" splits the envs between the urban preset and each of
-    # the urban task's shifts (iscc_gym.tasks) (None: the YAML's, else the env's own missions only)
-    randomize: str | None = None
-    eval_freq: int = 500_000  # env steps between evaluations (0: none)
-    eval_episodes: int = 8
-    eval_max_steps: int = 5000  # slots per eval episode (the full mission by default)
-    checkpoint_freq: int = 1_000_000  # env steps between checkpoints (0: none)
-    resume: bool = False  # continue from the newest complete checkpoint in ``out``
-    overwrite: bool = False  # start afresh in a non-empty ``out`` (its previous run's files are deleted)
-    tensorboard: bool = True
-    progress_bar: bool | None = None  # None: on a terminal (stdout a TTY) unless ``quiet``
-    quiet: bool = False  # no progress lines (stderr), no progress bar, no closing line
-    torch_threads: int = 1  # threads of torch (1 is fastest here: python -m eval.bench)
-    numba_threads: int | None = None  # threads of the env's compiled kernel (None: numba's default, all cores)
-    verbose: int = 0
-    # constrained training (train/lagrangian.py): outage-fraction limits, e.g. "rate=0.05,stability=0.0"
-    cost_limit: str | None = None
-    lagrange_lr: float = 0.05  # step of the multipliers' dual ascent per rollout
-
-
-#: Run settings a YAML entry may hold beside the algorithm's hyperparameters (rl-zoo3's names), mapped
-#: to the :class:`Args` field they fill, and the value used when neither the flag nor the YAML sets it.
-#: ``init_*`` are python -m train's own: in a file rl-zoo3 reads too, they go under ``iscc_gym.train.settings``.
-RUN_KEYS = {"n_timesteps": "total_timesteps", "n_envs": "n_envs", "normalize": "normalize",
-            "init_policy": "init_policy", "init_envs": "init_envs", "init_steps": "init_steps",
-            "init_log_std": "init_log_std", "residual": "residual", "residual_scale": "residual_scale",
-            "residual_space": "residual_space", "randomize": "randomize", "norm_reward": "norm_reward"}
-RUN_DEFAULTS = {"total_timesteps": 200_000, "n_envs": 4, "normalize": True, "init_policy": None, "init_envs": 16,
-                "init_steps": 5000, "init_log_std": None, "residual": None, "residual_scale": 0.5,
-                "residual_space": "action", "randomize": None, "norm_reward": True}
-
-
-
-
-def _or_default(name: str, yaml_key: str = "YAML's") -> str:
-    """``default: the YAML's, else <RUN_DEFAULTS[name]>``: a run setting's default in its help, read from
-    :data:`RUN_DEFAULTS` (written once).
-    """
-    value = RUN_DEFAULTS[name]
-    shown = "on" if value is True else "off" if value is False else value
-    return f"default: the {yaml_key}, else {shown}"
-
-
-#: The ``--help`` text of every :class:`Args` field.
-FIELD_HELP = {
-    "env_id": "Gymnasium env id to train on (an entry of --hyperparams)",
-    "algo": "SB3 algorithm: ppo | sac | td3 | ppo_lstm (sb3-contrib's RecurrentPPO) | ppo-lag (PPO with --cost-limit, "
-            "by default "
-            f"{PPO_LAG_LIMITS})",
-    "total_timesteps": "env steps to train (" + _or_default("total_timesteps", "YAML entry's n_timesteps") + "); "
-                       "PPO trains whole rollouts (n_envs x n_steps), so it rounds up to the next one, and says so",
-    "n_envs": "parallel envs (" + _or_default("n_envs", "YAML entry's n_envs") + ")",
-    "vec_env": "dummy | subproc | batched (the ISCC env's own batched env, fastest)",
-    "seed": "training seed (envs, networks, sampling)",
-    "scenario": "Scenario preset of the env (default: the env id's own: "
-                + ", ".join(f"{t.preset} for {e}" for e, t in TASKS.items()) + ")",
-    "out": "run directory; must be empty or new unless --resume or --overwrite",
-    "hyperparams": "hyperparameter YAML in rl-zoo3's layout (env id -> hyperparameters; see train/hyperparams.yml)",
-    "normalize": "VecNormalize observations and rewards (" + _or_default("normalize", "YAML entry's normalize") + ")",
-    "norm_reward": "with --normalize, scale the rewards too (VecNormalize's norm_reward; " + _or_default("norm_reward")
-                   + "); "
-                   "--no-norm-reward where rare huge penalties (a lost drone) swamp the return statistics",
-    "init_policy": "warm start: behaviour-clone this scripted policy (agents.make_policy spec, e.g. myopic; "
-                   "none: no warm start; default: the YAML's)",
-    "init_envs": "envs the scripted policy plays during the warm start (" + _or_default("init_envs") + ")",
-    "init_steps": "steps per env of the warm start (" + _or_default("init_steps") + ")",
-    "init_log_std": "log standard deviation of the actions after the warm start (default: the YAML's, else kept)",
-    "residual": "residual learning: the agent corrects this scripted policy's action (agents.make_policy spec, e.g. "
-                "myopic; none: no residual; default: the YAML's)",
-    "residual_scale": "reach of the residual agent's correction in action units, in (0, 2] ("
-                      + _or_default("residual_scale") + ")",
-    "residual_space": "where the residual agent's correction acts: action (added to the base's action) or split "
-                      "(the base's shares' logits, no action bound clips it) (" + _or_default("residual_space") + ")",
-    "randomize": "train over randomised missions: urban-shifts (the urban preset and each of its shifted "
-                 "statistics, the urban task's shifts in iscc_gym.tasks, on equal shares of the envs: n_envs >= 5); "
-                 "none: "
-                 "the env's own",
-    "eval_freq": "env steps between held-out evaluations (0: none); the best model goes to OUT/best/",
-    "eval_episodes": "held-out missions per evaluation (seeds from 1,000,000)",
-    "eval_max_steps": "slots per held-out episode at most (the full mission by default)",
-    "checkpoint_freq": "env steps between checkpoints in OUT/checkpoints/ (0: none)",
-    "resume": "continue the run in OUT from its newest complete checkpoint (same algo, env, scenario, "
-              "normalisation)",
-    "overwrite": "start afresh in a non-empty OUT: its previous run's files are deleted first",
-    "tensorboard": "write TensorBoard logs to OUT/tb (tensorboard --logdir OUT/tb)",
-    "progress_bar": "show a progress bar (default: on a terminal unless --quiet)",
-    "quiet": "no progress lines on stderr, no progress bar and no closing line",
-    "torch_threads": "torch threads (1 is fastest here: python -m eval.bench)",
-    "numba_threads": "threads of the env's compiled kernel (default: all cores)",
-    "verbose": "SB3 verbosity: 0 quiet, 1 training logs, 2 debug",
-    "cost_limit": "constrained training (Lagrangian, train/lagrangian.py): the fraction of slots allowed to "
-                  "violate each constraint, e.g. rate=0.05,stability=0.0 (default: none, the fixed-weight reward)",
-    "lagrange_lr": "step of the Lagrange multipliers' dual ascent, once per rollout",
-}
-
-def _to_int(v):
-    f = float(v)
-    if not f.is_integer():
-        raise ValueError
-    return int(f)
-
-
-def _to_bool(v):
-    if not isinstance(v, bool):
-        raise ValueError
-    return v
-
-
-_RUN_TYPES = {"total_timesteps": _to_int, "n_envs": _to_int, "normalize": _to_bool, "init_policy": str,
-              "init_envs": _to_int, "init_steps": _to_int, "init_log_std": float, "residual": str,
-              "residual_scale": float, "residual_space": str, "randomize": str, "norm_reward": _to_bool}
 
 #: The key of a hyperparameter file that only python -m train reads (rl-zoo3 reads the entry of its env id).
 OWN_SECTION = "iscc_gym.train"
@@ -322,7 +179,7 @@ def resolve_args(args: Args) -> tuple[Args, dict]:
                 filled[name] = None
                 continue
             try:
-                filled[name] = _RUN_TYPES[name](value)
+                filled[name] = RUN_TYPES[name](value)
             except (TypeError, ValueError):
                 kind = {"normalize": "true or false", "norm_reward": "true or false", "init_policy": "a policy spec",
                         "residual": "a policy spec", "residual_space": "action or split",
@@ -511,15 +368,6 @@ def linear_schedule(text: str, name: str = "learning_rate"):
     return schedule
 
 
-def expand_algo(args: Args) -> Args:
-    """``algo = "ppo-lag"`` -> PPO with ``cost_limit`` (:data:`PPO_LAG_LIMITS` unless given); any
-    other algo unchanged.
-    """
-    if args.algo == "ppo-lag":
-        return dataclasses.replace(args, algo="ppo", cost_limit=args.cost_limit or PPO_LAG_LIMITS)
-    return args
-
-
 def check_args(args: Args) -> None:
     if args.env_id not in gym.registry:  # before any setting that depends on the env (vec_env, the YAML entry)
         raise ValueError(f"env_id {args.env_id!r} is not a registered env id; use one of {', '.join(TASKS)} "
@@ -600,70 +448,6 @@ def check_task(env_id: str, scenario: str) -> None:
                          "hyperparameters, evaluation and shipped agent): "
                          + (f"use --env {other} for {scenario!r}, or " if other else "")
                          + f"drop --scenario to train on {env_id}'s own {own!r}")
-
-
-def _in_use(setting) -> bool:
-    """Whether a run setting naming something (a policy spec, a set of missions) is in use: set, and not ``none``."""
-    return bool(setting) and str(setting).lower() != "none"
-
-
-def has_warm_start(args: Args) -> bool:
-    """Whether ``args`` clones a scripted policy before training (``init_policy`` in use)."""
-    return _in_use(args.init_policy)
-
-
-def randomized(args: Args) -> bool:
-    """Whether ``args`` trains over randomised missions (``randomize`` in use)."""
-    return _in_use(args.randomize)
-
-
-def randomized_overrides(args: Args) -> list[dict]:
-    """The Scenario overrides of each share of the envs of a randomised run: the run's own (``env_overrides``),
-    then each of :func:`randomize_sets`'s sets on top of them.
-    """
-    shifts = randomize_sets()[args.randomize][1]
-    return [dict(args.env_overrides)] + [{**args.env_overrides, **o} for o in shifts.values()]
-
-
-def run_settings(args: Args) -> dict:
-    """The run settings of resolved ``args`` that shape what is trained beside the hyperparameters (a warm
-    start, a residual base, randomised missions), as a hyperparameter file's ``settings`` entry holds them;
-    only those in use.
-    """
-    out: dict[str, Any] = {}
-    if has_warm_start(args):
-        out.update(init_policy=args.init_policy, init_envs=args.init_envs, init_steps=args.init_steps)
-        if args.init_log_std is not None:
-            out["init_log_std"] = float(args.init_log_std)
-    if has_residual(args):
-        out.update(residual=str(args.residual), residual_scale=float(args.residual_scale))
-        if args.residual_space not in (None, "action"):
-            out["residual_space"] = str(args.residual_space)
-    if randomized(args):
-        out["randomize"] = str(args.randomize)
-    if args.normalize and args.norm_reward is False:
-        out["norm_reward"] = False
-    return out
-
-
-def run_flags(args: Args) -> dict:
-    """What a run of resolved ``args`` plays beside its hyperparameters and :func:`run_settings`, as a study's
-    export must say it: a scenario preset that is not the env id's own, the env overrides (Scenario fields) and the
-    constraints (``cost_limit``, ``lagrange_lr``); only those in use.
-    """
-    out: dict[str, Any] = {}
-    if args.scenario is not None and args.scenario != registered_scenario(args.env_id):
-        out["scenario"] = str(args.scenario)
-    if args.env_overrides:
-        out["env_overrides"] = dict(args.env_overrides)
-    if args.cost_limit:
-        out.update(cost_limit=str(args.cost_limit), lagrange_lr=float(args.lagrange_lr))
-    return out
-
-
-def has_residual(args: Args) -> bool:
-    """Whether ``args`` trains a residual agent (``residual`` in use)."""
-    return _in_use(args.residual)
 
 
 def _seed_ranges(args: Args) -> list[tuple[str, int, int]]:

@@ -84,7 +84,7 @@ def main(args, device: str) -> dict:
     check_args(args)  # the checks of an SB3 run: the env id, the seed, a scenario of another task, ...
     cfg = config_from_args(args, device)
     prepare_out(args)
-    from iscc_gym.train.train import printer, say_rounding, whole_rollouts  # after the checks: it loads SB3
+    from iscc_gym.train.callbacks import printer, say_rounding, whole_rollouts
 
     say = printer(args)
     target = whole_rollouts(0, cfg.total_timesteps, cfg.n_envs, cfg.n_steps)
@@ -118,7 +118,7 @@ def _progress(say, target: int, rows: list):
     :data:`iscc_gym.train.train.PROGRESS_EVERY_S` seconds and at the first and last update (steps, steps/s,
     elapsed, ETA), as an SB3 run does.
     """
-    from iscc_gym.train.train import PROGRESS_EVERY_S, progress_text
+    from iscc_gym.train.callbacks import PROGRESS_EVERY_S, progress_text
 
     last = [-math.inf]
 

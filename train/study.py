@@ -453,7 +453,7 @@ def optimize(args: Args, study: StudyArgs) -> dict:
     stops the worker.
     """
     import optuna
-    from iscc_gym.train.train import progress_bar_on
+    from iscc_gym.train.callbacks import progress_bar_on
 
     s, shown = open_study(args, study)
     bar = progress_bar_on(args)  # trials done / total (each trial's own bar is off)

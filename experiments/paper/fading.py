@@ -121,7 +121,7 @@ def summarize_missions(r: dict, i: int) -> dict:
     interval is the square root of the mean-square interval), and the mean loss rate and violation
     fractions over all missions.
     """
-    from iscc_gym.eval.evaluate import mean_ci  # the one Student-t interval (none from one mission)
+    from iscc_gym.eval.report import mean_ci  # the one Student-t interval (none from one mission)
 
     lost = r["terminated"][i]
     held = ~lost

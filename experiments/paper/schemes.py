@@ -25,7 +25,8 @@ from pathlib import Path
 
 import numpy as np
 from iscc_gym.agents import FixedSplitPolicy, SCAPolicy, evolutionary_search, grid_search
-from iscc_gym.eval.evaluate import Entry, ci_bounds, evaluate
+from iscc_gym.eval.evaluate import Entry, evaluate
+from iscc_gym.eval.report import ci_bounds
 from scipy.optimize import brentq
 
 from iscc_gym.analysis import static_model

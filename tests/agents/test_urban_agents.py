@@ -172,7 +172,7 @@ def test_task_description_and_the_mission_figure(tmp_path):
 
 
 def test_the_comparison_shows_dropped_data_only_where_a_queue_dropped_some():
-    from iscc_gym.eval.evaluate import DETAIL_COLUMNS, DROPPED_COLUMN, detail_columns
+    from iscc_gym.eval.report import DETAIL_COLUMNS, DROPPED_COLUMN, detail_columns
 
     assert detail_columns({"policies": {"a": {"dropped_mbit_mean": 0.0}}}) == DETAIL_COLUMNS
     assert detail_columns({"policies": {"a": {"dropped_mbit_mean": 0.0}, "b": {"dropped_mbit_mean": 2.5}}})[-1] \

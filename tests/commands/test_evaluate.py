@@ -9,7 +9,8 @@ import gymnasium as gym
 import numpy as np
 import pytest
 from iscc_gym.agents.base import EqualSplitPolicy, FixedSplitPolicy
-from iscc_gym.eval.evaluate import Entry, evaluate, format_table, mean_ci, run_episodes
+from iscc_gym.eval.evaluate import Entry, evaluate, run_episodes
+from iscc_gym.eval.report import format_table, mean_ci
 from scipy import stats
 
 import iscc_gym  # noqa: F401
@@ -209,7 +210,7 @@ def _result_of(n_policies=6):
 
 
 def test_comparison_markdown_fits_120_columns_and_says_what_is_better():
-    from iscc_gym.eval.evaluate import markdown_table
+    from iscc_gym.eval.report import markdown_table
 
     text = markdown_table(_result_of(), "python -m eval")
     lines = text.splitlines()
@@ -236,7 +237,8 @@ def test_comparison_text_table_fits_a_terminal():
 
 def test_reading_sentences_say_what_the_paired_table_says():
     """Issue 23: the comparison's prose is generated from the paired differences, so it cannot go stale."""
-    from iscc_gym.eval.evaluate import _paired, reading_sentences
+    from iscc_gym.eval.evaluate import _paired
+    from iscc_gym.eval.report import reading_sentences
 
     def d(diffs):
         return _paired({"reward": np.asarray(diffs, float)}, {"reward": np.zeros(len(diffs))})
@@ -252,7 +254,7 @@ def test_reading_sentences_say_what_the_paired_table_says():
 
 
 def test_the_share_of_the_oracles_gain_is_a_ratio_of_paired_means():
-    from iscc_gym.eval.evaluate import oracle_share, oracle_share_sentence
+    from iscc_gym.eval.report import oracle_share, oracle_share_sentence
 
     def run(*r):
         return {"episodes": {"reward": list(r)}}
@@ -280,7 +282,8 @@ def test_one_mission_gives_no_interval_and_no_verdict():
     """Issue 34 item 9: with one mission the tables printed a zero-width "95 % interval" and the sentences said it
     excluded zero; mean_ci gives no interval, every command writes "n/a: 1 mission" through one function
     (ci_bounds) and draws no conclusion (ci_side)."""
-    from iscc_gym.eval.evaluate import ci_bounds, markdown_table, oracle_share, oracle_share_sentence, summarize
+    from iscc_gym.eval.evaluate import summarize
+    from iscc_gym.eval.report import ci_bounds, markdown_table, oracle_share, oracle_share_sentence
 
     from experiments import urban_levers, urban_shift
 

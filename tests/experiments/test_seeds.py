@@ -2,7 +2,8 @@
 
 import numpy as np
 import pytest
-from iscc_gym.eval.evaluate import evaluate, mean_ci
+from iscc_gym.eval.evaluate import evaluate
+from iscc_gym.eval.report import mean_ci
 from iscc_gym.train import Args, main
 
 from experiments import seeds as eval_seeds

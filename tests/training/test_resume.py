@@ -200,7 +200,9 @@ def test_a_vecnormalize_pkl_that_is_not_a_vecnormalize_is_named(run_256, tmp_pat
 # --- item 5: progress without a terminal ----------------------------------------------------------------------
 
 def test_progress_lines_on_stderr_without_a_terminal_and_none_with_quiet(tmp_path, capsys, monkeypatch):
-    monkeypatch.setattr(T, "PROGRESS_EVERY_S", 0.0)  # a line at every step of this tiny run
+    from iscc_gym.train import callbacks
+
+    monkeypatch.setattr(callbacks, "PROGRESS_EVERY_S", 0.0)  # a line at every step of this tiny run
     main(_args(tmp_path / "a"))
     err = capsys.readouterr().err.splitlines()
     assert err and all(line.startswith("train: ") for line in err), err

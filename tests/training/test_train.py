@@ -243,8 +243,8 @@ def test_a_run_whose_policy_would_observe_the_hidden_world_is_refused_before_any
 def test_a_budget_that_is_not_whole_rollouts_is_rounded_up_and_said(tmp_path, capsys):
     """Issue 43.11: ``--total-timesteps 2000`` printed ``step 2,560/2,000 ... ETA -1:59:58`` and trained 4,096 without
     a word. The run says it rounds up to whole rollouts and counts its progress against what it trains."""
+    from iscc_gym.train.callbacks import clock
     from iscc_gym.train.cli import cli
-    from iscc_gym.train.train import clock
 
     s = cli(["--total-timesteps", "100", "--n-envs", "2", "--set", "n_steps=32", "--set", "batch_size=64",
              "--eval-freq", "0", "--checkpoint-freq", "0", "--out", str(tmp_path / "r")])

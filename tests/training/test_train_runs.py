@@ -12,10 +12,10 @@ import pytest
 import yaml
 from iscc_gym.agents.sb3_policy import SB3Policy, read_manifest, write_manifest
 from iscc_gym.train import Args, main
+from iscc_gym.train.callbacks import progress_bar_on
 from iscc_gym.train.cli import build_parser, console
 from iscc_gym.train.config import HYPERPARAMS, format_policy_kwargs, load_hyperparams, parse_policy_kwargs, resolve_args
 from iscc_gym.train.runs import latest_checkpoint, save_unit
-from iscc_gym.train.train import progress_bar_on
 from tiny_runs import TINY
 from tiny_runs import tiny_args as _args
 

@@ -39,6 +39,8 @@ from iscc_gym.commands.options import Parser, Stages, check_writable_file, posit
 import iscc_gym
 from iscc_gym import threads
 
+from .bench_report import format_compile, format_report, markdown
+
 
 def env_steps_per_second(env_id: str, n_steps: int, repeats: int, seed: int = 0, **kwargs) -> dict:
     """Median steps/s of ``env.step`` over ``repeats`` runs of ``n_steps`` pre-drawn actions."""
@@ -405,137 +407,6 @@ def compile_times(env_ids=None) -> dict:
     if r.returncode != 0:
         raise RuntimeError(f"the cold-cache process failed: {r.stderr.strip().splitlines()[-1:]}")
     return json.loads(r.stdout.strip().splitlines()[-1])
-
-
-def format_compile(times: dict) -> str:
-    rows = [f"{name:<45} {seconds:6.1f} s" for name, seconds in times.items()]
-    return "\n".join(["Cold-cache build of the compiled kernels (a new process, an empty numba cache):", *rows,
-                      f"{'total':<45} {sum(times.values()):6.1f} s"])
-
-
-def format_report(res: dict) -> str:
-    se = res["single_env"]
-    ours, ref = se["iscc"]["median_steps_per_s"], se["reference_pendulum_v1"]["median_steps_per_s"]
-    lines = [
-        "Single env through gymnasium.make, actions drawn in advance (median of runs; target 25,000):",
-        f"  {iscc_gym.ENV_ID:<26} {ours:12,.0f} steps/s  ({1e6 / ours:6.1f} us/step)",
-        f"  {'Pendulum-v1 (reference)':<26} {ref:12,.0f} steps/s  ({1e6 / ref:6.1f} us/step)",
-        f"  ratio ISCC / Pendulum: {ours / ref:.3f}",
-        "Native vector env (make_vec, vector_entry_point), env-steps/s (target 500,000 at 1024 envs):",
-    ]
-    for n, v in res["vector_env"].items():
-        lines.append(f"  {n + ' envs':<26} {v['median_env_steps_per_s']:12,.0f} env-steps/s")
-    if "multi_drone" in res:
-        md = res["multi_drone"]
-        m = md["multi"]
-        lines.append(f"Multi-drone vector env ({m['num_envs']} envs x {m['n_drones']} drones): "
-                     f"{m['median_drone_slots_per_s']:,.0f} drone-slots/s; single-drone env at {m['num_envs']} envs "
-                     f"{md['single']['median_env_steps_per_s']:,.0f}; cost per drone-slot {md['cost_ratio']:.2f} x "
-                     "the single env's (goal <= 1.5)")
-    if "urban" in res:
-        u = res["urban"]
-        lines.append(f"Urban task's vector env ({u['urban']['num_envs']} envs): "
-                     f"{u['urban']['median_env_steps_per_s']:,.0f} env-steps/s, {u['ratio']:.2f} x the paper env's "
-                     f"{u['paper']['median_env_steps_per_s']:,.0f} (goal >= 0.5); a reset "
-                     f"{u['reset_ms_per_env']:.1f} ms per sub-env")
-    if "vector_under_load" in res:
-        lines.append("Native vector env per kernel mode (iscc_gym.threads), quiet and beside a busy process, "
-                     "env-steps/s:")
-        for load, modes in res["vector_under_load"].items():
-            for mode, rates in modes.items():
-                cells = "  ".join(f"{n} envs {r:12,.0f}" for n, r in rates.items())
-                lines.append(f"  {load:<6} {mode:<7} {cells}")
-    if "render" in res:
-        r = res["render"]
-        lines.append(f"rgb_array frame: {r['median_ms']:.1f} ms (first frame {r['first_ms']:.0f} ms; "
-                     "before issue 12: ~90-160 ms every frame)")
-    ev = res["eval_static_sca"]
-    lines.append(f"Static SCA evaluated on {ev['episodes']} missions ({ev['slots']:,} slots): {ev['seconds']:.2f} s "
-                 "(target < 5 s for 100 missions)")
-    lines.append("Allocation solvers (s), ours vs the paper's:")
-    for name, v in res["solvers"].items():
-        lines.append(f"  {name:<14} {v['seconds']:8.3f}   paper {v['paper_s']:9.2f}   target < {v['target_s']:g}")
-    if "ppo_training" in res:
-        pt = res["ppo_training"]
-        pend = pt["pendulum_dummy"]["median_env_steps_per_s"]
-        lines.append("SB3 PPO training, 4 envs, default hyperparameters, 1 torch thread, env-steps/s "
-                     "(goal: >= 0.8 x Pendulum):")
-        names = {"dummy": "ISCC DummyVecEnv", "subproc": "ISCC SubprocVecEnv", "batched": "ISCC batched env",
-                 "pendulum_dummy": "Pendulum-v1 DummyVecEnv (ref)"}
-        for kind, v in pt.items():
-            rate = v["median_env_steps_per_s"]
-            lines.append(f"  {names[kind]:<30} {rate:10,.0f}  ({rate / pend:.2f} x Pendulum)")
-    if "ppo_shipped" in res:
-        ps = res["ppo_shipped"]
-        lines.append(f"SB3 PPO, python -m train's configuration ({ps['n_envs']} envs, {ps['hyperparams']}), batched "
-                     f"env, env-steps/s (target >= 25,000; default threads {ps['default']}):")
-        for v in ps["settings"].values():
-            lines.append(f"  numba {v['numba_threads']} / torch {v['torch_threads']} threads {'':<10} "
-                         f"{v['median_env_steps_per_s']:10,.0f}")
-    return "\n".join(lines)
-
-
-def markdown(res: dict) -> str:
-    """The figures as a markdown table for docs/results.md and the README."""
-    se = res["single_env"]
-    ours, ref = se["iscc"]["median_steps_per_s"], se["reference_pendulum_v1"]["median_steps_per_s"]
-    m = res["machine"]
-    rows = [f"Generated by `python -m eval.bench --full --write-docs` on this machine ({m['cpu_count']} cores, "
-            f"Python {m['python']}); medians of repeated runs, each reference measured in the same run; the run "
-            f"took {res['wall_time_s'] / 60:.1f} min.", "",
-            "| figure | ISCC | reference | target |", "|---|---|---|---|",
-            f"| single env, steps/s (`gymnasium.make`) | {ours:,.0f} | Pendulum-v1: {ref:,.0f} | >= 25,000 |"]
-    targets = {"1024": ">= 500,000"}
-    for n, v in res["vector_env"].items():
-        rows.append(f"| vector env, {n} envs, env-steps/s | {v['median_env_steps_per_s']:,.0f} | | "
-                    f"{targets.get(n, '')} |")
-    if "multi_drone" in res:
-        md = res["multi_drone"]
-        m = md["multi"]
-        rows.append(f"| multi-drone vector env, {m['num_envs']} envs x {m['n_drones']} drones, drone-slots/s | "
-                    f"{m['median_drone_slots_per_s']:,.0f} (cost per drone-slot {md['cost_ratio']:.2f} x) | "
-                    f"single-drone env, {m['num_envs']} envs: {md['single']['median_env_steps_per_s']:,.0f} | "
-                    "cost <= 1.5 x |")
-    if "urban" in res:
-        u = res["urban"]
-        rows.append(f"| urban task's vector env, {u['urban']['num_envs']} envs, env-steps/s | "
-                    f"{u['urban']['median_env_steps_per_s']:,.0f} ({u['ratio']:.2f} x; a reset "
-                    f"{u['reset_ms_per_env']:.1f} ms per sub-env) | paper env, {u['paper']['num_envs']} envs: "
-                    f"{u['paper']['median_env_steps_per_s']:,.0f} | >= 0.5 x |")
-    if "vector_under_load" in res:
-        labels = {"parallel": "parallel from 64 envs (the old default)", "serial": "serial (the default)"}
-        for load, modes in res["vector_under_load"].items():
-            where = "quiet machine" if load == "quiet" else "beside a busy process"
-            for mode, rates in modes.items():
-                for n, r in rates.items():
-                    rows.append(f"| vector env, {n} envs, {where}, kernel {labels[mode]}, env-steps/s | {r:,.0f} | "
-                                "| |")
-    if "render" in res:
-        r = res["render"]
-        rows.append(f"| `rgb_array` frame, ms (first frame: {r['first_ms']:.0f}) | {r['median_ms']:.1f} | "
-                    "before issue 12: 90-160 | |")
-    ev = res["eval_static_sca"]
-    rows.append(f"| static SCA on {ev['episodes']} missions ({ev['slots']:,} slots), s | {ev['seconds']:.2f} | | "
-                "< 5 s for 100 |")
-    for name, v in res["solvers"].items():
-        rows.append(f"| {name} solve time, s | {v['seconds']:.3f} | paper: {v['paper_s']:,.2f} | < {v['target_s']:g} |")
-    if "ppo_training" in res:
-        pt = res["ppo_training"]
-        pend = pt["pendulum_dummy"]["median_env_steps_per_s"]
-        for kind, label in (("dummy", "DummyVecEnv"), ("subproc", "SubprocVecEnv"), ("batched", "batched env")):
-            rate = pt[kind]["median_env_steps_per_s"]
-            rows.append(f"| PPO training, 4 envs, {label}, env-steps/s | {rate:,.0f} ({rate / pend:.2f} x) | "
-                        f"Pendulum-v1 DummyVecEnv: {pend:,.0f} | >= 0.8 x |")
-    if "ppo_shipped" in res:
-        ps = res["ppo_shipped"]
-        pend = res["ppo_training"]["pendulum_dummy"]["median_env_steps_per_s"]
-        for name, v in ps["settings"].items():
-            mark = " (default)" if name == ps["default"] else ""
-            rows.append(f"| PPO training, `python -m train` configuration ({ps['n_envs']} envs, batched), numba "
-                        f"{v['numba_threads']} / torch {v['torch_threads']} threads{mark}, env-steps/s | "
-                        f"{v['median_env_steps_per_s']:,.0f} | Pendulum-v1, SB3 PPO defaults: {pend:,.0f} | "
-                        ">= 25,000 |")
-    return "\n".join(rows)
 
 
 def build_parser(prog: str = "python -m eval.bench") -> argparse.ArgumentParser:

@@ -63,13 +63,12 @@ if TYPE_CHECKING:  # pragma: no cover
 from iscc_gym.commands.options import parse_seeds
 
 from .multi_seed import check_run_config, evaluate_run, run_seeds
+from .study_export import best_trial, export_best
 from .study_io import (
     PRUNERS,
     SAMPLERS,
     StudyConfigError,
-    best_trial,
     claim_out,
-    export_best,
     make_pruner,
     make_sampler,
     make_storage,

@@ -59,7 +59,8 @@ def test_ppo_figure_of_the_train_configuration(ppo_figure):
 def test_the_cold_compile_of_a_task_is_measured_in_a_new_process(capsys):
     """Issue 43.11: the compile note promised "about 10 s once"; its figures now come from python -m eval.bench
     --compile, which builds every kernel from an empty numba cache in a new process."""
-    from iscc_gym.eval.bench import compile_times, format_compile
+    from iscc_gym.eval.bench import compile_times
+    from iscc_gym.eval.bench_report import format_compile
 
     times = compile_times(["iscc_gym/ISCC-v0"])
     assert list(times) == ["import", "iscc_gym/ISCC-v0", "iscc_gym/ISCC-v0 (device stand-in)"]

@@ -297,7 +297,7 @@ def test_the_exported_entry_keeps_the_trials_run_settings(tmp_path):
     from types import SimpleNamespace
 
     from iscc_gym.train.config import run_settings
-    from iscc_gym.train.study_io import best_entry
+    from iscc_gym.train.study_export import best_entry
 
     from iscc_gym import URBAN_ENV_ID
 

@@ -245,7 +245,7 @@ def _kill_at(step):
 
 def _killed_run(monkeypatch, out, step, **kw):
     """A run killed at ``step`` (a callback raises after the others ran at that step)."""
-    monkeypatch.setattr(T, "_steps_callback", lambda say, total: _kill_at(step))
+    monkeypatch.setattr(T, "steps_callback", lambda say, total: _kill_at(step))
     with pytest.raises(Killed):
         main(_args(out, **kw))
     monkeypatch.undo()

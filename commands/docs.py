@@ -1,8 +1,9 @@
 """Generated sections of ``docs/results.md`` and the README: each command owns the text between its
 ``<!-- NAME:start -->`` and ``<!-- NAME:end -->`` markers and rewrites only that.
 
-Used by the ``eval`` and ``train`` commands alike. ``--write-docs`` writes into the project's own
-files, found from this package (the source checkout it lives in), whatever the working directory;
+Used by the studies of ``experiments/`` (``python -m experiments NAME``) only: an installed command writes files
+only where it is told (``--json``, ``--out``), never this repository's docs. ``--write-docs`` writes into the
+project's own files, found from this package (the source checkout it lives in), whatever the working directory;
 an installed copy (a wheel in site-packages) has no README or docs to write into, so it is refused
 with one clear line (:func:`project_root`).
 """

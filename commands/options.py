@@ -430,13 +430,21 @@ def run_claims_command(args, run, draw, check_seeds, report=None) -> dict:
 _OUTPUT_FLAGS = {"--write-docs": 0, "--quiet": 0, "--json": 1, "--plots": 1, "--figures": 1}
 
 
+#: ``(prog, arguments)`` of the study entry running now (``python -m experiments NAME``): its own arguments, the
+#: table's, are left out of the command quoted in the docs it writes (``python -m experiments NAME`` regenerates them).
+STUDY: list[tuple[str, list[str]]] = []
+
+
 def docs_command(prog: str, argv: list[str] | None = None) -> str:
     """The command line quoted in generated docs: ``prog`` and ``argv`` (default ``sys.argv[1:]``)
-    without the output flags (:data:`_OUTPUT_FLAGS`, with their values).
+    without the output flags (:data:`_OUTPUT_FLAGS`, with their values); under a study entry of ``python -m
+    experiments`` (:data:`STUDY`), without the entry's own arguments.
     """
     import sys
 
     args = list(sys.argv[1:] if argv is None else argv)
+    if STUDY and STUDY[-1][0] == prog and args[:len(STUDY[-1][1])] == STUDY[-1][1]:
+        args = args[len(STUDY[-1][1]):]
     out, i = [prog], 0
     while i < len(args):
         a = args[i]

@@ -33,13 +33,12 @@ import numpy as np
 from iscc_gym.agents.shipped import PPO_AGENT as SHIPPED_AGENT  # noqa: F401 (a name of this command)
 from iscc_gym.agents.tasks import TASK_POLICIES, task_policies
 from iscc_gym.commands.cli import invoked_prog, run
-from iscc_gym.commands.docs import README_PATH, RESULTS_PATH, docs_path, publish, save_json, write_section
+from iscc_gym.commands.docs import save_json
 from iscc_gym.commands.options import (
     PICKLE_WARNING,
     Parser,
     check_writable_dir,
     check_writable_file,
-    docs_command,
     env_scenario,
     nonneg_int,
     parse_seeds,
@@ -64,11 +63,13 @@ from iscc_gym import ENV_ID, MULTI_ENV_ID, URBAN_ENV_ID
 from iscc_gym.lazy import lazy_names
 from iscc_gym.tasks import TASKS
 
-#: Names this module offers from :mod:`iscc_gym.eval.evaluate`, imported on first use (:mod:`iscc_gym.lazy`): the
-#: rollout loop loads the compiled env, so a mistake in the arguments is refused before it loads (issue 43.12).
-_EVALUATE_NAMES = ("evaluate", "format_table", "horizon_slots", "markdown_table", "oracle_share",
-                   "oracle_share_sentence", "summarize")
-__getattr__, __dir__ = lazy_names(__name__, dict.fromkeys(_EVALUATE_NAMES, "iscc_gym.eval.evaluate"), globals())
+#: Names this module offers from the engine, the rollout loop and the report, imported on first use
+#: (:mod:`iscc_gym.lazy`): the rollout loop loads the compiled env, so a mistake in the arguments is refused before it
+#: loads (issue 43.12).
+_LAZY = {"evaluate": "iscc_gym.eval.engine", "horizon_slots": "iscc_gym.eval.evaluate",
+         "summarize": "iscc_gym.eval.evaluate", **dict.fromkeys(("format_table", "markdown_table", "oracle_share",
+                                                                  "oracle_share_sentence"), "iscc_gym.eval.report")}
+__getattr__, __dir__ = lazy_names(__name__, _LAZY, globals())
 
 
 #: The default comparison on the paper's task (each task's: :data:`iscc_gym.agents.tasks.TASK_POLICIES`).
@@ -186,9 +187,6 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
                     help="torch threads of a learned policy's inference (default: 1, the fastest for these batches)")
     ap.add_argument("--workers", type=positive_int, default=min(2, os.cpu_count() or 1), metavar="N",
                     help="processes playing the policies side by side (default: up to 2; 1: all in this process)")
-    ap.add_argument("--write-docs", action="store_true",
-                    help="write the comparison into the project's docs/results.md and README.md (comparison "
-                         "block); needs a source checkout")
     ap.add_argument("--quiet", action="store_true",
                     help="no progress bar (there is none either when stderr is not a terminal)")
     return ap
@@ -204,7 +202,7 @@ def _pick(name: str | None, default: str, names: list[str], flag: str) -> str | 
 
 
 def main(argv: list[str] | None = None, prog: str = PROG) -> dict:
-    """Run the comparison; returns the results (see :func:`iscc_gym.eval.evaluate.evaluate`).
+    """Run the comparison; returns the results (see :func:`iscc_gym.eval.engine.evaluate`).
 
     A user's mistake raises ``ValueError``/``OSError`` with one line, before any episode is played (or
     argparse exits with code 2); :func:`console` turns them into exit codes.
@@ -218,7 +216,7 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> dict:
     if task_policies(args.env).fleet:  # ValueError naming the tasks for an unknown one
         raise ValueError(f"--env {args.env!r}: use one of {', '.join(TASKS)}")
     task = task_policies(args.env)
-    args.scenario = env_scenario(args.env, args.scenario, args.write_docs)  # the env's own, or a variant of its task
+    args.scenario = env_scenario(args.env, args.scenario)  # the env's own, or a variant of its task
     if args.policies is None:
         args.policies = task.policies
     from iscc_gym import make_scenario
@@ -233,10 +231,9 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> dict:
     if args.runs is not None:
         items = resolve_specs(",".join(items + runs_items(args.runs)))  # FileNotFoundError naming the fix
     played = worlds(args.env, args.variants, args.scenario)  # ValueError naming the task's variants
-    if args.variants is not None and (args.write_docs or args.plots):
-        raise ValueError("--variants compares on several missions' variants; --write-docs and --plots take the "
-                         "task's own missions (leave --variants out), the shifted-mission study writes its own "
-                         "table (python -m experiments.urban_shift)")
+    if args.variants is not None and args.plots:
+        raise ValueError("--variants compares on several missions' variants; --plots takes the task's own missions "
+                         "(leave --variants out)")
     if args.train_steps > 0:
         items = [it for it in items if policy_name(it) != "ppo"]
         items.insert(0, f"ppo={args.train_out}")
@@ -255,9 +252,6 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> dict:
         check_writable_file(args.json, "--json")
     if args.plots:
         check_writable_dir(args.plots, "--plots")
-    if args.write_docs:
-        for rel in (RESULTS_PATH, README_PATH):
-            check_writable_file(docs_path(rel), "--write-docs")
     show = show_progress(args.quiet)
     if args.train_steps > 0:
         summary = run_training(["--env", args.env, "--total-timesteps", args.train_steps, "--scenario", args.scenario],
@@ -268,7 +262,7 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> dict:
     from iscc_gym.eval.evaluate import horizon_slots
 
     # the time left from each policy's own pace (eval.policies.TimeLeft), not tqdm's from the slots done overall
-    from iscc_gym.eval.report import format_table, markdown_table, oracle_share, oracle_share_sentence
+    from iscc_gym.eval.report import format_table, oracle_share, oracle_share_sentence
     bar = progress_bar(len(items) * sum(horizon_slots(w, args.max_steps) for w in played.values()), "evaluating",
                        unit="slot", enabled=show, unit_scale=True,
                        bar_format="{desc}: {percentage:3.0f}%|{bar}| {n_fmt}/{total_fmt} [{elapsed}{postfix}]")
@@ -302,15 +296,6 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> dict:
         for p in save_plots(res, args.plots, scenario.dt_s):
             print(f"wrote {p}")
         res.pop("traces")
-    if args.write_docs:
-        cmd = docs_command("python -m eval", argv)
-        share = res.get("oracle_share")
-        text = markdown_table(res, cmd) + (f"\n\n{oracle_share_sentence(share)}" if share is not None else "")
-        if task.readme:
-            publish(task.results_section, task.results_title, text)
-        else:
-            write_section(docs_path(RESULTS_PATH), task.results_section, f"## {task.results_title}\n\n" + text)
-            print(f"wrote {docs_path(RESULTS_PATH)}")
     if variants:
         res = results
     if args.json:

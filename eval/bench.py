@@ -5,7 +5,8 @@ Usage::
     python -m eval.bench [--full] [--steps N] [--repeats R] [--json PATH] [--quick] [--skip-ppo] [--quiet]
 
 The default is a short run (:data:`PROFILES`, the expected duration printed at the start); ``--full`` measures
-every figure, the README's table (``--full --write-docs``). A line per stage goes to stderr (``--quiet``: none).
+every figure, the README's table (``python -m experiments bench`` writes it into the docs). A line per stage goes
+to stderr (``--quiet``: none).
 
 Every figure is the median over ``repeats`` runs, with its reference measured in the same process:
 
@@ -33,13 +34,13 @@ import time
 
 import gymnasium as gym
 import numpy as np
-from iscc_gym.commands.docs import README_PATH, RESULTS_PATH, docs_path, publish, save_json
+from iscc_gym.commands.docs import save_json
 from iscc_gym.commands.options import Parser, Stages, check_writable_file, positive_int, run_console
 
 import iscc_gym
 from iscc_gym import threads
 
-from .bench_report import format_compile, format_report, markdown
+from .bench_report import format_compile, format_report
 
 
 def env_steps_per_second(env_id: str, n_steps: int, repeats: int, seed: int = 0, **kwargs) -> dict:
@@ -414,7 +415,8 @@ def build_parser(prog: str = "python -m eval.bench") -> argparse.ArgumentParser:
                 description=__doc__.split("\n")[0] + f" Default: a short run ({PROFILES['short'][0]}; "
                 f"{PROFILES['short'][1]} on a quiet 2-core machine); --full: {PROFILES['full'][0]} "
                 f"({PROFILES['full'][1]}).")
-    ap.add_argument("--full", action="store_true", help="every figure (the README's table; needed by --write-docs)")
+    ap.add_argument("--full", action="store_true",
+                    help="every figure (the README's table: python -m experiments bench)")
     ap.add_argument("--steps", type=positive_int, default=None, metavar="N",
                     help="steps per run (default: 2000, 5000 with --full)")
     ap.add_argument("--repeats", type=positive_int, default=None, metavar="N",
@@ -433,32 +435,22 @@ def build_parser(prog: str = "python -m eval.bench") -> argparse.ArgumentParser:
     ap.add_argument("--compile", action="store_true",
                     help="only the time to build the compiled kernels from a cold cache, per task (what the note "
                          "printed on a first run says)")
-    ap.add_argument("--write-docs", action="store_true",
-                    help="write the figures into the project's docs/results.md and README.md (bench block; needs "
-                         "--full and a source checkout)")
     return ap
 
 
 def main(argv: list[str] | None = None, prog: str = "python -m eval.bench") -> dict:
     args = build_parser(prog).parse_args(argv)
-    if args.write_docs and not args.full:
-        raise ValueError("--write-docs writes the README's full table: add --full")
     if args.json:
         check_writable_file(args.json, "--json")
-    if args.write_docs:
-        for rel in (RESULTS_PATH, README_PATH):
-            check_writable_file(docs_path(rel), "--write-docs")
     if args.compile:
-        if args.write_docs or args.device != "cpu":
-            raise ValueError("--compile measures the CPU kernels' build alone: drop --write-docs and --device")
+        if args.device != "cpu":
+            raise ValueError("--compile measures the CPU kernels' build alone: drop --device")
         res = compile_times()
         print(format_compile(res))
         if args.json:
             save_json(args.json, res)
         return res
     if args.device != "cpu":
-        if args.write_docs:
-            raise ValueError("--write-docs writes the CPU table: drop --device")
         from iscc_gym.eval.bench_device import format_device, run_device
 
         res = run_device(args.device, quick=args.quick, max_wall_s=args.max_wall_s, cpu_row=vector_steps_per_second)
@@ -474,8 +466,6 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.bench") -> d
     repeats = args.repeats or (5 if args.full else 3)
     res = run(steps, repeats, quick=args.quick, ppo=not args.skip_ppo, full=args.full, quiet=args.quiet)
     print(format_report(res))
-    if args.write_docs:
-        publish("bench", "Speed", markdown(res))
     if args.json:
         save_json(args.json, res)
     return res

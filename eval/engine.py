@@ -19,16 +19,17 @@ Example::
 from __future__ import annotations
 
 import re
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 from iscc_gym.agents.tasks import task_policies
 from iscc_gym.eval.policies import check_specs, play, policy_name, resolve_specs, world_spec
 
 from iscc_gym.scenario import Scenario, make_scenario
-from iscc_gym.tasks import get_task, variant_scenario
+from iscc_gym.tasks import TASKS, get_task, variant_scenario
 
-__all__ = ["compare", "worlds", "seed_runs", "runs_items"]
+__all__ = ["compare", "evaluate", "worlds", "seed_runs", "runs_items", "fleet_entries", "load_fleet_agent"]
 
 
 def worlds(env_id: str, variants: Sequence[str] | str | None, scenario: str | None = None) -> dict[str, Scenario]:
@@ -80,7 +81,7 @@ def compare(env_id: str, policies: Sequence[str] | str | None = None, seeds: Seq
             reference: str | None = None, focus: str | None = None, max_steps: int | None = None,
             record: int = 0, workers: int = 1, torch_threads: int = 1,
             progress: Callable[[int], None] | None = None, check: bool = True,
-            time_left: Callable[[float | None], None] | None = None) -> dict[str, dict]:
+            time_left: Callable[[float | None], None] | None = None, n_drones: int | None = None) -> dict[str, dict]:
     """Play every policy on every variant's missions of task ``env_id`` on ``seeds``; one
     :func:`~iscc_gym.eval.evaluate.summarize` result per variant, keyed by its name (without ``variants``: one
     entry, keyed by the preset's name).
@@ -113,11 +114,19 @@ def compare(env_id: str, policies: Sequence[str] | str | None = None, seeds: Seq
     check : bool
         Check every policy item before any mission is played (:func:`~iscc_gym.eval.policies.check_specs`;
         False where the caller has).
+    n_drones : int, optional
+        The fleet task's drones (default :data:`iscc_gym.sim.fleet.N_DRONES`): its policies are the baselines of
+        :mod:`iscc_gym.agents.multi` and agents for that many drones (:func:`fleet_entries`), played in this
+        process on the preset's missions (no variants); the other tasks take none.
     """
     pol = task_policies(env_id)
-    if pol.fleet:
-        raise ValueError(f"{env_id}: its comparison is python -m eval --env {env_id} (iscc_gym.eval.multi)")
     specs = policies if isinstance(policies, str) or policies is None else ",".join(policies)
+    if pol.fleet:
+        return {scenario or pol.task.preset: _fleet(pol, specs, seeds, variants, scenario, reference, focus,
+                                                    max_steps, record, progress, n_drones)}
+    if n_drones is not None:
+        raise ValueError(f"n_drones = {n_drones}: {env_id} flies one drone; the fleet task is "
+                         + ", ".join(e for e, t in TASKS.items() if t.fleet))
     items = resolve_specs(specs or pol.policies, pol.agent)
     names = [policy_name(it) for it in items]
     reference = reference if reference is not None else (pol.reference if pol.reference in names else None)
@@ -141,6 +150,94 @@ def compare(env_id: str, policies: Sequence[str] | str | None = None, seeds: Seq
     for v, lines in notes.items():
         out[v]["notes"] = lines
     return out
+
+
+def _fleet(pol, specs, seeds, variants, scenario, reference, focus, max_steps, record, progress, n_drones) -> dict:
+    """:func:`compare` on the fleet task: its entries for ``n_drones`` drones, played by :func:`evaluate`."""
+    from iscc_gym.sim.fleet import N_DRONES
+
+    if variants is not None:
+        raise ValueError(f"variants = {variants!r}: the fleet task's comparison plays its preset's missions")
+    items = [p.strip() for p in (specs or pol.policies).split(",") if p.strip()]
+    entries = fleet_entries(items, N_DRONES if n_drones is None else n_drones, scenario or pol.task.preset)
+    names = list(entries)
+    reference = reference if reference is not None else (pol.reference if pol.reference in names else None)
+    focus = focus if focus is not None else (pol.focus if pol.focus in names else None)
+    if not seeds:
+        raise ValueError("seeds is empty; pass at least one mission seed")
+    return evaluate(entries, [int(s) for s in seeds], scenario or pol.task.preset, reference=reference,
+                    max_steps=max_steps, record=record, focus=focus, progress=progress)
+
+
+def evaluate(policies: Mapping[str, Any], seeds: Sequence[int], scenario: str | Scenario = "paper",
+             reference: str | None = None, max_steps: int | None = None, record: int = 0,
+             focus: str | None = None, progress: Callable[[int], None] | None = None) -> dict:
+    """Evaluate every policy (or :class:`~iscc_gym.eval.evaluate.Entry`: a policy and its scheme's Scenario
+    overrides) on the same seeds, one rollout loop (:func:`~iscc_gym.eval.evaluate.run_episodes`); paired
+    differences vs ``reference`` (:func:`~iscc_gym.eval.evaluate.summarize`).
+
+    Returns a JSON-able dict: ``policies.<name>`` with ``<metric>_mean``, ``<metric>_ci95`` per
+    metric of :data:`~iscc_gym.eval.evaluate.EPISODE_METRICS` (``reward_mean``, ``reward_ci95``, ...), ``episodes`` (the
+    per-episode values) and ``wall_time_s``; ``paired.<name>_vs_<reference>`` with
+    ``<metric>_diff_mean`` and ``<metric>_diff_ci95`` (name minus reference, per episode). Every
+    interval is clamped to its metric's range (:data:`~iscc_gym.eval.evaluate.METRIC_RANGES`). ``progress(n)``: as
+    in :func:`~iscc_gym.eval.evaluate.run_episodes`, for every policy in turn.
+    """
+    from .evaluate import Entry, run_episodes, summarize
+
+    if not policies:
+        raise ValueError("policies is empty; pass at least one policy")
+    if reference is not None and reference not in policies:
+        raise ValueError(f"reference = {reference!r} is not one of the policies {list(policies)}")
+    runs = {}
+    for name, entry in policies.items():
+        entry = entry if isinstance(entry, Entry) else Entry(entry)
+        runs[name] = run_episodes(entry.policy, seeds, scenario, max_steps, record, progress=progress,
+                                  **entry.overrides)
+    return summarize(runs, seeds, reference, focus)
+
+
+def fleet_entries(items: Sequence[str], n_drones: int, scenario: str = "paper") -> dict:
+    """``{name: Entry}`` of the fleet task's policy items for ``n_drones`` drones: ``NAME=PATH`` a trained agent
+    (its observation shape checked against the K-drone env's), a bare ``ppo`` the shipped agent for K
+    (:func:`iscc_gym.agents.tasks.TaskPolicies.shipped_agent`), anything else a baseline of
+    :func:`iscc_gym.agents.multi.make_multi_policy`.
+    """
+    from iscc_gym.agents.multi import MULTI_POLICY_SPECS, make_multi_policy
+
+    from iscc_gym import MULTI_ENV_ID
+    from iscc_gym.sim.fleet import check_n_drones, drone_scenario
+
+    from .evaluate import Entry
+
+    k = check_n_drones(n_drones)
+    s = drone_scenario(make_scenario(scenario), k)
+    entries = {}
+    for item in items:
+        if item == "ppo":
+            item = f"ppo={task_policies(MULTI_ENV_ID).shipped_agent(k)}"
+        if "=" in item:
+            name, path = item.split("=", 1)
+            entries[name] = Entry(load_fleet_agent(path, k), {"n_drones": k})
+        elif item in MULTI_POLICY_SPECS:
+            entries[item] = Entry(make_multi_policy(item, s, k), {"n_drones": k})
+        else:
+            raise ValueError(f"policy {item!r}: use NAME=PATH (a trained agent), ppo or one of "
+                             f"{', '.join(MULTI_POLICY_SPECS)}")
+    return entries
+
+
+def load_fleet_agent(path, n_drones: int):
+    """A trained agent of the fleet task for ``n_drones`` drones; ``ValueError`` if it takes another shape."""
+    from iscc_gym.agents.sb3_policy import SB3Policy
+
+    from iscc_gym.sim.schema import N_OBS
+
+    pol = SB3Policy.load(path, check_env=None)
+    if pol.obs_shape != (n_drones * N_OBS,):
+        raise ValueError(f"--agent {path}: the model takes observations of shape {pol.obs_shape}; the env with "
+                         f"{n_drones} drones gives ({n_drones * N_OBS},): train it with --env-set n_drones={n_drones}")
+    return pol
 
 
 def world_notes(items: list[str], played: dict[str, Scenario], base: str) -> dict[str, list[str]]:

@@ -26,8 +26,7 @@ from iscc_gym.scenario import Scenario, make_scenario
 
 from .report import mean_ci
 
-__all__ = ["Entry", "evaluate", "summarize", "run_episodes", "Actor", "EPISODE_METRICS", "METRIC_RANGES",
-           "horizon_slots"]
+__all__ = ["Entry", "summarize", "run_episodes", "Actor", "EPISODE_METRICS", "METRIC_RANGES", "horizon_slots"]
 
 #: Per-episode metrics (means over the episode's slots unless stated).
 EPISODE_METRICS = {
@@ -203,30 +202,6 @@ def run_episodes(policy, seeds: Sequence[int], scenario: str | Scenario = "paper
         res["traces"] = {key: np.array(v) for key, v in traces.items()}
         res["missions"] = missions
     return res
-
-
-def evaluate(policies: Mapping[str, Any], seeds: Sequence[int], scenario: str | Scenario = "paper",
-             reference: str | None = None, max_steps: int | None = None, record: int = 0,
-             focus: str | None = None, progress: Callable[[int], None] | None = None) -> dict:
-    """Evaluate every policy (or :class:`Entry`) on the same seeds; paired differences vs ``reference``.
-
-    Returns a JSON-able dict: ``policies.<name>`` with ``<metric>_mean``, ``<metric>_ci95`` per
-    metric of :data:`EPISODE_METRICS` (``reward_mean``, ``reward_ci95``, ...), ``episodes`` (the
-    per-episode values) and ``wall_time_s``; ``paired.<name>_vs_<reference>`` with
-    ``<metric>_diff_mean`` and ``<metric>_diff_ci95`` (name minus reference, per episode). Every
-    interval is clamped to its metric's range (:data:`METRIC_RANGES`). ``progress(n)``: as in
-    :func:`run_episodes`, for every policy in turn.
-    """
-    if not policies:
-        raise ValueError("policies is empty; pass at least one policy")
-    if reference is not None and reference not in policies:
-        raise ValueError(f"reference = {reference!r} is not one of the policies {list(policies)}")
-    runs = {}
-    for name, entry in policies.items():
-        entry = entry if isinstance(entry, Entry) else Entry(entry)
-        runs[name] = run_episodes(entry.policy, seeds, scenario, max_steps, record, progress=progress,
-                                  **entry.overrides)
-    return summarize(runs, seeds, reference, focus)
 
 
 def summarize(runs: Mapping[str, dict], seeds: Sequence[int], reference: str | None = None,

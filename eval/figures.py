@@ -116,7 +116,7 @@ def write_all(out_dir: str | Path, s: Scenario, model: StaticModel, traces: dict
     """Write every figure of :data:`FIGURES` into ``out_dir``; returns {file name: path}.
 
     ``traces``: per scheme (``open_loop``, ``gnss``, ``ignore_loss``, ``iscc``) the ``traces`` of
-    :func:`iscc_gym.eval.evaluate.evaluate` with ``record=1``. ``model``, ``splits`` (the Table II
+    :func:`iscc_gym.eval.engine.evaluate` with ``record=1``. ``model``, ``splits`` (the Table II
     allocations) and ``quick`` are accepted for :mod:`experiments.paper.schemes`' call and not used: the
     allocation maps are the paper's Figs. 5-6 in :mod:`experiments.paper.paper_figures`.
     """

@@ -13,8 +13,8 @@ eval --env iscc_gym/ISCC-Multi-v0 ...`` runs this command.
 
 Example::
 
-    python -m eval.multi --n-drones 4 --episodes 20 --write-docs
-    python -m eval.multi --k-scan 2,4,8 --episodes 20 --write-docs
+    python -m eval.multi --n-drones 4 --episodes 20
+    python -m eval.multi --k-scan 2,4,8 --episodes 20          # python -m experiments multi-scan: into the docs
 """
 
 from __future__ import annotations
@@ -24,11 +24,9 @@ from pathlib import Path
 
 from iscc_gym.agents.sb3_policy import LAGRANGE_FILE
 from iscc_gym.agents.tasks import TASK_POLICIES
-from iscc_gym.commands.docs import RESULTS_PATH, docs_path, write_section
 from iscc_gym.commands.options import (
     PICKLE_WARNING,
     Parser,
-    check_writable_file,
     nonneg_int,
     positive_int,
     progress_bar,
@@ -37,12 +35,12 @@ from iscc_gym.commands.options import (
 )
 from iscc_gym.commands.protocol import MULTI_SEED_START as SEED_START
 from iscc_gym.commands.protocol import held_out_seeds
-from iscc_gym.eval.evaluate import Entry, evaluate, horizon_slots
+from iscc_gym.eval.engine import compare as engine_compare
+from iscc_gym.eval.evaluate import horizon_slots
 from iscc_gym.eval.report import ci_bounds, ci_cell, format_table, markdown_table
 
 from iscc_gym import MULTI_ENV_ID
-from iscc_gym.scenario import make_scenario
-from iscc_gym.sim.fleet import N_DRONES, check_n_drones, drone_scenario
+from iscc_gym.sim.fleet import N_DRONES, check_n_drones
 
 __all__ = ["SEED_START", "DEFAULT_POLICIES", "agent_dir", "compare", "scan_table", "main"]
 
@@ -64,18 +62,6 @@ def agent_dir(n_drones: int) -> Path:
     return TASK_POLICIES[MULTI_ENV_ID].shipped_agent(n_drones)
 
 
-def _load_agent(path, n_drones: int):
-    from iscc_gym.agents.sb3_policy import SB3Policy
-
-    from iscc_gym.sim.schema import N_OBS
-
-    pol = SB3Policy.load(path, check_env=None)
-    if pol.obs_shape != (n_drones * N_OBS,):
-        raise ValueError(f"--agent {path}: the model takes observations of shape {pol.obs_shape}; the env with "
-                         f"{n_drones} drones gives ({n_drones * N_OBS},): train it with --env-set n_drones={n_drones}")
-    return pol
-
-
 def agent_label(path) -> str:
     """How an agent is reported: ``ppo-lag`` for a constrained run (its ``lagrange.yml``), else ``ppo``."""
     return "ppo-lag" if (Path(path) / LAGRANGE_FILE).is_file() else "ppo"
@@ -83,23 +69,14 @@ def agent_label(path) -> str:
 
 def compare(n_drones: int, seeds, policies: str = DEFAULT_POLICIES, agent: str | None = None, scenario="paper",
             max_steps: int | None = None, progress=None) -> dict:
-    """The comparison of :func:`iscc_gym.eval.evaluate.evaluate` for ``n_drones`` drones (``agent``: a
-    run directory, played as :func:`agent_label`; the reference ``joint-sca`` where it is played).
-    ``progress(n)``: called with the slots played, as in :func:`~iscc_gym.eval.evaluate.evaluate`.
+    """The engine's comparison of the fleet task (:func:`iscc_gym.eval.engine.compare`) for ``n_drones`` drones
+    (``agent``: a run directory, played first as :func:`agent_label`, the focus; the reference ``joint-sca`` where
+    it is played). ``progress(n)``: called with the slots played.
     """
-    from iscc_gym.agents.multi import make_multi_policy
-
-    k = check_n_drones(n_drones)
-    s = drone_scenario(make_scenario(scenario), k)
-    entries = {}
-    focus = agent_label(agent) if agent is not None else None
-    if focus is not None:
-        entries[focus] = Entry(_load_agent(agent, k), {"n_drones": k})
-    for spec in [p.strip() for p in policies.split(",") if p.strip()]:
-        entries[spec] = Entry(make_multi_policy(spec, s, k), {"n_drones": k})
-    reference = REFERENCE if REFERENCE in entries else None
-    return evaluate(entries, seeds, scenario, max_steps=max_steps, reference=reference,
-                    focus=focus, progress=progress)
+    label = agent_label(agent) if agent is not None else None
+    items = ([f"{label}={agent}"] if agent is not None else []) + [p.strip() for p in policies.split(",") if p.strip()]
+    return engine_compare(MULTI_ENV_ID, items, seeds, scenario=scenario, focus=label, max_steps=max_steps,
+                          progress=progress, n_drones=n_drones)[scenario]
 
 
 def _advantage_cells(res: dict) -> str:
@@ -151,12 +128,15 @@ def build_parser(prog: str = "python -m eval.multi") -> Parser:
                     help="a trained run directory (default: agents/trained/multi/k<K> if it exists; none: no agent)")
     ap.add_argument("--scenario", default="paper", help="scenario preset (default: paper)")
     ap.add_argument("--max-steps", type=positive_int, default=None, help="slots per mission (default: all)")
-    ap.add_argument("--write-docs", action="store_true", help="write the tables into docs/results.md")
     ap.add_argument("--quiet", action="store_true", help="no progress (bar on a terminal, else lines on stderr)")
     return ap
 
 
-def main(argv: list[str] | None = None, prog: str = "python -m eval.multi") -> dict:
+def main(argv: list[str] | None = None, prog: str = "python -m eval.multi", command: str | None = None) -> dict:
+    """The comparison (one K, or a scan of K); returns the results and their Markdown sections (``sections``, under
+    ``section``: its name and title; ``python -m experiments multi`` writes them into the docs), each quoting
+    ``command`` (default: this command line).
+    """
     from iscc_gym.agents.multi import MULTI_POLICY_SPECS
     from iscc_gym.commands.options import docs_command
 
@@ -181,10 +161,8 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.multi") -> d
             agents[k] = args.agent
         else:
             agents[k] = str(agent_dir(k)) if (agent_dir(k) / "model.zip").is_file() else None
-    if args.write_docs:
-        check_writable_file(docs_path(RESULTS_PATH), "--write-docs")
     seeds = held_out_seeds(SEED_START, args.episodes, args.seed)
-    command = docs_command(prog, argv)
+    command = command or docs_command(prog, argv)
     out, sections = {}, []
     n_baselines = len([p for p in args.policies.split(",") if p.strip()])
     n_runs = sum(n_baselines + (1 if agents[k] else 0) for k in ks)
@@ -194,7 +172,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.multi") -> d
     for k in ks:
         res = compare(k, seeds, args.policies, agents[k], args.scenario, args.max_steps, progress=bar.update)
         out[k] = res
-        sections.append(f"### {k} drones\n\n" + markdown_table(res, command).replace(" --write-docs`", "`", 1))
+        sections.append(f"### {k} drones\n\n" + markdown_table(res, command))
         print(f"\n{k} drones{' (agent: ' + agents[k] + ')' if agents[k] else ''}:\n{format_table(res)}")
     bar.close()
     if len(ks) > 1:
@@ -205,15 +183,13 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.multi") -> d
         rows = [[str(k), _advantage_cells(out[k])] for k in ks if agents[k]]
         print("\n" + _render(titles, rows, False, "rl"))
         sections.append("### The agent's advantage against K\n\n" + _render(titles, rows, True, "ll"))
-    if args.write_docs:
-        if len(ks) > 1:
-            name, title = "multi_scan", "## Many drones, one base station"
-        else:
-            label = f"agent `{Path(agents[ks[0]]).as_posix()}`" if agents[ks[0]] else "the baselines"
-            name, title = "multi", f"## Many drones: {label} at K = {ks[0]}"
-        write_section(docs_path(RESULTS_PATH), name, title + "\n\n" + "\n\n".join(sections))
+    if len(ks) > 1:
+        section = ("multi_scan", "Many drones, one base station")
+    else:
+        label = f"agent `{Path(agents[ks[0]]).as_posix()}`" if agents[ks[0]] else "the baselines"
+        section = ("multi", f"Many drones: {label} at K = {ks[0]}")
     return {"results": {str(k): v for k, v in out.items()}, "seeds": [seeds[0], seeds[-1]],
-            "agents": {str(k): v for k, v in agents.items()}}
+            "agents": {str(k): v for k, v in agents.items()}, "section": section, "sections": sections}
 
 
 def console(argv: list[str] | None = None, prog: str = "python -m eval.multi") -> int:

@@ -36,7 +36,15 @@ from pathlib import Path
 import numpy as np
 import scipy.linalg
 from iscc_gym.commands.docs import README_PATH, RESULTS_PATH, docs_path
-from iscc_gym.commands.options import Parser, Stages, check_writable_dir, check_writable_file, nonneg_int, show_progress
+from iscc_gym.commands.options import (
+    Parser,
+    Stages,
+    check_writable_dir,
+    check_writable_file,
+    docs_command,
+    nonneg_int,
+    show_progress,
+)
 from iscc_gym.commands.protocol import CALIBRATION_SEED_START, seed_list
 from scipy.optimize import brentq
 
@@ -467,7 +475,8 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.paper
         print("wrote figures: " + ", ".join(res["figures"].values()))
     if args.write_docs:
         pair = (res, other) if args.scenario == "paper" else (other, res)
-        write_docs(*pair, results_path=docs_path(RESULTS_PATH), readme_path=docs_path(README_PATH))
+        write_docs(*pair, results_path=docs_path(RESULTS_PATH), readme_path=docs_path(README_PATH),
+                   command=docs_command(prog, argv))
         print(f"wrote {docs_path(RESULTS_PATH)} (sections reproduce, reproduce-schemes, reproduce-claims) and the "
               "README reproduction block")
     if args.json:

@@ -7,7 +7,7 @@ Part of ``python -m experiments.paper.reproduce`` (:func:`experiments.paper.repr
   built and warmed up once and timed separately); each optimiser's own wall time is reported beside
   the paper's.
 * **Tracking error, data rate, PEB** are measured in the env: closed-loop Monte Carlo on the batched
-  vector env through :func:`iscc_gym.eval.evaluate.evaluate`, every allocation and scheme on the same fixed
+  vector env through :func:`iscc_gym.eval.engine.evaluate`, every allocation and scheme on the same fixed
   list of seeds (common random numbers). **LQG cost** comes from the analytic evaluator (eq:LQG_cost
   at steady state), as the env does not report it.
 * **Schemes** are :class:`eval.evaluate.Entry` objects: a policy plus Scenario overrides. Which split
@@ -25,7 +25,8 @@ from pathlib import Path
 
 import numpy as np
 from iscc_gym.agents import FixedSplitPolicy, SCAPolicy, evolutionary_search, grid_search
-from iscc_gym.eval.evaluate import Entry, evaluate
+from iscc_gym.eval.engine import evaluate
+from iscc_gym.eval.evaluate import Entry
 from iscc_gym.eval.report import ci_bounds
 from scipy.optimize import brentq
 

@@ -39,9 +39,14 @@ def test_bench_quick_reports_every_figure(tmp_path, capsys, ppo_figure):
     assert captured.err.count("stage (render)") == 1  # one line a stage, none with a finished stage's name
 
 
-def test_bench_write_docs_needs_the_full_run():
+def test_the_bench_study_needs_the_full_run_and_the_bench_writes_no_docs():
+    from experiments.bench import main as bench_study
+
     with pytest.raises(ValueError, match="--full"):
-        bench.main(["--write-docs"])
+        bench_study(["--write-docs"])
+    with pytest.raises(ValueError, match="drop --device"):
+        bench_study(["--full", "--device", "standin", "--write-docs"])
+    assert "--write-docs" not in bench.build_parser().format_help()
 
 
 @pytest.mark.slow

@@ -57,7 +57,7 @@ def test_the_command_line_plays_variants_and_seed_runs_and_refuses_what_it_canno
                                   compare(URBAN_ENV_ID, "myopic", SEEDS, variants=["umi_av"], max_steps=5)
                                   ["umi_av"]["policies"]["myopic"]["episodes"]["reward"])
     with pytest.raises(ValueError, match="--variants compares on several"):
-        eval_main(["--env", URBAN_ENV_ID, "--policies", "myopic", "--variants", "umi_av", "--write-docs"])
+        eval_main(["--env", URBAN_ENV_ID, "--policies", "myopic", "--variants", "umi_av", "--plots", str(tmp_path)])
     with pytest.raises(FileNotFoundError, match="no seed_<s>/model.zip under .*python -m train --seeds"):
         eval_main(["--policies", "myopic", "--runs", str(tmp_path)])
 

@@ -160,8 +160,10 @@ def test_write_docs_is_refused_outside_a_checkout(tmp_path, monkeypatch, no_epis
     installed = tmp_path / "site-packages" / "iscc_gym"
     installed.mkdir(parents=True)
     monkeypatch.setattr(docs, "PACKAGE_DIR", installed)
+    from experiments.comparison import main as comparison_main
+
     with pytest.raises(OSError, match="not in a source checkout"):
-        cli.main(["--policies", "sca,equal", "--write-docs", "--quiet"])
+        comparison_main(["--policies", "sca,equal", "--write-docs", "--quiet"])
     with pytest.raises(OSError, match="not in a source checkout"):
         reproduce.main(["--model-only", "--write-docs", "--quiet"])
     monkeypatch.setattr(docs, "PACKAGE_DIR", ROOT / "iscc_gym")
@@ -336,10 +338,11 @@ EXPERIMENTS = ["experiments.pareto", "experiments.probes", "experiments.seeds", 
                "experiments.urban_learned", "experiments.urban_levers", "experiments.urban_shift",
                "experiments.urban_task", "experiments.paper.evaluator_check", "experiments.paper.fading",
                "experiments.paper.reproduce", "experiments.paper.sensitivity", "experiments.ship",
-               "experiments.multi_agents", "experiments.pareto_agents", "experiments.headroom"]
+               "experiments.multi_agents", "experiments.pareto_agents", "experiments.headroom",
+               "experiments.comparison", "experiments.bench", "experiments.multi"]
 COMMANDS = INSTALLED + EXPERIMENTS
 #: The commands whose entry is ``cli`` (the training studies), not ``main``.
-CLI_ENTRY = ("experiments.ship", "experiments.multi_agents", "experiments.pareto_agents")
+CLI_ENTRY = ("experiments.multi_agents", "experiments.pareto_agents")
 
 
 def _help(command: str, capsys) -> str:
@@ -415,11 +418,13 @@ def test_a_scenario_of_another_task_than_the_env_is_refused(no_episodes, tmp_pat
     urban, paper = "iscc_gym/ISCC-Urban-v0", "iscc_gym/ISCC-v0"
     with pytest.raises(ValueError, match=rf"--scenario 'paper' is the paper task, but --env {urban} is the urban "
                                          rf"task .*: use --env {paper} for 'paper', or drop --scenario"):
-        cli.main(["--env", urban, "--scenario", "paper", "--policies", "myopic,margin", "--write-docs", "--quiet"])
+        cli.main(["--env", urban, "--scenario", "paper", "--policies", "myopic,margin", "--quiet"])
     with pytest.raises(ValueError, match=rf"--scenario 'urban' is the urban task, but --env {paper} is the paper"):
         cli.main(["--scenario", "urban", "--quiet"])
+    from experiments.comparison import main as comparison_main
+
     with pytest.raises(ValueError, match=rf"--write-docs writes the docs of --env {paper}, whose scenario is 'paper'"):
-        cli.main(["--scenario", "literal", "--write-docs", "--quiet"])
+        comparison_main(["--scenario", "literal", "--write-docs", "--quiet"])
     with pytest.raises(ValueError, match=rf"--scenario 'paper' is the paper task, but --env {urban}"):
         seeds.main([str(tmp_path), "--env", urban, "--scenario", "paper", "--quiet"])
     from iscc_gym.commands.options import env_scenario

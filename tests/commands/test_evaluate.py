@@ -9,7 +9,8 @@ import gymnasium as gym
 import numpy as np
 import pytest
 from iscc_gym.agents.base import EqualSplitPolicy, FixedSplitPolicy
-from iscc_gym.eval.evaluate import Entry, evaluate, run_episodes
+from iscc_gym.eval.engine import evaluate
+from iscc_gym.eval.evaluate import Entry, run_episodes
 from iscc_gym.eval.report import format_table, mean_ci
 from scipy import stats
 
@@ -99,24 +100,30 @@ def fake_checkout(root):
     return root / "iscc_gym"
 
 
-def test_eval_write_docs_owns_only_its_sections_of_the_checkout(tmp_path, monkeypatch):
-    """--write-docs writes the checkout's README and docs (found from the package), not the working directory's."""
+def test_the_comparison_study_owns_only_its_sections_of_the_checkout(tmp_path, monkeypatch):
+    """``python -m experiments comparison`` writes the checkout's README and docs (found from the package), not the
+    working directory's, quoting itself as the command that regenerates them (issue 44: ``python -m eval``, an
+    installed command, writes no docs)."""
     from iscc_gym.commands import docs
-    from iscc_gym.eval.__main__ import main
+
+    from experiments.__main__ import main
 
     repo = tmp_path / "repo"
     monkeypatch.setattr(docs, "PACKAGE_DIR", fake_checkout(repo))
     elsewhere = tmp_path / "elsewhere"
     elsewhere.mkdir()
     monkeypatch.chdir(elsewhere)
-    main(["--policies", "sca,equal", "--episodes", "2", "--max-steps", "20", "--workers", "1", "--write-docs",
+    main(["comparison", "--policies", "sca,equal", "--episodes", "2", "--max-steps", "20", "--workers", "1",
           "--quiet"])
     assert list(elsewhere.iterdir()) == []
     results = (repo / "docs" / "results.md").read_text()
     readme = (repo / "README.md").read_text()
     assert "keep me" in results and "| equal vs sca |" in results
     assert readme.startswith("intro\n") and readme.endswith("outro\n") and "old" not in readme
-    assert "`python -m eval --policies sca,equal --episodes 2 --max-steps 20 --workers 1 --write-docs`" in readme
+    assert "`python -m experiments comparison --policies sca,equal --episodes 2 --max-steps 20 --workers 1`" in readme
+    from iscc_gym.eval.__main__ import build_parser
+
+    assert "--write-docs" not in build_parser().format_help()
 
 
 class FakeBar:

@@ -2,7 +2,7 @@
 
 import numpy as np
 import pytest
-from iscc_gym.eval.evaluate import evaluate
+from iscc_gym.eval.engine import evaluate
 from iscc_gym.eval.report import mean_ci
 from iscc_gym.train import Args, main
 

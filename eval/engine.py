@@ -81,7 +81,9 @@ def compare(env_id: str, policies: Sequence[str] | str | None = None, seeds: Seq
             reference: str | None = None, focus: str | None = None, max_steps: int | None = None,
             record: int = 0, workers: int = 1, torch_threads: int = 1,
             progress: Callable[[int], None] | None = None, check: bool = True,
-            time_left: Callable[[float | None], None] | None = None, n_drones: int | None = None) -> dict[str, dict]:
+            time_left: Callable[[float | None], None] | None = None, n_drones: int | None = None,
+            retune: Mapping[str, Any] | None = None, tune_seeds: Sequence[int] = (),
+            trace_info: Sequence[str] = ()) -> dict[str, dict]:
     """Play every policy on every variant's missions of task ``env_id`` on ``seeds``; one
     :func:`~iscc_gym.eval.evaluate.summarize` result per variant, keyed by its name (without ``variants``: one
     entry, keyed by the preset's name).
@@ -114,6 +116,16 @@ def compare(env_id: str, policies: Sequence[str] | str | None = None, seeds: Seq
     check : bool
         Check every policy item before any mission is played (:func:`~iscc_gym.eval.policies.check_specs`;
         False where the caller has).
+    retune : mapping, optional
+        ``{item: grid}``: a model-based item (``myopic``, ``dpp``, ``mpc``, ``adaptive``, with or without ``@world``)
+        tuned on each variant before it plays there: every point of ``grid`` (``{parameter: values}``, or a callable
+        of the variant's Scenario returning one) on ``tune_seeds`` of the variant's missions
+        (:func:`iscc_gym.eval.tune.tune_model_grid`; training seeds, never ``seeds``); ``{item: other item}`` plays
+        the other's tuned parameters (``oracle@world`` with ``mpc@world``'s).
+    tune_seeds : sequence of int
+        The tuning missions of ``retune`` (seeds outside the evaluation ranges).
+    trace_info : sequence of str
+        Info keys traced slot by slot for the first ``record`` missions (a figure's).
     n_drones : int, optional
         The fleet task's drones (default :data:`iscc_gym.sim.fleet.N_DRONES`): its policies are the baselines of
         :mod:`iscc_gym.agents.multi` and agents for that many drones (:func:`fleet_entries`), played in this
@@ -144,11 +156,15 @@ def compare(env_id: str, policies: Sequence[str] | str | None = None, seeds: Seq
     from iscc_gym.eval.evaluate import summarize
 
     notes = world_notes(items, played, base)
+    tuned = retuned(items, played, retune, tune_seeds, max_steps) if retune else None
     runs = play(items, seeds, base, worlds=played, max_steps=max_steps, record=record, workers=workers,
-                torch_threads=torch_threads, progress=progress, time_left=time_left)
+                torch_threads=torch_threads, progress=progress, time_left=time_left, tuned=tuned,
+                trace_info=trace_info)
     out = {v: summarize(runs[v], seeds, reference, focus) for v in played}
     for v, lines in notes.items():
         out[v]["notes"] = lines
+    for (v, it), params in (tuned or {}).items():
+        out[v].setdefault("tuned", {})[policy_name(it)] = params
     return out
 
 
@@ -238,6 +254,37 @@ def load_fleet_agent(path, n_drones: int):
         raise ValueError(f"--agent {path}: the model takes observations of shape {pol.obs_shape}; the env with "
                          f"{n_drones} drones gives ({n_drones * N_OBS},): train it with --env-set n_drones={n_drones}")
     return pol
+
+
+def retuned(items: Sequence[str], played: dict[str, Scenario], retune: Mapping[str, Any],
+            tune_seeds: Sequence[int], max_steps: int | None = None) -> dict[tuple[str, str], dict]:
+    """``{(variant, item): params}``: each item of ``retune`` tuned on each variant's world (:func:`compare`'s
+    ``retune``), on ``tune_seeds``; ``ValueError`` for an item that is not played, a grid of a policy no grid tunes,
+    or no tuning seeds.
+    """
+    from iscc_gym.eval.tune import MODEL_GRIDS, tune_model_grid
+
+    unknown = [it for it in retune if it not in items]
+    if unknown:
+        raise ValueError(f"retune: {unknown} are not among the policies played ({', '.join(items)})")
+    if not list(tune_seeds):
+        raise ValueError("retune needs tune_seeds: the training missions each variant's tuning plays")
+    out: dict[tuple[str, str], dict] = {}
+    grids = {it: g for it, g in retune.items() if not isinstance(g, str)}
+    for it in grids:
+        if world_spec(it)[0] not in MODEL_GRIDS:
+            raise ValueError(f"retune: {it!r} is not tuned on a grid; use one of {', '.join(MODEL_GRIDS)}")
+    for v, world in played.items():
+        for it, grid in grids.items():
+            g = grid(world) if callable(grid) else grid
+            out[v, it] = tune_model_grid(world_spec(it)[0], list(tune_seeds), world, log=lambda *_: None,
+                                         max_steps=max_steps, grid=g)["params"]
+        for it, source in retune.items():
+            if isinstance(source, str):
+                if source not in grids:
+                    raise ValueError(f"retune: {it!r} takes {source!r}'s parameters, which is not tuned here")
+                out[v, it] = out[v, source]
+    return out
 
 
 def world_notes(items: list[str], played: dict[str, Scenario], base: str) -> dict[str, list[str]]:

@@ -53,12 +53,13 @@ def world_spec(item: str) -> tuple[str, bool]:
     return item, False
 
 
-def build_policy(item: str, scenario: str = "paper", fix: str = ENV_FIX, world=None):
+def build_policy(item: str, scenario: str = "paper", fix: str = ENV_FIX, world=None, tuned: dict | None = None):
     """``(name, policy)`` of one ``NAME=PATH`` (a trained agent) or :func:`agents.make_policy` spec; ``fix`` ends
     the error for an agent of another env's observations (the option of the calling command that fixes it).
     A spec ending in ``@world`` (or ``aware``) is built on ``world`` (the Scenario the missions are played on;
     default ``scenario``) instead of ``scenario``: the designer knows the world. On a field world, a spec of
-    :data:`WORLD_READERS` is shown the slot's world too; the others are designed on the world's law.
+    :data:`WORLD_READERS` is shown the slot's world too; the others are designed on the world's law. ``tuned``: the
+    parameters a model-based spec plays instead of its record's (``make_policy``'s; the engine's ``retune``).
     """
     from iscc_gym.agents import make_policy
 
@@ -81,8 +82,8 @@ def build_policy(item: str, scenario: str = "paper", fix: str = ENV_FIX, world=N
         w = make_scenario(world) if isinstance(world, str) else world
         if task_effects(w).field and spec.strip().lower() in WORLD_READERS:
             w = w.replace(show_world=True)  # a world that changes along the mission: the env shows it the slot's values
-        return item, make_policy(spec, w)
-    return item, make_policy(spec, scenario)
+        return item, make_policy(spec, w, tuned=tuned)
+    return item, make_policy(spec, scenario, tuned=tuned)
 
 
 def build_policies(specs: str, scenario: str = "paper") -> dict:
@@ -197,10 +198,11 @@ def _worker_init(torch_threads: int, progress_queue=None) -> None:
         progress_queue.cancel_join_thread()  # a report still in the pipe never holds up the worker's exit
 
 
-def _run_item(index: int, item: str, seeds, scenario: str, max_steps, record: int, world=None):
+def _run_item(index: int, item: str, seeds, scenario: str, max_steps, record: int, world=None, tuned=None,
+              trace_info=()):
     from iscc_gym.eval.evaluate import run_episodes
 
-    name, policy = build_policy(item, scenario, world=world)
+    name, policy = build_policy(item, scenario, world=world, tuned=tuned)
     progress = None
     if _PROGRESS is not None:
         done = [0]
@@ -210,7 +212,7 @@ def _run_item(index: int, item: str, seeds, scenario: str, max_steps, record: in
             _PROGRESS.put((index, done[0]))
 
     return name, run_episodes(policy, seeds, scenario if world is None else world, max_steps, record,
-                              progress=progress)
+                              progress=progress, trace_info=trace_info)
 
 
 class TimeLeft:
@@ -270,7 +272,8 @@ class TimeLeft:
 
 
 def play(items: list[str], seeds, scenario: str = "paper", worlds: dict | None = None, max_steps=None,
-         record: int = 0, workers: int = 2, torch_threads: int = 1, progress=None, time_left=None) -> dict:
+         record: int = 0, workers: int = 2, torch_threads: int = 1, progress=None, time_left=None,
+         tuned: dict | None = None, trace_info=()) -> dict:
     """``{world: {name: run_episodes result}}``: every policy item (built for preset ``scenario``) played on each
     of ``worlds`` (``{name: Scenario or preset}``; default ``{scenario: scenario}``) on the same seeds, in
     ``workers`` processes (spawned, one numba thread each; 1: in this process). Every run is seeded, so the results
@@ -279,7 +282,9 @@ def play(items: list[str], seeds, scenario: str = "paper", worlds: dict | None =
     ``progress(n)``, if given, is called in this process with the slots played since its last call (the
     workers report through a queue; a run's calls add up to its horizon when it finishes); ``time_left(s)``, if given
     too, after it with the estimate of :class:`TimeLeft` (seconds, or None before one can be made). The first
-    error of a worker is raised as soon as it happens (the runs not started are cancelled).
+    error of a worker is raised as soon as it happens (the runs not started are cancelled). ``tuned``: ``{(world,
+    item): params}`` an item plays on that world instead of its record's (:func:`build_policy`); ``trace_info``: info
+    keys traced slot by slot for the first ``record`` missions (:func:`~iscc_gym.eval.evaluate.run_episodes`).
     """
     import multiprocessing
     from concurrent.futures import FIRST_EXCEPTION, ProcessPoolExecutor, wait
@@ -303,10 +308,10 @@ def play(items: list[str], seeds, scenario: str = "paper", worlds: dict | None =
             torch.set_num_threads(torch_threads)
         results = {}
         for i, (w, it) in enumerate(jobs):
-            name, policy = build_policy(it, scenario, world=worlds[w])
+            name, policy = build_policy(it, scenario, world=worlds[w], tuned=(tuned or {}).get((w, it)))
             results[i] = name, run_episodes(policy, seeds, worlds[w], max_steps, record,
                                             progress=None if progress is None else _job_progress(
-                                                i, progress, clock, time_left))
+                                                i, progress, clock, time_left), trace_info=trace_info)
             clock.report(i, horizons[i])
         return _by_world(results, jobs, items, worlds)
     ctx = multiprocessing.get_context("spawn")
@@ -338,7 +343,8 @@ def play(items: list[str], seeds, scenario: str = "paper", worlds: dict | None =
 
     with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init,
                              initargs=(torch_threads, queue)) as pool:
-        futures = {i: pool.submit(_run_item, i, it, seeds, scenario, max_steps, record, worlds[w])
+        futures = {i: pool.submit(_run_item, i, it, seeds, scenario, max_steps, record, worlds[w],
+                                  (tuned or {}).get((w, it)), tuple(trace_info))
                    for i, (w, it) in enumerate(jobs)}
         pending = set(futures.values())
         try:

@@ -33,18 +33,16 @@ import sys
 import time
 
 import numpy as np
-from iscc_gym.agents import LookaheadPolicy, MyopicPolicy
 from iscc_gym.agents.tuned_records import load_tuned, record_name
 from iscc_gym.commands.options import Parser, docs_command, nonneg_int, parse_names, positive_int, run_console
 from iscc_gym.commands.protocol import TUNE_SEED_START, seed_list
-from iscc_gym.eval.evaluate import run_episodes
+from iscc_gym.eval.engine import compare
 from iscc_gym.eval.policies import pool_map
 from iscc_gym.eval.report import ci_bounds, ci_side, mean_ci
-from iscc_gym.eval.tune import tune_model_grid
 
 from experiments.urban_task import task_stats
 from iscc_gym.scenario import make_scenario
-from iscc_gym.tasks import TASKS, URBAN_ENV_ID
+from iscc_gym.tasks import TASKS, URBAN_ENV_ID, variant_scenario
 
 __all__ = ["VARIANTS", "RATE_WEIGHT_GRID", "TUNE_MISSIONS", "lever_row", "markdown", "main"]
 
@@ -61,28 +59,36 @@ RATE_WEIGHT_GRID = (0.1, 0.3, 1.0, 3.0)
 TUNE_MISSIONS = 8
 
 
-def lever_row(name: str, overrides: dict, missions: int, tune_missions: int = TUNE_MISSIONS,
+def lever_row(name: str, overrides: dict | None, missions: int, tune_missions: int = TUNE_MISSIONS,
               max_steps: int | None = None, log=print, skip: int = 0) -> dict:
-    """One variant: ``myopic`` and the planner's data weights tuned on ``tune_missions`` training missions, then
-    ``myopic``, ``mpc``, ``mpc-hold`` and ``oracle`` on ``missions`` more, ``skip`` missions after the tuning ones (a
-    replication on other missions: ``--skip``; see the module docstring). Returns the figures of the table's row.
+    """One variant of the urban task: the engine (:func:`iscc_gym.eval.engine.compare`) retunes ``myopic``'s and the
+    planner's data weights on ``tune_missions`` training missions of the variant, then plays ``myopic``, ``mpc``,
+    ``mpc-hold`` and ``oracle``, each designed on the variant (``@world``), on ``missions`` more, ``skip`` missions
+    after the tuning ones (a replication on other missions: ``--skip``; see the module docstring). Returns the
+    figures of the table's row. ``overrides``: the variant's (None: the task's variant of that name).
     """
-    s = make_scenario("urban", **overrides)
+    s = make_scenario("urban", **(VARIANTS[name][0] if overrides is None else overrides))
+    if s != variant_scenario(URBAN_ENV_ID, name):
+        raise ValueError(f"{name!r}: overrides {overrides} are not the urban task's variant of that name")
     tune_seeds = seed_list(TUNE_SEED_START, tune_missions)
     first = TUNE_SEED_START + tune_missions + skip
     seeds = seed_list(first, missions)
     t0 = time.perf_counter()
-    grid = {"rate_weight": tuple(w * s.w_rate for w in RATE_WEIGHT_GRID)}
-    record = tune_model_grid("myopic", tune_seeds, s, log=lambda *_: None, max_steps=max_steps, grid=grid)
-    weight = record["params"]["rate_weight"]
+
+    def weights(world):  # the data weight's grid: multiples of the variant's w_rate
+        return {"rate_weight": tuple(w * world.w_rate for w in RATE_WEIGHT_GRID)}
+
     # the planner's data weight likewise (its other parameters the record's); mpc-hold and oracle take mpc's
     params = dict(load_tuned(record_name("mpc", "urban"))["params"])
-    grid = {**{k: (v,) for k, v in params.items() if k != "rate_weight"}, **grid}
-    plan = tune_model_grid("mpc", tune_seeds, s, log=lambda *_: None, max_steps=max_steps, grid=grid)["params"]
-    policies = {"myopic": MyopicPolicy(s, rate_weight=weight), "mpc": LookaheadPolicy(s, **plan),
-                "mpc-hold": LookaheadPolicy(s, preview="hold", name="mpc-hold", **plan),
-                "oracle": LookaheadPolicy(s, preview="truth", name="oracle", **plan)}
-    eps = {k: run_episodes(p, seeds, p.scenario, max_steps=max_steps)["episodes"] for k, p in policies.items()}
+    items = {"myopic": "myopic@world", "mpc": "mpc@world", "mpc-hold": "mpc-hold@world", "oracle": "oracle@world"}
+    res = compare(URBAN_ENV_ID, list(items.values()), seeds, variants=[name], max_steps=max_steps, check=False,
+                  tune_seeds=tune_seeds,
+                  retune={items["myopic"]: weights,
+                          items["mpc"]: lambda w: {**{k: (v,) for k, v in params.items() if k != "rate_weight"},
+                                                   **weights(w)},
+                          items["mpc-hold"]: items["mpc"], items["oracle"]: items["mpc"]})[name]
+    eps = {k: {m: np.asarray(v) for m, v in res["policies"][it]["episodes"].items()} for k, it in items.items()}
+    weight, plan = res["tuned"][items["myopic"]]["rate_weight"], res["tuned"][items["mpc"]]
     m = eps["myopic"]
     slots = m["length"]
     mean_arrival_mbit = s.queue_arrival_bps * s.dt_s * 1e-6

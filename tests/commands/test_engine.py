@@ -121,3 +121,42 @@ def test_aware_where_the_world_is_the_model_says_it_plays_as_myopic(capsys):
         "reward"]
     shifted = compare(ENV_ID, "myopic,aware", SEEDS[:1], variants=["rcs -10 dB"], max_steps=2)
     assert "notes" not in shifted["rcs -10 dB"]  # a variant's world is not the model: aware is the bound there
+
+
+def test_the_engine_retunes_a_policy_per_variant_on_training_missions_and_traces_info_keys():
+    """Issue 44 point 3: what experiments.urban_levers did by hand (each variant's myopic tuned on its own training
+    missions, the planners sharing one tuning) is the engine's ``retune``; ``trace_info`` records a figure's keys."""
+    from iscc_gym.eval.tune import tune_model_grid
+
+    from iscc_gym.tasks import variant_scenario
+
+    grid = {"rate_weight": (0.3, 3.0)}
+    tune = [500000, 500001]
+    res = compare(URBAN_ENV_ID, ["myopic@world", "mpc@world", "oracle@world"], SEEDS[:2], variants=["umi_av"],
+                  max_steps=5, record=1, trace_info=("bits_dropped",), tune_seeds=tune,
+                  retune={"myopic@world": grid, "mpc@world": lambda w: {"rate_weight": (0.3,), "holding_cost": (0.2,), "deadline_margin": (0.0,)},
+                          "oracle@world": "mpc@world"})["umi_av"]
+    direct = tune_model_grid("myopic", tune, variant_scenario(URBAN_ENV_ID, "umi_av"), log=lambda *_: None,
+                             max_steps=5, grid=grid)["params"]
+    assert res["tuned"]["myopic@world"] == direct
+    assert res["tuned"]["oracle@world"] == res["tuned"]["mpc@world"] == {"rate_weight": 0.3, "holding_cost": 0.2, "deadline_margin": 0.0}
+    assert res["traces"]["myopic@world"]["bits_dropped"].shape[0] == 5
+    with pytest.raises(ValueError, match=r"retune: \['dpp'\] are not among the policies played"):
+        compare(URBAN_ENV_ID, ["myopic"], SEEDS[:1], max_steps=2, retune={"dpp": grid}, tune_seeds=tune)
+    with pytest.raises(ValueError, match="retune needs tune_seeds"):
+        compare(URBAN_ENV_ID, ["myopic"], SEEDS[:1], max_steps=2, retune={"myopic": grid})
+    with pytest.raises(ValueError, match="'margin' is not tuned on a grid"):
+        compare(URBAN_ENV_ID, ["margin"], SEEDS[:1], max_steps=2, retune={"margin": grid}, tune_seeds=tune)
+
+
+def test_the_engine_serves_the_fleet_task():
+    """Issue 44 point 3: the fleet task's comparison is the engine's (eval.multi's is a command line over it)."""
+    from iscc_gym import MULTI_ENV_ID
+
+    res = compare(MULTI_ENV_ID, ["joint-sca", "margin"], SEEDS[:2], max_steps=3, n_drones=2)["paper"]
+    assert list(res["policies"]) == ["joint-sca", "margin"] and res["reference"] == "joint-sca"
+    assert "margin_vs_joint-sca" in res["paired"]
+    with pytest.raises(ValueError, match="policy 'myopic': use NAME=PATH"):
+        compare(MULTI_ENV_ID, ["myopic"], SEEDS[:1], max_steps=2, n_drones=2)
+    with pytest.raises(ValueError, match="n_drones = 2: iscc_gym/ISCC-Urban-v0 flies one drone"):
+        compare(URBAN_ENV_ID, ["myopic"], SEEDS[:1], max_steps=2, n_drones=2)

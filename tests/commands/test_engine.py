@@ -131,15 +131,16 @@ def test_the_engine_retunes_a_policy_per_variant_on_training_missions_and_traces
     from iscc_gym.tasks import variant_scenario
 
     grid = {"rate_weight": (0.3, 3.0)}
+    plan = {"rate_weight": 0.3, "holding_cost": 0.2, "deadline_margin": 0.0}
     tune = [500000, 500001]
     res = compare(URBAN_ENV_ID, ["myopic@world", "mpc@world", "oracle@world"], SEEDS[:2], variants=["umi_av"],
                   max_steps=5, record=1, trace_info=("bits_dropped",), tune_seeds=tune,
-                  retune={"myopic@world": grid, "mpc@world": lambda w: {"rate_weight": (0.3,), "holding_cost": (0.2,), "deadline_margin": (0.0,)},
+                  retune={"myopic@world": grid, "mpc@world": lambda w: {k: (v,) for k, v in plan.items()},
                           "oracle@world": "mpc@world"})["umi_av"]
     direct = tune_model_grid("myopic", tune, variant_scenario(URBAN_ENV_ID, "umi_av"), log=lambda *_: None,
                              max_steps=5, grid=grid)["params"]
     assert res["tuned"]["myopic@world"] == direct
-    assert res["tuned"]["oracle@world"] == res["tuned"]["mpc@world"] == {"rate_weight": 0.3, "holding_cost": 0.2, "deadline_margin": 0.0}
+    assert res["tuned"]["oracle@world"] == res["tuned"]["mpc@world"] == plan
     assert res["traces"]["myopic@world"]["bits_dropped"].shape[0] == 5
     with pytest.raises(ValueError, match=r"retune: \['dpp'\] are not among the policies played"):
         compare(URBAN_ENV_ID, ["myopic"], SEEDS[:1], max_steps=2, retune={"dpp": grid}, tune_seeds=tune)

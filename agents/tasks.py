@@ -38,7 +38,8 @@ class TaskPolicies:
     agent : Path or None
         The shipped agent (``python -m experiments.ship --env ENV``), None where one is shipped per drone count.
     results_section, results_title : str
-        The section of ``docs/results.md`` ``python -m eval --env ENV --write-docs`` writes, and its title.
+        The section of ``docs/results.md`` the task's comparison study (``python -m experiments``) writes, and
+        its title.
     readme : bool
         Whether that comparison is the README's main table too.
     agent_docs : tuple of str

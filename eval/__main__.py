@@ -59,7 +59,7 @@ from iscc_gym.eval.policies import (  # noqa: F401
 )
 from iscc_gym.eval.training import run_training
 
-from iscc_gym import ENV_ID, MULTI_ENV_ID, URBAN_ENV_ID
+from iscc_gym import ENV_ID, URBAN_ENV_ID
 from iscc_gym.lazy import lazy_names
 from iscc_gym.tasks import TASKS
 
@@ -207,11 +207,11 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> dict:
     A user's mistake raises ``ValueError``/``OSError`` with one line, before any episode is played (or
     argparse exits with code 2); :func:`console` turns them into exit codes.
     """
-    rest = _multi_argv(sys.argv[1:] if argv is None else list(argv))
+    fleet, rest = _multi_argv(sys.argv[1:] if argv is None else list(argv))
     if rest is not None:
         from iscc_gym.eval.multi import main as multi_main
 
-        return multi_main(rest, prog=f"{prog} --env {MULTI_ENV_ID}")
+        return multi_main(rest, prog=f"{prog} --env {fleet}")
     args = build_parser(prog).parse_args(argv)
     if task_policies(args.env).fleet:  # ValueError naming the tasks for an unknown one
         raise ValueError(f"--env {args.env!r}: use one of {', '.join(TASKS)}")
@@ -303,14 +303,21 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> dict:
     return res
 
 
-def _multi_argv(argv: list[str]) -> list[str] | None:
-    """The arguments without ``--env iscc_gym/ISCC-Multi-v0`` if they ask for the multi-drone env, else None."""
+def _multi_argv(argv: list[str]) -> tuple[str | None, list[str] | None]:
+    """``(env id, the other arguments)`` if the arguments ask for a fleet task (:attr:`iscc_gym.tasks.Task.fleet`;
+    ``--gym-packages`` imported first), else ``(None, None)``.
+    """
+    from iscc_gym.commands.options import import_gym_packages
+
+    from iscc_gym.tasks import is_fleet
+
+    import_gym_packages(argv)
     for i, a in enumerate(argv):
-        if a == "--env" and i + 1 < len(argv) and argv[i + 1] == MULTI_ENV_ID:
-            return argv[:i] + argv[i + 2:]
-        if a == f"--env={MULTI_ENV_ID}":
-            return argv[:i] + argv[i + 1:]
-    return None
+        if a == "--env" and i + 1 < len(argv) and is_fleet(argv[i + 1]):
+            return argv[i + 1], argv[:i] + argv[i + 2:]
+        if a.startswith("--env=") and is_fleet(a.split("=", 1)[1]):
+            return a.split("=", 1)[1], argv[:i] + argv[i + 1:]
+    return None, None
 
 
 def console(argv: list[str] | None = None, prog: str | None = None) -> int:

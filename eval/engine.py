@@ -175,7 +175,8 @@ def _fleet(pol, specs, seeds, variants, scenario, reference, focus, max_steps, r
     if variants is not None:
         raise ValueError(f"variants = {variants!r}: the fleet task's comparison plays its preset's missions")
     items = [p.strip() for p in (specs or pol.policies).split(",") if p.strip()]
-    entries = fleet_entries(items, N_DRONES if n_drones is None else n_drones, scenario or pol.task.preset)
+    entries = fleet_entries(items, N_DRONES if n_drones is None else n_drones, scenario or pol.task.preset,
+                            pol.task.env_id)
     names = list(entries)
     reference = reference if reference is not None else (pol.reference if pol.reference in names else None)
     focus = focus if focus is not None else (pol.focus if pol.focus in names else None)
@@ -213,15 +214,14 @@ def evaluate(policies: Mapping[str, Any], seeds: Sequence[int], scenario: str | 
     return summarize(runs, seeds, reference, focus)
 
 
-def fleet_entries(items: Sequence[str], n_drones: int, scenario: str = "paper") -> dict:
+def fleet_entries(items: Sequence[str], n_drones: int, scenario: str = "paper", env_id: str | None = None) -> dict:
     """``{name: Entry}`` of the fleet task's policy items for ``n_drones`` drones: ``NAME=PATH`` a trained agent
     (its observation shape checked against the K-drone env's), a bare ``ppo`` the shipped agent for K
     (:func:`iscc_gym.agents.tasks.TaskPolicies.shipped_agent`), anything else a baseline of
-    :func:`iscc_gym.agents.multi.make_multi_policy`.
+    :func:`iscc_gym.agents.multi.make_multi_policy`. ``env_id``: the fleet task (default: the registered one).
     """
     from iscc_gym.agents.multi import MULTI_POLICY_SPECS, make_multi_policy
 
-    from iscc_gym import MULTI_ENV_ID
     from iscc_gym.sim.fleet import check_n_drones, drone_scenario
 
     from .evaluate import Entry
@@ -231,7 +231,8 @@ def fleet_entries(items: Sequence[str], n_drones: int, scenario: str = "paper") 
     entries = {}
     for item in items:
         if item == "ppo":
-            item = f"ppo={task_policies(MULTI_ENV_ID).shipped_agent(k)}"
+            fleet = env_id or next(e for e, t in TASKS.items() if t.fleet)
+            item = f"ppo={task_policies(fleet).shipped_agent(k)}"
         if "=" in item:
             name, path = item.split("=", 1)
             entries[name] = Entry(load_fleet_agent(path, k), {"n_drones": k})

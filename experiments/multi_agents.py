@@ -29,7 +29,9 @@ from pathlib import Path
 
 from iscc_gym.agents.shipped import MULTI_DIR
 from iscc_gym.commands.cli import invoked_prog
-from iscc_gym.train.config import MULTI_ENV_ID, Args
+from iscc_gym.train.config import Args
+
+from iscc_gym import MULTI_ENV_ID
 
 __all__ = ["MULTI_DIR", "K_VALUES", "MULTI_LAG_LIMITS", "K_SETTINGS", "run_args", "train_all", "cli"]
 

@@ -62,6 +62,8 @@ STUDIES: dict[str, Study] = {s.name: s for s in (
     Study("reproduce", "experiments.paper.reproduce", ("--write-docs",),
           (R + "reproduce", R + "reproduce-schemes", R + "reproduce-claims", M + "reproduce"),
           "the paper's model, schemes, figures and claims (experiments/paper/)", comparison=False),
+    Study("tasks", "experiments.tasks_table", ("--write-docs",), (M + "tasks",),
+          "the README's table of tasks, from the task files", comparison=False),
     Study("agent", "experiments.ship", (), (R + "agent",), "train and ship the paper task's agent",
           comparison=False),
     Study("comparison", "experiments.comparison", ("--write-docs",), (R + "comparison", M + "comparison"),

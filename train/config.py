@@ -16,8 +16,7 @@ from iscc_gym.agents.sb3_policy import ALGOS as SB3_ALGOS
 from iscc_gym.agents.sb3_policy import algo_class
 from iscc_gym.commands.protocol import INIT_SEED_START, check_outside_evaluation
 
-from iscc_gym import MULTI_ENV_ID
-from iscc_gym.tasks import TASKS, registered_scenario
+from iscc_gym.tasks import TASKS, is_fleet, registered_scenario
 
 from .args import (  # noqa: F401 (re-exported: the settings of a run, read by train, studies and tests)
     FIELD_HELP,
@@ -401,9 +400,9 @@ def check_args(args: Args) -> None:
         check_task(args.env_id, args.scenario)
     check_no_world_shown(args.env_overrides)  # the flag's (the YAML's env_kwargs: resolve_args)
     if has_residual(args):
-        if args.env_id not in TASKS or args.env_id == MULTI_ENV_ID:
+        if args.env_id not in TASKS or is_fleet(args.env_id):
             raise ValueError(f"residual = {args.residual!r}: a scripted base policy plays the single-drone tasks "
-                             f"({', '.join(e for e in TASKS if e != MULTI_ENV_ID)}) only, not {args.env_id}; "
+                             f"({', '.join(e for e in TASKS if not is_fleet(e))}) only, not {args.env_id}; "
                              "unset residual")
         if has_warm_start(args):
             raise ValueError(f"residual = {args.residual!r} and init_policy = {args.init_policy!r}: use one (a "

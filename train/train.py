@@ -47,7 +47,7 @@ from iscc_gym.agents.sb3_policy import LAGRANGE_FILE
 from iscc_gym.commands.protocol import CALLBACK_EVAL_SEED_START, INIT_SEED_START
 
 from iscc_gym.files import write_atomic
-from iscc_gym.tasks import TASKS
+from iscc_gym.tasks import TASKS, is_fleet
 
 from .callbacks import (
     checkpoint_callback,
@@ -60,7 +60,6 @@ from .callbacks import (
     whole_rollouts,
 )
 from .config import (
-    MULTI_ENV_ID,
     Args,
     action_noise,
     algo_class,
@@ -156,7 +155,7 @@ def batched_kwargs(args: Args) -> dict:
     ``n_drones`` (default :data:`iscc_gym.sim.fleet.N_DRONES`).
     """
     kw = dict(args.env_overrides)
-    if args.env_id == MULTI_ENV_ID:
+    if is_fleet(args.env_id):
         from iscc_gym.sim.fleet import N_DRONES
 
         kw.setdefault("n_drones", N_DRONES)
@@ -214,7 +213,7 @@ def _behaviour_clone(model, venv, args: Args) -> dict:
     if not isinstance(venv, VecNormalize) or args.vec_env != "batched":
         raise ValueError("init_policy needs normalize: true and vec_env = 'batched'")
     play = ISCCBatchedVecEnv(args.init_envs, scenario=args.scenario, **batched_kwargs(args))
-    if args.env_id == MULTI_ENV_ID:  # a multi-drone baseline (agents.multi) for the env's per-drone scenario
+    if is_fleet(args.env_id):  # a multi-drone baseline (agents.multi) for the env's per-drone scenario
         from iscc_gym.agents.multi import make_multi_policy
 
         policy = make_multi_policy(args.init_policy, play.venv.scenario, play.venv.n_drones)

@@ -23,7 +23,7 @@ from iscc_gym.tasks.task import Task, Variant
 from iscc_gym.tasks.urban import URBAN_ENV_ID
 
 __all__ = ["Variant", "Task", "TASKS", "TASK_MODULES", "ENV_ID", "URBAN_ENV_ID", "MULTI_ENV_ID", "FIELD_ENV_ID",
-           "get_task", "variant_scenario", "registered_scenario", "add_task"]
+           "get_task", "variant_scenario", "registered_scenario", "add_task", "is_fleet"]
 
 #: The task files, in registration order: each defines ``TASK``.
 TASK_MODULES = ("paper", "urban", "multi", "field")
@@ -56,6 +56,11 @@ def get_task(env_id: str) -> Task:
         return TASKS[env_id]
     except (KeyError, TypeError):
         raise ValueError(f"{env_id!r} is not a registered env id; use one of {', '.join(TASKS)}") from None
+
+
+def is_fleet(env_id: str) -> bool:
+    """Whether ``env_id`` is a registered task whose env flies several drones (:attr:`Task.fleet`)."""
+    return env_id in TASKS and TASKS[env_id].fleet
 
 
 def variant_scenario(env_id: str, name: str, base: str | None = None):

@@ -56,7 +56,8 @@ class Task:
         policy every paired difference is taken against, the scripted policies a learned agent is compared with in
         the seeds study, the policy whose differences to every other are reported too.
     results_section, results_title : str
-        The section of ``docs/results.md`` ``python -m eval --env ENV --write-docs`` writes, and its title.
+        The section of ``docs/results.md`` the task's comparison study (``python -m experiments``) writes, and
+        its title.
     agent : str or None
         The shipped agent's folder under the package's ``agents/trained`` (``python -m experiments.ship --env
         ENV``), None where none ships (or one per drone count: the multi-drone task).

@@ -57,7 +57,7 @@ def test_the_list_of_sections_is_the_tables():
     text = (ROOT / "experiments/README.md").read_text()
     assert f"<!-- studies:start -->\n{section_index()}\n<!-- studies:end -->" in text, \
         "python -m experiments index rewrites it from experiments/studies.py"
-    with pytest.raises(ValueError, match="'nope' is not a study; use one of reproduce, agent"):
+    with pytest.raises(ValueError, match="'nope' is not a study; use one of reproduce, tasks, agent"):
         get_study("nope")
 
 

@@ -367,8 +367,9 @@ try:
     from iscc_gym.gpu.vector_env import DeviceVectorEnv
 except ImportError:
     DeviceVectorEnv = None
+from iscc_gym.tasks import is_fleet
 for env_id in sys.argv[1:] if DeviceVectorEnv is not None else ():
-    if env_id != iscc_gym.MULTI_ENV_ID:
+    if not is_fleet(env_id):
         t = time.perf_counter()
         d = DeviceVectorEnv(env_id, num_envs=8, device="cpu")
         d.reset(seed=0)

@@ -188,7 +188,8 @@ def _fleet(pol, specs, seeds, variants, scenario, reference, focus, max_steps, r
 
 def evaluate(policies: Mapping[str, Any], seeds: Sequence[int], scenario: str | Scenario = "paper",
              reference: str | None = None, max_steps: int | None = None, record: int = 0,
-             focus: str | None = None, progress: Callable[[int], None] | None = None) -> dict:
+             focus: str | None = None, progress: Callable[[int], None] | None = None,
+             done: Callable[[str], None] | None = None) -> dict:
     """Evaluate every policy (or :class:`~iscc_gym.eval.evaluate.Entry`: a policy and its scheme's Scenario
     overrides) on the same seeds, one rollout loop (:func:`~iscc_gym.eval.evaluate.run_episodes`); paired
     differences vs ``reference`` (:func:`~iscc_gym.eval.evaluate.summarize`).
@@ -198,7 +199,7 @@ def evaluate(policies: Mapping[str, Any], seeds: Sequence[int], scenario: str | 
     per-episode values) and ``wall_time_s``; ``paired.<name>_vs_<reference>`` with
     ``<metric>_diff_mean`` and ``<metric>_diff_ci95`` (name minus reference, per episode). Every
     interval is clamped to its metric's range (:data:`~iscc_gym.eval.evaluate.METRIC_RANGES`). ``progress(n)``: as
-    in :func:`~iscc_gym.eval.evaluate.run_episodes`, for every policy in turn.
+    in :func:`~iscc_gym.eval.evaluate.run_episodes`, for every policy in turn; ``done(name)`` after each policy.
     """
     from .evaluate import Entry, run_episodes, summarize
 
@@ -211,6 +212,8 @@ def evaluate(policies: Mapping[str, Any], seeds: Sequence[int], scenario: str | 
         entry = entry if isinstance(entry, Entry) else Entry(entry)
         runs[name] = run_episodes(entry.policy, seeds, scenario, max_steps, record, progress=progress,
                                   **entry.overrides)
+        if done is not None:
+            done(name)
     return summarize(runs, seeds, reference, focus)
 
 

@@ -36,8 +36,8 @@ from iscc_gym.commands.options import (
     show_progress,
 )
 from iscc_gym.commands.protocol import seed_list
-from iscc_gym.eval.evaluate import run_episodes
-from iscc_gym.eval.report import ci_bounds, mean_ci
+from iscc_gym.eval.engine import evaluate
+from iscc_gym.eval.report import ci_bounds
 from iscc_gym.eval.tune import TUNE_SEED_START, check_tuning_seeds
 
 from iscc_gym.sim.schema import OBS_NAMES
@@ -78,35 +78,33 @@ def probes(seeds, scenario: str = "paper", myopic: bool = True, progress=None) -
     s = make_scenario(scenario)
     margin = MarginPolicy.tuned()
     tick = progress or (lambda n: None)
-    base = run_episodes(margin, seeds, s)["episodes"]["reward"]
-    tick(1)
-    rows = [{"probe": "margin (tuned)", "base": "-", "reward": float(base.mean()), "diff": 0.0, "ci95": [0.0, 0.0]}]
-
-    def add(name, policy, ref, ref_name):
-        r = run_episodes(policy, seeds, s)["episodes"]["reward"]
-        tick(1)
-        d, ci = mean_ci(r - ref)
-        rows.append({"probe": name, "base": ref_name, "reward": float(r.mean()), "diff": d, "ci95": ci})
-
+    # every probe beside its base, each group one comparison of the engine (common random numbers, paired)
+    groups = {"margin": {"margin (tuned)": margin}}
     for k in (2, 3, 5):
         for burst in (0.05, 0.08, 0.12):
-            add(f"burst sensing: {burst:.0%} every {k} slots, 1% between",
-                MarginVariant(margin, s.n_slots, k, burst, 0.01), base, "margin")
+            groups["margin"][f"burst sensing: {burst:.0%} every {k} slots, 1% between"] = MarginVariant(
+                margin, s.n_slots, k, burst, 0.01)
     for boost in (1.5, 2.0, 3.0):
-        add(f"control x{boost:g} after a lost command", MarginVariant(margin, s.n_slots, lost_boost=boost), base,
-            "margin")
+        groups["margin"][f"control x{boost:g} after a lost command"] = MarginVariant(margin, s.n_slots,
+                                                                                     lost_boost=boost)
     for gain in (0.1, 0.3):
-        add(f"control x(1 + {gain:g} x largest predicted position error, symlog)",
-            MarginVariant(margin, s.n_slots, error_gain=gain), base, "margin")
+        groups["margin"][f"control x(1 + {gain:g} x largest predicted position error, symlog)"] = MarginVariant(
+            margin, s.n_slots, error_gain=gain)
     if myopic:
-        ref = run_episodes(MyopicPolicy(s), seeds, s)["episodes"]["reward"]
-        tick(1)
-        rows.append({"probe": "myopic (env weights)", "base": "-", "reward": float(ref.mean()), "diff": 0.0,
-                     "ci95": [0.0, 0.0]})
+        groups["myopic"] = {"myopic (env weights)": MyopicPolicy(s)}
         for kw in ({"stability_weight": 5.0}, {"stability_weight": 20.0}, {"rate_weight": 0.7},
                    {"rate_weight": 1.5}):
             (key, value), = kw.items()
-            add(f"myopic, {key} = {value:g}", MyopicPolicy(s, **kw), ref, "myopic")
+            groups["myopic"][f"myopic, {key} = {value:g}"] = MyopicPolicy(s, **kw)
+    rows = []
+    for base_name, policies in groups.items():
+        base = next(iter(policies))
+        res = evaluate(policies, seeds, s, reference=base, done=lambda name: tick(1))
+        for name, p in res["policies"].items():
+            pair = res["paired"].get(f"{name}_vs_{base}")
+            rows.append({"probe": name, "base": "-" if pair is None else base_name, "reward": p["reward_mean"],
+                         "diff": 0.0 if pair is None else pair["reward_diff_mean"],
+                         "ci95": [0.0, 0.0] if pair is None else pair["reward_diff_ci95"]})
     return rows
 
 

@@ -26,7 +26,16 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
-SOURCES = ("pyproject.toml", "README.md", "iscc_gym", "agents", "train", "eval")
+def _sources() -> tuple[str, ...]:
+    """What the wheel is built from: pyproject, the README and every package folder pyproject maps (read from it,
+    so a new folder such as ``commands/`` is never left out)."""
+    import tomllib
+
+    folders = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["package-dir"].values()
+    return ("pyproject.toml", "README.md", "iscc_gym", *folders)
+
+
+SOURCES = _sources()
 
 
 def _run(cmd, cwd, **kw):

@@ -68,7 +68,7 @@ __all__ = [
 #: The specs :func:`make_policy` understands.
 POLICY_SPECS = ("sca", "sca-per-slot", "sca-ignore-loss", "equal", "fixed:A_SEN,A_CTRL,A_COMM", "grid",
                 "evolutionary", "margin", "margin:M_CTRL,M_COMM", "myopic", "dpp", "dpp:V", "mpc", "mpc-hold", "oracle",
-                "adaptive")
+                "adaptive", "bayes")
 #: The specs of the urban task's queue planners (they need a scenario with a data queue and a preview).
 URBAN_SPECS = ("dpp", "mpc", "mpc-hold", "oracle")
 
@@ -182,6 +182,10 @@ def make_policy(spec: str, scenario: Scenario | str = "paper", seed: int = 0, tu
         if key == "mpc-hold":
             return LookaheadPolicy(s, preview="hold", name="mpc-hold", **p)
         return LookaheadPolicy(s, preview="truth", name="oracle", **p)
+    if key == "bayes":  # the field task's Bayesian filter of the world, on the preset's own prior
+        from .bayes import BayesPolicy
+
+        return BayesPolicy(s)
     if key == "adaptive":  # the field task's estimator memory, tuned there (python -m eval.tune adaptive)
         from .adaptive import AdaptivePolicy
 

@@ -70,7 +70,10 @@ class SlotContext:
         The slot's Rician K-factor (linear) where the policy is given one (the field task's ``aware`` bound, or an
         estimate: ``adaptive``); None: the scenario's ``rician_k_db``.
     fade : (n, J) or None
-        The fading quadrature's gain nodes at ``k_lin`` (:func:`rician_nodes_at`; the weights do not depend on K).
+        The fading quadrature's gain nodes at ``k_lin`` (:func:`rician_nodes_at`; the weights do not depend on K),
+        or of another law of the slot's fade (a posterior-predictive mixture: ``agents.bayes``).
+    fade_cdf : callable or None
+        That other law's CDF, ``x (n, ...) -> P(g <= x)``, where ``fade`` is not one K's (None: ``k_lin``'s).
     """
 
     snr: np.ndarray
@@ -80,6 +83,7 @@ class SlotContext:
     backlog: np.ndarray | None = None
     k_lin: np.ndarray | None = None
     fade: np.ndarray | None = None
+    fade_cdf: object = None
 
 
 #: The K-factor grid of :func:`rician_nodes_at`'s table, dB (outside it, clamped: below -20 dB the gain is
@@ -245,16 +249,23 @@ class MyopicPolicy(SplitPolicy):
         return None, None
 
     def context(self, snr_db, range_m, sin_el, cos_az, sin_az, echo_snr_db=None, backlog_bits=None, k_db=None,
-                rcs_offset_db=None) -> SlotContext:
+                rcs_offset_db=None, fade=None, fade_cdf=None) -> SlotContext:
         """:class:`SlotContext` of slots given by their decoded entries (arrays (n,)): the predicted large-scale
         SNR and geometry, with blockage the echo's SNR, with a queue the backlog in bits (what
         :meth:`slot_context` reads from observations; a planner passes the slots it looks ahead to); the world's
-        K-factor and the RCS's offset in dB where the policy knows or estimates them (default the scenario's).
+        K-factor and the RCS's offset in dB where the policy knows or estimates them (default the scenario's); or,
+        instead of a K-factor, the slot's fading law as quadrature nodes ``fade`` (n, J) and its CDF ``fade_cdf``.
         """
         s = self.scenario
         snr_db = np.asarray(snr_db, dtype=float)
         coef = predicted_sensing(s, snr_db, range_m, sin_el, cos_az, sin_az, self._gain, echo_snr_db, rcs_offset_db)
         snr = db_to_lin(snr_db)
+        if fade is not None:  # a law of the slot's fade given by its nodes and CDF (a posterior-predictive mixture)
+            if s.queue_deadline_slots > 0:
+                raise ValueError("a world fading law with a data queue is not modelled (the field task has none)")
+            rate = comm_rate_bps(s, 1.0, snr[:, None] * fade) / max(s.rate_min_bps, 1e-300)
+            return SlotContext(snr=snr, coef=coef, rate_per_share=rate, fade=np.asarray(fade, dtype=float),
+                               fade_cdf=fade_cdf)
         if k_db is not None:  # the slot's own fading law: its nodes, its K for the stability term's CDF
             fade = rician_nodes_at(k_db)
             rate = comm_rate_bps(s, 1.0, snr[:, None] * fade) / max(s.rate_min_bps, 1e-300)
@@ -280,8 +291,11 @@ class MyopicPolicy(SplitPolicy):
                                                self.fade_w)
         eps_bar = mean_ctrl_loss(self.scenario, c, snr, nodes)
         log_snr = np.interp(np.log(np.maximum(c, 1e-300)), self._log_alpha_star, self._log_snr_star)
-        p_viol = rician_power_cdf(self.scenario, np.exp(log_snr) / snr,
-                                  None if ctx.k_lin is None else lead_axes(ctx.k_lin, c.ndim))
+        if ctx.fade_cdf is not None:
+            p_viol = ctx.fade_cdf(np.exp(log_snr) / snr)
+        else:
+            p_viol = rician_power_cdf(self.scenario, np.exp(log_snr) / snr,
+                                      None if ctx.k_lin is None else lead_axes(ctx.k_lin, c.ndim))
         return eps_bar, np.where(c > 0.0, p_viol, 1.0)
 
     def rate_shortfall(self, ctx: SlotContext, alpha_comm):

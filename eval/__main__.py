@@ -285,10 +285,15 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> dict:
         print(format_table(res))
         for note in res.get("notes", []):
             print(f"note: {note}")
-        share = oracle_share(res, oracle="oracle" if "oracle" in res["policies"] else "aware")
-        if share is not None:
-            res["oracle_share"] = share
-            print(oracle_share_sentence(share))
+        # the share of the gap to the bound that each of the task's policies closes (Task.share_of)
+        shares = {a: oracle_share(res, agent=a, oracle="oracle" if "oracle" in res["policies"] else "aware",
+                                  base="myopic") for a in task.task.share_of}
+        shares = {a: sh for a, sh in shares.items() if sh is not None}
+        if shares:
+            res["oracle_shares"] = shares
+            res["oracle_share"] = next(iter(shares.values()))
+            for sh in shares.values():
+                print(oracle_share_sentence(sh))
     res = next(iter(results.values()))
     print(f"evaluated {len(res['policies'])} policies x {len(seeds)} episodes"
           + (f" x {len(results)} variants" if variants else "") + f" in {time.perf_counter() - t0:.1f} s")

@@ -1,4 +1,4 @@
-"""``python -m eval.tune {margin,sca-per-slot,myopic,dpp,mpc,adaptive}``: tune a scripted baseline on training seeds.
+"""``python -m eval.tune POLICY``: tune a scripted baseline (margin, sca-per-slot, MODEL_GRIDS) on training seeds.
 
 Tuning seeds (default :data:`TUNE_SEEDS`, 500,000 onwards) are disjoint from every evaluation seed
 of the project (the comparison's 10,000-10,999, training's held-out 1,000,000 onwards, RL training's
@@ -114,7 +114,10 @@ MODEL_GRIDS = {"myopic": {"rate_weight": (0.1, 0.3, 0.6, 1.0, 2.0, 4.0)},
                "mpc": {"deadline_margin": (0.0, 2.0, 4.0), "holding_cost": (0.05, 0.2),
                        "rate_weight": (0.1, 0.3, 1.0)},
                # the field task's adaptive rung: its estimators' memory (python -m eval.tune adaptive --scenario field)
-               "adaptive": {"k_window_slots": (10.0, 20.0, 40.0, 80.0), "echo_weight": (0.0, 0.5, 1.0)}}
+               "adaptive": {"k_window_slots": (10.0, 20.0, 40.0, 80.0), "echo_weight": (0.0, 0.5, 1.0)},
+               # the field task's Bayesian rung: its echo likelihood's weight and its prior's correlation distance
+               # (python -m eval.tune bayes --scenario field)
+               "bayes": {"echo_weight": (0.5, 1.0), "correlation_scale": (0.5, 1.0)}}
 #: The task each grid-tuned baseline is tuned on (the preset ``--scenario`` must pose it).
 MODEL_TASKS = {policy: task.preset for task in TASKS.values() for policy in task.tuned}  # from each task file
 
@@ -126,6 +129,10 @@ def _grid_policy(policy: str, scenario, params: dict):
         from iscc_gym.agents.adaptive import AdaptivePolicy
 
         return AdaptivePolicy(scenario, **params)
+    if policy == "bayes":
+        from iscc_gym.agents.bayes import BayesPolicy
+
+        return BayesPolicy(scenario, **params)
     if policy == "myopic":
         return MyopicPolicy(scenario, **params)
     if policy == "dpp":
@@ -301,8 +308,8 @@ def _fmt(x) -> str:
 def build_parser(prog: str = "python -m eval.tune") -> Parser:
     ap = Parser(prog=prog, gym_packages=True, description=__doc__.split("\n")[0])
     ap.add_argument("policy", choices=["margin", PER_SLOT_RECORD, *MODEL_GRIDS],
-                    help="the baseline to tune (myopic, dpp, mpc: on the urban task, --scenario urban; adaptive: on "
-                         "the field task, --scenario field)")
+                    help="the baseline to tune (myopic, dpp, mpc: on the urban task, --scenario urban; adaptive, "
+                         "bayes: on the field task, --scenario field)")
     ap.add_argument("--episodes", type=positive_int, default=len(TUNE_SEEDS), metavar="N",
                     help=f"tuning missions (default: {len(TUNE_SEEDS)})")
     ap.add_argument("--seed-start", type=nonneg_int, default=TUNE_SEED_START, metavar="SEED",
@@ -331,7 +338,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.tune") -> di
     if task == "field" and MODEL_TASKS.get(args.policy) != "field":
         raise ValueError(f"--scenario {args.scenario!r} is the field task, whose {args.policy} is the paper's as "
                          "tuned there (the world it does not know is the task's point): tune it with --scenario "
-                         "paper, or tune the field's own rung (python -m eval.tune adaptive --scenario field)")
+                         "paper, or tune the field's own rungs (python -m eval.tune adaptive|bayes --scenario field)")
     task = record_task(make_scenario(args.scenario))
     if args.policy in MODEL_GRIDS:
         total = int(np.prod([len(v) for v in MODEL_GRIDS[args.policy].values()]))

@@ -53,9 +53,9 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> dict:
             check_writable_file(docs_path(rel), "--write-docs")
     res = eval_main(["--env", args.env, "--scenario", scenario, *rest], prog=prog)
     if args.write_docs:
-        share = res.get("oracle_share")
-        text = markdown_table(res, docs_command(prog, argv)) + (
-            f"\n\n{oracle_share_sentence(share)}" if share is not None else "")
+        shares = res.get("oracle_shares", {})
+        text = markdown_table(res, docs_command(prog, argv)) + "".join(
+            f"\n\n{oracle_share_sentence(sh)}" for sh in shares.values())
         if task.readme:
             publish(task.results_section, task.results_title, text)
         else:

@@ -25,15 +25,16 @@ FIELD_VARIANTS: dict[str, Variant] = {
 }
 
 # the shipped agent (a residual on adaptive), the designer's per-slot policies on the paper's model, the adaptive rung
-# that re-estimates the world, and the model-knowledge bound (aware: myopic shown the world's hidden values); every
-# difference against myopic, the agent's against every rung
+# that re-estimates the world, the Bayesian rung that filters it on the field's own prior (issue 45), and the
+# model-knowledge bound (aware: myopic shown the world's hidden values); every difference against myopic, the
+# agent's against every rung, and the share of the gap to aware that each causal rung and the agent close
 TASK = Task(FIELD_ENV_ID, "field", "iscc_gym.envs.env:ISCCEnv", "iscc_gym.envs.vector:ISCCVectorEnv",
             "the paper's loop in a world its model does not know: the links' K-factor a field along the path, the "
             "drone's RCS drawn per mission", "tasks/field", FIELD_VARIANTS,
-            policies="ppo,myopic,margin,sca,adaptive,aware", reference="myopic",
-            scripted=("myopic", "margin", "sca", "adaptive"), results_section="field-comparison",
+            policies="ppo,myopic,margin,sca,adaptive,bayes,aware", reference="myopic",
+            scripted=("myopic", "margin", "sca", "adaptive", "bayes"), results_section="field-comparison",
             results_title="The field task: the agent and the baseline ladder where the world is not the model",
             agent="ppo_field",
             agent_docs=("field-agent", "The shipped PPO agent of the field task", "ppo_field_learning_curve.png"),
             seeds_docs=("field-seeds", "The field task's shipped configuration over 5 training seeds"),
-            tuned=("adaptive",))
+            tuned=("adaptive", "bayes"), share_of=("adaptive", "bayes", "ppo"))

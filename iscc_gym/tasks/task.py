@@ -72,6 +72,9 @@ class Task:
         The model-based baselines tuned on this task's missions (``python -m eval.tune <policy> --scenario
         <preset>``: their grids are ``iscc_gym.eval.tune.MODEL_GRIDS``; records ``<policy>-<preset>``, or the
         policy's own name for the field task's ``adaptive``).
+    share_of : tuple of str
+        The policies whose share of the gap between the reference and the bound (``oracle`` or ``aware``, where the
+        comparison plays one) ``python -m eval`` reports, with its interval (default: the shipped agent's).
     base, overrides : str or None, Mapping
         A task on a preset of its own: ``preset`` is then a new name, the Scenario ``base`` (a preset) with
         ``overrides`` (validated here); :func:`iscc_gym.tasks.add_task` adds it to the presets, so every command
@@ -100,6 +103,7 @@ class Task:
     agent_docs: tuple[str, ...] = ()
     seeds_docs: tuple[str, ...] = ()
     tuned: tuple[str, ...] = ()
+    share_of: tuple[str, ...] = ("ppo",)
     base: str | None = None
     overrides: Mapping[str, Any] = field(default_factory=dict)
     train_like: str = ""

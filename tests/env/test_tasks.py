@@ -93,4 +93,4 @@ def test_every_grid_tuned_baseline_is_tuned_on_the_task_whose_file_names_it():
     from iscc_gym.eval.tune import MODEL_GRIDS, MODEL_TASKS
 
     assert set(MODEL_TASKS) == set(MODEL_GRIDS)
-    assert MODEL_TASKS == {"myopic": "urban", "dpp": "urban", "mpc": "urban", "adaptive": "field"}
+    assert MODEL_TASKS == {"myopic": "urban", "dpp": "urban", "mpc": "urban", "adaptive": "field", "bayes": "field"}

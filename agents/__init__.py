@@ -85,8 +85,8 @@ def tuned_record(spec: str, scenario: Scenario | str = "paper") -> str | None:
         return record_name(key, task)
     if key in ("mpc", "mpc-hold", "oracle"):
         return record_name("mpc", task)
-    if key == "adaptive":
-        return "adaptive"
+    if key in ("adaptive", "bayes"):  # the field task's own rungs, tuned there
+        return key
     return "sca-per-slot" if key == "sca-per-slot" else None
 
 
@@ -182,10 +182,10 @@ def make_policy(spec: str, scenario: Scenario | str = "paper", seed: int = 0, tu
         if key == "mpc-hold":
             return LookaheadPolicy(s, preview="hold", name="mpc-hold", **p)
         return LookaheadPolicy(s, preview="truth", name="oracle", **p)
-    if key == "bayes":  # the field task's Bayesian filter of the world, on the preset's own prior
+    if key == "bayes":  # the field task's Bayesian filter of the world on its prior, tuned there (python -m eval.tune)
         from .bayes import BayesPolicy
 
-        return BayesPolicy(s)
+        return BayesPolicy(s, **params())
     if key == "adaptive":  # the field task's estimator memory, tuned there (python -m eval.tune adaptive)
         from .adaptive import AdaptivePolicy
 

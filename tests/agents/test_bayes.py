@@ -173,3 +173,15 @@ def test_bayes_is_causal_and_restarts_at_a_new_mission():
     after = play([[5, 6], [7, 8]])[1]
     np.testing.assert_array_equal(fresh, after)
     assert BayesPolicy("field").obs_size == 25
+
+
+def test_make_policy_builds_bayes_from_its_record_tuned_on_training_missions():
+    from iscc_gym.agents import make_policy, tuned_record
+    from iscc_gym.agents.tuned_records import load_tuned
+
+    record = load_tuned("bayes")
+    assert tuned_record("bayes", "field") == "bayes" and record["seeds"].startswith("5000")  # training seeds
+    pol = make_policy("bayes", "field")
+    assert isinstance(pol, BayesPolicy) and pol.name == "bayes"
+    assert (pol.echo_weight, pol.correlation_scale) == (record["params"]["echo_weight"],
+                                                        record["params"]["correlation_scale"])

@@ -22,6 +22,12 @@ FIELD_VARIANTS: dict[str, Variant] = {
     "K mean 4 dB": Variant({"rician_k_db": 4.0}, "the K-factor's mean 5 dB below the model's 9 dB (more scattering "
                                                  "than TR 38.901's LoS means, 7-9 dB)"),
     "RCS spread 6 dB": Variant({"rcs_std_db": 6.0}, "the RCS's spread 6 dB, beyond Rel-19's 3.74 dB of a small UAV"),
+    # issue 45: the prior's correlation distance wrong both ways (TR 38.901's K correlation distances span 10-50 m
+    # across its scenarios, Table 7.5-6; the preset's 15 m is UMi LoS)
+    "K correlation 5 m": Variant({"rician_k_correlation_m": 5.0}, "the K-factor decorrelating over 5 m, a third of "
+                                                                  "the model's 15 m (below TR 38.901's 10 m)"),
+    "K correlation 50 m": Variant({"rician_k_correlation_m": 50.0}, "the K-factor correlated over 50 m, the largest "
+                                                                    "of TR 38.901's distances (the model's 15 m)"),
 }
 
 # the shipped agent (a residual on adaptive), the designer's per-slot policies on the paper's model, the adaptive rung

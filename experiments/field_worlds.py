@@ -2,11 +2,13 @@
 
 Issue 36's out-of-range table: every rung left as designed, tuned or trained on the ``field`` preset (``myopic`` on
 the paper's model, ``adaptive`` tuned on the preset's training missions, the shipped agent trained there), played on
-each variant of :data:`iscc_gym.tasks.field.FIELD_VARIANTS` (a K-factor spread or mean, an RCS spread beyond their
-sources' ranges) and on the preset's own missions, held-out seeds, common random numbers (the engine,
-:func:`iscc_gym.eval.engine.compare`). ``aware`` is shown each world's true values. Per world: ``myopic``'s reward,
-``adaptive`` - ``myopic``, ``aware`` - ``myopic``, the agent minus ``adaptive`` and the share of the gap the agent
-closes, (agent - ``myopic``) / (``aware`` - ``myopic``), with its interval (missions resampled).
+each variant of :data:`iscc_gym.tasks.field.FIELD_VARIANTS` (a K-factor spread, mean or correlation distance, an
+RCS spread beyond their sources' ranges) and on the preset's own missions, held-out seeds, common random numbers
+(the engine, :func:`iscc_gym.eval.engine.compare`). ``bayes`` filters on the preset's prior (a wrong one on these
+worlds); ``aware`` is shown each world's true values. Per world: ``myopic``'s reward, ``adaptive`` - ``myopic``,
+``bayes`` - ``myopic``, ``aware`` - ``myopic``, the agent minus ``adaptive`` and minus ``bayes``, and the share of the
+gap ``bayes`` and the agent close, (P - ``myopic``) / (``aware`` - ``myopic``), with its interval (missions
+resampled).
 
 Example::
 

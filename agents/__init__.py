@@ -68,7 +68,7 @@ __all__ = [
 #: The specs :func:`make_policy` understands.
 POLICY_SPECS = ("sca", "sca-per-slot", "sca-ignore-loss", "equal", "fixed:A_SEN,A_CTRL,A_COMM", "grid",
                 "evolutionary", "margin", "margin:M_CTRL,M_COMM", "myopic", "dpp", "dpp:V", "mpc", "mpc-hold", "oracle",
-                "adaptive", "bayes")
+                "adaptive", "bayes", "bayes-learn")
 #: The specs of the urban task's queue planners (they need a scenario with a data queue and a preview).
 URBAN_SPECS = ("dpp", "mpc", "mpc-hold", "oracle")
 
@@ -87,6 +87,8 @@ def tuned_record(spec: str, scenario: Scenario | str = "paper") -> str | None:
         return record_name("mpc", task)
     if key in ("adaptive", "bayes"):  # the field task's own rungs, tuned there
         return key
+    if key == "bayes-learn":  # bayes re-estimating its prior online: bayes's tuned parameters
+        return "bayes"
     return "sca-per-slot" if key == "sca-per-slot" else None
 
 
@@ -186,6 +188,10 @@ def make_policy(spec: str, scenario: Scenario | str = "paper", seed: int = 0, tu
         from .bayes import BayesPolicy
 
         return BayesPolicy(s, **params())
+    if key == "bayes-learn":  # the same filter re-estimating its prior's moments online (empirical Bayes)
+        from .bayes import BayesPolicy
+
+        return BayesPolicy(s, learn_prior=True, **params())
     if key == "adaptive":  # the field task's estimator memory, tuned there (python -m eval.tune adaptive)
         from .adaptive import AdaptivePolicy
 

@@ -58,6 +58,10 @@ __all__ = ["BayesPolicy", "rician_log_pdf", "transition_matrix", "MixtureLaw"]
 
 #: Width of the grids, in prior standard deviations either side of the mean.
 GRID_SIGMAS = 4.0
+#: With ``learn_prior``: the grids' width in the designer's standard deviations (room for a wider or shifted law).
+LEARN_GRID_SIGMAS = 6.0
+#: With ``learn_prior``: the designer's prior counts as this many filtered posteriors (row-slots).
+PRIOR_PSEUDO_SLOTS = 2000.0
 #: The gain grid of the mixture's CDF table: log-spaced, wide enough for the deepest quadrature bin at K = -20 dB.
 _LOG_G = np.linspace(math.log(1e-12), math.log(60.0), 6001)
 
@@ -156,12 +160,20 @@ class BayesPolicy(MyopicPolicy):
         Exponent in [0, 1] of the echo's likelihood (0: the link's gains alone).
     correlation_scale : float
         The prior's correlation distance times this (> 0; 1: the world's law).
+    learn_prior : bool
+        Re-estimate the prior's moments online (empirical Bayes): the mean and spread of the K-factor and of the RCS
+        offset, from every filtered posterior seen (all the batch's missions and slots so far, pooled with
+        :data:`PRIOR_PSEUDO_SLOTS` pseudo-observations of the designer's prior) by the law of total variance,
+        :math:`\hat\mu = \overline{\mathbb E[x]}`, :math:`\hat\sigma^2 = \overline{\mathrm{Var}[x] +
+        \mathbb E[x]^2} - \hat\mu^2`; a new mission starts from them and the K-factor's steps revert to them. The
+        correlation distance stays the prior's. The grids then span :data:`LEARN_GRID_SIGMAS` of the designer's
+        spreads. False (the default): the designer's prior throughout.
     **kwargs
         :class:`agents.myopic.MyopicPolicy`'s search parameters.
     """
 
     def __init__(self, scenario: Scenario | str = "field", k_points: int = 41, rcs_points: int = 31,
-                 echo_weight: float = 1.0, correlation_scale: float = 1.0, **kwargs):
+                 echo_weight: float = 1.0, correlation_scale: float = 1.0, learn_prior: bool = False, **kwargs):
         super().__init__(scenario, **kwargs)
         s = self.scenario
         if not task_effects(s).field:
@@ -183,15 +195,45 @@ class BayesPolicy(MyopicPolicy):
         self.k_mean, self.k_std = float(s.rician_k_db), float(s.rician_k_std_db)
         self.rcs_std = float(s.rcs_std_db)
         self.correlation_m = float(s.rician_k_correlation_m) * self.correlation_scale
-        self.k_grid = self.k_mean + self.k_std * np.linspace(-GRID_SIGMAS, GRID_SIGMAS, self.k_points) \
+        if not isinstance(learn_prior, (bool, np.bool_)):
+            raise ValueError(f"learn_prior = {learn_prior!r} is invalid: must be True or False")
+        self.learn_prior = bool(learn_prior)
+        width = LEARN_GRID_SIGMAS if self.learn_prior else GRID_SIGMAS
+        self.k_grid = self.k_mean + self.k_std * np.linspace(-width, width, self.k_points) \
             if self.k_std > 0 else np.array([self.k_mean])
-        self.rcs_grid = self.rcs_std * np.linspace(-GRID_SIGMAS, GRID_SIGMAS, self.rcs_points) \
+        self.rcs_grid = self.rcs_std * np.linspace(-width, width, self.rcs_points) \
             if self.rcs_std > 0 else np.array([0.0])
         self._k_lin = db_to_lin(self.k_grid)
-        self._prior = self._prior_of(self.k_grid, self.k_mean, self.k_std)[:, None] * \
-            self._prior_of(self.rcs_grid, 0.0, self.rcs_std)[None, :]
+        self.rcs_mean = 0.0
+        # the pooled sufficient statistics of the filtered posteriors (learn_prior), the designer's prior as
+        # PRIOR_PSEUDO_SLOTS pseudo-observations
+        n0 = PRIOR_PSEUDO_SLOTS
+        self._stats = np.array([n0, n0 * self.k_mean, n0 * (self.k_std ** 2 + self.k_mean ** 2),
+                                n0 * 0.0, n0 * self.rcs_std ** 2])
+        self._set_prior()
         self._rows = 0
-        self.name = "bayes"
+        self.name = "bayes-learn" if self.learn_prior else "bayes"
+
+    def _set_prior(self) -> None:
+        """The joint prior of a new mission from the current (designer's or learned) moments."""
+        self._prior = self._prior_of(self.k_grid, self.k_mean, self.k_std)[:, None] * \
+            self._prior_of(self.rcs_grid, self.rcs_mean, self.rcs_std)[None, :]
+
+    def _learn(self, post, seen) -> None:
+        """Pool the filtered posteriors of the rows ``seen`` into the moments (see ``learn_prior``)."""
+        if not seen.any():
+            return
+        p = post[seen]
+        wk, wr = p.sum(axis=2), p.sum(axis=1)
+        mk, mr = wk @ self.k_grid, wr @ self.rcs_grid
+        self._stats += np.array([len(p), mk.sum(), (wk @ self.k_grid ** 2).sum(), mr.sum(),
+                                 (wr @ self.rcs_grid ** 2).sum()])
+        n, s1, s2, r1, r2 = self._stats
+        self.k_mean = s1 / n
+        self.k_std = math.sqrt(max(s2 / n - self.k_mean ** 2, 1e-6)) if self.k_std > 0 else 0.0
+        self.rcs_mean = r1 / n
+        self.rcs_std = math.sqrt(max(r2 / n - self.rcs_mean ** 2, 1e-6)) if self.rcs_std > 0 else 0.0
+        self._set_prior()
 
     @staticmethod
     def _prior_of(grid, mean, std):
@@ -233,6 +275,8 @@ class BayesPolicy(MyopicPolicy):
             upd = post * np.exp(log_l)
             upd /= np.maximum(upd.sum(axis=(1, 2), keepdims=True), 1e-300)
             post = np.where(seen[:, None, None], upd, post)
+            if self.learn_prior:
+                self._learn(post, seen)
         # the K-factor's step to this slot's position (Gauss-Markov in the distance flown)
         dist, trig, shadow_db = predicted_geometry(self.scenario, decoded["snr_db"], decoded["range_m"],
                                                    decoded["sin_elevation"], decoded["cos_azimuth"],

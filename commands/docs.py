@@ -16,7 +16,8 @@ from pathlib import Path
 import iscc_gym
 from iscc_gym.files import write_atomic
 
-__all__ = ["write_section", "publish", "save_json", "project_root", "docs_path", "RESULTS_PATH", "README_PATH"]
+__all__ = ["write_section", "write_docs_section", "publish", "save_json", "project_root", "docs_path", "RESULTS_PATH",
+           "README_PATH"]
 
 #: Paths of the generated files, relative to the project root (:func:`project_root`).
 RESULTS_PATH = "docs/results.md"
@@ -60,6 +61,16 @@ def write_section(path: str | Path, name: str, text: str) -> None:
     else:
         doc = doc.rstrip() + "\n\n" + block + "\n"
     write_atomic(p, doc)
+
+
+def write_docs_section(relative: str | Path, name: str, text: str) -> Path:
+    """Write ``text`` as section ``name`` of the checkout's file ``relative`` (:func:`docs_path`) and say so;
+    returns the file's path.
+    """
+    path = docs_path(relative)
+    write_section(path, name, text)
+    print(f"wrote {path}")
+    return path
 
 
 def publish(name: str, title: str, table: str) -> None:

@@ -16,7 +16,7 @@ from __future__ import annotations
 import sys
 
 from iscc_gym.agents.tasks import task_policies
-from iscc_gym.commands.docs import README_PATH, RESULTS_PATH, docs_path, publish, write_section
+from iscc_gym.commands.docs import README_PATH, RESULTS_PATH, docs_path, publish, write_docs_section
 from iscc_gym.commands.options import Parser, check_writable_file, docs_command, env_scenario, run_console
 
 from iscc_gym import ENV_ID
@@ -59,9 +59,7 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> dict:
         if task.readme:
             publish(task.results_section, task.results_title, text)
         else:
-            write_section(docs_path(RESULTS_PATH), task.results_section,
-                          f"## {task.results_title}\n\n" + text)
-            print(f"wrote {docs_path(RESULTS_PATH)}")
+            write_docs_section(RESULTS_PATH, task.results_section, f"## {task.results_title}\n\n" + text)
     return res
 
 

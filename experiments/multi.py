@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import sys
 
-from iscc_gym.commands.docs import RESULTS_PATH, docs_path, write_section
+from iscc_gym.commands.docs import RESULTS_PATH, docs_path, write_docs_section
 from iscc_gym.commands.options import Parser, check_writable_file, docs_command, run_console
 
 PROG = "python -m experiments.multi"
@@ -26,8 +26,7 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> dict:
     res = multi_main(rest, prog=prog, command=docs_command(prog, argv))
     if args.write_docs:
         name, title = res["section"]
-        write_section(docs_path(RESULTS_PATH), name, f"## {title}\n\n" + "\n\n".join(res["sections"]))
-        print(f"wrote {docs_path(RESULTS_PATH)}")
+        write_docs_section(RESULTS_PATH, name, f"## {title}\n\n" + "\n\n".join(res["sections"]))
     return res
 
 

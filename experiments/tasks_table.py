@@ -8,7 +8,7 @@ from __future__ import annotations
 import sys
 
 from iscc_gym.agents.tasks import task_policies
-from iscc_gym.commands.docs import README_PATH, docs_path, write_section
+from iscc_gym.commands.docs import README_PATH, docs_path, write_docs_section
 from iscc_gym.commands.options import Parser, check_writable_file, docs_command, run_console
 
 from iscc_gym.tasks import TASKS
@@ -39,8 +39,7 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> str:
     text = markdown(docs_command(prog, argv))
     print(text)
     if args.write_docs:
-        write_section(docs_path(README_PATH), "tasks", text)
-        print(f"wrote {docs_path(README_PATH)}")
+        write_docs_section(README_PATH, "tasks", text)
     return text
 
 

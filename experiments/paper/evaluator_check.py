@@ -12,7 +12,7 @@ import sys
 
 import numpy as np
 from iscc_gym.agents import FixedSplitPolicy
-from iscc_gym.commands.docs import docs_path, write_section
+from iscc_gym.commands.docs import docs_path, write_docs_section
 from iscc_gym.commands.options import Parser, check_writable_file, docs_command, positive_int, run_console
 from iscc_gym.eval.evaluate import run_episodes
 
@@ -87,8 +87,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.paper
     table = markdown(rows, docs_command(prog, argv))
     print(table)
     if args.write_docs:
-        write_section(docs_path(MODEL_PATH), "evaluator-check", table)
-        print(f"wrote {docs_path(MODEL_PATH)}")
+        write_docs_section(MODEL_PATH, "evaluator-check", table)
     return rows
 
 

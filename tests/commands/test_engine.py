@@ -88,16 +88,18 @@ def test_aware_is_myopic_designed_on_the_world_and_equals_it_where_the_world_is_
 
 def test_the_field_task_prints_its_ladder_with_the_share_of_the_gap(capsys):
     """python -m eval --env iscc_gym/ISCC-Field-v0: the task's ladder, every difference against myopic, and the
-    share of aware's gain the agent closes, with its interval."""
+    share of aware's gain each causal rung and the agent close (Task.share_of), with its interval."""
     from iscc_gym.tasks import FIELD_ENV_ID
 
     res = eval_main(["--env", FIELD_ENV_ID, "--episodes", "3", "--max-steps", "8", "--workers", "1"])
     out = capsys.readouterr().out
-    assert list(res["policies"]) == ["ppo", "myopic", "margin", "sca", "adaptive", "aware"]
-    assert set(res["paired"]) == {f"{p}_vs_myopic" for p in ("ppo", "margin", "sca", "adaptive", "aware")}
+    assert list(res["policies"]) == ["ppo", "myopic", "margin", "sca", "adaptive", "bayes", "aware"]
+    assert set(res["paired"]) == {f"{p}_vs_myopic" for p in ("ppo", "margin", "sca", "adaptive", "bayes", "aware")}
+    assert list(res["oracle_shares"]) == ["adaptive", "bayes", "ppo"]
     share = res["oracle_share"]
     assert share["oracle"] == "aware" and share["share_ci95"] is None  # 3 missions: no resampled interval
-    assert "Share of the aware's gain over myopic that ppo recovers" in out
+    for rung in ("adaptive", "bayes", "ppo"):
+        assert f"Share of the aware's gain over myopic that {rung} recovers" in out
     with pytest.raises(ValueError, match="use one of"):
         eval_main(["--env", "iscc_gym/ISCC-Nope-v0"])
 

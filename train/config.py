@@ -40,6 +40,8 @@ ALGOS = SB3_ALGOS  # ppo, sac, td3 and ppo_lstm (sb3-contrib's RecurrentPPO, rl-
 #: The on-policy algorithms (rollouts of n_steps per env, advantages normalised per mini-batch).
 ON_POLICY = ("ppo", "ppo_lstm")
 VEC_ENVS = ("dummy", "subproc", "batched")
+#: ``--reward``: the env's sampled reward, or the simulator's expected one (train/privileged.py).
+REWARDS = ("sampled", "expected")
 
 #: The key of a hyperparameter file that only python -m train reads (rl-zoo3 reads the entry of its env id).
 OWN_SECTION = "iscc_gym.train"
@@ -407,6 +409,18 @@ def check_args(args: Args) -> None:
         if has_warm_start(args):
             raise ValueError(f"residual = {args.residual!r} and init_policy = {args.init_policy!r}: use one (a "
                              "residual agent starts at its base policy already)")
+    if args.reward not in REWARDS:
+        raise ValueError(f"reward = {args.reward!r}; use one of {', '.join(REWARDS)}")
+    if args.reward == "expected":
+        from iscc_gym.scenario import make_scenario
+        from iscc_gym.sim.effects import task_effects
+
+        scenario = args.scenario or registered_scenario(args.env_id)
+        if args.vec_env != "batched" or randomized(args) or args.env_id not in TASKS or is_fleet(args.env_id) \
+                or not task_effects(make_scenario(scenario, **args.env_overrides)).field:
+            raise ValueError("reward = 'expected' pays the field task's expected one-slot reward on its batched env: "
+                             f"use --env {next((e for e, t in TASKS.items() if t.preset == 'field'), 'the field task')}"
+                             " with vec_env = 'batched' and no --randomize")
     if randomized(args):
         sets = randomize_sets()
         if args.randomize not in sets:

@@ -52,6 +52,8 @@ def run_identity(args: Args, hyperparams: dict | None = None, resumed: dict | No
     ident["cost_limit"] = parse_cost_limits(args.cost_limit) if args.cost_limit else None
     ident["lagrange_lr"] = float(args.lagrange_lr) if args.cost_limit else None
     # a residual agent's base policy and reach (agents/residual.py; SB3Policy.load plays them); None otherwise
+    if getattr(args, "reward", "sampled") != "sampled":  # the reward trained on (a run of the sampled one: no key)
+        ident["reward"] = str(args.reward)
     ident["residual"] = str(args.residual) if has_residual(args) else None
     ident["residual_scale"] = float(args.residual_scale) if has_residual(args) else None
     if has_residual(args) and args.residual_space not in (None, "action"):  # absent: the default (older runs')

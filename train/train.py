@@ -122,6 +122,16 @@ def make_train_env(args: Args, residual: dict | None = None):
             sizes = [args.n_envs // len(sets) + (k < args.n_envs % len(sets)) for k in range(len(sets))]
             venv = ConcatVecEnv([ISCCBatchedVecEnv(n, scenario=args.scenario, info_keys=keys, **o)
                                  for n, o in zip(sizes, sets, strict=True) if n > 0])
+        elif args.reward == "expected":  # the world shown to the simulator's reward, hidden from the agent
+            from iscc_gym.train.privileged import INFO_KEYS, ExpectedRewardVecEnv
+
+            from iscc_gym.scenario import make_scenario
+
+            venv = ISCCBatchedVecEnv(args.n_envs, scenario=args.scenario, info_keys=tuple(dict.fromkeys(
+                keys + INFO_KEYS)), **{**batched_kwargs(args), "show_world": True})
+            venv.seed(args.seed)
+            venv = ExpectedRewardVecEnv(venv, make_scenario(args.scenario, **args.env_overrides))
+            return VecMonitor(with_residual(venv, args, residual))
         else:
             venv = ISCCBatchedVecEnv(args.n_envs, scenario=args.scenario, info_keys=keys, **batched_kwargs(args))
         venv.seed(args.seed)

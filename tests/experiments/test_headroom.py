@@ -50,11 +50,13 @@ def test_what_the_field_agent_learned_is_read_from_one_flight_of_each_policy(cap
 
     stats = field_learned.main(["--missions", "2", "--max-steps", "20"])
     out = capsys.readouterr().out
-    assert set(stats) == {"aware", "adaptive", "ppo", "estimate", "per_slot"}
+    assert set(stats) == {"aware", "adaptive", "bayes", "ppo", "estimate", "bayes_estimate", "per_slot"}
     assert stats["per_slot"]["adaptive_std"] > 0.0
-    for name in ("aware", "adaptive", "ppo"):
+    for name in ("aware", "adaptive", "bayes", "ppo"):
         assert -1.0 <= stats[name]["ctrl_vs_k"] <= 1.0 and 0.0 < stats[name]["ctrl_mean"] < 1.0
     assert stats["estimate"]["mae_db"] >= 0.0 and "| aware |" in out
+    b = stats["bayes_estimate"]  # the posterior of the slot's K: an error, a spread and a coverage
+    assert b["mae_db"] >= 0.0 and b["sd_db"] > 0.0 and 0.0 <= b["covered"] <= 1.0 and "`bayes`'s posterior" in out
 
 
 @pytest.mark.parametrize("module, flag", [("field_worlds", "--variants"), ("headroom", "--variants"),

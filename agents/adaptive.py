@@ -42,10 +42,30 @@ from iscc_gym.units import db_to_lin
 from .geometry import predicted_geometry
 from .myopic import MyopicPolicy, rician_nodes_at
 
-__all__ = ["AdaptivePolicy", "greenstein_k", "mean_log_gain_db"]
+__all__ = ["AdaptivePolicy", "greenstein_k", "mean_log_gain_db", "model_echo_snr_db", "check_world_estimator"]
 
 #: The K-factor range the estimate is held to, dB (the table of :func:`agents.myopic.rician_nodes_at`).
 K_RANGE_DB = (-20.0, 40.0)
+
+
+def check_world_estimator(policy, verb: str) -> None:
+    """Refuse a policy that estimates the field's world (``policy``, a :class:`agents.myopic.MyopicPolicy`) on a
+    scenario without the field (no measured block to estimate from) or shown the world (not causal);
+    ``verb`` says what it does (``"estimates"``, ``"filters"``).
+    """
+    who = type(policy).__name__
+    if not task_effects(policy.scenario).field:
+        raise ValueError(f"{who} {verb} the field task's world: scenario needs rician_k_std_db or rcs_std_db > 0 (its "
+                         "observation carries the measured block), e.g. the 'field' preset")
+    if policy.shows_world:
+        raise ValueError(f"{who} is causal: its scenario must not show the world (show_world=False)")
+
+
+def model_echo_snr_db(s: Scenario, dist_m, shadow_db):
+    """The echo SNR (dB, per element and subcarrier) the designer's model predicts at a geometry, with the model's
+    RCS: what the field's rungs compare the measured echo with (its fading and RCS offset are the difference).
+    """
+    return 10.0 * np.log10(echo_amplitude_sq(s, dist_m, shadow_db, 1.0) / sensing_noise_var_w(s))
 
 
 def greenstein_k(m1, m2):
@@ -104,11 +124,7 @@ class AdaptivePolicy(MyopicPolicy):
                  rcs_prior_slots: float = 0.0, echo_weight: float = 0.0, **kwargs):
         super().__init__(scenario, **kwargs)
         s = self.scenario
-        if not task_effects(s).field:
-            raise ValueError("AdaptivePolicy estimates the field task's world: scenario needs rician_k_std_db or "
-                             "rcs_std_db > 0 (its observation carries the measured block), e.g. the 'field' preset")
-        if self.shows_world:
-            raise ValueError("AdaptivePolicy is causal: its scenario must not show the world (show_world=False)")
+        check_world_estimator(self, "estimates")
         for name, value, lo in (("k_window_slots", k_window_slots, 1.0), ("rcs_prior_slots", rcs_prior_slots, 0.0),
                                 ("echo_weight", echo_weight, 0.0)):
             if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) or \
@@ -168,7 +184,7 @@ class AdaptivePolicy(MyopicPolicy):
             np.where(self._rcs_n > 0, self._rcs_sum / np.maximum(self._rcs_n, 1.0), 0.0)
         dist, _, shadow_db = predicted_geometry(s, decoded["snr_db"], decoded["range_m"], decoded["sin_elevation"],
                                                 decoded["cos_azimuth"], decoded["sin_azimuth"], self._gain)
-        self._echo_pred_db = 10.0 * np.log10(echo_amplitude_sq(s, dist, shadow_db, 1.0) / sensing_noise_var_w(s))
+        self._echo_pred_db = model_echo_snr_db(s, dist, shadow_db)
         return self._k_db.copy(), rcs_db
 
     def __repr__(self) -> str:

@@ -44,12 +44,11 @@ import math
 import numpy as np
 from scipy.special import chndtr, i0e, ndtr
 
-from iscc_gym.physics.sensing import echo_amplitude_sq, sensing_noise_var_w
 from iscc_gym.scenario import Scenario
-from iscc_gym.sim.effects import task_effects
 from iscc_gym.sim.functional import decode_observation
 from iscc_gym.units import db_to_lin
 
+from .adaptive import check_world_estimator, model_echo_snr_db
 from .base import as_obs_batch
 from .geometry import predicted_geometry
 from .myopic import MyopicPolicy
@@ -176,11 +175,7 @@ class BayesPolicy(MyopicPolicy):
                  echo_weight: float = 1.0, correlation_scale: float = 1.0, learn_prior: bool = False, **kwargs):
         super().__init__(scenario, **kwargs)
         s = self.scenario
-        if not task_effects(s).field:
-            raise ValueError("BayesPolicy filters the field task's world: scenario needs rician_k_std_db or "
-                             "rcs_std_db > 0 (its observation carries the measured block), e.g. the 'field' preset")
-        if self.shows_world:
-            raise ValueError("BayesPolicy is causal: its scenario must not show the world (show_world=False)")
+        check_world_estimator(self, "filters")
         for name, value in (("k_points", k_points), ("rcs_points", rcs_points)):
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 3 or value % 2 == 0:
                 raise ValueError(f"{name} = {value!r} is invalid: must be an odd integer >= 3")
@@ -292,7 +287,7 @@ class BayesPolicy(MyopicPolicy):
         self.posterior = post
         self._pos = pos
         s = self.scenario
-        self._echo_pred_db = 10.0 * np.log10(echo_amplitude_sq(s, dist, shadow_db, 1.0) / sensing_noise_var_w(s))
+        self._echo_pred_db = model_echo_snr_db(s, dist, shadow_db)
 
     def k_marginal(self) -> np.ndarray:
         """The posterior of this slot's K-factor on :attr:`k_grid`, (n, k_points)."""

@@ -68,7 +68,7 @@ __all__ = [
 #: The specs :func:`make_policy` understands.
 POLICY_SPECS = ("sca", "sca-per-slot", "sca-ignore-loss", "equal", "fixed:A_SEN,A_CTRL,A_COMM", "grid",
                 "evolutionary", "margin", "margin:M_CTRL,M_COMM", "myopic", "dpp", "dpp:V", "mpc", "mpc-hold", "oracle",
-                "adaptive", "bayes", "bayes-learn")
+                "adaptive", "bayes", "bayes-learn", "estimator:PATH", "student:PATH")
 #: The specs of the urban task's queue planners (they need a scenario with a data queue and a preview).
 URBAN_SPECS = ("dpp", "mpc", "mpc-hold", "oracle")
 
@@ -87,7 +87,7 @@ def tuned_record(spec: str, scenario: Scenario | str = "paper") -> str | None:
         return record_name("mpc", task)
     if key in ("adaptive", "bayes"):  # the field task's own rungs, tuned there
         return key
-    if key == "bayes-learn":  # bayes re-estimating its prior online: bayes's tuned parameters
+    if key == "bayes-learn" or key.startswith("estimator:"):  # bayes's design: bayes's tuned parameters
         return "bayes"
     return "sca-per-slot" if key == "sca-per-slot" else None
 
@@ -111,7 +111,11 @@ def make_policy(spec: str, scenario: Scenario | str = "paper", seed: int = 0, tu
         evaluation show it the realised channel ahead on the same missions), ``"mpc-hold"`` (``mpc`` blind to the
         preview: the slot's channel held over the horizon). ``"adaptive"`` (the field task's
         :class:`agents.adaptive.AdaptivePolicy`, its estimators tuned by ``python -m eval.tune adaptive --scenario
-        field``).
+        field``). ``"bayes"`` (:class:`agents.bayes.BayesPolicy`, the field task's Bayesian filter), ``"bayes-learn"``
+        (the same re-estimating its prior), ``"estimator:PATH"`` (:class:`agents.estimator.EstimatorPolicy`:
+        ``bayes``'s design on the learned estimator of the run directory PATH, ``python -m train --learner
+        estimator``), ``"student:PATH"`` (:class:`agents.student.StudentPolicy`: the student of ``aware`` of the run
+        directory PATH, ``python -m train --learner dagger``).
     scenario : Scenario or str
         The scenario (or preset name) the model-based policies design for.
     seed : int
@@ -192,6 +196,14 @@ def make_policy(spec: str, scenario: Scenario | str = "paper", seed: int = 0, tu
         from .bayes import BayesPolicy
 
         return BayesPolicy(s, learn_prior=True, **params())
+    if key.startswith("estimator:"):  # bayes's design on a learned estimator of the world (RMA-style)
+        from .estimator import EstimatorPolicy
+
+        return EstimatorPolicy(s, path=spec.strip()[len("estimator:"):], **params())
+    if key.startswith("student:"):  # a recurrent student of aware under DAgger
+        from .student import StudentPolicy
+
+        return StudentPolicy(s, path=spec.strip()[len("student:"):])
     if key == "adaptive":  # the field task's estimator memory, tuned there (python -m eval.tune adaptive)
         from .adaptive import AdaptivePolicy
 

@@ -53,7 +53,7 @@ from .base import as_obs_batch
 from .geometry import predicted_geometry
 from .myopic import MyopicPolicy
 
-__all__ = ["BayesPolicy", "rician_log_pdf", "transition_matrix", "MixtureLaw"]
+__all__ = ["BayesPolicy", "rician_log_pdf", "transition_matrix", "MixtureLaw", "estimator_inputs", "ESTIMATOR_INPUTS"]
 
 #: Width of the grids, in prior standard deviations either side of the mean.
 GRID_SIGMAS = 4.0
@@ -63,6 +63,29 @@ LEARN_GRID_SIGMAS = 6.0
 PRIOR_PSEUDO_SLOTS = 2000.0
 #: The gain grid of the mixture's CDF table: log-spaced, wide enough for the deepest quadrature bin at K = -20 dB.
 _LOG_G = np.linspace(math.log(1e-12), math.log(60.0), 6001)
+
+
+#: What a learned estimator of the world reads each slot (:func:`estimator_inputs`; ``agents/estimator.py``).
+ESTIMATOR_INPUTS = ("new mission", "link fade dB / 10", "echo over prediction dB / 10", "echo measured",
+                    "distance flown / correlation distance")
+
+
+def estimator_inputs(new, g, e_db, step) -> np.ndarray:
+    """The measurements :class:`BayesPolicy`'s likelihood and dynamics read, as a learned estimator's inputs
+    (:data:`ESTIMATOR_INPUTS`), float32 (n, 5): ``new`` (n,) bool, the row's first slot (every other entry 0 there);
+    ``g`` the link's last fading power gain; ``e_db`` the last echo over its prediction, dB (NaN: none); ``step``
+    the horizontal distance flown since the last slot over the prior's correlation distance (NaN: none). Clipped to
+    [-6, 2] (60 dB below the mean to 20 dB above) and [0, 5].
+    """
+    new = np.asarray(new, dtype=bool)
+    seen = ~new
+    fade = np.clip(np.log10(np.maximum(np.asarray(g, dtype=float), 1e-6)), -6.0, 2.0)
+    e = np.asarray(e_db, dtype=float)
+    ok = seen & np.isfinite(e)
+    echo = np.clip(np.where(ok, e, 0.0) / 10.0, -6.0, 2.0)
+    s = np.asarray(step, dtype=float)
+    s = np.clip(np.where(seen & np.isfinite(s), s, 0.0), 0.0, 5.0)
+    return np.stack([new, np.where(seen, fade, 0.0), echo, ok, s], axis=1).astype(np.float32)
 
 
 @functools.lru_cache(maxsize=1)
@@ -244,6 +267,27 @@ class BayesPolicy(MyopicPolicy):
         self._pos = np.full((n, 2), np.nan)
 
     # --- the filter ---------------------------------------------------------------------------
+    def measure(self, decoded: dict):
+        """Each row's last measurements against the model and this slot's geometry: ``(g, e_db, step_m, pos,
+        echo_pred_db)``, the link's last fading power gain, the last echo SNR over its prediction (dB; NaN where
+        none), the horizontal distance flown since the last slot (m; NaN at a row's first slot), this slot's
+        estimated horizontal position (n, 2) and the echo SNR the model predicts for it (dB). Reads, never sets,
+        the per-row memory (:meth:`remember` does).
+        """
+        g = db_to_lin(decoded["last_fade_db"])
+        e_db = decoded["last_echo_snr_db"] - self._echo_pred_db
+        dist, trig, shadow_db = predicted_geometry(self.scenario, decoded["snr_db"], decoded["range_m"],
+                                                   decoded["sin_elevation"], decoded["cos_azimuth"],
+                                                   decoded["sin_azimuth"], self._gain)
+        cos_az, sin_az, cos_el, _ = trig
+        pos = np.stack([dist * cos_el * cos_az, dist * cos_el * sin_az], axis=1)
+        return g, e_db, np.hypot(*(pos - self._pos).T), pos, model_echo_snr_db(self.scenario, dist, shadow_db)
+
+    def remember(self, pos, echo_pred_db) -> None:
+        """Keep this slot's position and echo prediction for the next slot's :meth:`measure`."""
+        self._pos = pos
+        self._echo_pred_db = echo_pred_db
+
     def update(self, decoded: dict) -> None:
         """Take in each row's last measurement (the link's gain and the echo against its prediction) and step the
         K-factor to this slot's position; rows at slot 0 restart from the prior.
@@ -255,11 +299,11 @@ class BayesPolicy(MyopicPolicy):
         post = self.posterior
         post[new] = self._prior
         seen = ~new
+        g, e_db, step, pos, echo_pred_db = self.measure(decoded)
+        self.inputs = estimator_inputs(new, g, e_db, step / self.correlation_m)
         if seen.any():
             log_l = np.zeros(post.shape)
-            g = db_to_lin(decoded["last_fade_db"])
             log_l += rician_log_pdf(g[:, None], self._k_lin[None, :])[:, :, None]
-            e_db = decoded["last_echo_snr_db"] - self._echo_pred_db
             ok = seen & np.isfinite(e_db) & (self.echo_weight > 0.0)
             if ok.any():
                 h = db_to_lin(e_db[:, None, None] - self.rcs_grid[None, None, :])
@@ -273,21 +317,13 @@ class BayesPolicy(MyopicPolicy):
             if self.learn_prior:
                 self._learn(post, seen)
         # the K-factor's step to this slot's position (Gauss-Markov in the distance flown)
-        dist, trig, shadow_db = predicted_geometry(self.scenario, decoded["snr_db"], decoded["range_m"],
-                                                   decoded["sin_elevation"], decoded["cos_azimuth"],
-                                                   decoded["sin_azimuth"], self._gain)
-        cos_az, sin_az, cos_el, _ = trig
-        pos = np.stack([dist * cos_el * cos_az, dist * cos_el * sin_az], axis=1)
         if self.k_std > 0 and seen.any():
-            step = np.hypot(*(pos - self._pos).T)
             rho = np.exp(-np.where(np.isfinite(step), step, 0.0) / self.correlation_m)
             trans = transition_matrix(self.k_grid, self.k_mean, self.k_std, rho)
             moved = np.einsum("nij,nir->njr", trans, post)
             post = np.where(seen[:, None, None], moved, post)
         self.posterior = post
-        self._pos = pos
-        s = self.scenario
-        self._echo_pred_db = model_echo_snr_db(s, dist, shadow_db)
+        self.remember(pos, echo_pred_db)
 
     def k_marginal(self) -> np.ndarray:
         """The posterior of this slot's K-factor on :attr:`k_grid`, (n, k_points)."""

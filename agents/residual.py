@@ -108,11 +108,15 @@ class ResidualVecEnv(VecEnvWrapper):
         :math:`s`, in (0, 2].
     space : str
         ``residual_space`` (:data:`RESIDUAL_SPACES`).
+    world_entries : int
+        The observation's last entries the base does not read (the world block an asymmetric critic is shown,
+        ``agents.world_critic``; 0: none).
     """
 
-    def __init__(self, venv, base, scale: float, space: str = "action"):
+    def __init__(self, venv, base, scale: float, space: str = "action", world_entries: int = 0):
         super().__init__(venv)
         self.base = base
+        self.world_entries = int(world_entries)
         self.scale = check_scale(scale)
         self.space = check_space(space)
         self._obs = None
@@ -128,8 +132,8 @@ class ResidualVecEnv(VecEnvWrapper):
     def step_async(self, actions) -> None:
         if self._obs is None:
             raise RuntimeError("ResidualVecEnv.step before reset: call reset() first")
-        base, self._state = self.base.predict(self._obs, state=self._state, episode_start=self._start,
-                                              deterministic=True)
+        obs = self._obs[:, :-self.world_entries] if self.world_entries else self._obs
+        base, self._state = self.base.predict(obs, state=self._state, episode_start=self._start, deterministic=True)
         self.venv.step_async(residual_action(base, np.asarray(actions).reshape(np.shape(base)), self.scale,
                                              self.space))
 

@@ -212,12 +212,17 @@ class SB3Policy:
         self.model = model
         self.vecnormalize = vecnormalize
         self.obs_shape = tuple(model.observation_space.shape)
+        # an asymmetric actor-critic's critic was shown the world (agents.world_critic): the deployed agent reads the
+        # observation without it, padded with zeros its actor hides
+        self.world_entries = int(getattr(model.policy, "world_entries", 0))
         if vecnormalize is not None:
             vecnormalize.training = False
             stats = tuple(np.shape(vecnormalize.obs_rms.mean))
             if stats != self.obs_shape:
                 raise ValueError(f"the VecNormalize statistics are of observations of shape {stats}, the model's of "
                                  f"{self.obs_shape}: they come from different runs")
+        if self.world_entries:
+            self.obs_shape = (self.obs_shape[0] - self.world_entries,)
 
     @classmethod
     def load(cls, path: str | Path, best: bool = False, check_env: str | None = ENV_ID) -> SB3Policy:
@@ -343,6 +348,8 @@ class SB3Policy:
         if o.shape[-len(self.obs_shape):] != self.obs_shape:
             raise ValueError(f"observation of shape {o.shape}; the model takes {self.obs_shape} or (n, "
                              f"{', '.join(map(str, self.obs_shape))})")
+        if self.world_entries:
+            o = np.concatenate([o, np.zeros(o.shape[:-1] + (self.world_entries,), np.float32)], axis=-1)
         if self.vecnormalize is not None:
             o = self.vecnormalize.normalize_obs(o).astype(np.float32)
         return self.model.predict(o, state=state, episode_start=episode_start, deterministic=deterministic)

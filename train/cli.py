@@ -60,6 +60,13 @@ def build_parser(prog: str = "python -m train") -> argparse.ArgumentParser:
                     help="cpu: SB3 on the CPU (the default, every option); cuda: PPO on the device env on a GPU "
                          "(iscc_gym.agents.device_ppo, the gpu extra; saves an SB3 model python -m eval loads); "
                          "standin: that trainer on the device env's CPU stand-in (no GPU needed)")
+    ap.add_argument("--learner", choices=("ppo", "estimator", "dagger"), default="ppo",
+                    help="what to train: ppo (an SB3 agent, --algo; the default), estimator (the field task's world "
+                         "learned from the simulator, RMA-style: a GRU over the measurements regressed on the true "
+                         "K-factor and RCS; bayes's design plays on it as --policies estimator:OUT; "
+                         "train/estimator.py), dagger (a student of aware under DAgger; train/dagger.py). "
+                         "--total-timesteps counts slots played, --n-envs the missions at once, --set the "
+                         "learner's settings")
     add_study_arguments(ap)
     return ap
 
@@ -111,7 +118,13 @@ def cli(argv: list[str] | None = None, prog: str = "python -m train") -> dict:
     ap = build_parser(prog)
     ns = ap.parse_args(argv)
     args = args_from_namespace(ap, ns)
-    if ns.device != "cpu":
+    if ns.learner != "ppo":
+        if ns.device != "cpu" or ns.optimize or ns.seeds is not None:
+            ap.error(f"--learner {ns.learner} trains one run on the CPU: drop --device, --optimize and --seeds")
+        import importlib
+
+        summary = importlib.import_module(f"iscc_gym.train.{ns.learner}").main(args)
+    elif ns.device != "cpu":
         if ns.optimize or ns.seeds is not None:
             ap.error(f"--device {ns.device} trains one run: --optimize and --seeds run SB3 on the CPU")
         from iscc_gym.train.device import main as device_main

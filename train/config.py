@@ -42,6 +42,8 @@ ON_POLICY = ("ppo", "ppo_lstm")
 VEC_ENVS = ("dummy", "subproc", "batched")
 #: ``--reward``: the env's sampled reward, or the simulator's expected one (train/privileged.py).
 REWARDS = ("sampled", "expected")
+#: ``--critic``: the critic reads the agent's observation, or the world too (agents/world_critic.py).
+CRITICS = ("own", "world")
 
 #: The key of a hyperparameter file that only python -m train reads (rl-zoo3 reads the entry of its env id).
 OWN_SECTION = "iscc_gym.train"
@@ -421,6 +423,18 @@ def check_args(args: Args) -> None:
             raise ValueError("reward = 'expected' pays the field task's expected one-slot reward on its batched env: "
                              f"use --env {next((e for e, t in TASKS.items() if t.preset == 'field'), 'the field task')}"
                              " with vec_env = 'batched' and no --randomize")
+    if args.critic not in CRITICS:
+        raise ValueError(f"critic = {args.critic!r}; use one of {', '.join(CRITICS)}")
+    if args.critic == "world":
+        from iscc_gym.scenario import make_scenario
+        from iscc_gym.sim.effects import task_effects
+
+        scenario = args.scenario or registered_scenario(args.env_id)
+        if args.algo != "ppo" or args.vec_env != "batched" or randomized(args) or args.env_id not in TASKS \
+                or is_fleet(args.env_id) or not task_effects(make_scenario(scenario, **args.env_overrides)).field:
+            raise ValueError("critic = 'world' shows PPO's critic the field task's world on its batched env: use "
+                             f"--env {next((e for e, t in TASKS.items() if t.preset == 'field'), 'the field task')}"
+                             " with --algo ppo, vec_env = 'batched' and no --randomize")
     if randomized(args):
         sets = randomize_sets()
         if args.randomize not in sets:

@@ -67,10 +67,11 @@ class ExpectedRewardVecEnv(VecEnvWrapper):
 
     ``venv``: an SB3 VecEnv of the field task built with ``show_world=True`` and :data:`INFO_KEYS` reported
     (``agents.sb3_vec_env.ISCCBatchedVecEnv``); ``scenario``: its Scenario (the world's law: the slot's K is read from
-    the world block of the observation the slot was played from).
+    the world block of the observation the slot was played from); ``keep_world``: hand the observation on with its
+    world block (for a critic shown the world, ``agents.world_critic``; the actor hides it).
     """
 
-    def __init__(self, venv, scenario: Scenario | str):
+    def __init__(self, venv, scenario: Scenario | str, keep_world: bool = False):
         s = make_scenario(scenario)
         if not task_effects(s).field:
             raise ValueError("the expected reward needs the field task's world (rician_k_std_db or rcs_std_db > 0)")
@@ -80,7 +81,8 @@ class ExpectedRewardVecEnv(VecEnvWrapper):
         if space.shape[-1] != self.model_size():
             raise ValueError(f"the wrapped env's observations have {space.shape[-1]} entries, the world-shown "
                              f"field env's {self.model_size()}: build it with show_world=True")
-        obs_space = spaces.Box(space.low[:-self.n_world], space.high[:-self.n_world], dtype=space.dtype)
+        self.keep = slice(None) if keep_world else slice(0, space.shape[-1] - self.n_world)
+        obs_space = spaces.Box(space.low[self.keep], space.high[self.keep], dtype=space.dtype)
         super().__init__(venv, observation_space=obs_space)
         self.model = MyopicPolicy(self.shown)
         self._k_db = None
@@ -96,7 +98,7 @@ class ExpectedRewardVecEnv(VecEnvWrapper):
     def reset(self):
         obs = self.venv.reset()
         self._k_db = self._world_k(obs)
-        return obs[:, :-self.n_world]
+        return obs[:, self.keep]
 
     def step_async(self, actions) -> None:
         self.venv.step_async(actions)
@@ -109,5 +111,5 @@ class ExpectedRewardVecEnv(VecEnvWrapper):
         self._k_db = self._world_k(obs)  # the next slot's (a new mission's first, where one ended)
         for info in infos:
             if "terminal_observation" in info:
-                info["terminal_observation"] = info["terminal_observation"][:-self.n_world]
-        return obs[:, :-self.n_world], (reward + corr).astype(np.float32), dones, infos
+                info["terminal_observation"] = info["terminal_observation"][self.keep]
+        return obs[:, self.keep], (reward + corr).astype(np.float32), dones, infos

@@ -54,6 +54,8 @@ def run_identity(args: Args, hyperparams: dict | None = None, resumed: dict | No
     # a residual agent's base policy and reach (agents/residual.py; SB3Policy.load plays them); None otherwise
     if getattr(args, "reward", "sampled") != "sampled":  # the reward trained on (a run of the sampled one: no key)
         ident["reward"] = str(args.reward)
+    if getattr(args, "critic", "own") != "own":  # the critic shown the world (a run of the plain critic: no key)
+        ident["critic"] = str(args.critic)
     ident["residual"] = str(args.residual) if has_residual(args) else None
     ident["residual_scale"] = float(args.residual_scale) if has_residual(args) else None
     if has_residual(args) and args.residual_space not in (None, "action"):  # absent: the default (older runs')

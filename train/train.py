@@ -88,7 +88,8 @@ from .runs import (
     write_curve,
 )
 
-__all__ = ["main", "make_train_env", "make_env", "make_eval_env", "with_residual", "batched_kwargs",
+__all__ = ["main", "make_train_env", "make_env", "make_eval_env", "with_residual", "batched_kwargs", "world_critic",
+           "world_entries",
            "set_numba_threads"]
 
 
@@ -130,10 +131,12 @@ def make_train_env(args: Args, residual: dict | None = None):
             venv = ISCCBatchedVecEnv(args.n_envs, scenario=args.scenario, info_keys=tuple(dict.fromkeys(
                 keys + INFO_KEYS)), **{**batched_kwargs(args), "show_world": True})
             venv.seed(args.seed)
-            venv = ExpectedRewardVecEnv(venv, make_scenario(args.scenario, **args.env_overrides))
+            venv = ExpectedRewardVecEnv(venv, make_scenario(args.scenario, **args.env_overrides),
+                                        keep_world=world_critic(args))
             return VecMonitor(with_residual(venv, args, residual))
         else:
-            venv = ISCCBatchedVecEnv(args.n_envs, scenario=args.scenario, info_keys=keys, **batched_kwargs(args))
+            venv = ISCCBatchedVecEnv(args.n_envs, scenario=args.scenario, info_keys=keys, **batched_kwargs(args),
+                                     **({"show_world": True} if world_critic(args) else {}))
         venv.seed(args.seed)
         return VecMonitor(with_residual(venv, args, residual))
     kwargs = {"scenario": args.scenario, **args.env_overrides} if args.env_id in TASKS else {}
@@ -157,7 +160,24 @@ def with_residual(venv, args: Args, residual: dict | None = None):
         residual = residual_record(args.residual, args.residual_scale, args.scenario, args.env_overrides,
                                    args.residual_space or "action")
     base = base_policy(residual)
-    return ResidualVecEnv(venv, base, residual["residual_scale"], residual.get("residual_space", "action"))
+    return ResidualVecEnv(venv, base, residual["residual_scale"], residual.get("residual_space", "action"),
+                          world_entries=world_entries(args))
+
+
+def world_critic(args: Args) -> bool:
+    """Whether the run's critic is shown the world (``--critic world``: the env shows it, the actor hides it)."""
+    return getattr(args, "critic", "own") == "world"
+
+
+def world_entries(args: Args) -> int:
+    """The world block's entries in the run's observations (0 unless the critic is shown the world)."""
+    if not world_critic(args):
+        return 0
+    from iscc_gym.train.privileged import world_entries as entries
+
+    from iscc_gym.scenario import make_scenario
+
+    return entries(make_scenario(args.scenario, **args.env_overrides))
 
 
 def batched_kwargs(args: Args) -> dict:
@@ -182,7 +202,8 @@ def make_eval_env(args: Args, residual: dict | None = None):
     if args.env_id in TASKS:
         from iscc_gym.agents.sb3_vec_env import ISCCBatchedVecEnv
 
-        venv = ISCCBatchedVecEnv(args.eval_episodes, scenario=args.scenario, **batched_kwargs(args))
+        venv = ISCCBatchedVecEnv(args.eval_episodes, scenario=args.scenario, **batched_kwargs(args),
+                                 **({"show_world": True} if world_critic(args) else {}))
         if args.eval_max_steps < venv.venv.max_steps:
             venv.venv.max_steps = args.eval_max_steps
         venv.seed(CALLBACK_EVAL_SEED_START)
@@ -376,6 +397,11 @@ def main(args: Args, callback_after_eval=None) -> dict:
     else:
         kw = action_noise(kw, venv.num_envs, venv.action_space.shape[0])
         policy = kw.pop("policy", "MlpPolicy")
+        if world_critic(args):  # the critic shown the world, the actor not (agents/world_critic.py)
+            from iscc_gym.agents.world_critic import WorldCriticPolicy
+
+            policy = WorldCriticPolicy
+            kw["policy_kwargs"] = {**kw.get("policy_kwargs", {}), "world_entries": world_entries(args)}
         model = algo_cls(policy, venv, seed=args.seed, device="cpu", verbose=args.verbose, tensorboard_log=tb, **kw)
         if has_warm_start(args):
             say(f"warm start: cloning {args.init_policy} played on {args.init_envs} envs x {args.init_steps:,} steps")

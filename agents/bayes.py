@@ -66,16 +66,17 @@ _LOG_G = np.linspace(math.log(1e-12), math.log(60.0), 6001)
 
 
 #: What a learned estimator of the world reads each slot (:func:`estimator_inputs`; ``agents/estimator.py``).
-ESTIMATOR_INPUTS = ("new mission", "link fade dB / 10", "echo over prediction dB / 10", "echo measured",
-                    "distance flown / correlation distance")
+ESTIMATOR_INPUTS = ("new mission", "link fade dB / 10", "link fade gain", "echo over prediction dB / 10",
+                    "echo over prediction (power ratio)", "echo measured", "distance flown / correlation distance")
 
 
 def estimator_inputs(new, g, e_db, step) -> np.ndarray:
     """The measurements :class:`BayesPolicy`'s likelihood and dynamics read, as a learned estimator's inputs
-    (:data:`ESTIMATOR_INPUTS`), float32 (n, 5): ``new`` (n,) bool, the row's first slot (every other entry 0 there);
-    ``g`` the link's last fading power gain; ``e_db`` the last echo over its prediction, dB (NaN: none); ``step``
-    the horizontal distance flown since the last slot over the prior's correlation distance (NaN: none). Clipped to
-    [-6, 2] (60 dB below the mean to 20 dB above) and [0, 5].
+    (:data:`ESTIMATOR_INPUTS`), float32 (n, 7): ``new`` (n,) bool, the row's first slot (every other entry 0 there);
+    ``g`` the link's last fading power gain, in dB and as a power ratio (the Rician log-likelihood is close to linear
+    in both); ``e_db`` the last echo over its prediction, dB (NaN: none), the same two ways; ``step`` the horizontal
+    distance flown since the last slot over the prior's correlation distance (NaN: none). Clipped: the dB entries to
+    [-6, 2] (60 dB below the mean to 20 dB above), the power ratios to [0, 10], the distance to [0, 5].
     """
     new = np.asarray(new, dtype=bool)
     seen = ~new
@@ -85,7 +86,9 @@ def estimator_inputs(new, g, e_db, step) -> np.ndarray:
     echo = np.clip(np.where(ok, e, 0.0) / 10.0, -6.0, 2.0)
     s = np.asarray(step, dtype=float)
     s = np.clip(np.where(seen & np.isfinite(s), s, 0.0), 0.0, 5.0)
-    return np.stack([new, np.where(seen, fade, 0.0), echo, ok, s], axis=1).astype(np.float32)
+    fade = np.where(seen, fade, 0.0)
+    return np.stack([new, fade, np.minimum(10.0 ** fade, 10.0) * seen, echo,
+                     np.where(ok, np.minimum(10.0 ** echo, 10.0), 0.0), ok, s], axis=1).astype(np.float32)
 
 
 @functools.lru_cache(maxsize=1)

@@ -29,7 +29,7 @@ from .estimator import check_out, learner_scenario, settings_of
 __all__ = ["main", "rollout", "fit_student", "SETTINGS"]
 
 #: The student's settings (``--set KEY=VALUE``) and defaults.
-SETTINGS = {"hidden": 64, "rounds": 4, "beta": 0.5, "epochs": 4, "chunk": 100, "learning_rate": 3e-3,
+SETTINGS = {"hidden": 64, "rounds": 4, "beta": 0.5, "epochs": 8, "chunk": 100, "learning_rate": 3e-3,
             "held_out": 0.125}
 
 

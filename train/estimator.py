@@ -5,7 +5,8 @@ it. This trainer plays ``bayes`` (:class:`agents.bayes.BayesPolicy`: the design 
 training missions of a world-shown batched env, records each slot's measurements as the filter reads them
 (:func:`agents.bayes.estimator_inputs`) beside the slot's true K and RCS from the world block, and fits
 :func:`agents.estimator.WorldEstimator` by cross-entropy against the truths' two-hot bins on the filter's grids
-(truncated back-propagation through time over the missions in order, Adam). A part of the missions is held out of
+(truncated back-propagation through time over the missions in order, Adam, the rate annealed to a tenth). A part
+of the missions is held out of
 the fit: the epoch whose held-out K cross-entropy is lowest is kept, and the summary compares it with ``bayes``'s
 posterior on the same held-out slots (cross-entropy and the absolute error of the mean).
 
@@ -21,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 import yaml
+from iscc_gym.agents.bayes import ESTIMATOR_INPUTS
 
 from iscc_gym.files import write_atomic
 
@@ -29,7 +31,7 @@ from .callbacks import printer
 __all__ = ["main", "collect", "fit", "two_hot", "settings_of", "check_out", "learner_scenario", "SETTINGS"]
 
 #: The estimator's own settings (``--set KEY=VALUE``) and defaults.
-SETTINGS = {"hidden": 64, "epochs": 12, "chunk": 100, "learning_rate": 3e-3, "held_out": 0.125}
+SETTINGS = {"hidden": 64, "epochs": 40, "chunk": 100, "learning_rate": 3e-3, "held_out": 0.125}
 
 
 def two_hot(y, grid) -> tuple[np.ndarray, np.ndarray]:
@@ -56,7 +58,7 @@ def _cross_entropy(logp, index, weight):
 
 def collect(scenario, n_envs: int, n_slots: int, seed: int, say=None) -> dict:
     """Play ``bayes`` on ``n_envs`` world-shown missions from ``seed`` for ``n_slots`` slots (missions restart as the
-    env does): the estimator's inputs (T, N, 5), the true K and RCS offset (T, N), and ``bayes``'s K posterior's
+    env does): the estimator's inputs (T, N, 7), the true K and RCS offset (T, N), and ``bayes``'s K posterior's
     cross-entropy and mean on the same slots (T, N), for the comparison.
     """
     from iscc_gym.agents import make_policy
@@ -70,7 +72,7 @@ def collect(scenario, n_envs: int, n_slots: int, seed: int, say=None) -> dict:
     venv.seed(seed)
     nw = world_entries(scenario)
     policy = make_policy("bayes", scenario)
-    out = {"x": np.empty((n_slots, n_envs, 5), np.float32), "k": np.empty((n_slots, n_envs)),
+    out = {"x": np.empty((n_slots, n_envs, len(ESTIMATOR_INPUTS)), np.float32), "k": np.empty((n_slots, n_envs)),
            "rcs": np.empty((n_slots, n_envs)), "bayes_ce": np.empty((n_slots, n_envs)),
            "bayes_mean": np.empty((n_slots, n_envs))}
     obs = venv.reset()
@@ -110,6 +112,8 @@ def fit(data: dict, hidden: int, epochs: int, chunk: int, learning_rate: float, 
         targets.append((torch.from_numpy(i), torch.from_numpy(w).float()))
     net = WorldEstimator(len(data["k_grid"]), len(data["rcs_grid"]), hidden)
     opt = torch.optim.Adam(net.parameters(), lr=learning_rate)
+    steps = epochs * -(-n_slots // chunk)  # the rate anneals to a tenth over the fit, cosine
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, steps, eta_min=0.1 * learning_rate)
 
     def run(rows, train: bool):
         n = rows.stop - rows.start
@@ -132,6 +136,7 @@ def fit(data: dict, hidden: int, epochs: int, chunk: int, learning_rate: float, 
                 ((loss_k + loss_r) / (n * (min(start + chunk, n_slots) - start))).backward()
                 torch.nn.utils.clip_grad_norm_(net.parameters(), 1.0)
                 opt.step()
+                sched.step()
             h = h.detach()
             ce_k += float(loss_k.detach())
             ce_r += float(loss_r.detach())
@@ -173,7 +178,9 @@ def settings_of(args, defaults: dict) -> dict:
     out = {**defaults, **args.overrides}
     for k, v in out.items():
         kind = float if isinstance(defaults[k], float) else int
-        if k == "beta" and isinstance(v, (int, float)) and not isinstance(v, bool) and 0.0 <= v <= 1.0:
+        if k == "beta":
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0.0 <= v <= 1.0:
+                raise ValueError(f"--set beta={v!r}: use a number in [0, 1] (the teacher's share decays as beta^round)")
             out[k] = float(v)
             continue
         bad = isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)
@@ -245,8 +252,8 @@ def main(args) -> dict:
     t_collect = time.perf_counter() - t0
     net, report = fit(data, settings["hidden"], settings["epochs"], settings["chunk"], settings["learning_rate"],
                       settings["held_out"], args.seed, say)
-    meta = {"kind": "estimator", "inputs": 5, "scenario": preset, "env_overrides": dict(args.env_overrides),
-            "hidden": settings["hidden"],
+    meta = {"kind": "estimator", "inputs": len(ESTIMATOR_INPUTS), "scenario": preset,
+            "env_overrides": dict(args.env_overrides), "hidden": settings["hidden"],
             "k_grid": [float(v) for v in data["k_grid"]], "rcs_grid": [float(v) for v in data["rcs_grid"]]}
     out.mkdir(parents=True, exist_ok=True)
     save_estimator(out / FILE, net, meta)

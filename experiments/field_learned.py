@@ -36,9 +36,11 @@ SECTION = "field-learned"
 FIGURE = "field_learned.png"
 
 
-def fly(seeds, max_steps: int | None = None) -> dict:
-    """Fly ``seeds`` with aware, adaptive, bayes and the shipped agent; per policy the splits (T, B, 3), and the true
-    K (T, B), ``adaptive``'s estimate of it and ``bayes``'s posterior mean and standard deviation (T, B), dB.
+def fly(seeds, max_steps: int | None = None, estimator: str | None = None, student: str | None = None) -> dict:
+    """Fly ``seeds`` with aware, adaptive, bayes and the shipped agent (and the learned ``estimator`` and the DAgger
+    ``student`` of those run directories, where given); per policy the splits (T, B, 3), and the true K (T, B),
+    ``adaptive``'s estimate of it and ``bayes``'s (and the estimator's) posterior mean and standard deviation (T, B),
+    dB.
     """
     s = make_scenario("field")
     k = len(seeds)
@@ -46,6 +48,11 @@ def fly(seeds, max_steps: int | None = None) -> dict:
     policies = {"aware": make_policy("myopic", s.replace(show_world=True)), "adaptive": make_policy("adaptive", s),
                 "bayes": make_policy("bayes", s),
                 "ppo": SB3Policy.load(task_policies(FIELD_ENV_ID).agent, check_env=FIELD_ENV_ID)}
+    if estimator is not None:
+        policies["estimator"] = make_policy(f"estimator:{estimator}", s)
+    if student is not None:
+        policies["student"] = make_policy(f"student:{student}", s)
+    posteriors = [name for name in ("bayes", "estimator") if name in policies]
     envs = {name: ISCCVectorEnv(num_envs=k, scenario=s.replace(**getattr(p, "scenario_overrides", {}) or {}))
             for name, p in policies.items()}
     obs = {name: env.reset(seed=list(seeds))[0] for name, env in envs.items()}
@@ -53,24 +60,26 @@ def fly(seeds, max_steps: int | None = None) -> dict:
     w = world_column(s)
     splits = {name: [] for name in policies}
     rewards = {name: [] for name in policies}
-    k_true, k_est, k_bayes, k_bayes_sd = [], [], [], []
+    k_true, k_est = [], []
+    k_post = {name: ([], []) for name in posteriors}
     states = {name: None for name in policies}
     for t in range(steps):
         for name, pol in policies.items():
             action, states[name] = pol.predict(obs[name], state=states[name], episode_start=np.full(k, t == 0))
             if name == "adaptive":
                 k_est.append(pol._k_db.copy())
-            if name == "bayes":  # its posterior of this slot's K (the one it designed the slot on)
+            if name in k_post:  # its posterior of this slot's K (the one it designed the slot on)
                 mean, sd = pol.k_estimate_db()
-                k_bayes.append(mean)
-                k_bayes_sd.append(sd)
+                k_post[name][0].append(mean)
+                k_post[name][1].append(sd)
             splits[name].append(action_to_split(action))
             obs[name], reward, *_ = envs[name].step(np.asarray(action, np.float32))
             rewards[name].append(reward)
         k_true.append(np.array([r[t, w] for r in rows]))
     return {"splits": {n: np.array(v) for n, v in splits.items()},
             "rewards": {n: np.array(v) for n, v in rewards.items()}, "k_true": np.array(k_true),
-            "k_est": np.array(k_est), "k_bayes": np.array(k_bayes), "k_bayes_sd": np.array(k_bayes_sd),
+            "k_est": np.array(k_est), **{f"k_{n}": np.array(m) for n, (m, _) in k_post.items()},
+            **{f"k_{n}_sd": np.array(sd) for n, (_, sd) in k_post.items()},
             "rcs_db": np.array([r[0, w + 1] for r in rows]), "seeds": list(seeds)}
 
 
@@ -88,11 +97,14 @@ def summary(res: dict) -> dict:
                   "sen_mean": float(sp[..., 0].mean())} for name, sp in res["splits"].items()}
     out["estimate"] = {"mae_db": float(np.abs(res["k_est"] - res["k_true"]).mean()),
                        "corr": _corr(res["k_est"].ravel(), kt)}
-    err = res["k_bayes"] - res["k_true"]
-    out["bayes_estimate"] = {"mae_db": float(np.abs(err).mean()), "corr": _corr(res["k_bayes"].ravel(), kt),
-                             "rmse_db": float(np.sqrt(np.mean(err ** 2))),
-                             "sd_db": float(np.sqrt(np.mean(res["k_bayes_sd"] ** 2))),
-                             "covered": float(np.mean(np.abs(err) <= 1.645 * res["k_bayes_sd"]))}
+    for name in ("bayes", "estimator"):
+        if f"k_{name}" not in res:
+            continue
+        err = res[f"k_{name}"] - res["k_true"]
+        out[f"{name}_estimate"] = {"mae_db": float(np.abs(err).mean()), "corr": _corr(res[f"k_{name}"].ravel(), kt),
+                                   "rmse_db": float(np.sqrt(np.mean(err ** 2))),
+                                   "sd_db": float(np.sqrt(np.mean(res[f"k_{name}_sd"] ** 2))),
+                                   "covered": float(np.mean(np.abs(err) <= 1.645 * res[f"k_{name}_sd"]))}
     gap = res["rewards"]["aware"] - res["rewards"]["adaptive"]
     out["per_slot"] = {"adaptive_std": float(res["rewards"]["adaptive"].std()), "gap_mean": float(gap.mean()),
                        "gap_std": float(gap.std())}
@@ -113,12 +125,16 @@ def figure(res: dict, path) -> None:
     m, sd = res["k_bayes"][:, 0], res["k_bayes_sd"][:, 0]
     ax[0].fill_between(t, m - sd, m + sd, color="tab:green", alpha=0.25, lw=0)
     ax[0].plot(t, m, color="tab:green", lw=0.8, label="bayes's posterior (mean +- sd)")
+    if "k_estimator" in res:
+        ax[0].plot(t, res["k_estimator"][:, 0], color="tab:purple", lw=0.8, label="the learned estimator's mean")
     ax[0].axhline(9.0, color="grey", ls=":", lw=0.8, label="the model's 9 dB")
     ax[0].set_ylabel("K-factor (dB)")
     ax[0].legend(loc="lower right", fontsize=8)
     for j, (row, label) in enumerate(((1, "control share"), (0, "sensing share")), start=1):
         for name, color in (("aware", "k"), ("adaptive", "tab:orange"), ("bayes", "tab:green"),
-                            ("ppo", "tab:blue")):
+                            ("ppo", "tab:blue"), ("estimator", "tab:purple"), ("student", "tab:red")):
+            if name not in res["splits"]:
+                continue
             ax[j].plot(t, res["splits"][name][:, 0, row], color=color, lw=0.7, label=name)
         ax[j].set_ylabel(label)
         ax[j].legend(loc="upper right", fontsize=8)
@@ -136,7 +152,9 @@ def markdown(stats: dict, seeds, command: str) -> str:
              "the truth.", "",
              "| policy | control share vs true K (corr.) | mean control share | mean sensing share |",
              "|---|--:|--:|--:|"]
-    for name in ("aware", "adaptive", "bayes", "ppo"):
+    for name in ("aware", "adaptive", "bayes", "ppo", "estimator", "student"):
+        if name not in stats:
+            continue
         r = stats[name]
         lines.append(f"| {name} | {r['ctrl_vs_k']:+.2f} | {r['ctrl_mean']:.3f} | {r['sen_mean']:.3f} |")
     e = stats["estimate"]
@@ -149,7 +167,14 @@ def markdown(stats: dict, seeds, command: str) -> str:
                   f"reward has standard deviation {p['adaptive_std']:.2f}; "
                   f"`aware` - `adaptive` (paired slot by slot on the same draws, while both fly) is "
                   f"{p['gap_mean']:+.4f} on average with standard deviation {p['gap_std']:.2f}: the room a learner "
-                  "has to find, against the noise it sees.", "", f"![the field task's first mission](figures/{FIGURE})"]
+                  "has to find, against the noise it sees."]
+    if "estimator_estimate" in stats:
+        b = stats["estimator_estimate"]
+        lines[-1] += (f" The learned estimator (`estimator`, python -m train --learner estimator): mean absolute error "
+                      f"{b['mae_db']:.2f} dB (RMS {b['rmse_db']:.2f} against its law's {b['sd_db']:.2f}), "
+                      f"correlation {b['corr']:+.2f}, the truth within its 90 % interval in "
+                      f"{100 * b['covered']:.0f} % of the slots.")
+    lines += ["", f"![the field task's first mission](figures/{FIGURE})"]
     return "\n".join(lines)
 
 
@@ -159,6 +184,10 @@ def build_parser(prog: str = "python -m experiments.field_learned") -> Parser:
                     help=f"held-out missions, seeds from {EVAL_SEED_START} (default: 8; the figure draws the first)")
     ap.add_argument("--max-steps", type=positive_int, default=None, metavar="N",
                     help="slots per mission (default: the whole mission)")
+    ap.add_argument("--estimator", default=None, metavar="DIR",
+                    help="fly the learned estimator of this run too (python -m train --learner estimator)")
+    ap.add_argument("--student", default=None, metavar="DIR",
+                    help="fly the DAgger student of this run too (python -m train --learner dagger)")
     ap.add_argument("--write-docs", action="store_true",
                     help=f"write the table into docs/results.md (section {SECTION}) and the figure into "
                          f"docs/figures/{FIGURE}")
@@ -173,7 +202,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.field
         check_writable_file(docs_path(RESULTS_PATH), "--write-docs")
     seeds = seed_list(EVAL_SEED_START, args.missions)
     t0 = time.perf_counter()
-    res = fly(seeds, args.max_steps)
+    res = fly(seeds, args.max_steps, args.estimator, args.student)
     stats = summary(res)
     table = markdown(stats, seeds, docs_command(prog, argv))
     print(table)

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from experiments.field_learners import NEEDS as FIELD_LEARNER_NEEDS
 from iscc_gym.tasks import ENV_ID, FIELD_ENV_ID, URBAN_ENV_ID
 
 __all__ = ["Study", "STUDIES", "get_study", "section_index"]
@@ -117,8 +118,14 @@ STUDIES: dict[str, Study] = {s.name: s for s in (
           needs=f"python -m train --env {FIELD_ENV_ID} --seeds 0,1,2,3,4 --out runs/field"),
     Study("field-worlds", "experiments.field_worlds", ("--write-docs",), (R + "field-worlds",),
           "the field task on worlds outside its preset's ranges"),
-    Study("field-learned", "experiments.field_learned", ("--write-docs",), (R + "field-learned",),
-          "what the field task's agent learned beside adaptive's estimates", comparison=False),
+    Study("field-learned", "experiments.field_learned",
+          ("--estimator", "runs/field_est", "--student", "runs/field_dagger", "--write-docs"), (R + "field-learned",),
+          "what the field task's agent and learners learned beside adaptive's and bayes's estimates",
+          comparison=False, needs=f"python -m train --env {FIELD_ENV_ID} --learner estimator --n-envs 128 "
+                                  "--total-timesteps 640000 --out runs/field_est; python -m train --env "
+                                  f"{FIELD_ENV_ID} --learner dagger --out runs/field_dagger"),
+    Study("field-learners", "experiments.field_learners", ("--episodes", "20", "--write-docs"), (R + "field-learners",),
+          "the field task's learners that use the simulator's knowledge, against bayes", needs=FIELD_LEARNER_NEEDS),
     Study("urban-learned", "experiments.urban_learned", ("--missions", "10", "--write-docs"),
           ("docs/learning.md#urban-learned",), "what the urban agent learned, phase by phase", comparison=False),
     Study("evaluator-check", "experiments.paper.evaluator_check", ("--write-docs",),

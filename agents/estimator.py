@@ -25,13 +25,14 @@ from iscc_gym.scenario import Scenario
 
 from .bayes import ESTIMATOR_INPUTS, BayesPolicy, estimator_inputs
 
-__all__ = ["EstimatorPolicy", "WorldEstimator", "recurrent_heads", "FILE", "load_estimator", "save_estimator"]
+__all__ = ["EstimatorPolicy", "WorldEstimator", "recurrent_heads", "FILE", "load_estimator", "save_estimator",
+           "require_torch"]
 
 #: The file of a trained estimator in its run directory.
 FILE = "estimator.pt"
 
 
-def _torch():
+def require_torch():
     try:
         import torch
     except ModuleNotFoundError:
@@ -45,7 +46,7 @@ def recurrent_heads(n_inputs: int, heads: tuple[int, ...], hidden: int = 64):
     loads lazily). ``step(x, h)`` advances one slot: ``(*logits, h)``; a row whose first input (``new mission``)
     is 1 starts from a zero state.
     """
-    torch = _torch()
+    torch = require_torch()
 
     class _Net(torch.nn.Module):
         def __init__(self):
@@ -72,7 +73,7 @@ def save_estimator(path, net, meta: dict) -> Path:
     """Write ``net``'s weights and ``meta`` (its kind, sizes, grids and the scenario it was trained on) to ``path``
     through a temporary name (an interrupted write leaves the previous file).
     """
-    torch = _torch()
+    torch = require_torch()
     from iscc_gym.files import atomic_target
 
     with atomic_target(path) as tmp:
@@ -85,7 +86,7 @@ def load_estimator(path, kind: str = "estimator"):
     ``agents.student.FILE``) in a run directory, or the file; ``FileNotFoundError`` / ``ValueError`` naming the path
     and the fix.
     """
-    torch = _torch()
+    torch = require_torch()
     name = FILE if kind == "estimator" else f"{kind}.pt"
     learner = "estimator" if kind == "estimator" else "dagger"
     p = Path(path).expanduser()
@@ -140,7 +141,7 @@ class EstimatorPolicy(BayesPolicy):
 
     def update(self, decoded: dict) -> None:
         """Advance the estimator one slot on each row's measurements; the posterior is its two heads' product."""
-        torch = _torch()
+        torch = require_torch()
         n = decoded["snr_db"].shape[0]
         if self._rows != n:
             self._restart(n)

@@ -24,7 +24,7 @@ from iscc_gym.sim.functional import decode_observation
 
 from .base import as_obs_batch
 from .bayes import ESTIMATOR_INPUTS, BayesPolicy, estimator_inputs
-from .estimator import _torch, load_estimator
+from .estimator import load_estimator, require_torch
 
 __all__ = ["StudentPolicy", "FILE", "student_inputs", "n_student_inputs"]
 
@@ -79,7 +79,7 @@ class StudentPolicy(BayesPolicy):
 
     def split_batch(self, obs, state=None, episode_start=None):
         """The student's splits (n, 3) for observations (n, obs_size); its inputs are kept in :attr:`inputs`."""
-        torch = _torch()
+        torch = require_torch()
         o, _ = as_obs_batch(obs, self.obs_size)
         if not np.all(np.isfinite(o)):
             raise ValueError("obs contains NaN or inf; pass the env's (finite) observations")

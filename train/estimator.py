@@ -10,6 +10,10 @@ of the missions is held out of
 the fit: the epoch whose held-out K cross-entropy is lowest is kept, and the summary compares it with ``bayes``'s
 posterior on the same held-out slots (cross-entropy and the absolute error of the mean).
 
+``--set worlds=N`` (N > 1): the missions are split over N worlds whose laws are drawn from
+:data:`iscc_gym.tasks.field.FIELD_WORLD_RANGES` (domain randomisation; ``bayes`` on the preset's prior plays them
+all, as the deployed estimator is fed by the preset's model).
+
 Writes into OUT: ``estimator.pt`` (weights, grids, hidden size, scenario: ``--policies estimator:OUT``),
 ``config.yml`` (the settings) and ``summary.yml``.
 """
@@ -31,7 +35,7 @@ from .callbacks import printer
 __all__ = ["main", "collect", "fit", "two_hot", "settings_of", "check_out", "learner_scenario", "SETTINGS"]
 
 #: The estimator's own settings (``--set KEY=VALUE``) and defaults.
-SETTINGS = {"hidden": 64, "epochs": 40, "chunk": 100, "learning_rate": 3e-3, "held_out": 0.125}
+SETTINGS = {"hidden": 64, "epochs": 40, "chunk": 100, "learning_rate": 3e-3, "held_out": 0.125, "worlds": 1}
 
 
 def two_hot(y, grid) -> tuple[np.ndarray, np.ndarray]:
@@ -56,19 +60,41 @@ def _cross_entropy(logp, index, weight):
     return -((1.0 - weight) * lo + weight * hi)
 
 
-def collect(scenario, n_envs: int, n_slots: int, seed: int, say=None) -> dict:
+def draw_worlds(n: int, seed: int) -> list[dict]:
+    """``n`` worlds' laws (Scenario overrides) drawn from :data:`iscc_gym.tasks.field.FIELD_WORLD_RANGES` (uniform, the
+    correlation distance log-uniform), seeded; ``n`` = 1: the preset's own (no overrides).
+    """
+    from iscc_gym.tasks.field import FIELD_WORLD_RANGES
+
+    if n <= 1:
+        return [{}]
+    rng = np.random.default_rng([seed, 45])
+    out = []
+    for _ in range(n):
+        world = {}
+        for key, (lo, hi) in FIELD_WORLD_RANGES.items():
+            u = rng.random()
+            world[key] = round(float(lo * (hi / lo) ** u if key.endswith("_m") else lo + (hi - lo) * u), 3)
+        out.append(world)
+    return out
+
+
+def collect(scenario, n_envs: int, n_slots: int, seed: int, say=None, worlds=({},)) -> dict:
     """Play ``bayes`` on ``n_envs`` world-shown missions from ``seed`` for ``n_slots`` slots (missions restart as the
     env does): the estimator's inputs (T, N, 7), the true K and RCS offset (T, N), and ``bayes``'s K posterior's
     cross-entropy and mean on the same slots (T, N), for the comparison.
     """
     from iscc_gym.agents import make_policy
-    from iscc_gym.agents.sb3_vec_env import ISCCBatchedVecEnv
+    from iscc_gym.agents.sb3_vec_env import ConcatVecEnv, ISCCBatchedVecEnv
     from iscc_gym.train.privileged import world_entries
 
     from iscc_gym.sim.functional import decode_observation
 
     shown = scenario.replace(show_world=True)
-    venv = ISCCBatchedVecEnv(n_envs, scenario=shown)
+    worlds = list(worlds)
+    sizes = [n_envs // len(worlds) + (k < n_envs % len(worlds)) for k in range(len(worlds))]
+    groups = [ISCCBatchedVecEnv(m, scenario=shown.replace(**w)) for m, w in zip(sizes, worlds, strict=True) if m > 0]
+    venv = groups[0] if len(groups) == 1 else ConcatVecEnv(groups)
     venv.seed(seed)
     nw = world_entries(scenario)
     policy = make_policy("bayes", scenario)
@@ -248,7 +274,11 @@ def main(args) -> dict:
     t0 = time.perf_counter()
     say(f"estimator on {args.env_id}: playing bayes on {n_envs} training missions from seed {args.seed}, "
         f"{n_slots:,} slots each")
-    data = collect(scenario, n_envs, n_slots, args.seed, say)
+    worlds = draw_worlds(settings["worlds"], args.seed)
+    if len(worlds) > 1:
+        say(f"over {len(worlds)} randomised worlds (iscc_gym.tasks.field.FIELD_WORLD_RANGES), bayes on the preset's "
+            "prior playing")
+    data = collect(scenario, n_envs, n_slots, args.seed, say, worlds)
     t_collect = time.perf_counter() - t0
     net, report = fit(data, settings["hidden"], settings["epochs"], settings["chunk"], settings["learning_rate"],
                       settings["held_out"], args.seed, say)
@@ -260,7 +290,7 @@ def main(args) -> dict:
     wall = time.perf_counter() - t0
     config = {"learner": "estimator", "env_id": args.env_id, "scenario": preset,
               "env_overrides": dict(args.env_overrides), "seed": args.seed, "n_envs": n_envs,
-              "total_timesteps": n_slots * n_envs, "settings": settings}
+              "total_timesteps": n_slots * n_envs, "settings": settings, "worlds": worlds}
     write_atomic(out / "config.yml", yaml.safe_dump(config, sort_keys=False))
     summary = {"learner": "estimator", "timesteps": n_slots * n_envs, "wall_time_s": round(wall, 1),
                "collect_time_s": round(t_collect, 1), "held_out": report, "out": str(out)}

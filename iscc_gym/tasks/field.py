@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from iscc_gym.tasks.task import Task, Variant
 
-__all__ = ["FIELD_ENV_ID", "FIELD_VARIANTS", "TASK"]
+__all__ = ["FIELD_ENV_ID", "FIELD_VARIANTS", "FIELD_WORLD_RANGES", "TASK"]
 
 #: The field task (issue 36): the paper's loop in a world its designer's model does not know.
 FIELD_ENV_ID = "iscc_gym/ISCC-Field-v0"
@@ -29,6 +29,14 @@ FIELD_VARIANTS: dict[str, Variant] = {
     "K correlation 50 m": Variant({"rician_k_correlation_m": 50.0}, "the K-factor correlated over 50 m, the largest "
                                                                     "of TR 38.901's distances (the model's 15 m)"),
 }
+
+#: The ranges a learner trained over randomised worlds draws each world's law from (issue 45, point 3): uniform, the
+#: correlation distance log-uniform; the preset's values and every world of :data:`FIELD_VARIANTS` lie inside (a
+#: domain randomisation that covers the worlds it is compared on, so its comparator is ``bayes-learn``, which
+#: re-estimates its prior online, beside ``bayes`` on the preset's prior).
+FIELD_WORLD_RANGES: dict[str, tuple[float, float]] = {
+    "rician_k_db": (2.0, 12.0), "rician_k_std_db": (2.0, 10.0), "rcs_std_db": (1.0, 8.0),
+    "rician_k_correlation_m": (4.0, 60.0)}
 
 # the shipped agent (a residual on adaptive), the designer's per-slot policies on the paper's model, the adaptive rung
 # that re-estimates the world, the Bayesian rung that filters it on the field's own prior (issue 45), and the

@@ -97,7 +97,8 @@ def test_python_m_train_trains_the_estimator_and_the_student(tmp_path):
     import yaml
 
     est = cli([*TINY, "--learner", "estimator", "--total-timesteps", "120", "--set", "epochs=1", "--set", "chunk=10",
-               "--out", str(tmp_path / "est")])
+               "--set", "worlds=2", "--out", str(tmp_path / "est")])
+    assert len(yaml.safe_load((tmp_path / "est" / "config.yml").read_text())["worlds"]) == 2
     summary = yaml.safe_load((tmp_path / "est" / "summary.yml").read_text())
     assert est["timesteps"] == 120 and summary["held_out"]["held_out_envs"] == 1
     assert {"k_cross_entropy", "bayes_k_cross_entropy", "k_mean_abs_error_db"} <= set(summary["held_out"])
@@ -160,3 +161,20 @@ def test_the_world_critic_sees_the_world_and_the_actor_does_not(tmp_path):
     with pytest.raises(ValueError, match="critic = 'oracle'; use one of own, world"):
         cli([*TINY, "--critic", "oracle", "--out", str(tmp_path / "p")])
     assert not (tmp_path / "p").exists()
+
+
+def test_randomised_worlds_are_drawn_inside_their_ranges_and_reproduce():
+    from iscc_gym.train.estimator import draw_worlds
+
+    from iscc_gym.tasks.field import FIELD_VARIANTS, FIELD_WORLD_RANGES
+
+    assert draw_worlds(1, 0) == [{}]
+    worlds = draw_worlds(64, 3)
+    assert worlds == draw_worlds(64, 3) and worlds != draw_worlds(64, 4)
+    for key, (lo, hi) in FIELD_WORLD_RANGES.items():
+        values = np.array([w[key] for w in worlds])
+        assert lo <= values.min() and values.max() <= hi and values.std() > 0.1 * (hi - lo)
+        # the preset and every test world lie inside the ranges the learner is trained over
+        assert lo <= getattr(FIELD, key) <= hi
+        for variant in FIELD_VARIANTS.values():
+            assert lo <= variant.overrides.get(key, getattr(FIELD, key)) <= hi

@@ -286,6 +286,14 @@ class BayesPolicy(MyopicPolicy):
         pos = np.stack([dist * cos_el * cos_az, dist * cos_el * sin_az], axis=1)
         return g, e_db, np.hypot(*(pos - self._pos).T), pos, model_echo_snr_db(self.scenario, dist, shadow_db)
 
+    def measured_inputs(self) -> np.ndarray:
+        """The last update's measurements (:attr:`measured`: new-mission flags, link gains, echoes over their
+        prediction, distances flown) as a learned estimator's inputs (:func:`estimator_inputs`), the distance over
+        the prior's correlation distance.
+        """
+        new, g, e_db, step = self.measured
+        return estimator_inputs(new, g, e_db, step / self.correlation_m)
+
     def remember(self, pos, echo_pred_db) -> None:
         """Keep this slot's position and echo prediction for the next slot's :meth:`measure`."""
         self._pos = pos
@@ -303,7 +311,7 @@ class BayesPolicy(MyopicPolicy):
         post[new] = self._prior
         seen = ~new
         g, e_db, step, pos, echo_pred_db = self.measure(decoded)
-        self.inputs = estimator_inputs(new, g, e_db, step / self.correlation_m)
+        self.measured = (new, g, e_db, step)
         if seen.any():
             log_l = np.zeros(post.shape)
             log_l += rician_log_pdf(g[:, None], self._k_lin[None, :])[:, :, None]

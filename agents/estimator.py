@@ -23,10 +23,10 @@ import numpy as np
 
 from iscc_gym.scenario import Scenario
 
-from .bayes import ESTIMATOR_INPUTS, BayesPolicy, estimator_inputs
+from .bayes import ESTIMATOR_INPUTS, BayesPolicy
 
-__all__ = ["EstimatorPolicy", "WorldEstimator", "recurrent_heads", "FILE", "load_estimator", "save_estimator",
-           "require_torch"]
+__all__ = ["EstimatorPolicy", "RecurrentPolicy", "WorldEstimator", "recurrent_heads", "FILE", "load_estimator",
+           "save_estimator", "require_torch"]
 
 #: The file of a trained estimator in its run directory.
 FILE = "estimator.pt"
@@ -109,7 +109,44 @@ def load_estimator(path, kind: str = "estimator"):
     return net, meta
 
 
-class EstimatorPolicy(BayesPolicy):
+class RecurrentPolicy(BayesPolicy):
+    """:class:`agents.bayes.BayesPolicy`'s measurements fed each slot to a recurrent network (:func:`recurrent_heads`,
+    :attr:`net`), one state per env of the batch (a row at slot 0 starts from zero): the base of
+    :class:`EstimatorPolicy` and :class:`agents.student.StudentPolicy`. The filter itself is not run.
+    """
+
+    def _restart(self, n: int) -> None:
+        super()._restart(n)
+        self._h = np.zeros((n, self.net.hidden), dtype=np.float32)
+
+    def net_inputs(self, obs) -> np.ndarray:
+        """The network's inputs this slot (n, F), float32: the measurements (:meth:`measured_inputs`)."""
+        return self.measured_inputs()
+
+    def advance(self, decoded: dict, obs=None) -> list[np.ndarray]:
+        """Take in each row's measurements (``decoded``, the observations ``obs`` they were decoded from), advance
+        the network one slot and return its heads' laws (softmax, float64 (n, m) each); the inputs are kept in
+        :attr:`inputs`.
+        """
+        torch = require_torch()
+        n = decoded["snr_db"].shape[0]
+        if self._rows != n:
+            self._restart(n)
+        g, e_db, step, pos, echo_pred_db = self.measure(decoded)
+        self.measured = (decoded["slot"] < 0.5, g, e_db, step)
+        self.inputs = self.net_inputs(obs)
+        with torch.no_grad():
+            *logits, h = self.net.step(torch.from_numpy(self.inputs), torch.from_numpy(self._h))
+            laws = [torch.softmax(x.double(), 1).numpy() for x in logits]
+        self._h = h.numpy()
+        self.remember(pos, echo_pred_db)
+        return laws
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}(path={self.path!r}, hidden={self.net.hidden})"
+
+
+class EstimatorPolicy(RecurrentPolicy):
     """:class:`agents.bayes.BayesPolicy`'s design on a learned estimator's law of the world (module docstring).
 
     Parameters
@@ -132,28 +169,9 @@ class EstimatorPolicy(BayesPolicy):
                                  f"; retrain it on this scenario's")
         self.net, self.meta = net, meta
         self.path = str(path)
-        self._h = None
         self.name = "estimator"
-
-    def _restart(self, n: int) -> None:
-        super()._restart(n)
-        self._h = np.zeros((n, self.net.hidden), dtype=np.float32)
 
     def update(self, decoded: dict) -> None:
         """Advance the estimator one slot on each row's measurements; the posterior is its two heads' product."""
-        torch = require_torch()
-        n = decoded["snr_db"].shape[0]
-        if self._rows != n:
-            self._restart(n)
-        new = decoded["slot"] < 0.5
-        g, e_db, step, pos, echo_pred_db = self.measure(decoded)
-        self.inputs = estimator_inputs(new, g, e_db, step / self.correlation_m)
-        with torch.no_grad():
-            lk, lr, h = self.net.step(torch.from_numpy(self.inputs), torch.from_numpy(self._h))
-            pk, pr = torch.softmax(lk.double(), 1).numpy(), torch.softmax(lr.double(), 1).numpy()
-        self._h = h.numpy()
+        pk, pr = self.advance(decoded)
         self.posterior = pk[:, :, None] * pr[:, None, :]
-        self.remember(pos, echo_pred_db)
-
-    def __repr__(self) -> str:
-        return f"EstimatorPolicy(path={self.path!r}, hidden={self.net.hidden})"

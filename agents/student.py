@@ -23,8 +23,8 @@ from iscc_gym.scenario import Scenario
 from iscc_gym.sim.functional import decode_observation
 
 from .base import as_obs_batch
-from .bayes import ESTIMATOR_INPUTS, BayesPolicy, estimator_inputs
-from .estimator import load_estimator, require_torch
+from .bayes import ESTIMATOR_INPUTS
+from .estimator import RecurrentPolicy, load_estimator
 
 __all__ = ["StudentPolicy", "FILE", "student_inputs", "n_student_inputs"]
 
@@ -45,9 +45,9 @@ def student_inputs(measured, obs, mean, std) -> np.ndarray:
     return np.concatenate([measured, z], axis=1).astype(np.float32)
 
 
-class StudentPolicy(BayesPolicy):
+class StudentPolicy(RecurrentPolicy):
     """The DAgger student (module docstring): a split per slot from its GRU over the hidden observation and the
-    measurements. The filter of :class:`agents.bayes.BayesPolicy` is not run: only its measurements are read.
+    measurements (:class:`agents.estimator.RecurrentPolicy`).
 
     Parameters
     ----------
@@ -70,33 +70,16 @@ class StudentPolicy(BayesPolicy):
         self._mean = np.asarray(meta["obs_mean"], dtype=float)
         self._std = np.asarray(meta["obs_std"], dtype=float)
         self.path = str(path)
-        self._h = None
         self.name = "student"
 
-    def _restart(self, n: int) -> None:
-        super()._restart(n)
-        self._h = np.zeros((n, self.net.hidden), dtype=np.float32)
+    def net_inputs(self, obs) -> np.ndarray:
+        """The measurements and the observation, standardised (:func:`student_inputs`)."""
+        return student_inputs(self.measured_inputs(), obs, self._mean, self._std)
 
     def split_batch(self, obs, state=None, episode_start=None):
         """The student's splits (n, 3) for observations (n, obs_size); its inputs are kept in :attr:`inputs`."""
-        torch = require_torch()
         o, _ = as_obs_batch(obs, self.obs_size)
         if not np.all(np.isfinite(o)):
             raise ValueError("obs contains NaN or inf; pass the env's (finite) observations")
-        d = decode_observation(o, self.scenario)
-        n = o.shape[0]
-        if self._rows != n:
-            self._restart(n)
-        new = d["slot"] < 0.5
-        g, e_db, step, pos, echo_pred_db = self.measure(d)
-        self.inputs = student_inputs(estimator_inputs(new, g, e_db, step / self.correlation_m), o, self._mean,
-                                     self._std)
-        with torch.no_grad():
-            logits, h = self.net.step(torch.from_numpy(self.inputs), torch.from_numpy(self._h))
-            split = torch.softmax(logits.double(), 1).numpy()
-        self._h = h.numpy()
-        self.remember(pos, echo_pred_db)
+        (split,) = self.advance(decode_observation(o, self.scenario), o)
         return split, state
-
-    def __repr__(self) -> str:
-        return f"StudentPolicy(path={self.path!r}, hidden={self.net.hidden})"

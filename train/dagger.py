@@ -24,7 +24,7 @@ import yaml
 from iscc_gym.files import write_atomic
 
 from .callbacks import printer
-from .estimator import check_out, learner_scenario, settings_of
+from .estimator import check_out, learner_scenario, settings_of, tbptt_pass
 
 __all__ = ["main", "rollout", "fit_student", "SETTINGS"]
 
@@ -80,25 +80,12 @@ def fit_student(net, x, y, epochs: int, chunk: int, learning_rate: float, fit_ro
 
     opt = torch.optim.Adam(net.parameters(), lr=learning_rate)
     xt, yt = torch.from_numpy(x), torch.from_numpy(y)
-    n_slots = x.shape[0]
 
     def run(rows, train: bool) -> float:
-        h = torch.zeros(len(rows), net.hidden)
-        total = 0.0
-        for start in range(0, n_slots, chunk):
-            loss = 0.0
-            with torch.set_grad_enabled(train):
-                for t in range(start, min(start + chunk, n_slots)):
-                    logits, h = net.step(xt[t, rows], h)
-                    loss = loss - (yt[t, rows] * torch.log_softmax(logits, 1)).sum()
-            if train:
-                opt.zero_grad()
-                (loss / (len(rows) * (min(start + chunk, n_slots) - start))).backward()
-                torch.nn.utils.clip_grad_norm_(net.parameters(), 1.0)
-                opt.step()
-            h = h.detach()
-            total += float(loss.detach())
-        return total / (len(rows) * n_slots)
+        def slot_losses(t, logits):
+            return (-(yt[t, rows] * torch.log_softmax(logits[0], 1)).sum(),)
+
+        return tbptt_pass(net, xt, rows, chunk, slot_losses, opt if train else None)[0]
 
     val = math.nan
     for epoch in range(epochs):

@@ -32,7 +32,8 @@ from iscc_gym.files import write_atomic
 
 from .callbacks import printer
 
-__all__ = ["main", "collect", "fit", "two_hot", "settings_of", "check_out", "learner_scenario", "SETTINGS"]
+__all__ = ["main", "collect", "fit", "tbptt_pass", "two_hot", "settings_of", "check_out", "learner_scenario",
+           "SETTINGS"]
 
 #: The estimator's own settings (``--set KEY=VALUE``) and defaults.
 SETTINGS = {"hidden": 64, "epochs": 40, "chunk": 100, "learning_rate": 3e-3, "held_out": 0.125, "worlds": 1}
@@ -106,7 +107,8 @@ def collect(scenario, n_envs: int, n_slots: int, seed: int, say=None, worlds=({}
     for t in range(n_slots):
         action, _ = policy.predict(obs[:, :-nw])
         world = decode_observation(np.asarray(obs, dtype=float), shown)
-        out["x"][t], out["k"][t], out["rcs"][t] = policy.inputs, world["world_k_db"], world["world_rcs_offset_db"]
+        out["x"][t] = policy.measured_inputs()
+        out["k"][t], out["rcs"][t] = world["world_k_db"], world["world_rcs_offset_db"]
         wk = policy.k_marginal()
         i, w = two_hot(out["k"][t], policy.k_grid)
         out["bayes_ce"][t] = _cross_entropy(np.log(np.maximum(wk, 1e-300)), i, w)
@@ -117,6 +119,40 @@ def collect(scenario, n_envs: int, n_slots: int, seed: int, say=None, worlds=({}
     venv.close()
     out["k_grid"], out["rcs_grid"] = policy.k_grid, policy.rcs_grid
     return out
+
+
+def tbptt_pass(net, x, rows, chunk: int, slot_losses, opt=None, sched=None) -> list[float]:
+    """One pass of the recurrent ``net`` (:func:`agents.estimator.recurrent_heads`) over the slots of ``x`` (T, N, F,
+    a tensor) for the envs ``rows`` (a slice or an index array), by truncated back-propagation through time: chunks of
+    ``chunk`` slots, the state carried (detached) from one to the next. ``slot_losses(t, logits)`` gives slot ``t``'s
+    loss terms, each summed over the rows. With ``opt``, one step a chunk on the terms' sum over the chunk's
+    row-slots (the gradient's norm clipped to 1; ``sched`` stepped after it); without, no gradients. Returns each
+    term's mean per row-slot.
+    """
+    import torch
+
+    n_slots, n = x.shape[0], x[0, rows].shape[0]
+    h = torch.zeros(n, net.hidden)
+    totals = None
+    for start in range(0, n_slots, chunk):
+        end = min(start + chunk, n_slots)
+        losses = None
+        with torch.set_grad_enabled(opt is not None):
+            for t in range(start, end):
+                *logits, h = net.step(x[t, rows], h)
+                terms = slot_losses(t, logits)
+                losses = list(terms) if losses is None else [a + b for a, b in zip(losses, terms, strict=True)]
+        if opt is not None:
+            opt.zero_grad()
+            (sum(losses) / (n * (end - start))).backward()
+            torch.nn.utils.clip_grad_norm_(net.parameters(), 1.0)
+            opt.step()
+            if sched is not None:
+                sched.step()
+        h = h.detach()
+        done = [float(loss.detach()) for loss in losses]
+        totals = done if totals is None else [a + b for a, b in zip(totals, done, strict=True)]
+    return [total / (n * n_slots) for total in totals]
 
 
 def fit(data: dict, hidden: int, epochs: int, chunk: int, learning_rate: float, held_out: float, seed: int,
@@ -140,33 +176,20 @@ def fit(data: dict, hidden: int, epochs: int, chunk: int, learning_rate: float, 
     opt = torch.optim.Adam(net.parameters(), lr=learning_rate)
     steps = epochs * -(-n_slots // chunk)  # the rate anneals to a tenth over the fit, cosine
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, steps, eta_min=0.1 * learning_rate)
+    k_grid = torch.as_tensor(data["k_grid"], dtype=torch.float32)
 
     def run(rows, train: bool):
-        n = rows.stop - rows.start
-        h = torch.zeros(n, hidden)
-        ce_k = ce_r = 0.0
-        mean_k = np.empty((n_slots, n))
-        k_grid = torch.as_tensor(data["k_grid"], dtype=torch.float32)
-        for start in range(0, n_slots, chunk):
-            loss_k = loss_r = 0.0
-            with torch.set_grad_enabled(train):
-                for t in range(start, min(start + chunk, n_slots)):
-                    lk, lr, h = net.step(x[t, rows], h)
-                    pk, pr = torch.log_softmax(lk, 1), torch.log_softmax(lr, 1)
-                    loss_k = loss_k + _cross_entropy(pk, targets[0][0][t, rows], targets[0][1][t, rows]).sum()
-                    loss_r = loss_r + _cross_entropy(pr, targets[1][0][t, rows], targets[1][1][t, rows]).sum()
-                    if not train:
-                        mean_k[t] = (pk.exp() @ k_grid).numpy()
-            if train:
-                opt.zero_grad()
-                ((loss_k + loss_r) / (n * (min(start + chunk, n_slots) - start))).backward()
-                torch.nn.utils.clip_grad_norm_(net.parameters(), 1.0)
-                opt.step()
-                sched.step()
-            h = h.detach()
-            ce_k += float(loss_k.detach())
-            ce_r += float(loss_r.detach())
-        return ce_k / (n * n_slots), ce_r / (n * n_slots), mean_k
+        mean_k = np.empty((n_slots, rows.stop - rows.start))
+
+        def slot_losses(t, logits):
+            pk, pr = torch.log_softmax(logits[0], 1), torch.log_softmax(logits[1], 1)
+            if not train:
+                mean_k[t] = (pk.exp() @ k_grid).numpy()
+            return (_cross_entropy(pk, targets[0][0][t, rows], targets[0][1][t, rows]).sum(),
+                    _cross_entropy(pr, targets[1][0][t, rows], targets[1][1][t, rows]).sum())
+
+        ce_k, ce_r = tbptt_pass(net, x, rows, chunk, slot_losses, *((opt, sched) if train else ()))
+        return ce_k, ce_r, mean_k
 
     best, report = None, None
     for epoch in range(epochs):

@@ -24,7 +24,9 @@ __all__ = ["main", "LEARNERS", "NEEDS", "SECTION"]
 
 PROG = "python -m experiments.field_learners"
 SECTION = "field-learners"
-#: The learners compared (``--policies`` items) and the command that trains each.
+#: The learners compared (``--policies`` items) and the command that trains each, beside the shipped agent (``ppo``:
+#: the field entry of train/hyperparams.yml, a residual on ``bayes`` with the critic shown the world and the expected
+#: reward; ``python -m experiments field-agent``).
 _TRAIN = "python -m train --env {env} "
 LEARNERS = {
     "ppo-bayes=runs/field_res_bayes": _TRAIN + "--residual bayes --out runs/field_res_bayes",
@@ -36,7 +38,7 @@ LEARNERS = {
     "student:runs/field_dagger": _TRAIN + "--learner dagger --out runs/field_dagger",
 }
 #: What must exist first (the studies table's ``needs``).
-NEEDS = "; ".join(cmd.format(env=FIELD_ENV_ID) for cmd in LEARNERS.values())
+NEEDS = "; ".join(["python -m experiments field-agent", *(cmd.format(env=FIELD_ENV_ID) for cmd in LEARNERS.values())])
 #: The ladder beside them.
 LADDER = ("ppo", "bayes", "adaptive", "myopic", "aware")
 

@@ -107,13 +107,14 @@ class Args:
         "shifted statistics, its shifts in iscc_gym.tasks, on equal shares of the envs: n_envs >= 5); none: the "
         "env's own ({default})", "randomize", None, str)
     # issue 45: what only the simulator knows, at training time only (train/privileged.py)
-    reward: str = flag("sampled", "the reward the learner is paid: sampled (the env's) or expected (the field task's "
-                                  "expected one-slot reward over the slot's fading at its true K, the simulator's "
-                                  "knowledge: unbiased, a tenth of the variance; evaluation always plays the sampled "
-                                  "one; the batched env only)")
-    critic: str = flag("own", "what the critic reads: own (the agent's observation) or world (PPO on the field "
-                              "task: the critic is also shown the slot's true K-factor and RCS, the actor never; "
-                              "asymmetric actor-critic, agents/world_critic.py; the batched env only)")
+    reward: str | None = run_setting(
+        "the reward the learner is paid: sampled (the env's) or expected (the field task's expected one-slot reward "
+        "over the slot's fading at its true K, the simulator's knowledge: unbiased, a tenth of the variance; "
+        "evaluation always plays the sampled one; the batched env only; {default})", "reward", "sampled", str)
+    critic: str | None = run_setting(
+        "what the critic reads: own (the agent's observation) or world (PPO on the field task: the critic is also "
+        "shown the slot's true K-factor and RCS, the actor never; asymmetric actor-critic, agents/world_critic.py; "
+        "the batched env only; {default})", "critic", "own", str)
     eval_freq: int = flag(500_000, "env steps between held-out evaluations (0: none); the best model goes to OUT/best/")
     eval_episodes: int = flag(8, "held-out missions per evaluation (seeds from 1,000,000)")
     eval_max_steps: int = flag(5000, "slots per held-out episode at most (the full mission by default)")

@@ -186,7 +186,8 @@ def resolve_args(args: Args) -> tuple[Args, dict]:
             except (TypeError, ValueError):
                 kind = {"normalize": "true or false", "norm_reward": "true or false", "init_policy": "a policy spec",
                         "residual": "a policy spec", "residual_space": "action or split",
-                        "init_log_std": "a number", "residual_scale": "a number"}.get(name, "an integer")
+                        "init_log_std": "a number", "residual_scale": "a number",
+                        "reward": "sampled or expected", "critic": "own or world"}.get(name, "an integer")
                 raise ValueError(f"{key} = {value!r} in {args.hyperparams} or --set; use {kind}") from None
     env_kwargs = hp.pop("env_kwargs", None) or {}
     if not isinstance(env_kwargs, dict):
@@ -411,30 +412,10 @@ def check_args(args: Args) -> None:
         if has_warm_start(args):
             raise ValueError(f"residual = {args.residual!r} and init_policy = {args.init_policy!r}: use one (a "
                              "residual agent starts at its base policy already)")
-    if args.reward not in REWARDS:
+    if args.reward is not None and args.reward not in REWARDS:
         raise ValueError(f"reward = {args.reward!r}; use one of {', '.join(REWARDS)}")
-    if args.reward == "expected":
-        from iscc_gym.scenario import make_scenario
-        from iscc_gym.sim.effects import task_effects
-
-        scenario = args.scenario or registered_scenario(args.env_id)
-        if args.vec_env != "batched" or randomized(args) or args.env_id not in TASKS or is_fleet(args.env_id) \
-                or not task_effects(make_scenario(scenario, **args.env_overrides)).field:
-            raise ValueError("reward = 'expected' pays the field task's expected one-slot reward on its batched env: "
-                             f"use --env {next((e for e, t in TASKS.items() if t.preset == 'field'), 'the field task')}"
-                             " with vec_env = 'batched' and no --randomize")
-    if args.critic not in CRITICS:
+    if args.critic is not None and args.critic not in CRITICS:
         raise ValueError(f"critic = {args.critic!r}; use one of {', '.join(CRITICS)}")
-    if args.critic == "world":
-        from iscc_gym.scenario import make_scenario
-        from iscc_gym.sim.effects import task_effects
-
-        scenario = args.scenario or registered_scenario(args.env_id)
-        if args.algo != "ppo" or args.vec_env != "batched" or randomized(args) or args.env_id not in TASKS \
-                or is_fleet(args.env_id) or not task_effects(make_scenario(scenario, **args.env_overrides)).field:
-            raise ValueError("critic = 'world' shows PPO's critic the field task's world on its batched env: use "
-                             f"--env {next((e for e, t in TASKS.items() if t.preset == 'field'), 'the field task')}"
-                             " with --algo ppo, vec_env = 'batched' and no --randomize")
     if randomized(args):
         sets = randomize_sets()
         if args.randomize not in sets:
@@ -477,6 +458,31 @@ def check_task(env_id: str, scenario: str) -> None:
                          + f"drop --scenario to train on {env_id}'s own {own!r}")
 
 
+def _check_privileged(args: Args) -> None:
+    """A resolved run's ``reward`` and ``critic`` (flags or the YAML's): what only the simulator knows is shown on
+    the field task's batched env alone, PPO's critic to boot.
+    """
+    field_env = next((e for e, t in TASKS.items() if t.preset == "field"), "the field task")
+    for name, value, default, valid in (("reward", args.reward, "sampled", REWARDS),
+                                        ("critic", args.critic, "own", CRITICS)):
+        if value not in (None, *valid):
+            raise ValueError(f"{name} = {value!r} in {args.hyperparams} or --set; use one of {', '.join(valid)}")
+        if value in (None, default):
+            continue
+        from iscc_gym.scenario import make_scenario
+        from iscc_gym.sim.effects import task_effects
+
+        scenario = args.scenario or registered_scenario(args.env_id)
+        if (name == "critic" and args.algo != "ppo") or args.vec_env != "batched" or randomized(args) \
+                or args.env_id not in TASKS or is_fleet(args.env_id) \
+                or not task_effects(make_scenario(scenario, **args.env_overrides)).field:
+            what = ("pays the field task's expected one-slot reward" if name == "reward" else
+                    "shows PPO's critic the field task's world")
+            raise ValueError(f"{name} = {value!r} {what} on its batched env: use --env {field_env}"
+                             + (" with --algo ppo," if name == "critic" else " with") + " vec_env = 'batched' and no "
+                             f"--randomize, or --{name} {default}")
+
+
 def _seed_ranges(args: Args) -> list[tuple[str, int, int]]:
     """The seeds a resolved run trains on, as (what, first, last): the training envs' (``seed`` + i, SB3's
     convention) and the warm start's (:data:`iscc_gym.commands.protocol.INIT_SEED_START` + 1000 ``seed`` + i).
@@ -500,6 +506,7 @@ def check_resolved(args: Args, hyperparams: dict) -> None:
         Naming the setting and its valid range (for seeds: both ranges).
     """
     check_args(args)
+    _check_privileged(args)
     if args.algo in ON_POLICY and args.n_envs * int(hyperparams.get("n_steps", 2048)) < 2:
         raise ValueError(f"n_steps = {hyperparams.get('n_steps')} with n_envs = {args.n_envs}: PPO needs a rollout "
                          "of at least 2 steps (n_steps x n_envs >= 2)")

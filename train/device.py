@@ -35,10 +35,11 @@ def config_from_args(args, device: str) -> DevicePPOConfig:
     if args.algo != "ppo":
         raise ValueError(f"--algo {args.algo}: --device {device} trains PPO only; drop --device for SB3's {args.algo}")
     resolved, hp = resolve_args(args)
-    for name, flag in (("residual", "--residual"), ("init_policy", "--init-policy"), ("randomize", "--randomize"),
-                       ("cost_limit", "--cost-limit")):
+    for name, flag, plain in (("residual", "--residual", "none"), ("init_policy", "--init-policy", "none"),
+                              ("randomize", "--randomize", "none"), ("cost_limit", "--cost-limit", "none"),
+                              ("reward", "--reward", "sampled"), ("critic", "--critic", "own")):
         value = getattr(resolved, name)
-        if value not in (None, "none"):
+        if value not in (None, "none", plain):
             raise ValueError(f"{flag} {value!r} (set by the flag or the YAML entry of {args.env_id}): the device "
                              f"trainer has no {name.replace('_', ' ')}; train it with SB3 (drop --device)")
     pk = dict(hp.get("policy_kwargs") or {})

@@ -371,21 +371,31 @@ def test_a_split_space_record_round_trips_and_older_records_read_as_action(tmp_p
         ResidualPolicy(make_policy(BASE), None, 0.5, space="logits")
 
 
-def test_the_field_entry_trains_a_split_residual_on_adaptive_and_ships_it(tmp_path):
-    """python -m train --env iscc_gym/ISCC-Field-v0 reads its entry's settings (a residual on adaptive that scales
-    its shares); a tiny run of it and the shipped agent both load as that residual policy."""
+def test_the_field_entry_trains_a_split_residual_on_bayes_with_the_world_shown_and_ships_it(tmp_path):
+    """python -m train --env iscc_gym/ISCC-Field-v0 reads its entry's settings (a residual on bayes that scales its
+    shares, PPO's critic shown the world, the expected reward: issue 45's best learner); a tiny run of it and the
+    shipped agent both load as that residual policy reading the task's observation alone; a flag overrides the
+    YAML's setting, and the device trainer refuses the settings it lacks, naming the flag."""
     import yaml
     from iscc_gym.agents.shipped import FIELD_AGENT
+    from iscc_gym.train.device import config_from_args
 
     from iscc_gym import FIELD_ENV_ID
 
     args, hp = resolve_args(parse_args(["--env", FIELD_ENV_ID]))
-    assert (args.scenario, args.residual, args.residual_space, args.residual_scale) == ("field", "adaptive", "split",
-                                                                                        0.3)
-    main(tiny_args(tmp_path / "f", env_id=FIELD_ENV_ID, scenario="field", residual="adaptive",
-                   residual_space="split", residual_scale=0.3))
+    assert (args.scenario, args.residual, args.residual_space, args.residual_scale, args.critic, args.reward) == (
+        "field", "bayes", "split", 0.3, "world", "expected")
+    plain, _ = resolve_args(parse_args(["--env", FIELD_ENV_ID, "--critic", "own", "--reward", "sampled"]))
+    assert (plain.critic, plain.reward) == ("own", "sampled")
+    assert (resolve_args(parse_args([]))[0].critic, resolve_args(parse_args([]))[0].reward) == ("own", "sampled")
+    main(tiny_args(tmp_path / "f", env_id=FIELD_ENV_ID, scenario="field"))
     for path in (tmp_path / "f", FIELD_AGENT):
         policy = SB3Policy.load(path, check_env=FIELD_ENV_ID)
-        assert isinstance(policy, ResidualPolicy) and (policy.spec, policy.space) == ("adaptive", "split")
-    cfg = yaml.safe_load((FIELD_AGENT / "config.yml").read_text())["args"]
-    assert (cfg["residual"], cfg["residual_space"]) == ("adaptive", "split")
+        assert isinstance(policy, ResidualPolicy) and (policy.spec, policy.space) == ("bayes", "split")
+        cfg = yaml.safe_load((path / "config.yml").read_text())["args"]
+        assert (cfg["residual"], cfg["residual_space"], cfg["critic"], cfg["reward"]) == ("bayes", "split", "world",
+                                                                                            "expected")
+    with pytest.raises(ValueError, match="--residual 'bayes' .*drop --device"):
+        config_from_args(parse_args(["--env", FIELD_ENV_ID]), "standin")
+    with pytest.raises(ValueError, match="--critic 'world' .*drop --device"):
+        config_from_args(parse_args(["--env", FIELD_ENV_ID, "--residual", "none"]), "standin")

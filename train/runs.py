@@ -52,9 +52,10 @@ def run_identity(args: Args, hyperparams: dict | None = None, resumed: dict | No
     ident["cost_limit"] = parse_cost_limits(args.cost_limit) if args.cost_limit else None
     ident["lagrange_lr"] = float(args.lagrange_lr) if args.cost_limit else None
     # a residual agent's base policy and reach (agents/residual.py; SB3Policy.load plays them); None otherwise
-    if getattr(args, "reward", None) not in (None, "sampled"):  # the reward trained on (a run of the sampled one: no key)
+    # the reward trained on and the critic shown the world (a run of the sampled one, the plain critic: no key)
+    if getattr(args, "reward", None) not in (None, "sampled"):
         ident["reward"] = str(args.reward)
-    if getattr(args, "critic", None) not in (None, "own"):  # the critic shown the world (a run of the plain critic: no key)
+    if getattr(args, "critic", None) not in (None, "own"):
         ident["critic"] = str(args.critic)
     ident["residual"] = str(args.residual) if has_residual(args) else None
     ident["residual_scale"] = float(args.residual_scale) if has_residual(args) else None

@@ -27,7 +27,8 @@ from iscc_gym.sim.noise import mix64 as _mix64
 from iscc_gym.sim.schema import COL, N_DRAWS
 
 __all__ = ["MAX_QUEUE_SLOTS", "N_INIT_DRAWS", "episode_key", "mission_index", "init_normals_key", "step_rows_cpu",
-           "reset_rows_cpu", "cuda_kernels", "THREADS_PER_BLOCK"]
+           "reset_rows_cpu", "cuda_kernels", "THREADS_PER_BLOCK", "PTX_LIMITS", "kernel_ptx", "step_ptx",
+           "ptxas_usage"]
 
 #: The data queue's longest buffer the device kernel holds per thread (its local memory is sized at compile time).
 MAX_QUEUE_SLOTS = 64
@@ -181,13 +182,19 @@ _KERNELS: dict = {}
 cuda = None  # numba.cuda once cuda_kernels has imported it
 
 
-def cuda_kernels(blocked=None, field=None):
+def cuda_kernels(blocked=None, field=None, queue_slots=MAX_QUEUE_SLOTS):
     """``(step, reset)``: the device kernels of a task's compile-time switches (``blocked``, ``field``:
-    :func:`iscc_gym.sim.loop.slot_switches`), one thread per env row, built once per switch pair. ``step`` takes
-    :func:`step_rows_cpu`'s arguments without the switches; ``reset`` takes :func:`reset_rows_cpu`'s. The scratch is
-    per-thread local memory (no device-heap allocation).
+    :func:`iscc_gym.sim.loop.slot_switches`) and data queue (``queue_slots``: its buffer's length, 0 without a queue),
+    one thread per env row, built once per process and key. ``step`` takes :func:`step_rows_cpu`'s arguments without
+    the switches; ``reset`` takes :func:`reset_rows_cpu`'s. The scratch is per-thread local memory (no device-heap
+    allocation), the queue's sized for the task (``max(queue_slots, 1)`` floats: the paper task carries none of
+    :data:`MAX_QUEUE_SLOTS`). Compiled with ``cache=True``: numba-cuda keeps each compiled kernel on disk (keyed by
+    its source, the closure's values and the argument types), so a later process loads it instead of compiling.
     """
-    got = _KERNELS.get((blocked, field))
+    if not 0 <= int(queue_slots) <= MAX_QUEUE_SLOTS:
+        raise ValueError(f"queue_slots = {queue_slots}; the device kernel holds 0 to {MAX_QUEUE_SLOTS} "
+                         "(iscc_gym.gpu.kernel.MAX_QUEUE_SLOTS)")
+    got = _KERNELS.get((blocked, field, int(queue_slots)))
     if got is not None:
         return got
     from numba import float64
@@ -199,8 +206,9 @@ def cuda_kernels(blocked=None, field=None):
     # the simulator runs the kernels as Python and hands them its array wrappers, which the @njit row functions
     # (compiled for the CPU there) do not take: it passes them the arrays inside; on a GPU an identity, inlined
     host = _simulated_array if simulator() else _same
+    nql = max(int(queue_slots), 1)  # a compile-time constant of the closure: the local array's length
 
-    @cuda.jit
+    @cuda.jit(cache=True)
     def step(cp, mats, x, x_hat, p, shadow, n, key, queue, mission, episode, ep_return, ep_length, pool, std0,
              seed_key, max_steps, action, out, obs, reward, terminated, truncated, final_return, final_length):
         i = cuda.grid(1)
@@ -209,7 +217,7 @@ def cuda_kernels(blocked=None, field=None):
         xl = cuda.local.array(6, float64)
         xhl = cuda.local.array(6, float64)
         pl = cuda.local.array((6, 6), float64)
-        ql = cuda.local.array(MAX_QUEUE_SLOTS, float64)
+        ql = cuda.local.array(nql, float64)
         mbuf = cuda.local.array(WORK_MATS, float64)
         vbuf = cuda.local.array(WORK_VEC, float64)
         zbuf = cuda.local.array(_N_Z, float64)
@@ -219,7 +227,7 @@ def cuda_kernels(blocked=None, field=None):
                  h(reward), h(terminated), h(truncated), h(final_return), h(final_length), xl, xhl, pl, ql, mbuf, vbuf,
                  zbuf, blocked, field)
 
-    @cuda.jit
+    @cuda.jit(cache=True)
     def reset(cp, x, x_hat, p, shadow, n, key, queue, mission, episode, ep_return, ep_length, pool, std0, seed_key,
               obs, rows):
         k = cuda.grid(1)
@@ -230,14 +238,26 @@ def cuda_kernels(blocked=None, field=None):
         reset_row(rows[k], h(cp)[0], h(x), h(x_hat), h(p), h(shadow), h(n), h(key), h(queue), h(mission), h(episode),
                   h(ep_return), h(ep_length), h(pool), h(std0), seed_key, h(obs), zbuf)
 
-    _KERNELS[(blocked, field)] = step, reset
+    _KERNELS[(blocked, field, int(queue_slots))] = step, reset
     return step, reset
 
 
-def step_ptx(args, switches=(None, None), cc=(9, 0)) -> str:
-    """The device step kernel compiled to PTX for compute capability ``cc`` (default sm_90, the H100) for the
-    argument values ``args`` (their numba types; :meth:`iscc_gym.gpu.vector_env.DeviceVectorEnv.kernel_args`), without
-    a GPU: needs the CUDA toolkit's libNVVM and NVRTC (:func:`iscc_gym.gpu.cuda.toolkit_for_ptx` says what is missing).
+#: What the PTX test holds each kernel to (``ptxas -v`` for sm_90, :func:`ptxas_usage`), for every single-drone task:
+#: no register spills, at most this many registers a thread (an SM's 64K registers hold two blocks of 128 threads
+#: at up to 255 each; fewer registers, more resident blocks) and at most this many bytes of stack a thread (the
+#: per-thread local arrays: the slot's work space, the draws, the queue). Measured at issue 46 (numba-cuda 0.30,
+#: CUDA 12 ptxas): the step 234-242 registers and 1,568 B (paper, field) to 1,648 B (urban: its queue) of stack, no
+#: spills (2,080 B with the queue's 64 slots on every task, 1,040 byte-wise loads of the record before it was
+#: aligned); the reset 70 registers and 40 B.
+PTX_LIMITS = {"step": {"registers": 248, "stack_bytes": 1700, "spill_bytes": 0},
+              "reset": {"registers": 96, "stack_bytes": 64, "spill_bytes": 0}}
+
+
+def kernel_ptx(which: str, args, switches=(None, None), queue_slots=MAX_QUEUE_SLOTS, cc=(9, 0)) -> str:
+    """Device kernel ``which`` (``"step"`` or ``"reset"``) compiled to PTX for compute capability ``cc`` (default
+    sm_90, the H100) for the argument values ``args`` (their numba types: the signature the env launches,
+    :meth:`iscc_gym.gpu.vector_env.DeviceVectorEnv.kernel_args`, ``reset_args``), without a GPU: needs the CUDA
+    toolkit's libNVVM and NVRTC (:func:`iscc_gym.gpu.cuda.toolkit_for_ptx` says what is missing).
 
     numba-cuda (0.30) asks the current device for its capability when it compiles the device functions a kernel
     calls, which a machine without a GPU cannot answer: for the compile, that question gets ``cc``'s answer.
@@ -246,7 +266,9 @@ def step_ptx(args, switches=(None, None), cc=(9, 0)) -> str:
 
     import numba
 
-    step, _ = cuda_kernels(*switches)
+    if which not in ("step", "reset"):
+        raise ValueError(f"which = {which!r}; use 'step' or 'reset'")
+    kernels = dict(zip(("step", "reset"), cuda_kernels(*switches, queue_slots=queue_slots), strict=True))
     sig = tuple(numba.typeof(a) for a in args)
 
     class _Device:
@@ -255,5 +277,54 @@ def step_ptx(args, switches=(None, None), cc=(9, 0)) -> str:
     from numba.cuda import dispatcher
 
     with mock.patch.object(dispatcher, "get_current_device", lambda: _Device()):
-        ptx, _ = cuda.compile_ptx(step.py_func, sig, cc=tuple(cc))
+        ptx, _ = cuda.compile_ptx(kernels[which].py_func, sig, cc=tuple(cc))
     return ptx
+
+
+def step_ptx(args, switches=(None, None), cc=(9, 0), queue_slots=MAX_QUEUE_SLOTS) -> str:
+    """:func:`kernel_ptx` of the step kernel."""
+    return kernel_ptx("step", args, switches, queue_slots, cc)
+
+
+def ptxas_usage(ptx: str, cc=(9, 0)) -> dict:
+    """``{"registers", "stack_bytes", "spill_bytes", "seconds"}`` of the kernel in ``ptx`` as ``ptxas -v`` assembles it
+    for ``sm_<cc>`` (the CUDA toolkit's ``ptxas`` on the PATH or under ``CUDA_HOME``); the entry's figures (ptxas
+    also lists the device functions it keeps, such as libdevice's slow paths).
+
+    Raises
+    ------
+    RuntimeError
+        No ``ptxas``, or it rejects the PTX (its message).
+    """
+    import os
+    import re
+    import shutil
+    import subprocess
+    import tempfile
+    import time
+
+    exe = shutil.which("ptxas") or (os.path.join(os.environ["CUDA_HOME"], "bin", "ptxas")
+                                    if os.environ.get("CUDA_HOME") else None)
+    if exe is None or not os.path.exists(exe):
+        raise RuntimeError("no ptxas: put the CUDA toolkit's bin on the PATH or set CUDA_HOME")
+    entry = re.search(r"\.entry\s+(\S+?)\s*\(", ptx)
+    with tempfile.TemporaryDirectory() as tmp:
+        src = os.path.join(tmp, "kernel.ptx")
+        with open(src, "w") as f:
+            f.write(ptx)
+        t0 = time.perf_counter()
+        r = subprocess.run([exe, "-v", f"-arch=sm_{cc[0]}{cc[1]}", src, "-o", os.path.join(tmp, "kernel.cubin")],
+                           capture_output=True, text=True, timeout=600)
+        seconds = time.perf_counter() - t0
+    if r.returncode != 0:
+        raise RuntimeError(f"ptxas failed: {r.stderr.strip()[-2000:]}")
+    text = r.stderr
+    # the entry's block: "Compiling entry function '<name>'" then its properties and usage lines
+    at = text.find(f"'{entry.group(1)}'") if entry else -1
+    block = text[at:] if at >= 0 else text
+    regs = re.search(r"Used (\d+) registers", block)
+    frame = re.search(r"(\d+) bytes stack frame, (\d+) bytes spill stores, (\d+) bytes spill loads", block)
+    if regs is None or frame is None:
+        raise RuntimeError(f"ptxas -v gave no usage for the kernel: {text[-2000:]}")
+    return {"registers": int(regs.group(1)), "stack_bytes": int(frame.group(1)),
+            "spill_bytes": int(frame.group(2)) + int(frame.group(3)), "seconds": seconds}

@@ -14,7 +14,6 @@ from typing import Any
 
 import numpy as np
 from gymnasium import spaces
-from gymnasium.utils import seeding
 from gymnasium.vector.utils import batch_space
 
 from iscc_gym.envs.env import check_seed
@@ -25,6 +24,7 @@ from iscc_gym.sim.effects import task_effects
 from iscc_gym.sim.functional import observe
 from iscc_gym.sim.mission import mission_columns
 from iscc_gym.sim.params import slot_params
+from iscc_gym.sim.pool import mission_pool
 from iscc_gym.sim.schema import OBS_BOUND, STEP_COLUMNS, obs_size
 from iscc_gym.tasks import get_task
 
@@ -56,7 +56,11 @@ class DeviceVectorEnv:
         row functions on one core (tests, machines without a GPU).
     pool_size : int >= 1, optional
         Missions the device holds (default ``min(num_envs, 1024)``); drawn at ``reset(seed=...)`` on the host, each
-        as the CPU vector env's sub-env of that index draws it.
+        as the CPU vector env's sub-env of that index draws it (:func:`iscc_gym.sim.pool.mission_pool`: cached per
+        process by scenario, seed and size, drawn over worker processes when large).
+    pool_workers : int >= 1, optional
+        Processes the pool is drawn over (default :func:`iscc_gym.sim.pool.pool_workers`'s: the cores, one per 256
+        missions at most); the pool is the same for any number.
     max_episode_steps : int, optional
         Truncate after this many steps (default the mission's length, the task's registered limit).
     scenario : str or Scenario, optional, and ``**overrides``: the task's preset by default, then field overrides.
@@ -80,7 +84,7 @@ class DeviceVectorEnv:
 
     def __init__(self, env_id: str = "iscc_gym/ISCC-v0", num_envs: int = 1024, device: str = "cuda",
                  pool_size: int | None = None, max_episode_steps: int | None = None,
-                 scenario: str | Scenario | None = None, **overrides: Any):
+                 scenario: str | Scenario | None = None, pool_workers: int | None = None, **overrides: Any):
         import torch
 
         task = get_task(env_id)
@@ -92,6 +96,7 @@ class DeviceVectorEnv:
             raise ValueError(f"device = {device!r}; expected one of {DEVICES}")
         self.num_envs = _count(num_envs, "num_envs")
         self.pool_size = min(self.num_envs, DEFAULT_POOL_SIZE) if pool_size is None else _count(pool_size, "pool_size")
+        self._pool_workers = None if pool_workers is None else _count(pool_workers, "pool_workers")
         self.env_id = env_id
         self.scenario = s = make_scenario(task.preset if scenario is None else scenario, **overrides)
         self.max_steps = s.n_slots if max_episode_steps is None else min(
@@ -143,6 +148,9 @@ class DeviceVectorEnv:
         self._pool = None
         self._seed_key = None
         self._nq = nq
+        #: Seconds the device kernels took to compile (or to load from numba-cuda's cache) in this env, at its first
+        #: launch; None before it (and on the CPU stand-in, whose row functions numba caches as the CPU envs').
+        self.compile_s = None
 
     # --- buffers ---------------------------------------------------------------------------------
     def _view(self, t):
@@ -152,8 +160,8 @@ class DeviceVectorEnv:
         return t.numpy()
 
     def _to_device(self, a: np.ndarray):
-        if self._torch_device.type == "cuda":
-            return self._cuda.to_device(np.ascontiguousarray(a))
+        if self._torch_device.type == "cuda":  # on torch's current stream, in order with the kernels
+            return self._cuda.to_device(np.ascontiguousarray(a), stream=self._stream())
         return np.ascontiguousarray(a)
 
     # --- API ---------------------------------------------------------------------------------------
@@ -171,8 +179,7 @@ class DeviceVectorEnv:
             seed = int(np.random.SeedSequence().generate_state(1, np.uint32)[0])
         s = self.scenario
         n, pool_n = self.num_envs, self.pool_size
-        parts = [loop.init_mission(s, seeding.np_random(seed + j)[0]) for j in range(pool_n)]
-        first = loop.LoopState(*(np.concatenate(f) for f in zip(*parts, strict=True)))
+        first = mission_pool(s, seed, pool_n, self._pool_workers)  # cached per (scenario, seed, size): read-only
         self._seed_key = np.uint64(np.random.SeedSequence(seed).generate_state(1, np.uint64)[0])
         host = {"x": np.zeros((n, 6)), "x_hat": np.zeros((n, 6)), "p": np.zeros((n, 6, 6)), "shadow": np.zeros(n),
                 "n": np.zeros(n, np.int64), "key": np.zeros(n, np.uint64), "queue": np.zeros((n, self._nq)),
@@ -182,7 +189,7 @@ class DeviceVectorEnv:
         for name in ("x", "x_hat", "p", "shadow", "key", "queue"):
             host[name][:m] = getattr(first, name)[:m]
         host["mission"][:m] = np.arange(m)
-        self._pool = self._to_device(first.ref)
+        self._pool = self._to_device(first.ref) if self._torch_device.type == "cuda" else np.array(first.ref)
         self._state = {k: self._to_device(v) for k, v in host.items()}
         obs0 = observe(s, first.rows(np.arange(m)), np.ones(m), np.zeros(m))  # as the CPU vector env's reset
         self.obs[:m] = torch.from_numpy(obs0).to(self.obs.device)
@@ -219,8 +226,8 @@ class DeviceVectorEnv:
         if self.device == "cpu":
             step_rows_cpu(*self.kernel_args(), *self._switches)
         else:
-            step, _ = cuda_kernels(*self._switches)
-            step[_blocks(self.num_envs), THREADS_PER_BLOCK](*self.kernel_args())
+            step, _ = self._kernels()
+            step[_blocks(self.num_envs), THREADS_PER_BLOCK, self._stream()](*self.kernel_args())
         info = {"final_return": self.final_return, "final_length": self.final_length, "metrics": self.metrics}
         return self.obs, self.reward, self.terminated, self.truncated, info
 
@@ -240,16 +247,52 @@ class DeviceVectorEnv:
         """The task's compile-time switches of the slot (``blocked``, ``field``: None or True)."""
         return self._switches
 
-    def _launch_reset(self, rows: np.ndarray) -> None:
+    def reset_args(self, rows: np.ndarray) -> tuple:
+        """The reset kernel's arguments (:func:`iscc_gym.gpu.kernel.reset_rows_cpu`'s) that start a new episode in
+        each row listed in ``rows`` (int64).
+        """
+        if self._state is None:
+            raise RuntimeError("no state before reset(): call env.reset(seed=...) first")
         st = self._state
-        args = (self._c, st["x"], st["x_hat"], st["p"], st["shadow"], st["n"], st["key"], st["queue"], st["mission"],
+        return (self._c, st["x"], st["x_hat"], st["p"], st["shadow"], st["n"], st["key"], st["queue"], st["mission"],
                 st["episode"], st["ep_return"], st["ep_length"], self._pool, self._std0, self._seed_key,
-                self._views[2], self._to_device(rows))
+                self._views[2], self._to_device(np.ascontiguousarray(rows, dtype=np.int64)))
+
+    def _launch_reset(self, rows: np.ndarray) -> None:
+        args = self.reset_args(rows)
         if self.device == "cpu":
             reset_rows_cpu(*args)
         else:
-            _, reset = cuda_kernels(*self._switches)
-            reset[_blocks(rows.size), THREADS_PER_BLOCK](*args)
+            _, reset = self._kernels()
+            reset[_blocks(rows.size), THREADS_PER_BLOCK, self._stream()](*args)
+
+    def _kernels(self):
+        """The task's device kernels (:func:`iscc_gym.gpu.kernel.cuda_kernels`), compiled (or loaded from numba-cuda's
+        cache) before the first launch, the seconds it took in :attr:`compile_s`.
+        """
+        kernels = cuda_kernels(*self._switches, queue_slots=self._nq)
+        if self.compile_s is None:
+            import time
+
+            import numba
+
+            t0 = time.perf_counter()
+            if not self._sim:  # the simulator compiles nothing
+                for kernel, args in zip(kernels, (self.kernel_args(), self.reset_args(np.zeros(1, np.int64))),
+                                        strict=True):
+                    kernel.compile(tuple(numba.typeof(a) for a in args))
+            self.compile_s = time.perf_counter() - t0
+        return kernels
+
+    def _stream(self):
+        """The handle numba gets of torch's current CUDA stream: the kernels run in order with the torch work around
+        them (a ``torch.cuda.stream`` context or a graph capture included); 0 (the default stream) in the simulator.
+        """
+        if self._torch_device.type != "cuda":
+            return 0
+        import torch
+
+        return self._cuda.external_stream(torch.cuda.current_stream(self._torch_device).cuda_stream)
 
     def host_state(self) -> dict:
         """Copies of the rows' state on the host: ``x``, ``x_hat``, ``p``, ``shadow``, ``n``, ``key``, ``queue``,
@@ -257,7 +300,12 @@ class DeviceVectorEnv:
         """
         if self._state is None:
             raise RuntimeError("no state before reset()")
-        return {k: (v.copy_to_host() if hasattr(v, "copy_to_host") else np.array(v)) for k, v in self._state.items()}
+        if self._torch_device.type != "cuda":
+            return {k: np.array(v) for k, v in self._state.items()}
+        stream = self._stream()  # after the kernels queued on torch's current stream
+        out = {k: v.copy_to_host(stream=stream) for k, v in self._state.items()}
+        stream.synchronize()
+        return out
 
     def close(self) -> None:
         """Free the device buffers."""

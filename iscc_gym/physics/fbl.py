@@ -234,7 +234,7 @@ def min_comm_share_one(cap, sqrt_v, rate_bps, bandwidth_hz, k_comm):
 LINK_PARAMS = np.dtype([(name, np.float64) for name in (
     "k_comm", "k_ctrl", "bits_per_hz", "sqrt_l",  # link_constants
     "bandwidth_hz",  # bandwidth B, Hz
-)])
+)], align=True)
 
 
 @per_scenario

@@ -371,7 +371,7 @@ SENSING_PARAMS = np.dtype([(name, np.float64) for name in SIGNATURE_PARAMS.names
     "prior",          # 1 / sensing_prior_var_m2
     "two_over_c_sq",  # (2 / c)^2
     "lam_half_sq",    # (lambda / 2)^2
-)])
+)], align=True)
 
 
 @per_scenario

@@ -97,7 +97,7 @@ SIGNATURE_PARAMS = np.dtype([(name, np.float64) for name in (
     "broadside",      # 1.0 with beamforming="broadside", 0.0 matched
     "kd", "n_x", "n_y",                  # 2 pi d / lambda, UPA size
     "sxx", "syy", "eta_sq",              # index_moments
-)])
+)], align=True)  # aligned: the device loads each field whole (issue 46)
 
 
 @per_scenario

@@ -53,9 +53,10 @@ _OWN_FIELDS = (
 )
 #: The fields of the record (all float64; flags are 0.0/1.0): the slot's own, then those of
 #: :data:`iscc_gym.physics.sensing.SENSING_PARAMS` and :data:`iscc_gym.physics.fbl.LINK_PARAMS` (copied from
-#: their records).
+#: their records). Aligned (``align=True``; all fields float64, so the layout is the packed one): numba types the record
+#: as aligned and the device loads each field as one 8-byte word, not byte by byte (issue 46).
 SLOT_PARAMS = np.dtype([(name, np.float64) for name in _OWN_FIELDS]
-                       + [(name, np.float64) for name in SENSING_PARAMS.names + LINK_PARAMS.names])
+                       + [(name, np.float64) for name in SENSING_PARAMS.names + LINK_PARAMS.names], align=True)
 
 #: Slices of the packed matrices (5, 6, 6): A, B (6 x 3), K (3 x 6), Sigma_w, [chol_w; gnss whitening].
 MATS = {"a": 0, "b": 1, "k": 2, "sigma_w": 3, "diags": 4}

@@ -54,28 +54,55 @@ def test_the_kernels_in_the_simulator_equal_the_cpu_stand_in(env_id, tmp_path):
     assert res["episodes"] == [1, 1, 1, 1]  # every row autoreset on the device once (3-slot episodes, 5 steps)
 
 
-def _ptx(env_id):
+def _ptx(env_id, which="step"):
     from iscc_gym.gpu.cuda import toolkit_for_ptx
 
     why = toolkit_for_ptx()
     if why is not None:
         pytest.skip(f"no PTX compile here: {why}")
+    import numpy as np
+
     from iscc_gym.gpu import kernel
     from iscc_gym.gpu.vector_env import DeviceVectorEnv
 
     d = DeviceVectorEnv(env_id, num_envs=2, device="cpu", pool_size=2)
     d.reset(seed=0)
-    return kernel.step_ptx(d.kernel_args(), d.switches, cc=(9, 0))
+    # the signatures the env launches: its own arguments (types as on the GPU: C-contiguous arrays, uint64, int64)
+    args = d.kernel_args() if which == "step" else d.reset_args(np.zeros(1, np.int64))
+    return kernel.kernel_ptx(which, args, d.switches, queue_slots=d._nq, cc=(9, 0))
 
 
 @pytest.mark.slow  # 10-17 s a task (NVVM compiles the whole inlined step): the README's slow run, in CI
+@pytest.mark.parametrize("which", ["step", "reset"])
 @pytest.mark.parametrize("env_id", ["iscc_gym/ISCC-v0", "iscc_gym/ISCC-Urban-v0", "iscc_gym/ISCC-Field-v0"])
-def test_the_step_kernel_compiles_to_ptx_for_sm_90_without_allocating(env_id):
-    ptx = _ptx(env_id)
+def test_the_kernels_compile_to_ptx_for_sm_90_within_their_stated_limits(env_id, which):
+    """No device heap (the scratch is per-thread local memory), the parameter record read in 8-byte words (an aligned
+    record: no byte-wise loads), and ``ptxas -v``'s registers, stack and spills within
+    :data:`iscc_gym.gpu.kernel.PTX_LIMITS`."""
+    from iscc_gym.gpu.kernel import PTX_LIMITS, ptxas_usage
+
+    ptx = _ptx(env_id, which)
     assert ".target sm_90" in ptx
     assert ".entry" in ptx
     low = ptx.lower()
-    assert "malloc" not in low and "nrt_" not in low  # no device heap: the scratch is per-thread local memory
+    assert "malloc" not in low and "nrt_" not in low
+    assert "ld.global.u8" not in ptx  # an unaligned record is loaded a byte at a time
+    usage = ptxas_usage(ptx)
+    for name, limit in PTX_LIMITS[which].items():
+        assert usage[name] <= limit, (name, usage)
+
+
+def test_the_queue_s_local_array_is_sized_per_task():
+    """The paper task has no queue: its kernels are built without the queue's 64 local slots (a key of their own);
+    a queue longer than the kernel can hold is refused."""
+    from iscc_gym.gpu import kernel
+    from iscc_gym.gpu.vector_env import DeviceVectorEnv
+
+    pytest.importorskip("numba_cuda")
+    assert DeviceVectorEnv("iscc_gym/ISCC-v0", num_envs=1, device="cpu")._nq == 0
+    assert DeviceVectorEnv("iscc_gym/ISCC-Urban-v0", num_envs=1, device="cpu")._nq > 0
+    with pytest.raises(ValueError, match="queue_slots = 65"):
+        kernel.cuda_kernels(queue_slots=kernel.MAX_QUEUE_SLOTS + 1)
 
 
 def test_import_cuda_restores_numpys_row_stack(monkeypatch):

@@ -10,9 +10,17 @@ ActorCriticPolicy`), so a run saves as an SB3 ``model.zip`` with its ``vecnormal
 random numbers. Why not a library (docs/gpu.md): rsl-rl-lib, skrl and TorchRL each want their own env wrapper and
 policy classes (TensorDict observations, their checkpoints), none of which ``predict`` loads.
 
-Differences from SB3, stated: a truncated episode is not bootstrapped with the value of its last observation (the
-device env autoresets in the same step and keeps no final observation; at the paper task's discount 0.3 and 5000-slot
-missions the term is one step in thousands, discounted to nothing); the rollout's episodes are the device's.
+Scaled to its batch (issue 46): a GPU rollout holds some 100k envs x 16 steps, where SB3 on a CPU holds 4,096
+samples; at SB3's constant rate and minibatch size, PPO took one optimizer step per 5,461 samples. The device run
+splits each rollout into :data:`N_MINIBATCHES` minibatches (rsl_rl's and CleanRL's GPU variants: 4 and 2-4) and
+adapts the rate to a KL target as rsl_rl does (``lr_schedule="kl"``, the device default: the rate is divided by 1.5
+after a minibatch whose KL exceeds twice ``desired_kl``, multiplied by 1.5 after one below half of it, kept within
+[:data:`LR_BOUNDS`]); ``"linear"`` anneals it to zero over the run (CleanRL's), ``"constant"`` keeps SB3's.
+
+Differences from SB3, stated: the normalisation statistics (VecNormalize's observation and return statistics) are
+updated once a rollout, from all its samples, not after every step (the rollout is normalised by the statistics it
+started with, its rewards scaled by those it ended with); a truncated episode's last reward is bootstrapped with the
+value of its last observation (the env's ``final_obs``), as SB3 does; the rollout's episodes are the device's.
 """
 
 from __future__ import annotations
@@ -25,11 +33,47 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["DevicePPOConfig", "RunningMeanStd", "Trained", "gae", "train", "to_sb3", "paper_config", "DEVICE_DEFAULTS"]
+__all__ = ["DevicePPOConfig", "RunningMeanStd", "Trained", "gae", "train", "to_sb3", "paper_config", "DEVICE_DEFAULTS",
+           "LR_SCHEDULES", "LR_BOUNDS", "N_MINIBATCHES", "default_n_envs", "adapt_lr"]
 
-#: Settings of a device run where the task's YAML entry (sized for SB3 on a CPU) does not fit a GPU: many envs, a
-#: rollout of 16 steps, large minibatches.
-DEVICE_DEFAULTS = {"n_envs": 4096, "n_steps": 16, "batch_size": 16384, "pool_size": 1024}
+#: Settings of a device run where the task's YAML entry (sized for SB3 on a CPU) does not fit a GPU: many envs
+#: (:func:`default_n_envs` on a GPU), a rollout of 16 steps cut into :data:`N_MINIBATCHES` minibatches, the rate
+#: adapted to a KL target.
+DEVICE_DEFAULTS = {"n_envs": 4096, "n_steps": 16, "pool_size": 1024, "lr_schedule": "kl", "desired_kl": 0.01}
+#: Minibatches a rollout is cut into by default (``batch_size`` = ``n_envs * n_steps / N_MINIBATCHES``).
+N_MINIBATCHES = 4
+#: ``lr_schedule``: ``constant`` (SB3's), ``kl`` (rsl_rl's KL-adaptive rate), ``linear`` (annealed to 0, CleanRL's).
+LR_SCHEDULES = ("constant", "kl", "linear")
+#: The KL-adaptive rate stays within these bounds (rsl_rl's).
+LR_BOUNDS = (1e-5, 1e-2)
+#: Resident threads an SM holds at the step kernel's register use (~240 a thread: two blocks of 128), times four
+#: waves: :func:`default_n_envs` on a GPU.
+_ENVS_PER_SM = 1024
+
+
+def default_n_envs(device: str) -> int:
+    """Envs of a device run when none is asked: on a GPU enough to fill it (its SMs x 1,024: four waves of the step
+    kernel's resident blocks; 135,168 on an H100 or H200), on the CPU stand-in :data:`DEVICE_DEFAULTS`'s 4,096.
+    """
+    if device != "cuda":
+        return DEVICE_DEFAULTS["n_envs"]
+    try:
+        import torch
+
+        return int(torch.cuda.get_device_properties(0).multi_processor_count) * _ENVS_PER_SM
+    except Exception:  # noqa: BLE001 - no GPU here: the env says so when it is built
+        return DEVICE_DEFAULTS["n_envs"]
+
+
+def adapt_lr(lr: float, kl: float, desired_kl: float) -> float:
+    """rsl_rl's KL-adaptive rate: ``lr / 1.5`` after a minibatch whose KL is above ``2 * desired_kl``, ``lr * 1.5``
+    below ``desired_kl / 2``, within :data:`LR_BOUNDS`.
+    """
+    if kl > 2.0 * desired_kl:
+        lr = lr / 1.5
+    elif kl < 0.5 * desired_kl:
+        lr = lr * 1.5
+    return min(max(lr, LR_BOUNDS[0]), LR_BOUNDS[1])
 
 
 @dataclass
@@ -42,9 +86,11 @@ class DevicePPOConfig:
     total_timesteps: int = 20_000_000
     n_envs: int = 4096
     n_steps: int = 16
-    batch_size: int = 16384
+    batch_size: int | None = None  # None: a rollout cut into N_MINIBATCHES minibatches
     n_epochs: int = 3
     learning_rate: float = 3e-4
+    lr_schedule: str = "constant"
+    desired_kl: float = 0.01
     gamma: float = 0.99
     gae_lambda: float = 0.95
     clip_range: float = 0.2
@@ -63,6 +109,13 @@ class DevicePPOConfig:
     env_overrides: dict = field(default_factory=dict)
 
     def __post_init__(self):
+        sized = all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in (self.n_envs, self.n_steps))
+        if self.batch_size is None and sized:
+            self.batch_size = max(1, int(self.n_envs) * int(self.n_steps) // N_MINIBATCHES)
+        if self.lr_schedule not in LR_SCHEDULES:
+            raise ValueError(f"lr_schedule = {self.lr_schedule!r}; use one of {', '.join(LR_SCHEDULES)}")
+        if not (isinstance(self.desired_kl, (int, float)) and 0.0 < self.desired_kl < math.inf):
+            raise ValueError(f"desired_kl = {self.desired_kl!r}; expected a number > 0")
         for name in ("total_timesteps", "n_envs", "n_steps", "batch_size", "n_epochs", "pool_size"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
@@ -168,6 +221,9 @@ def train(cfg: DevicePPOConfig, callback=None, quiet: bool = True) -> tuple[dict
             return o
         return ((o.double() - obs_rms.mean) / torch.sqrt(obs_rms.var + 1e-8)).clamp(-cfg.clip_obs, cfg.clip_obs).float()
 
+    raw_buf = torch.zeros((t_len, n, d_obs), device=dev)  # the rollout's raw observations: the statistics' update
+    ret_buf = torch.zeros((t_len, n), dtype=torch.float64, device=dev)  # discounted returns: the reward scaling
+    boot_buf = torch.zeros((t_len, n), device=dev)  # gamma V(final obs) of truncated rows, added to the scaled reward
     raw, _ = env.reset(seed=cfg.seed)
     if cfg.normalize:
         obs_rms.update(raw)
@@ -176,6 +232,7 @@ def train(cfg: DevicePPOConfig, callback=None, quiet: bool = True) -> tuple[dict
     curve, rollout_s, update_s = [], 0.0, 0.0
     batch = n * t_len
     mb = min(cfg.batch_size, batch)
+    lr = float(cfg.learning_rate)
     stop = False
     while steps < cfg.total_timesteps and not stop:
         ta = time.perf_counter()
@@ -184,28 +241,40 @@ def train(cfg: DevicePPOConfig, callback=None, quiet: bool = True) -> tuple[dict
             for t in range(t_len):
                 actions, values, logp = pol(obs)
                 obs_buf[t], act_buf[t], logp_buf[t], val_buf[t] = obs, actions, logp, values.flatten()
-                raw, reward, term, trunc, _ = env.step(actions, check=False)
+                raw, reward, term, trunc, info = env.step(actions, check=False)
                 done = term | trunc
                 r = reward.double()
                 rsum = rsum + r.sum()  # on the device: read once an update
                 rew_buf[t] = r.float()
-                if cfg.normalize and cfg.norm_reward:  # VecNormalize's reward scaling
-                    ret = ret * cfg.gamma + r
-                    ret_rms.update(ret)
-                    rew_buf[t] = (r / torch.sqrt(ret_rms.var + 1e-8)).clamp(-cfg.clip_reward, cfg.clip_reward).float()
-                    ret = torch.where(done, torch.zeros_like(ret), ret)
+                ret = ret * cfg.gamma + r
+                ret_buf[t] = ret
+                ret = torch.where(done, torch.zeros_like(ret), ret)
+                # SB3's bootstrap of a truncation: gamma V(the episode's last observation), normalised as the rollout
+                cut = trunc & ~term
+                boot_buf[t] = torch.where(cut, cfg.gamma * pol.predict_values(norm(info["final_obs"])).flatten(),
+                                          torch.zeros_like(boot_buf[t]))
                 done_buf[t] = done.float()
-                if cfg.normalize:
-                    obs_rms.update(raw)
+                raw_buf[t] = raw
                 obs = norm(raw)
             last_value = pol.predict_values(obs).flatten()
+            if cfg.normalize:  # the statistics once a rollout, from all its samples
+                obs_rms.update(raw_buf.reshape(batch, d_obs))
+                if cfg.norm_reward:  # VecNormalize's reward scaling, by the return statistics the rollout ends with
+                    ret_rms.update(ret_buf.reshape(batch))
+                    rew_buf.copy_((rew_buf.double() / torch.sqrt(ret_rms.var + 1e-8))
+                                  .clamp(-cfg.clip_reward, cfg.clip_reward).float())
+            rew_buf.add_(boot_buf)
             adv, returns = gae(rew_buf, val_buf, done_buf, last_value, cfg.gamma, cfg.gae_lambda)
+            obs = norm(raw)  # the next rollout's first observation, by the statistics it will use
         if dev.type == "cuda":
             torch.cuda.synchronize()
         tb = time.perf_counter()
         rollout_s += tb - ta
+        if cfg.lr_schedule == "linear":  # CleanRL's annealing: from the rate to 0 over the run
+            lr = float(cfg.learning_rate) * max(1.0 - steps / cfg.total_timesteps, 0.0)
         b_obs, b_act = obs_buf.reshape(batch, d_obs), act_buf.reshape(batch, 3)
         b_logp, b_adv, b_ret = logp_buf.reshape(batch), adv.reshape(batch), returns.reshape(batch)
+        kls = []
         for _ in range(cfg.n_epochs):
             perm = torch.randperm(batch, device=dev)
             for k in range(0, batch, mb):
@@ -214,11 +283,18 @@ def train(cfg: DevicePPOConfig, callback=None, quiet: bool = True) -> tuple[dict
                 a = b_adv[idx]
                 if a.numel() > 1:
                     a = (a - a.mean()) / (a.std() + 1e-8)
-                ratio = torch.exp(logp - b_logp[idx])
+                log_ratio = logp - b_logp[idx]
+                ratio = torch.exp(log_ratio)
                 pg = -torch.min(a * ratio, a * ratio.clamp(1 - cfg.clip_range, 1 + cfg.clip_range)).mean()
                 vf = torch.nn.functional.mse_loss(b_ret[idx], values.flatten())
                 ent = -torch.mean(-logp) if entropy is None else -torch.mean(entropy)
                 loss = pg + cfg.ent_coef * ent + cfg.vf_coef * vf
+                kl = ((ratio - 1.0) - log_ratio).mean().detach()  # SB3's approx_kl (Schulman's k3 estimator)
+                kls.append(kl)
+                if cfg.lr_schedule == "kl":  # rsl_rl: the rate of this step from the KL of the last one
+                    lr = adapt_lr(lr, float(kl), cfg.desired_kl) if len(kls) > 1 else lr
+                for g in opt.param_groups:
+                    g["lr"] = lr
                 opt.zero_grad()
                 loss.backward()
                 torch.nn.utils.clip_grad_norm_(pol.parameters(), cfg.max_grad_norm)
@@ -228,9 +304,10 @@ def train(cfg: DevicePPOConfig, callback=None, quiet: bool = True) -> tuple[dict
         update_s += time.perf_counter() - tb
         steps += batch
         iters += 1
-        curve.append((steps, float(rsum) / batch))
-        summary = {"timesteps": steps, "iterations": iters, "wall_time_s": time.perf_counter() - t0,
-                   "rollout_s": rollout_s, "update_s": update_s, "curve": curve}
+        wall = time.perf_counter() - t0
+        curve.append((steps, float(rsum) / batch, wall, lr, float(torch.stack(kls).mean())))
+        summary = {"timesteps": steps, "iterations": iters, "wall_time_s": wall, "rollout_s": rollout_s,
+                   "update_s": update_s, "curve": curve}
         if not quiet and iters % 20 == 0:
             print(f"  {steps:>12,d} steps  {steps / summary['wall_time_s'] / 1e6:6.2f}M steps/s  "
                   f"reward/step {curve[-1][1]:8.3f}", flush=True)
@@ -283,12 +360,12 @@ def to_sb3(cfg: DevicePPOConfig, trained: Trained, timesteps: int):
 def paper_config(device: str = "cuda", **changes) -> DevicePPOConfig:
     """The paper task's device run: its YAML entry's learning settings (``train/hyperparams.yml``, the entry
     ``python -m train --device`` reads; ``tests/gpu/test_device_ppo.py`` checks the two agree) on the device's batch
-    sizes (:data:`DEVICE_DEFAULTS`), with ``changes``.
+    sizes and rate schedule (:data:`DEVICE_DEFAULTS`, :func:`default_n_envs`), with ``changes``.
     """
     kw = dict(env_id="iscc_gym/ISCC-v0", scenario="paper", device="cuda" if device == "cuda" else "cpu",
               total_timesteps=4_000_000,
               n_epochs=3, learning_rate=0.00022829724408019228, gamma=0.3, gae_lambda=0.8, clip_range=0.3,
               ent_coef=0.014029585467490158, net_arch=[32, 32], activation="Tanh", log_std_init=-0.7903302449680623,
-              normalize=True, norm_reward=True, **DEVICE_DEFAULTS)
+              normalize=True, norm_reward=True, **{**DEVICE_DEFAULTS, "n_envs": default_n_envs(device)})
     kw.update(changes)
     return DevicePPOConfig(**kw)

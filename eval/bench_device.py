@@ -9,13 +9,15 @@ env by :func:`iscc_gym.eval.evaluate.run_episodes`), and, from the same run, the
 
 from __future__ import annotations
 
+import math
 import time
 
 import numpy as np
 
 from iscc_gym.tasks import ENV_ID, TASKS
 
-__all__ = ["run_device", "format_device", "env_rate", "rollout_rate", "time_to_myopic", "SIZES", "device_env_ids"]
+__all__ = ["run_device", "format_device", "env_rate", "rollout_rate", "time_to_myopic", "device_reward_per_slot",
+           "SIZES", "device_env_ids"]
 
 #: Batch sizes of the env rows: on a GPU 1k to 1M envs; on the CPU stand-in small ones.
 SIZES = {"cuda": (1024, 16_384, 131_072, 1_048_576), "standin": (64, 1024), "quick": (16,)}
@@ -38,15 +40,21 @@ def _dev(device: str) -> str:
 
 
 def env_rate(device: str, env_id: str, num_envs: int, steps: int, pool_size: int = 1024) -> dict:
-    """Env-steps/s of the device env stepping ``steps`` times (after one warm-up step: the kernel's compile)."""
+    """Env-steps/s of the device env stepping ``steps`` times (after one warm-up step: the kernel's compile), with
+    the seconds of its reset (the mission pool, cached per process), of that first step and of the kernels' compile
+    (``compile_s``: numba-cuda's, or its load from the cache; None on the stand-in, which numba caches as the CPU env).
+    """
     import torch
 
     from iscc_gym.gpu.vector_env import DeviceVectorEnv
 
     env = DeviceVectorEnv(env_id, num_envs=num_envs, device=_dev(device), pool_size=min(pool_size, num_envs))
     t = time.perf_counter()
-    env.reset(seed=0)
+    env.reset(seed=0)  # the mission pool: drawn once per (task, seed) in a process, the later rows' from the cache
+    _sync(device)
+    reset_s = time.perf_counter() - t
     a = torch.zeros((num_envs, 3), device=env.obs.device)
+    t = time.perf_counter()
     env.step(a, check=False)
     _sync(device)
     first = time.perf_counter() - t
@@ -56,8 +64,8 @@ def env_rate(device: str, env_id: str, num_envs: int, steps: int, pool_size: int
     _sync(device)
     dt = time.perf_counter() - t
     env.close()
-    return {"env_steps_per_s": num_envs * steps / dt, "num_envs": num_envs, "steps": steps,
-            "reset_and_first_step_s": first}
+    return {"env_steps_per_s": num_envs * steps / dt, "num_envs": num_envs, "steps": steps, "reset_s": reset_s,
+            "first_step_s": first, "compile_s": env.compile_s}
 
 
 def rollout_rate(device: str, num_envs: int, steps: int) -> dict:
@@ -85,7 +93,9 @@ def rollout_rate(device: str, num_envs: int, steps: int) -> dict:
 
 
 class _DeviceAgent:
-    """``predict`` of a device trainer's policy and observation statistics (SB3's deterministic action, clipped)."""
+    """``predict`` of a device trainer's policy and observation statistics (SB3's deterministic action, clipped): the
+    agent played on the CPU env (the tests' oracle of :func:`device_reward_per_slot`).
+    """
 
     def __init__(self, pol, obs_rms, clip_obs: float):
         self.pol, self.obs_rms, self.clip = pol, obs_rms, clip_obs
@@ -101,13 +111,48 @@ class _DeviceAgent:
         return np.clip(a.cpu().numpy(), -1.0, 1.0), None
 
 
+def device_reward_per_slot(pol, obs_rms, cfg, seeds: list[int], slots: int) -> float:
+    """The deterministic reward per slot of a device trainer's policy on the paper task's missions ``seeds`` (each
+    ``slots`` long), played on the device env: row i flies the mission and noise of seed ``seeds[0] + i`` as the CPU
+    env does (the device env's first episodes are the CPU vector env's), so it is compared with a CPU-played policy
+    on common random numbers; observations normalised by ``obs_rms`` as in training, actions clipped as SB3's
+    ``predict`` clips them.
+    """
+    import torch
+
+    from iscc_gym.gpu.vector_env import DeviceVectorEnv
+
+    if list(seeds) != list(range(seeds[0], seeds[0] + len(seeds))):
+        raise ValueError("seeds must be consecutive (row i of the device env flies seed seeds[0] + i)")
+    env = DeviceVectorEnv(ENV_ID, num_envs=len(seeds), device=cfg.device, pool_size=len(seeds), scenario="paper",
+                          max_episode_steps=slots)
+    obs, _ = env.reset(seed=seeds[0])
+    alive = torch.ones(len(seeds), dtype=torch.bool, device=obs.device)
+    total = torch.zeros((), dtype=torch.float64, device=obs.device)
+    length = torch.zeros((), dtype=torch.int64, device=obs.device)
+    with torch.no_grad():
+        for _ in range(slots):
+            o = ((obs.double() - obs_rms.mean) / torch.sqrt(obs_rms.var + 1e-8)).clamp(-cfg.clip_obs, cfg.clip_obs)
+            a = pol._predict(o.float(), deterministic=True).clamp(-1.0, 1.0)
+            obs, reward, term, trunc, _ = env.step(a, check=False)
+            total += torch.where(alive, reward.double(), 0.0).sum()
+            length += alive.sum()
+            alive &= ~(term | trunc)
+            if not bool(alive.any()):
+                break
+    env.close()
+    return float(total) / max(int(length), 1)
+
+
 def time_to_myopic(device: str, max_wall_s: float, eval_seeds: int = 8, eval_slots: int = 1000,
-                   check_every: int = 10, cfg_overrides: dict | None = None, within: float = 0.01) -> dict:
+                   check_every_s: float = 5.0, cfg_overrides: dict | None = None, within: float = 0.01) -> dict:
     """Train the paper task's device agent (:func:`iscc_gym.agents.device_ppo.paper_config`, ``python -m train
-    --device``'s configuration) until its deterministic
-    reward per slot on ``eval_seeds`` held-out missions of ``eval_slots`` slots comes within ``within`` (1 %) of
-    ``myopic``'s on the same missions, checked every ``check_every`` updates, or ``max_wall_s`` of training passes.
-    The wall time counts training only; the checks' time is reported apart.
+    --device``'s configuration) until its deterministic reward per slot on ``eval_seeds`` held-out missions of
+    ``eval_slots`` slots comes within ``within`` (1 %) of ``myopic``'s on the same missions, or ``max_wall_s`` seconds
+    of training pass. The agent is checked on the device (:func:`device_reward_per_slot`) after the first update that
+    ends ``check_every_s`` seconds of training after the last check (0: after every update); ``myopic`` is played
+    once, on the CPU env (common random numbers). The wall time counts training only; the checks' time is reported
+    apart and never counted against ``max_wall_s``, so the row runs about ``max_wall_s`` plus its checks.
     """
     from iscc_gym.agents.device_ppo import paper_config, train
     from iscc_gym.agents.myopic import MyopicPolicy
@@ -121,16 +166,16 @@ def time_to_myopic(device: str, max_wall_s: float, eval_seeds: int = 8, eval_slo
     myopic_s = time.perf_counter() - t
     target = myopic - within * abs(myopic)
     cfg = paper_config(device, **{**(cfg_overrides or {}), "total_timesteps": 10**12})
-    checks, check_s = [], [0.0]
+    checks, check_s, last = [], [0.0], [-math.inf]
 
     def callback(summary, pol, obs_rms):
-        if summary["iterations"] % check_every:
-            return summary["wall_time_s"] - check_s[0] > max_wall_s
-        t0 = time.perf_counter()
-        res = run_episodes(_DeviceAgent(pol, obs_rms, cfg.clip_obs), seeds, "paper", eval_slots)
-        check_s[0] += time.perf_counter() - t0
-        value = _per_slot(res)
         train_s = summary["wall_time_s"] - check_s[0]
+        if train_s - last[0] < check_every_s:
+            return train_s > max_wall_s
+        last[0] = train_s
+        t0 = time.perf_counter()
+        value = device_reward_per_slot(pol, obs_rms, cfg, seeds, eval_slots)
+        check_s[0] += time.perf_counter() - t0
         checks.append({"timesteps": summary["timesteps"], "train_wall_s": train_s, "reward_per_slot": value})
         return value >= target or train_s > max_wall_s
 
@@ -141,7 +186,7 @@ def time_to_myopic(device: str, max_wall_s: float, eval_seeds: int = 8, eval_slo
             "timesteps": reached[0]["timesteps"] if reached else summary["timesteps"], "checks": checks,
             "check_s": check_s[0], "max_wall_s": max_wall_s, "eval_seeds": eval_seeds, "eval_slots": eval_slots,
             "config": {k: summary["config"][k] for k in ("n_envs", "n_steps", "batch_size", "n_epochs",
-                                                          "learning_rate", "gamma")}}
+                                                          "learning_rate", "lr_schedule", "gamma")}}
 
 
 def run_device(device: str, quick: bool = False, max_wall_s: float = 120.0, cpu_row=None) -> dict:
@@ -167,15 +212,15 @@ def run_device(device: str, quick: bool = False, max_wall_s: float = 120.0, cpu_
                     for env_id in device_env_ids() if env_id != ENV_ID}
     res["rollout"] = {str(n): rollout_rate(device, n, steps) for n in sizes[-2:]}
     n_ppo = 16 if quick else (131_072 if device == "cuda" else 1024)
-    cfg = DevicePPOConfig(device=_dev(device), n_envs=n_ppo, n_steps=16 if not quick else 4,
-                          batch_size=min(65_536, n_ppo * 16), total_timesteps=(n_ppo * 16 * 20) if not quick else 128,
-                          pool_size=1024, gamma=0.3, gae_lambda=0.8)
+    cfg = DevicePPOConfig(device=_dev(device), n_envs=n_ppo, n_steps=16 if not quick else 4, lr_schedule="kl",
+                          total_timesteps=(n_ppo * 16 * 20) if not quick else 128, pool_size=1024, gamma=0.3,
+                          gae_lambda=0.8)
     ppo, _ = train(cfg)
     res["ppo"] = {k: ppo[k] for k in ("timesteps", "wall_time_s", "steps_per_s", "rollout_s", "update_s")}
     res["ppo"]["n_envs"] = n_ppo
     res["time_to_myopic"] = time_to_myopic(
         device, max_wall_s=2.0 if quick else max_wall_s, eval_seeds=2 if quick else 8,
-        eval_slots=20 if quick else 1000, check_every=1 if quick else 10,
+        eval_slots=20 if quick else 1000, check_every_s=0.0 if quick else 5.0,
         cfg_overrides={"n_envs": 16, "batch_size": 64, "pool_size": 16} if quick else None)
     if cpu_row is not None:
         res["cpu_kernel"] = {str(n): cpu_row(n, 5 if quick else 50, 1 if quick else 3)
@@ -189,6 +234,10 @@ def format_device(res: dict) -> str:
              f"{'what':<58} {'env-steps/s':>14}"]
     for n, r in res["env"].items():
         lines.append(f"{'device env, paper, ' + n + ' envs':<58} {r['env_steps_per_s']:>14,.0f}")
+    first = next(iter(res["env"].values()))
+    if first.get("compile_s") is not None:
+        lines.append(f"kernels compiled (or loaded from numba-cuda's cache) in {first['compile_s']:.1f} s; the first "
+                     f"reset (mission pool) {first['reset_s']:.1f} s")
     for env_id, r in res["tasks"].items():
         name = f"device env, {env_id.split('/')[-1]}, {r['num_envs']} envs"
         lines.append(f"{name:<58} {r['env_steps_per_s']:>14,.0f}")

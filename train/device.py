@@ -9,7 +9,7 @@ from dataclasses import asdict
 from pathlib import Path
 
 import yaml
-from iscc_gym.agents.device_ppo import DEVICE_DEFAULTS, DevicePPOConfig, to_sb3, train
+from iscc_gym.agents.device_ppo import DEVICE_DEFAULTS, DevicePPOConfig, default_n_envs, to_sb3, train
 from iscc_gym.train.runs import plot_curve, prepare_out, save_unit
 
 from iscc_gym.files import write_atomic
@@ -21,8 +21,9 @@ __all__ = ["config_from_args", "main"]
 def config_from_args(args, device: str) -> DevicePPOConfig:
     """The device run of ``python -m train --device cuda`` (or ``standin``): the task's YAML entry
     (:mod:`iscc_gym.train.config`: discount, GAE, clip range, entropy, learning rate, network, normalisation, budget)
-    on the device's batch sizes (:data:`DEVICE_DEFAULTS`, unless ``--n-envs`` or ``--set n_steps=`` / ``batch_size=``
-    say otherwise).
+    on the device's batch sizes and rate schedule (:data:`DEVICE_DEFAULTS`: on a GPU as many envs as fill it, a
+    rollout cut into four minibatches, the rate adapted to a KL target; unless ``--n-envs`` or ``--set n_steps=`` /
+    ``batch_size=`` / ``lr_schedule=`` / ``desired_kl=`` say otherwise).
 
     Raises
     ------
@@ -51,11 +52,14 @@ def config_from_args(args, device: str) -> DevicePPOConfig:
     if not isinstance(lr, (int, float)):
         raise ValueError(f"learning_rate = {lr!r}: the device trainer takes a constant; --set learning_rate=3e-4")
     over = args.overrides or {}
-    kw = {"n_envs": DEVICE_DEFAULTS["n_envs"] if args.n_envs is None else resolved.n_envs,
+    kw = {"n_envs": default_n_envs(device) if args.n_envs is None else resolved.n_envs,
           "n_steps": int(over.get("n_steps", DEVICE_DEFAULTS["n_steps"])),
-          "batch_size": int(over.get("batch_size", DEVICE_DEFAULTS["batch_size"]))}
+          "batch_size": int(over["batch_size"]) if "batch_size" in over else None,
+          "lr_schedule": str(over.get("lr_schedule", DEVICE_DEFAULTS["lr_schedule"])),
+          "desired_kl": float(over.get("desired_kl", DEVICE_DEFAULTS["desired_kl"]))}
     unknown = sorted(set(hp) - {"policy", "n_steps", "batch_size", "n_epochs", "learning_rate", "gamma", "gae_lambda",
-                                "clip_range", "ent_coef", "vf_coef", "max_grad_norm", "policy_kwargs"})
+                                "clip_range", "ent_coef", "vf_coef", "max_grad_norm", "policy_kwargs", "lr_schedule",
+                                "desired_kl"})
     if unknown:
         raise ValueError(f"hyperparameters {unknown} of {args.env_id}'s entry (or --set) have no meaning to the device "
                          "trainer; drop them or train with SB3 (drop --device)")
@@ -125,7 +129,9 @@ def _progress(say, target: int, rows: list):
 
     def callback(summary, policy, obs_rms) -> bool:
         done, wall = int(summary["timesteps"]), float(summary["wall_time_s"])
-        rows.append({"timesteps": done, "wall_s": wall, "reward_per_step": float(summary["curve"][-1][1])})
+        _, reward, _, lr, kl = summary["curve"][-1]
+        rows.append({"timesteps": done, "wall_s": wall, "reward_per_step": float(reward), "learning_rate": lr,
+                     "approx_kl": kl})
         if wall - last[0] >= PROGRESS_EVERY_S or done >= target or len(rows) == 1:
             last[0] = wall
             rate = done / max(wall, 1e-9)
@@ -137,10 +143,12 @@ def _progress(say, target: int, rows: list):
 
 def write_device_curve(out: Path, rows: list[dict]) -> None:
     """A device run's ``learning_curve.csv`` (timesteps, wall time, the mean reward per step of each update's
-    rollout: the device env's rows rarely end an episode within a rollout, so no episode means) and its ``.png``.
+    rollout: the device env's rows rarely end an episode within a rollout, so no episode means; the update's last
+    learning rate and mean approximate KL) and its ``.png`` against env steps and against seconds.
     """
-    lines = ["timesteps,wall_s,train_reward_per_step_mean"]
-    lines += [f"{r['timesteps']},{r['wall_s']:.3f},{r['reward_per_step']!r}" for r in rows]
+    lines = ["timesteps,wall_s,train_reward_per_step_mean,learning_rate,approx_kl"]
+    lines += [f"{r['timesteps']},{r['wall_s']:.3f},{r['reward_per_step']!r},{r['learning_rate']!r},{r['approx_kl']!r}"
+              for r in rows]
     write_atomic(out / "learning_curve.csv", "\n".join(lines) + "\n")
     plot_curve(out, [([r["timesteps"] for r in rows], [r["reward_per_step"] for r in rows], "-", "train rollouts")],
-               "mean reward per step")
+               "mean reward per step", seconds=[r["wall_s"] for r in rows])

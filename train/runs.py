@@ -462,21 +462,25 @@ def write_curve(out: Path, rows: list[dict], evals: list[tuple[int, float]], png
     plot_curve(out, lines, "episode reward")
 
 
-def plot_curve(out: Path, lines: list[tuple], ylabel: str) -> None:
+def plot_curve(out: Path, lines: list[tuple], ylabel: str, seconds: list | None = None) -> None:
     """``learning_curve.png`` in ``out`` (atomically): each of ``lines`` ``(steps, values, style, label)`` against env
-    steps.
+    steps; with ``seconds`` (the wall time of each point of the first line), that line against seconds beside it.
     """
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=(6, 3.5), dpi=100)
+    fig = Figure(figsize=(10 if seconds is not None else 6, 3.5), dpi=100)
     FigureCanvasAgg(fig)
-    ax = fig.add_subplot(1, 1, 1)
+    ax = fig.add_subplot(1, 2 if seconds is not None else 1, 1)
     for x, y, style, label in lines:
         ax.plot(x, y, style, label=label)
     ax.set_xlabel("env steps")
     ax.set_ylabel(ylabel)
     ax.legend()
+    if seconds is not None:
+        right = fig.add_subplot(1, 2, 2, sharey=ax)
+        right.plot(seconds, lines[0][1], lines[0][2], label=lines[0][3])
+        right.set_xlabel("wall time, s")
     fig.tight_layout()
     with atomic_target(out / "learning_curve.png") as tmp:
         fig.savefig(tmp, format="png")

@@ -97,12 +97,13 @@ def reset_row(i, c, x, x_hat, p, shadow, n, key, queue, mission, episode, ep_ret
 @njit(cache=True, error_model="numpy")
 def step_row(i, cp, mats, x, x_hat, p, shadow, n, key, queue, mission, episode, ep_return, ep_length, pool, std0,
              seed_key, max_steps, action, out, obs, reward, terminated, truncated, final_return, final_length,
-             xl, xhl, pl, ql, mbuf, vbuf, zbuf, blocked, field):
+             final_obs, xl, xhl, pl, ql, mbuf, vbuf, zbuf, blocked, field):
     """One step of row ``i`` in place: the env's step (:func:`iscc_gym.sim.kernel.env_row_one`, from local copies of
     the row's state), its outputs (``out[i]``: the env's columns; ``obs[i]``, ``reward[i]``, the done flags), then,
     where the episode ended (terminated, the mission's end, or ``max_steps`` slots), the ended episode's return and
-    length into ``final_return[i]``, ``final_length[i]`` (NaN and 0 otherwise) and the next episode
-    (:func:`reset_row`). ``xl``, ``xhl``, ``pl``, ``ql``, ``mbuf``, ``vbuf``, ``zbuf``: the caller's scratch.
+    length into ``final_return[i]``, ``final_length[i]`` (NaN and 0 otherwise), its last observation into
+    ``final_obs[i]`` (a truncated episode's value is bootstrapped from it; left as it was where none ended) and the
+    next episode (:func:`reset_row`). ``xl``, ``xhl``, ``pl``, ``ql``, ``mbuf``, ``vbuf``, ``zbuf``: the caller's scratch.
     """
     c = cp[0]
     nq = queue.shape[1]
@@ -134,6 +135,8 @@ def step_row(i, cp, mats, x, x_hat, p, shadow, n, key, queue, mission, episode, 
     if term or trunc:
         final_return[i] = ep_return[i]
         final_length[i] = ep_length[i]
+        for a in range(obs.shape[1]):
+            final_obs[i, a] = obs[i, a]
         episode[i] += 1
         reset_row(i, c, x, x_hat, p, shadow, n, key, queue, mission, episode, ep_return, ep_length, pool, std0,
                   seed_key, obs, zbuf)
@@ -145,7 +148,7 @@ def step_row(i, cp, mats, x, x_hat, p, shadow, n, key, queue, mission, episode, 
 @njit(cache=True, error_model="numpy")
 def step_rows_cpu(cp, mats, x, x_hat, p, shadow, n, key, queue, mission, episode, ep_return, ep_length, pool, std0,
                   seed_key, max_steps, action, out, obs, reward, terminated, truncated, final_return, final_length,
-                  blocked=None, field=None):
+                  final_obs, blocked=None, field=None):
     """:func:`step_row` over every row on one CPU core (the CPU stand-in of the device kernel), its scratch one set
     of buffers for the batch.
     """
@@ -154,7 +157,7 @@ def step_rows_cpu(cp, mats, x, x_hat, p, shadow, n, key, queue, mission, episode
     for i in range(x.shape[0]):
         step_row(i, cp, mats, x, x_hat, p, shadow, n, key, queue, mission, episode, ep_return, ep_length, pool, std0,
                  seed_key, max_steps, action, out, obs, reward, terminated, truncated, final_return, final_length,
-                 xl, xhl, pl, ql, mbuf, vbuf, zbuf, blocked, field)
+                 final_obs, xl, xhl, pl, ql, mbuf, vbuf, zbuf, blocked, field)
 
 
 @njit(cache=True, error_model="numpy")
@@ -210,7 +213,8 @@ def cuda_kernels(blocked=None, field=None, queue_slots=MAX_QUEUE_SLOTS):
 
     @cuda.jit(cache=True)
     def step(cp, mats, x, x_hat, p, shadow, n, key, queue, mission, episode, ep_return, ep_length, pool, std0,
-             seed_key, max_steps, action, out, obs, reward, terminated, truncated, final_return, final_length):
+             seed_key, max_steps, action, out, obs, reward, terminated, truncated, final_return, final_length,
+             final_obs):
         i = cuda.grid(1)
         if i >= x.shape[0]:
             return
@@ -224,8 +228,8 @@ def cuda_kernels(blocked=None, field=None, queue_slots=MAX_QUEUE_SLOTS):
         h = host
         step_row(i, h(cp), h(mats), h(x), h(x_hat), h(p), h(shadow), h(n), h(key), h(queue), h(mission), h(episode),
                  h(ep_return), h(ep_length), h(pool), h(std0), seed_key, max_steps, h(action), h(out), h(obs),
-                 h(reward), h(terminated), h(truncated), h(final_return), h(final_length), xl, xhl, pl, ql, mbuf, vbuf,
-                 zbuf, blocked, field)
+                 h(reward), h(terminated), h(truncated), h(final_return), h(final_length), h(final_obs), xl, xhl, pl,
+                 ql, mbuf, vbuf, zbuf, blocked, field)
 
     @cuda.jit(cache=True)
     def reset(cp, x, x_hat, p, shadow, n, key, queue, mission, episode, ep_return, ep_length, pool, std0, seed_key,

@@ -72,6 +72,10 @@ class DeviceVectorEnv:
         by every step and returned by it: copy what must outlive the next step.
     final_return, final_length : torch.Tensor
         ``(N,)``: the return and length of the episode a row ended in the last step (NaN and 0 where none ended).
+    final_obs : torch.Tensor
+        ``(N, obs_size)`` float32: the last observation of the episode a row ended in the last step (Gymnasium's
+        ``final_obs``; rows where none ended hold an older one: read it where ``terminated | truncated``), what a
+        truncated episode's value is bootstrapped from.
     metrics : torch.Tensor
         ``(N, len(STEP_COLUMNS))`` float64: the step's columns (:data:`iscc_gym.sim.schema.STEP_COLUMNS`) per row.
 
@@ -136,11 +140,13 @@ class DeviceVectorEnv:
         self.truncated = torch.zeros(n, dtype=torch.bool, device=td)
         self.final_return = torch.full((n,), float("nan"), dtype=torch.float64, device=td)
         self.final_length = torch.zeros(n, dtype=torch.int64, device=td)
+        self.final_obs = torch.zeros((n, n_obs), dtype=torch.float32, device=td)
         self.metrics = torch.zeros((n, len(STEP_COLUMNS)), dtype=torch.float64, device=td)
         self.actions = torch.zeros((n, 3), dtype=torch.float32, device=td)
         # the kernels' views of those tensors (the same memory), made once: the tensors are never reallocated
         self._views = tuple(self._view(t) for t in (self.actions, self.metrics, self.obs, self.reward, self.terminated,
-                                                    self.truncated, self.final_return, self.final_length))
+                                                    self.truncated, self.final_return, self.final_length,
+                                                    self.final_obs))
         c, mats = slot_params(s)
         self._c, self._mats = self._to_device(np.array(c)), self._to_device(np.array(mats))
         self._std0 = self._to_device(np.array([s.initial_pos_std_m] * 3 + [s.initial_vel_std_mps] * 3))
@@ -201,7 +207,7 @@ class DeviceVectorEnv:
 
     def step(self, actions, check: bool = True):
         """One step of every row: ``(obs, reward, terminated, truncated, info)``, the env's own tensors (see the
-        class notes); ``info`` holds ``final_return``, ``final_length`` and ``metrics``.
+        class notes); ``info`` holds ``final_return``, ``final_length``, ``final_obs`` and ``metrics``.
 
         Raises
         ------
@@ -228,7 +234,8 @@ class DeviceVectorEnv:
         else:
             step, _ = self._kernels()
             step[_blocks(self.num_envs), THREADS_PER_BLOCK, self._stream()](*self.kernel_args())
-        info = {"final_return": self.final_return, "final_length": self.final_length, "metrics": self.metrics}
+        info = {"final_return": self.final_return, "final_length": self.final_length, "final_obs": self.final_obs,
+                "metrics": self.metrics}
         return self.obs, self.reward, self.terminated, self.truncated, info
 
     def kernel_args(self) -> tuple:
@@ -318,7 +325,7 @@ def memory_bytes(s: Scenario, num_envs: int, pool_size: int) -> int:
     the data queue, counters) and its mission pool (``n_slots + 1`` mission rows each), the host's copies that
     :meth:`DeviceVectorEnv.reset` draws them into included (once more on a GPU).
     """
-    tensors = obs_size(s) * 4 + 4 + 1 + 1 + 8 + 8 + len(STEP_COLUMNS) * 8 + 3 * 4
+    tensors = 2 * obs_size(s) * 4 + 4 + 1 + 1 + 8 + 8 + len(STEP_COLUMNS) * 8 + 3 * 4
     state = (6 + 6 + 36 + 1 + task_effects(s).queue_deadline_slots) * 8 + 7 * 8
     mission = (s.n_slots + 1) * mission_columns(s) * 8
     return int(num_envs) * (tensors + 2 * state) + int(pool_size) * 2 * mission

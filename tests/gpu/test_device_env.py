@@ -36,6 +36,8 @@ def _play_both(env_id, n, steps, limit, seed=3):
         np.testing.assert_array_equal(u1.numpy(), u2)
         if k < steps - 1 or not (t2 | u2).any():
             np.testing.assert_allclose(o1.numpy(), o2, rtol=1e-6, atol=1e-6)
+        ended = t2 | u2  # the CPU env autoresets in the next step: its observation now is the episode's last
+        np.testing.assert_allclose(info["final_obs"].numpy()[ended], o2[ended], rtol=1e-6, atol=1e-6)
     return d
 
 
@@ -174,7 +176,8 @@ def test_an_env_too_large_for_the_memory_is_refused_up_front_with_what_it_needs(
     env = DeviceVectorEnv("iscc_gym/ISCC-Field-v0", num_envs=64, device="cpu", pool_size=8)
     env.reset(seed=0)
     held = sum(t.numel() * t.element_size() for t in (env.obs, env.reward, env.terminated, env.truncated,
-                                                          env.final_return, env.final_length, env.metrics, env.actions))
+                                                          env.final_return, env.final_length, env.metrics, env.actions,
+                                                          env.final_obs))
     held += sum(a.nbytes for a in env._state.values()) + env._pool.nbytes
     estimate = vector_env.memory_bytes(env.scenario, 64, 8)
     assert held <= estimate <= 2.5 * held  # the host copies reset draws into are counted once more

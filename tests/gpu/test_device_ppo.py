@@ -10,8 +10,12 @@ torch = pytest.importorskip("torch")
 pytest.importorskip("stable_baselines3")
 
 from iscc_gym.agents.device_ppo import (  # noqa: E402
+    LR_BOUNDS,
+    N_MINIBATCHES,
     DevicePPOConfig,
     RunningMeanStd,
+    adapt_lr,
+    default_n_envs,
     gae,
     paper_config,
     to_sb3,
@@ -60,7 +64,8 @@ def test_a_tiny_run_is_seeded_and_its_sb3_model_predicts_as_trained():
     s, trained = train(cfg)
     assert s["timesteps"] == 64 and s["iterations"] == 2 and len(s["curve"]) == 2
     again, _ = train(cfg)
-    assert again["curve"] == s["curve"]  # seeded: the same run
+    untimed = [[c[:2] + c[3:] for c in run["curve"]] for run in (s, again)]  # (steps, reward, wall s, lr, kl)
+    assert untimed[0] == untimed[1]  # seeded: the same run
     model, vn = to_sb3(cfg, trained, s["timesteps"])
     obs = np.random.default_rng(0).normal(size=(5, vn.observation_space.shape[0])).astype(np.float32)
     rms = trained.obs_rms  # the trainer's own statistics, as it normalised
@@ -185,6 +190,109 @@ def test_train_device_says_its_budget_and_progress_and_writes_summary_and_curve(
     summary = yaml.safe_load((out / "summary.yml").read_text())
     assert summary["timesteps"] == 128 and summary["device"] == "standin"
     rows = (out / "learning_curve.csv").read_text().splitlines()
-    assert rows[0] == "timesteps,wall_s,train_reward_per_step_mean" and [r.split(",")[0] for r in rows[1:]] == [
-        "32", "64", "96", "128"]
+    assert rows[0] == "timesteps,wall_s,train_reward_per_step_mean,learning_rate,approx_kl"
+    assert [r.split(",")[0] for r in rows[1:]] == ["32", "64", "96", "128"]
     assert (out / "learning_curve.png").stat().st_size > 0
+
+
+def test_the_device_run_is_scaled_to_its_batch():
+    """Issue 46: a rollout cut into N_MINIBATCHES minibatches by default, the rate adapted to a KL target (rsl_rl's
+    rule, within its bounds) or annealed to zero (CleanRL's), the statistics updated once a rollout."""
+    cfg = DevicePPOConfig(device="cpu", n_envs=8, n_steps=4)
+    assert cfg.batch_size == 8 * 4 // N_MINIBATCHES
+    assert default_n_envs("standin") == 4096 and paper_config("standin").lr_schedule == "kl"
+    assert adapt_lr(1e-3, 0.05, 0.01) == pytest.approx(1e-3 / 1.5)
+    assert adapt_lr(1e-3, 0.001, 0.01) == pytest.approx(1.5e-3)
+    assert adapt_lr(1e-3, 0.01, 0.01) == 1e-3
+    assert adapt_lr(LR_BOUNDS[1], 0.0, 0.01) == LR_BOUNDS[1] and adapt_lr(LR_BOUNDS[0], 1.0, 0.01) == LR_BOUNDS[0]
+    with pytest.raises(ValueError, match="lr_schedule = 'cosine'; use one of constant, kl, linear"):
+        DevicePPOConfig(device="cpu", lr_schedule="cosine")
+    with pytest.raises(ValueError, match="desired_kl = 0"):
+        DevicePPOConfig(device="cpu", desired_kl=0)
+    base = dict(device="cpu", n_envs=8, n_steps=4, n_epochs=2, total_timesteps=96, pool_size=4, net_arch=[8, 8],
+                gamma=0.3, learning_rate=1e-3)
+    kl, _ = train(DevicePPOConfig(**base, lr_schedule="kl", desired_kl=1e-12))  # every KL above: the rate falls
+    rates = [c[3] for c in kl["curve"]]
+    assert max(rates) < 1e-3 and min(rates) >= LR_BOUNDS[0] and min(rates) <= 1.5 * LR_BOUNDS[0]  # to the floor
+    lin, trained = train(DevicePPOConfig(**base, lr_schedule="linear"))
+    assert [c[3] for c in lin["curve"]] == pytest.approx([1e-3, 1e-3 * (1 - 32 / 96), 1e-3 * (1 - 64 / 96)])
+    assert trained.obs_rms.count == pytest.approx(1e-4 + 8 + 3 * 32)  # the reset's rows, then each rollout's once
+
+
+def test_truncations_are_bootstrapped_with_the_value_of_the_final_observation(monkeypatch):
+    """SB3's rule: a truncated (not terminated) episode's last reward gains gamma V(its last observation), read from
+    the device env's final_obs; a constant value function makes the term gamma * V exactly."""
+    from iscc_gym.agents import device_ppo
+
+    seen = {}
+    real_gae = device_ppo.gae
+
+    def spy(rewards, values, dones, last_value, gamma, lam):
+        seen["rewards"], seen["dones"] = rewards.clone(), dones.clone()
+        return real_gae(rewards, values, dones, last_value, gamma, lam)
+
+    monkeypatch.setattr(device_ppo, "gae", spy)
+    cfg = DevicePPOConfig(device="cpu", n_envs=4, n_steps=3, n_epochs=1, total_timesteps=12, pool_size=4,
+                          net_arch=[8, 8], gamma=0.5, normalize=False, env_overrides={})
+    # episodes of 2 slots: step 1 of the rollout truncates every row
+    monkeypatch.setattr(device_ppo, "_policy", _constant_value_policy(device_ppo._policy, 7.0))
+    from iscc_gym.gpu import vector_env
+
+    init = vector_env.DeviceVectorEnv.__init__
+    monkeypatch.setattr(vector_env.DeviceVectorEnv, "__init__",
+                        lambda self, *a, **k: init(self, *a, **{**k, "max_episode_steps": 2}))
+    train(cfg)
+    assert seen["dones"][1].tolist() == [1.0] * 4 and seen["dones"][0].tolist() == [0.0] * 4
+    raw = torch.tensor(np.array(_rewards_of_a_run(cfg, 2)))
+    np.testing.assert_allclose(seen["rewards"][0].numpy(), raw[0].numpy(), rtol=1e-6)
+    np.testing.assert_allclose(seen["rewards"][1].numpy(), raw[1].numpy() + 0.5 * 7.0, rtol=1e-6)
+
+
+def _constant_value_policy(make, value):
+    def policy(cfg, env, device):
+        pol = make(cfg, env, device)
+        with torch.no_grad():
+            pol.value_net.weight.zero_()
+            pol.value_net.bias.fill_(value)
+        for p in pol.value_net.parameters():
+            p.requires_grad_(False)
+        return pol
+
+    return policy
+
+
+def _rewards_of_a_run(cfg, limit):
+    """The rewards of the first two steps of cfg's rollout, replayed on the device env with the same seeded policy."""
+    from iscc_gym.agents import device_ppo
+
+    from iscc_gym.gpu.vector_env import DeviceVectorEnv
+
+    torch.manual_seed(cfg.seed)
+    env = DeviceVectorEnv(cfg.env_id, num_envs=cfg.n_envs, device="cpu", pool_size=cfg.pool_size,
+                          max_episode_steps=limit)
+    pol = device_ppo._policy(cfg, env, env.obs.device)
+    obs, _ = env.reset(seed=cfg.seed)
+    out = []
+    with torch.no_grad():
+        for _ in range(2):
+            actions, _, _ = pol(obs)
+            obs, reward, *_ = env.step(actions, check=False)
+            out.append(reward.numpy().copy())
+    return out
+
+
+def test_the_device_evaluation_is_the_cpu_envs_on_common_random_numbers():
+    """time_to_myopic checks the agent on the device env (bench_device.device_reward_per_slot): the same missions and
+    noise as the CPU env plays for the same seeds, so its figure is the CPU evaluation's up to rounding."""
+    from iscc_gym.eval.bench_device import _DeviceAgent, _per_slot, device_reward_per_slot
+    from iscc_gym.eval.evaluate import run_episodes
+
+    cfg = DevicePPOConfig(device="cpu", n_envs=8, n_steps=4, n_epochs=1, total_timesteps=64, pool_size=4,
+                          net_arch=[8, 8], gamma=0.3, log_std_init=-1.0)
+    _, trained = train(cfg)
+    seeds = [1_000_000, 1_000_001, 1_000_002]
+    ours = device_reward_per_slot(trained.policy, trained.obs_rms, cfg, seeds, 30)
+    cpu = _per_slot(run_episodes(_DeviceAgent(trained.policy, trained.obs_rms, cfg.clip_obs), seeds, "paper", 30))
+    assert ours == pytest.approx(cpu, rel=1e-6)
+    with pytest.raises(ValueError, match="consecutive"):
+        device_reward_per_slot(trained.policy, trained.obs_rms, cfg, [1, 3], 5)

@@ -427,12 +427,9 @@ def build_parser(prog: str = "python -m eval.bench") -> argparse.ArgumentParser:
     ap.add_argument("--skip-ppo", action="store_true", help="skip the PPO training figures")
     ap.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
     ap.add_argument("--device", choices=("cpu", "cuda", "standin"), default="cpu",
-                    help="cpu: the CPU figures (default); cuda: the device env and device PPO on a GPU (gpu "
-                         "extra), with the CPU vector env's row of the same run; standin: those rows on the device "
-                         "env's CPU stand-in (eval/bench_device.py)")
-    ap.add_argument("--max-wall-s", type=float, default=120.0, metavar="S",
-                    help="with --device: training time allowed to the paper agent to come within 1%% of myopic "
-                         "(default: 120)")
+                    help="cpu: the CPU figures (default); cuda: the device env on a GPU (gpu extra), with the CPU "
+                         "vector env's row of the same run; standin: those rows on the device env's CPU stand-in "
+                         "(eval/bench_device.py); the device PPO's rows: python -m experiments.device_ppo")
     ap.add_argument("--compile", action="store_true",
                     help="only the time to build the compiled kernels from a cold cache, per task (what the note "
                          "printed on a first run says)")
@@ -454,7 +451,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m eval.bench") -> d
     if args.device != "cpu":
         from iscc_gym.eval.bench_device import format_device, run_device
 
-        res = run_device(args.device, quick=args.quick, max_wall_s=args.max_wall_s, cpu_row=vector_steps_per_second)
+        res = run_device(args.device, quick=args.quick, cpu_row=vector_steps_per_second)
         print(format_device(res))
         if args.json:
             save_json(args.json, res)

@@ -58,7 +58,7 @@ def build_parser(prog: str = "python -m train") -> argparse.ArgumentParser:
                     help="override a Scenario field of the env, e.g. --env-set observation_source=gnss")
     ap.add_argument("--device", choices=DEVICES, default="cpu",
                     help="cpu: SB3 on the CPU (the default, every option); cuda: PPO on the device env on a GPU "
-                         "(iscc_gym.agents.device_ppo, the gpu extra; saves an SB3 model python -m eval loads); "
+                         "(iscc_gym.train.device_ppo, the gpu extra; saves an SB3 model python -m eval loads); "
                          "standin: that trainer on the device env's CPU stand-in (no GPU needed)")
     ap.add_argument("--learner", choices=("ppo", "estimator", "dagger"), default="ppo",
                     help="what to train: ppo (an SB3 agent, --algo; the default), estimator (the field task's world "

@@ -1,4 +1,4 @@
-"""``python -m train --device cuda|standin``: the device PPO (:mod:`iscc_gym.agents.device_ppo`) configured from the
+"""``python -m train --device cuda|standin``: the device PPO (:mod:`iscc_gym.train.device_ppo`) configured from the
 task's YAML entry.
 """
 
@@ -9,7 +9,7 @@ from dataclasses import asdict
 from pathlib import Path
 
 import yaml
-from iscc_gym.agents.device_ppo import DEVICE_DEFAULTS, DevicePPOConfig, default_n_envs, to_sb3, train
+from iscc_gym.train.device_ppo import DEVICE_DEFAULTS, DevicePPOConfig, default_n_envs, to_sb3, train
 from iscc_gym.train.runs import plot_curve, prepare_out, save_unit
 
 from iscc_gym.files import write_atomic

@@ -9,7 +9,7 @@ import pytest
 torch = pytest.importorskip("torch")
 pytest.importorskip("stable_baselines3")
 
-from iscc_gym.agents.device_ppo import (  # noqa: E402
+from iscc_gym.train.device_ppo import (  # noqa: E402
     LR_BOUNDS,
     N_MINIBATCHES,
     DevicePPOConfig,
@@ -108,15 +108,27 @@ def test_device_bench_quick_runs_on_the_stand_in(tmp_path):
     from iscc_gym.eval.bench import main
 
     res = main(["--device", "standin", "--quick", "--quiet", "--json", str(tmp_path / "b.json")])
-    assert res["env"]["16"]["env_steps_per_s"] > 0 and res["ppo"]["steps_per_s"] > 0
-    assert res["time_to_myopic"]["checks"]  # checked against myopic at least once
+    assert res["env"]["16"]["env_steps_per_s"] > 0 and res["env"]["16"]["reset_s"] > 0
+
+
+@pytest.mark.slow
+def test_device_ppo_experiment_quick_runs_on_the_stand_in(tmp_path):
+    from experiments.device_ppo import main
+
+    res = main(["--device", "standin", "--quick", "--schedules", "kl,linear", "--json", str(tmp_path / "p.json")])
+    assert res["ppo"]["steps_per_s"] > 0
+    assert set(res["time_to_myopic"]) == {"kl", "linear"}
+    assert all(t["checks"] for t in res["time_to_myopic"].values())  # checked against myopic at least once
+    assert (tmp_path / "p.json").exists()
+    with pytest.raises(ValueError, match="--schedules 'cosine'"):
+        main(["--device", "standin", "--schedules", "cosine"])
 
 
 def test_the_benchs_paper_config_is_the_yaml_entry_python_m_train_reads():
     from iscc_gym.train.cli import parse_args
     from iscc_gym.train.device import config_from_args
 
-    # if the YAML entry changes, update iscc_gym.agents.device_ppo.paper_config to it
+    # if the YAML entry changes, update iscc_gym.train.device_ppo.paper_config to it
     assert config_from_args(parse_args(["--out", "x"]), "standin") == paper_config("standin")
 
 
@@ -222,7 +234,7 @@ def test_the_device_run_is_scaled_to_its_batch():
 def test_truncations_are_bootstrapped_with_the_value_of_the_final_observation(monkeypatch):
     """SB3's rule: a truncated (not terminated) episode's last reward gains gamma V(its last observation), read from
     the device env's final_obs; a constant value function makes the term gamma * V exactly."""
-    from iscc_gym.agents import device_ppo
+    from iscc_gym.train import device_ppo
 
     seen = {}
     real_gae = device_ppo.gae
@@ -263,7 +275,7 @@ def _constant_value_policy(make, value):
 
 def _rewards_of_a_run(cfg, limit):
     """The rewards of the first two steps of cfg's rollout, replayed on the device env with the same seeded policy."""
-    from iscc_gym.agents import device_ppo
+    from iscc_gym.train import device_ppo
 
     from iscc_gym.gpu.vector_env import DeviceVectorEnv
 
@@ -284,8 +296,9 @@ def _rewards_of_a_run(cfg, limit):
 def test_the_device_evaluation_is_the_cpu_envs_on_common_random_numbers():
     """time_to_myopic checks the agent on the device env (bench_device.device_reward_per_slot): the same missions and
     noise as the CPU env plays for the same seeds, so its figure is the CPU evaluation's up to rounding."""
-    from iscc_gym.eval.bench_device import _DeviceAgent, _per_slot, device_reward_per_slot
     from iscc_gym.eval.evaluate import run_episodes
+
+    from experiments.device_ppo import _DeviceAgent, _per_slot, device_reward_per_slot
 
     cfg = DevicePPOConfig(device="cpu", n_envs=8, n_steps=4, n_epochs=1, total_timesteps=64, pool_size=4,
                           net_arch=[8, 8], gamma=0.3, log_std_init=-1.0)

@@ -20,7 +20,7 @@ import numpy as np
 from numba import njit
 
 from iscc_gym.sim.kernel import env_row_one, observe_one, split_one
-from iscc_gym.sim.loop import WORK_MATS, WORK_VEC, work_from
+from iscc_gym.sim.loop import WORK_MATS, WORK_VEC, init_row_one, slot_draws_one, work_from
 from iscc_gym.sim.noise import GOLDEN_GAMMA as _GAMMA
 from iscc_gym.sim.noise import fill_slot_normals
 from iscc_gym.sim.noise import mix64 as _mix64
@@ -80,12 +80,7 @@ def reset_row(i, c, x, x_hat, p, shadow, n, key, queue, mission, episode, ep_ret
     ref = pool[j]
     z = zbuf[:N_INIT_DRAWS]
     fill_slot_normals(init_normals_key(k), 0, z)
-    for a in range(6):
-        x[i, a] = ref[0, a] + std0[a] * z[a]
-        x_hat[i, a] = ref[0, a]
-        for b in range(6):
-            p[i, a, b] = std0[a] * std0[a] if a == b else 0.0
-    shadow[i] = z[6]
+    shadow[i] = init_row_one(ref[0], std0, z, x[i], x_hat[i], p[i])  # the CPU envs' initial state (loop.init_state)
     n[i] = 0
     for a in range(queue.shape[1]):
         queue[i, a] = 0.0
@@ -103,7 +98,8 @@ def step_row(i, cp, mats, x, x_hat, p, shadow, n, key, queue, mission, episode, 
     where the episode ended (terminated, the mission's end, or ``max_steps`` slots), the ended episode's return and
     length into ``final_return[i]``, ``final_length[i]`` (NaN and 0 otherwise), its last observation into
     ``final_obs[i]`` (a truncated episode's value is bootstrapped from it; left as it was where none ended) and the
-    next episode (:func:`reset_row`). ``xl``, ``xhl``, ``pl``, ``ql``, ``mbuf``, ``vbuf``, ``zbuf``: the caller's scratch.
+    next episode (:func:`reset_row`). ``xl``, ``xhl``, ``pl``, ``ql``, ``mbuf``, ``vbuf``, ``zbuf``: the caller's
+    scratch.
     """
     c = cp[0]
     nq = queue.shape[1]
@@ -115,7 +111,7 @@ def step_row(i, cp, mats, x, x_hat, p, shadow, n, key, queue, mission, episode, 
     for a in range(nq):
         ql[a] = queue[i, a]
     a0, a1, a2 = split_one(action[i, 0], action[i, 1], action[i, 2])
-    zi = zbuf[:N_DRAWS + (1 if c.queue == 1.0 else 0)]
+    zi = zbuf[:slot_draws_one(c)]
     ni = n[i]
     fill_slot_normals(key[i], ni, zi)
     ref = pool[mission[i]]

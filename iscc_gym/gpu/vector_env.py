@@ -149,7 +149,7 @@ class DeviceVectorEnv:
                                                     self.final_obs))
         c, mats = slot_params(s)
         self._c, self._mats = self._to_device(np.array(c)), self._to_device(np.array(mats))
-        self._std0 = self._to_device(np.array([s.initial_pos_std_m] * 3 + [s.initial_vel_std_mps] * 3))
+        self._std0 = self._to_device(loop.initial_std(s))
         self._state = None
         self._pool = None
         self._seed_key = None

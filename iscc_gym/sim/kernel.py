@@ -30,7 +30,7 @@ from iscc_gym.physics.channel import beam_gain_one, direction_one, link_snr_one
 from iscc_gym.physics.fbl import link_terms_one, min_comm_share_one, min_ctrl_share_one
 from iscc_gym.physics.queue import oldest_age_one
 from iscc_gym.physics.sensing import echo_amplitude_one
-from iscc_gym.sim.loop import channel_state_one, new_outputs, queue_slot_one, step_one, work_space
+from iscc_gym.sim.loop import channel_state_one, new_outputs, queue_slot_one, slot_draws_one, step_one, work_space
 from iscc_gym.sim.mission import MC
 from iscc_gym.sim.noise import fill_slot_normals
 from iscc_gym.sim.schema import (
@@ -39,7 +39,6 @@ from iscc_gym.sim.schema import (
     ENV_COLUMNS,
     ERR_SCALE,
     METRIC_NAMES,
-    N_DRAWS,
     N_PREVIEW_OBS,
     N_STEP_COLUMNS,
     O_BACKLOG,
@@ -308,7 +307,7 @@ def _env_rows(cp, mats, x, x_hat, p, shadow, n, ref, key, queue, action, budget,
     work = work_space()
     draw = z.shape[0] == 0
     whole = budget.shape[0] == 0
-    zbuf = np.empty(N_DRAWS + (1 if c.queue == 1.0 else 0))
+    zbuf = np.empty(slot_draws_one(c))
     for i in range(lo, hi):
         if not active[i]:
             x_next[i], x_hat_next[i], p_next[i], shadow_next[i] = x[i], x_hat[i], p[i], shadow[i]

@@ -180,12 +180,45 @@ def init_state(s: Scenario, refs: ArrayLike, rng: np.random.Generator) -> LoopSt
     shape = () if batch is None else (batch,)
     z = standard_normals(rng, batch, 7)
     key = draw_keys(rng, batch)
-    std0 = np.array([s.initial_pos_std_m] * 3 + [s.initial_vel_std_mps] * 3)
-    x_ref0 = ref[..., 0, :6]
-    p0 = np.broadcast_to(np.diag(std0**2), shape + (6, 6)).copy()
-    return LoopState(x=x_ref0 + std0 * z[..., :6], x_hat=x_ref0.copy(), p=p0,
-                     shadow=np.array(z[..., 6]), n=np.zeros(shape, dtype=np.int64), ref=ref, key=key,
+    std0 = initial_std(s)
+    rows = ref.reshape(-1, *ref.shape[-2:])
+    zs = np.ascontiguousarray(z, dtype=float).reshape(-1, 7)
+    x, x_hat, p0, shadow = np.empty((len(rows), 6)), np.empty((len(rows), 6)), np.empty((len(rows), 6, 6)), \
+        np.empty(len(rows))
+    for b in range(len(rows)):  # the device's reset runs the same row function (iscc_gym.gpu.kernel.reset_row)
+        shadow[b] = init_row_one(rows[b, 0], std0, zs[b], x[b], x_hat[b], p0[b])
+    return LoopState(x=x.reshape(shape + (6,)), x_hat=x_hat.reshape(shape + (6,)), p=p0.reshape(shape + (6, 6)),
+                     shadow=shadow.reshape(shape), n=np.zeros(shape, dtype=np.int64), ref=ref, key=key,
                      queue=np.zeros(shape + (task_effects(s).queue_deadline_slots,)))
+
+
+def initial_std(s: Scenario) -> np.ndarray:
+    r"""The initial state's standard deviations :math:`(\sigma_{p0} \mathbf 1_3, \sigma_{v0} \mathbf 1_3)` (6,)."""
+    return np.array([s.initial_pos_std_m] * 3 + [s.initial_vel_std_mps] * 3)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def init_row_one(ref0, std0, z, x, x_hat, p):
+    r"""One loop's initial state (:func:`init_state`), in place: :math:`\mathbf x_0 = \mathbf x_{\mathrm{ref},0} +
+    \boldsymbol\sigma_0 \odot \mathbf z_{0:6}`, :math:`\hat{\mathbf x}_{0|-1} = \mathbf x_{\mathrm{ref},0}`,
+    :math:`\mathbf P_0 = \mathrm{diag}(\boldsymbol\sigma_0^2)`; returns the shadowing state :math:`z_6`. The
+    one source of the CPU envs' and the device env's initial states (``ref0``: the mission's first row, ``std0``:
+    :func:`initial_std`, ``z``: 7 standard normals).
+    """
+    for a in range(6):
+        x[a] = ref0[a] + std0[a] * z[a]
+        x_hat[a] = ref0[a]
+        for b in range(6):
+            p[a, b] = std0[a] * std0[a] if a == b else 0.0
+    return z[6]
+
+
+@njit(cache=True, inline="always")
+def slot_draws_one(c):
+    """Standard normals a slot draws per loop (:func:`iscc_gym.sim.schema.n_draws` of the compiled slot's record
+    ``c``): :data:`iscc_gym.sim.schema.N_DRAWS`, one more (the queue's arrival) with a queue.
+    """
+    return N_DRAWS + (1 if c.queue == 1.0 else 0)
 
 
 def blocked_switch(s: Scenario):

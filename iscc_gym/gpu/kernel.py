@@ -15,6 +15,7 @@ last bits of ``exp``/``log``).
 from __future__ import annotations
 
 import math
+from typing import Any, NamedTuple
 
 import numpy as np
 from numba import njit
@@ -26,9 +27,9 @@ from iscc_gym.sim.noise import fill_slot_normals
 from iscc_gym.sim.noise import mix64 as _mix64
 from iscc_gym.sim.schema import COL, N_DRAWS
 
-__all__ = ["MAX_QUEUE_SLOTS", "N_INIT_DRAWS", "episode_key", "mission_index", "init_normals_key", "step_rows_cpu",
-           "reset_rows_cpu", "cuda_kernels", "THREADS_PER_BLOCK", "PTX_LIMITS", "kernel_ptx", "step_ptx",
-           "ptxas_usage"]
+__all__ = ["Consts", "Rows", "Outs", "Scratch", "MAX_QUEUE_SLOTS", "N_INIT_DRAWS", "episode_key", "mission_index",
+           "init_normals_key", "step_rows_cpu", "reset_rows_cpu", "cuda_kernels", "THREADS_PER_BLOCK", "PTX_LIMITS",
+           "kernel_ptx", "step_ptx", "ptxas_usage"]
 
 #: The data queue's longest buffer the device kernel holds per thread (its local memory is sized at compile time).
 MAX_QUEUE_SLOTS = 64
@@ -66,105 +67,159 @@ def init_normals_key(key):
     return _mix64(key ^ _INIT_SALT)
 
 
-@njit(cache=True, error_model="numpy")
-def reset_row(i, c, x, x_hat, p, shadow, n, key, queue, mission, episode, ep_return, ep_length, pool, std0, seed_key,
-              obs, zbuf):
-    """Start episode ``episode[i]`` of row ``i``: its key, mission, initial state (as
-    :func:`iscc_gym.sim.loop.init_state`: the drone near the reference's start, the estimate at it, ``P_0`` diagonal,
-    the shadowing a standard normal), an empty queue, and its first observation into ``obs[i]``.
+class Consts(NamedTuple):
+    """What every row of a run reads: the slot's record and matrices (:func:`iscc_gym.sim.params.slot_params`), the
+    mission pool ``(P, N + 1, C)``, the initial state's deviations (6,), the run's seed key (uint64) and the step
+    limit (int64).
     """
-    k = episode_key(seed_key, i, episode[i])
-    key[i] = k
-    j = mission_index(k, pool.shape[0])
-    mission[i] = j
-    ref = pool[j]
+
+    cp: Any
+    mats: Any
+    pool: Any
+    std0: Any
+    seed_key: Any
+    max_steps: Any
+
+
+class Rows(NamedTuple):
+    """The state of every row: the loop's (``x``, ``x_hat``, ``p``, ``shadow``, ``n``, ``key``, ``queue``) and the
+    episode's (``mission``: its pool index, ``episode``: the count, ``ep_return``, ``ep_length``).
+    """
+
+    x: Any
+    x_hat: Any
+    p: Any
+    shadow: Any
+    n: Any
+    key: Any
+    queue: Any
+    mission: Any
+    episode: Any
+    ep_return: Any
+    ep_length: Any
+
+
+class Outs(NamedTuple):
+    """What a step writes per row: the env's columns (``out``), the observation, reward and done flags, and the ended
+    episode's return, length and last observation.
+    """
+
+    out: Any
+    obs: Any
+    reward: Any
+    terminated: Any
+    truncated: Any
+    final_return: Any
+    final_length: Any
+    final_obs: Any
+
+
+class Scratch(NamedTuple):
+    """A thread's work space: local copies of the row's state (``xl``, ``xhl``, ``pl``, ``ql``), the slot's
+    matrices and vectors (``mbuf``, ``vbuf``: :func:`iscc_gym.sim.loop.work_from`) and the draws (``zbuf``).
+    """
+
+    xl: Any
+    xhl: Any
+    pl: Any
+    ql: Any
+    mbuf: Any
+    vbuf: Any
+    zbuf: Any
+
+
+@njit(cache=True, error_model="numpy")
+def reset_row(i, c, k, st, obs, zbuf):
+    """Start episode ``st.episode[i]`` of row ``i`` (``c``: the slot's record, ``k``: :class:`Consts`, ``st``:
+    :class:`Rows`): its key, mission, initial state (:func:`iscc_gym.sim.loop.init_row_one`, as the CPU envs': the
+    drone near the reference's start, the estimate at it, ``P_0`` diagonal, the shadowing a standard normal), an empty
+    queue, and its first observation into ``obs[i]``.
+    """
+    key = episode_key(k.seed_key, i, st.episode[i])
+    st.key[i] = key
+    j = mission_index(key, k.pool.shape[0])
+    st.mission[i] = j
+    ref = k.pool[j]
     z = zbuf[:N_INIT_DRAWS]
-    fill_slot_normals(init_normals_key(k), 0, z)
-    shadow[i] = init_row_one(ref[0], std0, z, x[i], x_hat[i], p[i])  # the CPU envs' initial state (loop.init_state)
-    n[i] = 0
-    for a in range(queue.shape[1]):
-        queue[i, a] = 0.0
-    ep_return[i] = 0.0
-    ep_length[i] = 0
-    observe_one(c, x_hat[i], p[i], shadow[i], 0, ref, queue[i], 1.0, 0.0, obs[i], 0.0, 0.0)
+    fill_slot_normals(init_normals_key(key), 0, z)
+    st.shadow[i] = init_row_one(ref[0], k.std0, z, st.x[i], st.x_hat[i], st.p[i])
+    st.n[i] = 0
+    for a in range(st.queue.shape[1]):
+        st.queue[i, a] = 0.0
+    st.ep_return[i] = 0.0
+    st.ep_length[i] = 0
+    observe_one(c, st.x_hat[i], st.p[i], st.shadow[i], 0, ref, st.queue[i], 1.0, 0.0, obs[i], 0.0, 0.0)
 
 
 @njit(cache=True, error_model="numpy")
-def step_row(i, cp, mats, x, x_hat, p, shadow, n, key, queue, mission, episode, ep_return, ep_length, pool, std0,
-             seed_key, max_steps, action, out, obs, reward, terminated, truncated, final_return, final_length,
-             final_obs, xl, xhl, pl, ql, mbuf, vbuf, zbuf, blocked, field):
-    """One step of row ``i`` in place: the env's step (:func:`iscc_gym.sim.kernel.env_row_one`, from local copies of
-    the row's state), its outputs (``out[i]``: the env's columns; ``obs[i]``, ``reward[i]``, the done flags), then,
-    where the episode ended (terminated, the mission's end, or ``max_steps`` slots), the ended episode's return and
-    length into ``final_return[i]``, ``final_length[i]`` (NaN and 0 otherwise), its last observation into
-    ``final_obs[i]`` (a truncated episode's value is bootstrapped from it; left as it was where none ended) and the
-    next episode (:func:`reset_row`). ``xl``, ``xhl``, ``pl``, ``ql``, ``mbuf``, ``vbuf``, ``zbuf``: the caller's
-    scratch.
+def step_row(i, k, st, action, o, w, blocked, field):
+    """One step of row ``i`` in place (``k``: :class:`Consts`, ``st``: :class:`Rows`, ``action``: (N, 3), ``o``:
+    :class:`Outs`, ``w``: the caller's :class:`Scratch`): the env's step (:func:`iscc_gym.sim.kernel.env_row_one`,
+    from local copies of the row's state), its outputs (``o.out[i]``: the env's columns; the observation, reward and
+    done flags), then, where the episode ended (terminated, the mission's end, or ``k.max_steps`` slots), the ended
+    episode's return and length into ``o.final_return[i]``, ``o.final_length[i]`` (NaN and 0 otherwise), its last
+    observation into ``o.final_obs[i]`` (a truncated episode's value is bootstrapped from it; left as it was where
+    none ended) and the next episode (:func:`reset_row`).
     """
-    c = cp[0]
-    nq = queue.shape[1]
+    c = k.cp[0]
+    nq = st.queue.shape[1]
     for a in range(6):
-        xl[a] = x[i, a]
-        xhl[a] = x_hat[i, a]
+        w.xl[a] = st.x[i, a]
+        w.xhl[a] = st.x_hat[i, a]
         for b in range(6):
-            pl[a, b] = p[i, a, b]
+            w.pl[a, b] = st.p[i, a, b]
     for a in range(nq):
-        ql[a] = queue[i, a]
+        w.ql[a] = st.queue[i, a]
     a0, a1, a2 = split_one(action[i, 0], action[i, 1], action[i, 2])
-    zi = zbuf[:slot_draws_one(c)]
-    ni = n[i]
-    fill_slot_normals(key[i], ni, zi)
-    ref = pool[mission[i]]
-    mt = out[i]
-    shadow[i] = env_row_one(c, mats, xl, xhl, pl, shadow[i], ni, ref, ql[:nq], a0, a1, a2, zi, x[i], x_hat[i], p[i],
-                            queue[i], mt, obs[i], work_from(mbuf, vbuf), blocked, field)
-    n[i] = ni + 1
+    zi = w.zbuf[:slot_draws_one(c)]
+    ni = st.n[i]
+    fill_slot_normals(st.key[i], ni, zi)
+    ref = k.pool[st.mission[i]]
+    mt = o.out[i]
+    st.shadow[i] = env_row_one(c, k.mats, w.xl, w.xhl, w.pl, st.shadow[i], ni, ref, w.ql[:nq], a0, a1, a2, zi,
+                               st.x[i], st.x_hat[i], st.p[i], st.queue[i], mt, o.obs[i], work_from(w.mbuf, w.vbuf),
+                               blocked, field)
+    st.n[i] = ni + 1
     r = mt[_REWARD]
     term = mt[_TERM] == 1.0
-    trunc = (not term) and (mt[_TRUNC] == 1.0 or ni + 1 >= max_steps)
+    trunc = (not term) and (mt[_TRUNC] == 1.0 or ni + 1 >= k.max_steps)
     mt[_TRUNC] = 1.0 if trunc else 0.0
-    reward[i] = r
-    terminated[i] = term
-    truncated[i] = trunc
-    ep_return[i] += r
-    ep_length[i] += 1
+    o.reward[i] = r
+    o.terminated[i] = term
+    o.truncated[i] = trunc
+    st.ep_return[i] += r
+    st.ep_length[i] += 1
     if term or trunc:
-        final_return[i] = ep_return[i]
-        final_length[i] = ep_length[i]
-        for a in range(obs.shape[1]):
-            final_obs[i, a] = obs[i, a]
-        episode[i] += 1
-        reset_row(i, c, x, x_hat, p, shadow, n, key, queue, mission, episode, ep_return, ep_length, pool, std0,
-                  seed_key, obs, zbuf)
+        o.final_return[i] = st.ep_return[i]
+        o.final_length[i] = st.ep_length[i]
+        for a in range(o.obs.shape[1]):
+            o.final_obs[i, a] = o.obs[i, a]
+        st.episode[i] += 1
+        reset_row(i, c, k, st, o.obs, w.zbuf)
     else:
-        final_return[i] = math.nan
-        final_length[i] = 0
+        o.final_return[i] = math.nan
+        o.final_length[i] = 0
 
 
 @njit(cache=True, error_model="numpy")
-def step_rows_cpu(cp, mats, x, x_hat, p, shadow, n, key, queue, mission, episode, ep_return, ep_length, pool, std0,
-                  seed_key, max_steps, action, out, obs, reward, terminated, truncated, final_return, final_length,
-                  final_obs, blocked=None, field=None):
-    """:func:`step_row` over every row on one CPU core (the CPU stand-in of the device kernel), its scratch one set
-    of buffers for the batch.
+def step_rows_cpu(k, st, action, o, blocked=None, field=None):
+    """:func:`step_row` over every row on one CPU core (the CPU stand-in of the device kernel; the arguments are the
+    step kernel's, :meth:`iscc_gym.gpu.vector_env.DeviceVectorEnv.kernel_args`), its scratch one set of buffers for
+    the batch.
     """
-    xl, xhl, pl, ql = np.empty(6), np.empty(6), np.empty((6, 6)), np.empty(MAX_QUEUE_SLOTS)
-    mbuf, vbuf, zbuf = np.empty(WORK_MATS), np.empty(WORK_VEC), np.empty(_N_Z)
-    for i in range(x.shape[0]):
-        step_row(i, cp, mats, x, x_hat, p, shadow, n, key, queue, mission, episode, ep_return, ep_length, pool, std0,
-                 seed_key, max_steps, action, out, obs, reward, terminated, truncated, final_return, final_length,
-                 final_obs, xl, xhl, pl, ql, mbuf, vbuf, zbuf, blocked, field)
+    w = Scratch(np.empty(6), np.empty(6), np.empty((6, 6)), np.empty(MAX_QUEUE_SLOTS), np.empty(WORK_MATS),
+                np.empty(WORK_VEC), np.empty(_N_Z))
+    for i in range(st.x.shape[0]):
+        step_row(i, k, st, action, o, w, blocked, field)
 
 
 @njit(cache=True, error_model="numpy")
-def reset_rows_cpu(cp, x, x_hat, p, shadow, n, key, queue, mission, episode, ep_return, ep_length, pool, std0,
-                   seed_key, obs, rows):
+def reset_rows_cpu(k, st, obs, rows):
     """:func:`reset_row` of the rows listed in ``rows`` (the CPU stand-in of the device reset kernel)."""
-    c = cp[0]
+    c = k.cp[0]
     zbuf = np.empty(_N_Z)
-    for k in range(rows.shape[0]):
-        reset_row(rows[k], c, x, x_hat, p, shadow, n, key, queue, mission, episode, ep_return, ep_length, pool, std0,
-                  seed_key, obs, zbuf)
+    for j in range(rows.shape[0]):
+        reset_row(rows[j], c, k, st, obs, zbuf)
 
 
 @njit(cache=True, inline="always")
@@ -202,41 +257,28 @@ def cuda_kernels(blocked=None, field=None, queue_slots=MAX_QUEUE_SLOTS):
 
     global cuda  # a module global: numba-cuda's simulator swaps the module where the kernels' globals hold it
     cuda = import_cuda()
-    # the simulator runs the kernels as Python and hands them its array wrappers, which the @njit row functions
-    # (compiled for the CPU there) do not take: it passes them the arrays inside; on a GPU an identity, inlined
+    # the simulator runs the kernels as Python and hands them its wrappers of the array arguments (not of the arrays
+    # inside the tuples), which the @njit row functions (compiled for the CPU there) do not take: it passes them the
+    # arrays inside; on a GPU an identity, inlined
     host = _simulated_array if simulator() else _same
     nql = max(int(queue_slots), 1)  # a compile-time constant of the closure: the local array's length
 
     @cuda.jit(cache=True)
-    def step(cp, mats, x, x_hat, p, shadow, n, key, queue, mission, episode, ep_return, ep_length, pool, std0,
-             seed_key, max_steps, action, out, obs, reward, terminated, truncated, final_return, final_length,
-             final_obs):
+    def step(k, st, action, o):
         i = cuda.grid(1)
-        if i >= x.shape[0]:
+        if i >= st.x.shape[0]:
             return
-        xl = cuda.local.array(6, float64)
-        xhl = cuda.local.array(6, float64)
-        pl = cuda.local.array((6, 6), float64)
-        ql = cuda.local.array(nql, float64)
-        mbuf = cuda.local.array(WORK_MATS, float64)
-        vbuf = cuda.local.array(WORK_VEC, float64)
-        zbuf = cuda.local.array(_N_Z, float64)
-        h = host
-        step_row(i, h(cp), h(mats), h(x), h(x_hat), h(p), h(shadow), h(n), h(key), h(queue), h(mission), h(episode),
-                 h(ep_return), h(ep_length), h(pool), h(std0), seed_key, max_steps, h(action), h(out), h(obs),
-                 h(reward), h(terminated), h(truncated), h(final_return), h(final_length), h(final_obs), xl, xhl, pl,
-                 ql, mbuf, vbuf, zbuf, blocked, field)
+        w = Scratch(cuda.local.array(6, float64), cuda.local.array(6, float64), cuda.local.array((6, 6), float64),
+                    cuda.local.array(nql, float64), cuda.local.array(WORK_MATS, float64),
+                    cuda.local.array(WORK_VEC, float64), cuda.local.array(_N_Z, float64))
+        step_row(i, k, st, host(action), o, w, blocked, field)
 
     @cuda.jit(cache=True)
-    def reset(cp, x, x_hat, p, shadow, n, key, queue, mission, episode, ep_return, ep_length, pool, std0, seed_key,
-              obs, rows):
-        k = cuda.grid(1)
-        if k >= rows.shape[0]:
+    def reset(k, st, obs, rows):
+        j = cuda.grid(1)
+        if j >= rows.shape[0]:
             return
-        zbuf = cuda.local.array(_N_Z, float64)
-        h = host
-        reset_row(rows[k], h(cp)[0], h(x), h(x_hat), h(p), h(shadow), h(n), h(key), h(queue), h(mission), h(episode),
-                  h(ep_return), h(ep_length), h(pool), h(std0), seed_key, h(obs), zbuf)
+        reset_row(host(rows)[j], k.cp[0], k, st, host(obs), cuda.local.array(_N_Z, float64))
 
     _KERNELS[(blocked, field, int(queue_slots))] = step, reset
     return step, reset

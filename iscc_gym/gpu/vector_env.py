@@ -17,7 +17,16 @@ from gymnasium import spaces
 from gymnasium.vector.utils import batch_space
 
 from iscc_gym.envs.env import check_seed
-from iscc_gym.gpu.kernel import MAX_QUEUE_SLOTS, THREADS_PER_BLOCK, cuda_kernels, reset_rows_cpu, step_rows_cpu
+from iscc_gym.gpu.kernel import (
+    MAX_QUEUE_SLOTS,
+    THREADS_PER_BLOCK,
+    Consts,
+    Outs,
+    Rows,
+    cuda_kernels,
+    reset_rows_cpu,
+    step_rows_cpu,
+)
 from iscc_gym.scenario import Scenario, make_scenario
 from iscc_gym.sim import loop
 from iscc_gym.sim.effects import task_effects
@@ -239,15 +248,18 @@ class DeviceVectorEnv:
         return self.obs, self.reward, self.terminated, self.truncated, info
 
     def kernel_args(self) -> tuple:
-        """The step kernel's arguments (:func:`iscc_gym.gpu.kernel.step_rows_cpu` without the switches): the
-        parameters, the state, the pool, the seed key, the step limit, then the action and output buffers.
+        """The step kernel's arguments (:func:`iscc_gym.gpu.kernel.step_rows_cpu` without the switches):
+        :class:`~iscc_gym.gpu.kernel.Consts` (the parameters, the pool, the seed key, the step limit),
+        :class:`~iscc_gym.gpu.kernel.Rows` (the state), the action buffer and :class:`~iscc_gym.gpu.kernel.Outs`.
         """
         if self._state is None:
             raise RuntimeError("no state before reset(): call env.reset(seed=...) first")
-        st = self._state
-        return (self._c, self._mats, st["x"], st["x_hat"], st["p"], st["shadow"], st["n"], st["key"], st["queue"],
-                st["mission"], st["episode"], st["ep_return"], st["ep_length"], self._pool, self._std0,
-                self._seed_key, np.int64(self.max_steps), *self._views)
+        actions, metrics, obs, reward, terminated, truncated, final_return, final_length, final_obs = self._views
+        return (self._consts(), Rows(**self._state), actions,
+                Outs(metrics, obs, reward, terminated, truncated, final_return, final_length, final_obs))
+
+    def _consts(self) -> Consts:
+        return Consts(self._c, self._mats, self._pool, self._std0, self._seed_key, np.int64(self.max_steps))
 
     @property
     def switches(self) -> tuple:
@@ -256,14 +268,13 @@ class DeviceVectorEnv:
 
     def reset_args(self, rows: np.ndarray) -> tuple:
         """The reset kernel's arguments (:func:`iscc_gym.gpu.kernel.reset_rows_cpu`'s) that start a new episode in
-        each row listed in ``rows`` (int64).
+        each row listed in ``rows`` (int64): :class:`~iscc_gym.gpu.kernel.Consts`, :class:`~iscc_gym.gpu.kernel.Rows`,
+        the observation buffer and the rows.
         """
         if self._state is None:
             raise RuntimeError("no state before reset(): call env.reset(seed=...) first")
-        st = self._state
-        return (self._c, st["x"], st["x_hat"], st["p"], st["shadow"], st["n"], st["key"], st["queue"], st["mission"],
-                st["episode"], st["ep_return"], st["ep_length"], self._pool, self._std0, self._seed_key,
-                self._views[2], self._to_device(np.ascontiguousarray(rows, dtype=np.int64)))
+        return (self._consts(), Rows(**self._state), self._views[2],
+                self._to_device(np.ascontiguousarray(rows, dtype=np.int64)))
 
     def _launch_reset(self, rows: np.ndarray) -> None:
         args = self.reset_args(rows)

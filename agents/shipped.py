@@ -32,8 +32,8 @@ def agent_dir(env_id: str) -> Path | None:
 PPO_AGENT = agent_dir(ENV_ID)
 #: The trained PPO agent of ``iscc_gym/ISCC-Urban-v0`` (``python -m eval --env iscc_gym/ISCC-Urban-v0``'s ``ppo``).
 URBAN_AGENT = agent_dir(URBAN_ENV_ID)
-#: The trained agent of ``iscc_gym/ISCC-Field-v0``: a residual on ``adaptive`` (``python -m eval --env
-#: iscc_gym/ISCC-Field-v0``'s ``ppo``).
+#: The trained agent of ``iscc_gym/ISCC-Field-v0``: a residual on ``bayes``, trained with its critic shown the world
+#: and the expected reward (``python -m eval --env iscc_gym/ISCC-Field-v0``'s ``ppo``).
 FIELD_AGENT = agent_dir(FIELD_ENV_ID)
 #: The multi-drone agents, one folder per drone count (``k4``, ``k4_lag``, ...).
 MULTI_DIR = TRAINED_DIR / "multi"

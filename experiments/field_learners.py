@@ -29,10 +29,10 @@ SECTION = "field-learners"
 #: reward; ``python -m experiments field-agent``).
 _TRAIN = "python -m train --env {env} "
 LEARNERS = {
-    "ppo-bayes=runs/field_res_bayes": _TRAIN + "--residual bayes --out runs/field_res_bayes",
-    "ppo-cw=runs/field_cw_bayes": _TRAIN + "--residual bayes --critic world --out runs/field_cw_bayes",
-    "ppo-cw-exp=runs/field_cw_exp_bayes": _TRAIN + "--residual bayes --critic world --reward expected "
-                                                   "--out runs/field_cw_exp_bayes",
+    "ppo-adaptive=runs/field_ppo_adaptive": _TRAIN + "--residual adaptive --critic own --reward sampled "
+                                                     "--out runs/field_ppo_adaptive",
+    "ppo-bayes=runs/field_res_bayes": _TRAIN + "--critic own --reward sampled --out runs/field_res_bayes",
+    "ppo-cw=runs/field_cw_bayes": _TRAIN + "--reward sampled --out runs/field_cw_bayes",
     "estimator:runs/field_est": _TRAIN + "--learner estimator --n-envs 128 --total-timesteps 640000 "
                                          "--out runs/field_est",
     "student:runs/field_dagger": _TRAIN + "--learner dagger --out runs/field_dagger",

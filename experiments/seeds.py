@@ -144,7 +144,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m experiments.seeds
         res = compare_seeds(args.root, seed_list(args.seed_start, args.episodes), args.scenario,
                             scripted, max_steps=args.max_steps, progress=bar.update if show else None,
                             reference=reference, env_id=args.env, runs=runs)
-    cmd = docs_command("python -m experiments.seeds", argv)
+    cmd = docs_command(prog, argv)
     table = markdown(res, cmd)
     print(table)
     if args.write_docs:

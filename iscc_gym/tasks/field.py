@@ -38,10 +38,11 @@ FIELD_WORLD_RANGES: dict[str, tuple[float, float]] = {
     "rician_k_db": (2.0, 12.0), "rician_k_std_db": (2.0, 10.0), "rcs_std_db": (1.0, 8.0),
     "rician_k_correlation_m": (4.0, 60.0)}
 
-# the shipped agent (a residual on adaptive), the designer's per-slot policies on the paper's model, the adaptive rung
-# that re-estimates the world, the Bayesian rung that filters it on the field's own prior (issue 45), and the
-# model-knowledge bound (aware: myopic shown the world's hidden values); every difference against myopic, the
-# agent's against every rung, and the share of the gap to aware that each causal rung and the agent close
+# the shipped agent (a residual on bayes, trained with its critic shown the world; issue 45), the designer's per-slot
+# policies on the paper's model, the adaptive rung that re-estimates the world, the Bayesian rung that filters it on
+# the field's own prior (issue 45), and the model-knowledge bound (aware: myopic shown the world's hidden values);
+# every difference against myopic, the agent's against every rung, and the share of the gap to aware that each causal
+# rung and the agent close
 TASK = Task(FIELD_ENV_ID, "field", "iscc_gym.envs.env:ISCCEnv", "iscc_gym.envs.vector:ISCCVectorEnv",
             "the paper's loop in a world its model does not know: the links' K-factor a field along the path, the "
             "drone's RCS drawn per mission", "tasks/field", FIELD_VARIANTS,

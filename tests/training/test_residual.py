@@ -397,5 +397,7 @@ def test_the_field_entry_trains_a_split_residual_on_bayes_with_the_world_shown_a
                                                                                             "expected")
     with pytest.raises(ValueError, match="--residual 'bayes' .*drop --device"):
         config_from_args(parse_args(["--env", FIELD_ENV_ID]), "standin")
-    with pytest.raises(ValueError, match="--critic 'world' .*drop --device"):
+    with pytest.raises(ValueError, match="--reward 'expected' .*drop --device"):
         config_from_args(parse_args(["--env", FIELD_ENV_ID, "--residual", "none"]), "standin")
+    with pytest.raises(ValueError, match="--critic 'world' .*drop --device"):
+        config_from_args(parse_args(["--env", FIELD_ENV_ID, "--residual", "none", "--reward", "sampled"]), "standin")

@@ -35,7 +35,7 @@ def _dev(device: str) -> str:
     return "cuda" if device == "cuda" else "cpu"
 
 
-def ppo_rate(device: str, quick: bool = False, lr_schedule: str = "kl") -> dict:
+def ppo_rate(device: str, quick: bool = False, lr_schedule: str = "constant") -> dict:
     """PPO end to end on the paper task's device env: env-steps/s over 20 updates of 131,072 envs x 16 steps on a GPU
     (1,024 envs on the stand-in; ``quick``: 16 envs x 4 steps, two updates).
     """

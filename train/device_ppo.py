@@ -13,9 +13,10 @@ policy classes (TensorDict observations, their checkpoints), none of which ``pre
 Scaled to its batch (issue 46): a GPU rollout holds some 100k envs x 16 steps, where SB3 on a CPU holds 4,096
 samples; at SB3's constant rate and minibatch size, PPO took one optimizer step per 5,461 samples. The device run
 splits each rollout into :data:`N_MINIBATCHES` minibatches (rsl_rl's and CleanRL's GPU variants: 4 and 2-4) and
-adapts the rate to a KL target as rsl_rl does (``lr_schedule="kl"``, the device default: the rate is divided by 1.5
+can adapt the rate to a KL target as rsl_rl does (``lr_schedule="kl"``: the rate is divided by 1.5
 after a minibatch whose KL exceeds twice ``desired_kl``, multiplied by 1.5 after one below half of it, kept within
-[:data:`LR_BOUNDS`]); ``"linear"`` anneals it to zero over the run (CleanRL's), ``"constant"`` keeps SB3's.
+[:data:`LR_BOUNDS`]); ``"linear"`` anneals it to zero over the run (CleanRL's), ``"constant"`` keeps SB3's (the
+default: on the CPU stand-in, 120 s of training each, neither of the others did better; docs/gpu.md).
 
 Differences from SB3, stated: the normalisation statistics (VecNormalize's observation and return statistics) are
 updated once a rollout, from all its samples, not after every step (the rollout is normalised by the statistics it
@@ -38,8 +39,8 @@ __all__ = ["DevicePPOConfig", "RunningMeanStd", "Trained", "gae", "train", "to_s
 
 #: Settings of a device run where the task's YAML entry (sized for SB3 on a CPU) does not fit a GPU: many envs
 #: (:func:`default_n_envs` on a GPU), a rollout of 16 steps cut into :data:`N_MINIBATCHES` minibatches, the rate
-#: adapted to a KL target.
-DEVICE_DEFAULTS = {"n_envs": 4096, "n_steps": 16, "pool_size": 1024, "lr_schedule": "kl", "desired_kl": 0.01}
+#: SB3's constant rate (``kl`` and ``linear`` are options: on the CPU stand-in neither did better, docs/gpu.md).
+DEVICE_DEFAULTS = {"n_envs": 4096, "n_steps": 16, "pool_size": 1024, "lr_schedule": "constant", "desired_kl": 0.01}
 #: Minibatches a rollout is cut into by default (``batch_size`` = ``n_envs * n_steps / N_MINIBATCHES``).
 N_MINIBATCHES = 4
 #: ``lr_schedule``: ``constant`` (SB3's), ``kl`` (rsl_rl's KL-adaptive rate), ``linear`` (annealed to 0, CleanRL's).

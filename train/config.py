@@ -186,8 +186,7 @@ def resolve_args(args: Args) -> tuple[Args, dict]:
             except (TypeError, ValueError):
                 kind = {"normalize": "true or false", "norm_reward": "true or false", "init_policy": "a policy spec",
                         "residual": "a policy spec", "residual_space": "action or split",
-                        "init_log_std": "a number", "residual_scale": "a number",
-                        "reward": "sampled or expected", "critic": "own or world"}.get(name, "an integer")
+                        "init_log_std": "a number", "residual_scale": "a number"}.get(name, "an integer")
                 raise ValueError(f"{key} = {value!r} in {args.hyperparams} or --set; use {kind}") from None
     env_kwargs = hp.pop("env_kwargs", None) or {}
     if not isinstance(env_kwargs, dict):

@@ -160,6 +160,7 @@ class DeviceVectorEnv:
         self._c, self._mats = self._to_device(np.array(c)), self._to_device(np.array(mats))
         self._std0 = self._to_device(loop.initial_std(s))
         self._state = None
+        self._args = None
         self._pool = None
         self._seed_key = None
         self._nq = nq
@@ -206,6 +207,11 @@ class DeviceVectorEnv:
         host["mission"][:m] = np.arange(m)
         self._pool = self._to_device(first.ref) if self._torch_device.type == "cuda" else np.array(first.ref)
         self._state = {k: self._to_device(v) for k, v in host.items()}
+        # the kernels' arguments, built once a reset (the buffers never move between resets), not every step
+        actions, metrics, obs, reward, terminated, truncated, final_return, final_length, final_obs = self._views
+        self._args = (Consts(self._c, self._mats, self._pool, self._std0, self._seed_key, np.int64(self.max_steps)),
+                      Rows(**self._state), actions,
+                      Outs(metrics, obs, reward, terminated, truncated, final_return, final_length, final_obs))
         obs0 = observe(s, first.rows(np.arange(m)), np.ones(m), np.zeros(m))  # as the CPU vector env's reset
         self.obs[:m] = torch.from_numpy(obs0).to(self.obs.device)
         if n > m:
@@ -254,12 +260,7 @@ class DeviceVectorEnv:
         """
         if self._state is None:
             raise RuntimeError("no state before reset(): call env.reset(seed=...) first")
-        actions, metrics, obs, reward, terminated, truncated, final_return, final_length, final_obs = self._views
-        return (self._consts(), Rows(**self._state), actions,
-                Outs(metrics, obs, reward, terminated, truncated, final_return, final_length, final_obs))
-
-    def _consts(self) -> Consts:
-        return Consts(self._c, self._mats, self._pool, self._std0, self._seed_key, np.int64(self.max_steps))
+        return self._args
 
     @property
     def switches(self) -> tuple:
@@ -273,8 +274,8 @@ class DeviceVectorEnv:
         """
         if self._state is None:
             raise RuntimeError("no state before reset(): call env.reset(seed=...) first")
-        return (self._consts(), Rows(**self._state), self._views[2],
-                self._to_device(np.ascontiguousarray(rows, dtype=np.int64)))
+        consts, state, _, outs = self._args
+        return consts, state, outs.obs, self._to_device(np.ascontiguousarray(rows, dtype=np.int64))
 
     def _launch_reset(self, rows: np.ndarray) -> None:
         args = self.reset_args(rows)
@@ -327,7 +328,7 @@ class DeviceVectorEnv:
 
     def close(self) -> None:
         """Free the device buffers."""
-        self._state = self._pool = None
+        self._state = self._pool = self._args = None
 
 
 def memory_bytes(s: Scenario, num_envs: int, pool_size: int) -> int:

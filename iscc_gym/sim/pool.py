@@ -16,6 +16,7 @@ over worker processes (``workers``: by default ``ISCC_GYM_POOL_WORKERS``, else t
 from __future__ import annotations
 
 import os
+import sys
 from collections import OrderedDict
 
 import numpy as np
@@ -104,23 +105,28 @@ def _draw_in_processes(s: Scenario, blocks: list[range]) -> list[loop.LoopState]
     """
     import pickle
     import subprocess
-    import sys
     import tempfile
 
     with tempfile.TemporaryDirectory(prefix="iscc_gym_pool_") as tmp:
         src = os.path.join(tmp, "scenario.pkl")
         with open(src, "wb") as f:
             pickle.dump(s, f)
-        procs = [(subprocess.Popen([sys.executable, "-m", "iscc_gym.sim.pool", src, os.path.join(tmp, f"{k}.npz"),
-                                    str(b.start), str(b.stop)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-                                   env={**os.environ, "ISCC_GYM_POOL_WORKERS": "1"}), k)
+        procs = [subprocess.Popen([sys.executable, "-m", "iscc_gym.sim.pool", src, os.path.join(tmp, f"{k}.npz"),
+                                   str(b.start), str(b.stop), str(os.getpid())], stdout=subprocess.DEVNULL,
+                                  stderr=subprocess.PIPE, env={**os.environ, "ISCC_GYM_POOL_WORKERS": "1"})
                  for k, b in enumerate(blocks)]
-        errors = [(k, p.communicate()[1]) for p, k in procs]
-        failed = [(k, err) for (k, err), (p, _) in zip(errors, procs, strict=True) if p.returncode != 0]
-        if failed:
-            k, err = failed[0]
-            raise RuntimeError(f"a mission pool worker (seeds {blocks[k].start} to {blocks[k].stop - 1}) failed: "
-                               f"{err.decode(errors='replace').strip()[-2000:]}; ISCC_GYM_POOL_WORKERS=1 draws here")
+        try:
+            errors = [p.communicate()[1] for p in procs]
+        finally:  # interrupted (Ctrl-C, an error): no worker outlives the draw
+            for p in procs:
+                if p.poll() is None:
+                    p.kill()
+                    p.wait()
+        for k, (p, err) in enumerate(zip(procs, errors, strict=True)):
+            if p.returncode != 0:
+                why = err.decode(errors="replace").strip()[-2000:]
+                raise RuntimeError(f"a mission pool worker (seeds {blocks[k].start} to {blocks[k].stop - 1}) failed: "
+                                   f"{why}; ISCC_GYM_POOL_WORKERS=1 draws here")
         parts = []
         for k in range(len(blocks)):
             with np.load(os.path.join(tmp, f"{k}.npz")) as z:
@@ -129,10 +135,20 @@ def _draw_in_processes(s: Scenario, blocks: list[range]) -> list[loop.LoopState]
 
 
 def _worker(argv: list[str]) -> None:
-    """``python -m iscc_gym.sim.pool SCENARIO.pkl OUT.npz START STOP``: the missions of seeds START .. STOP - 1."""
+    """``python -m iscc_gym.sim.pool SCENARIO.pkl OUT.npz START STOP PARENT``: the missions of seeds START .. STOP - 1,
+    for the process PARENT; on Linux the worker is sent SIGTERM when its parent dies (a parent killed by a plain
+    SIGTERM, which runs no cleanup, leaves no worker behind).
+    """
     import pickle
 
-    src, out, start, stop = argv
+    src, out, start, stop, parent = argv
+    if sys.platform.startswith("linux"):
+        import ctypes
+        import signal
+
+        ctypes.CDLL(None).prctl(1, int(signal.SIGTERM))  # PR_SET_PDEATHSIG
+    if os.getppid() != int(parent):  # the parent died before the line above
+        sys.exit(1)
     with open(src, "rb") as f:
         s = pickle.load(f)  # the parent's own temporary file
     pool = _draw(s, range(int(start), int(stop)))
@@ -145,6 +161,4 @@ def clear_pool_cache() -> None:
 
 
 if __name__ == "__main__":
-    import sys
-
     _worker(sys.argv[1:])

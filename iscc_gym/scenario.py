@@ -239,6 +239,20 @@ class Scenario:
         The field task: the spread in dB of the drone's radar cross section around ``rcs_m2``, one log-normal draw
         per mission (3GPP TR 38.901 Rel-19 Sec. 7.9, the UAV target's RCS: 3.74 dB for a small UAV). 0 (the
         paper): the constant.
+    rician_k_blockage : str
+        The field task's K-factor with abrupt line-of-sight changes (issue 45, a world the designer's prior does
+        not know): ``"none"`` (the field as it is) or ``"uma_av"``/``"umi_av"``: a LoS state along the path drawn as
+        the urban task's (TR 36.777 Table B-1's LoS probability at the reference's height and horizontal distance,
+        a spatially consistent field of correlation ``los_correlation_m`` and kernel ``los_field_kernel``,
+        thresholded), and in NLoS the K-factor is ``rician_k_nlos_db`` instead of the field's value. Only the
+        K-factor changes (not the path loss: that is the urban task's blockage). Needs the field
+        (``rician_k_std_db`` > 0) and the altitude band within (22.5, 300] m; drawn from a stream jumped ahead of
+        the mission's, so every other draw of a mission is unchanged (common random numbers with the world without
+        it).
+    rician_k_nlos_db : float
+        The K-factor in NLoS with ``rician_k_blockage`` on, dB. Default -20 dB: TR 38.901's NLoS links have no
+        specular part (Rayleigh); -20 dB (1 % of the power specular) is Rayleigh's law within about a per cent at
+        the outage levels here, and inside the CDF tables of ``bayes``'s mixture (built down to -20 dB).
     show_world : bool
         The observation adds the world's hidden values of the slot (the K-factor in dB and the RCS's offset from
         ``rcs_m2`` in dB) after the measured block: for the model-knowledge bound (``eval``'s ``aware``), never a
@@ -326,6 +340,8 @@ class Scenario:
     rician_k_std_db: float = 0.0
     rician_k_correlation_m: float = 15.0
     rcs_std_db: float = 0.0
+    rician_k_blockage: str = "none"
+    rician_k_nlos_db: float = -20.0
     show_world: bool = False
 
     def __post_init__(self) -> None:

@@ -43,6 +43,7 @@ CHOICES: dict[str, tuple[str, ...]] = {
     "blockage": ("none", "uma_av", "umi_av"),
     "preview_source": ("map", "truth"),
     "los_field_kernel": ("exponential", "gaussian"),
+    "rician_k_blockage": ("none", "uma_av", "umi_av"),
 }
 
 
@@ -116,6 +117,7 @@ _RANGES: dict[str, tuple[float, float, bool]] = {
     "rician_k_std_db": (0.0, 20.0, False),
     "rician_k_correlation_m": (MIN_CORRELATION_M, 1e5, False),
     "rcs_std_db": (0.0, 20.0, False),
+    "rician_k_nlos_db": (-100.0, 100.0, False),
 }
 #: At most this many slots per mission (the reference alone takes 72 bytes a slot per loop).
 MAX_SLOTS = 1_000_000
@@ -262,6 +264,13 @@ def validate(s: Scenario) -> None:
               s.altitude_min_m if s.altitude_min_m <= 22.5 else s.altitude_max_m,
               f"within (22.5, 300] m with blockage = {s.blockage!r} (the heights of TR 36.777 Table B-2's aerial path "
               f"loss); raise altitude_min_m or lower altitude_max_m, or set blockage = 'none'")
+    if s.rician_k_blockage != "none":
+        if s.rician_k_std_db == 0.0:
+            _fail("rician_k_blockage", s.rician_k_blockage, "'none' without the K-factor's field (it switches the "
+                  "field's K to rician_k_nlos_db in NLoS); set rician_k_std_db > 0 (the field task)")
+        if not (22.5 < s.altitude_min_m and s.altitude_max_m <= 300.0):
+            _fail("rician_k_blockage", s.rician_k_blockage, "'none' unless the altitude band lies within (22.5, "
+                  "300] m (TR 36.777 Table B-1's aerial LoS probability); move the band or set it to 'none'")
     if s.queue_deadline_s > 0.0 and s.queue_deadline_s < 0.5 * s.dt_s:
         _fail("queue_deadline_s", s.queue_deadline_s, f"0 (no queue) or at least half a slot (dt_s = {s.dt_s} s)")
     if s.queue_deadline_s > 1000.0 * s.dt_s:

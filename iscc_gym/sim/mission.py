@@ -33,7 +33,7 @@ from iscc_gym.scenario import Scenario
 from iscc_gym.sim.effects import task_effects
 
 __all__ = ["REFERENCE_COLUMNS", "CHANNEL_COLUMNS", "MC", "WORLD_COLUMNS", "mission_columns", "world_column",
-           "channel_along", "world_along", "mission_rows"]
+           "channel_along", "world_along", "los_along", "mission_rows"]
 
 #: Columns of the reference part of a mission row.
 REFERENCE_COLUMNS = 9
@@ -125,14 +125,34 @@ def world_along(s: Scenario, ref: np.ndarray, rng: np.random.Generator) -> np.nd
         \Delta\sigma_\mathrm{RCS,dB} = \sigma_\mathrm{RCS}\, z
 
     (:math:`\mu_K` = ``rician_k_db``, :math:`\sigma_K` = ``rician_k_std_db``, :math:`\sigma_\mathrm{RCS}` =
-    ``rcs_std_db``; the field at the slot's reference position, as the blockage's channel is).
+    ``rcs_std_db``; the field at the slot's reference position, as the blockage's channel is). With
+    ``rician_k_blockage`` on, :func:`los_along` drawn from a stream jumped ahead of ``rng``'s (``rng`` is left as
+    it is, so every other draw of the mission is the world's without it): where it is NLoS, :math:`K_\mathrm{dB}`
+    is ``rician_k_nlos_db``.
     """
     if not task_effects(s).field:
         raise ValueError("world_along needs Scenario.rician_k_std_db or rcs_std_db > 0")
     field = draw_field(rng, s.rician_k_correlation_m, kernel="exponential")
     z = rng.standard_normal()
     k_db = s.rician_k_db + s.rician_k_std_db * field_at(field, ref[:, 0], ref[:, 1])
+    if s.rician_k_blockage != "none":
+        # from a stream jumped ahead of rng's, which leaves rng as it is: the mission's later draws (the initial
+        # state's) are those of the world without the blockage (common random numbers)
+        los = los_along(s, s.rician_k_blockage, ref, np.random.Generator(rng.bit_generator.jumped()))
+        k_db = np.where(los, k_db, s.rician_k_nlos_db)
     return np.column_stack([k_db, np.full(len(ref), s.rcs_std_db * z)])
+
+
+def los_along(s: Scenario, model: str, ref: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    r"""A LoS state along the reference, (N+1,) bool, drawn from ``rng`` (one unit field): LoS where the field
+    (correlation ``los_correlation_m``, kernel ``los_field_kernel``) is below :math:`\Phi^{-1}(P_\mathrm{LoS})`,
+    TR 36.777 Table B-1's probability under ``model`` at the reference's height and horizontal distance to the
+    GBS (the urban task's truth with a perfect map: ``map_error_std`` 0). For ``rician_k_blockage``.
+    """
+    x, y, h = ref[:, 0], ref[:, 1], ref[:, 2]
+    f = field_at(draw_field(rng, s.los_correlation_m, kernel=s.los_field_kernel), x, y)
+    with np.errstate(divide="ignore"):
+        return f < ndtri(los_probability(model, h, np.hypot(x, y)))
 
 
 def mission_rows(s: Scenario, reference: np.ndarray, rng: np.random.Generator) -> np.ndarray:

@@ -86,6 +86,42 @@ def test_world_rows_follow_their_sources_spreads_and_share_draws_across_spreads(
     np.testing.assert_allclose(w[:, 1] / 6.0, n[:, 1] / 3.74, rtol=1e-12)
 
 
+def test_abrupt_line_of_sight_drops_k_where_blocked_and_leaves_every_other_draw():
+    from iscc_gym.physics.blockage import los_probability
+
+    s = make_scenario("field")
+    blocked = s.replace(rician_k_blockage="umi_av", los_field_kernel="gaussian", rician_k_nlos_db=-15.0)
+    a, b = loop.init_mission(s, np.random.default_rng(5)), loop.init_mission(blocked, np.random.default_rng(5))
+    for name in a._fields:  # the initial state, the reference, the RCS: the same draws
+        x, y = getattr(a, name), getattr(b, name)
+        if isinstance(x, np.ndarray) and name != "ref":
+            np.testing.assert_array_equal(x, y)
+    k = world_column(s)
+    np.testing.assert_array_equal(np.delete(a.ref, k, axis=2), np.delete(b.ref, k, axis=2))
+    nlos = b.ref[0, :, k] != a.ref[0, :, k]
+    assert np.all(b.ref[0, nlos, k] == -15.0)
+    # blocked in stretches, as often as TR 36.777's UMi-AV probability says along this path (a field is one draw:
+    # pooled over missions)
+    frac, expect, switches = [], [], []
+    for seed in range(12):
+        st = loop.init_mission(blocked, np.random.default_rng(seed))
+        un = loop.init_mission(s, np.random.default_rng(seed))
+        off = st.ref[0, :, k] != un.ref[0, :, k]
+        ref = st.ref[0]
+        frac.append(off.mean())
+        expect.append(1.0 - los_probability("umi_av", ref[:, 2], np.hypot(ref[:, 0], ref[:, 1])).mean())
+        switches.append(np.sum(off[1:] != off[:-1]))
+    assert abs(np.mean(frac) - np.mean(expect)) < 0.12 and 0.1 < np.mean(frac) < 0.7
+    assert 2 < np.mean(switches) < 200
+    with pytest.raises(ValueError, match=r"Scenario\.rician_k_blockage = 'umi_av' is invalid.*rician_k_std_db"):
+        make_scenario("paper", rician_k_blockage="umi_av")
+    with pytest.raises(ValueError, match=r"Scenario\.rician_k_blockage = 'uma' is invalid.*one of"):
+        s.replace(rician_k_blockage="uma")
+    with pytest.raises(ValueError, match=r"Scenario\.rician_k_blockage = 'umi_av' is invalid.*altitude"):
+        s.replace(rician_k_blockage="umi_av", altitude_max_m=350.0, coverage_radius_m=2000.0,
+                  waypoint_intensity_per_km3=0.5)
+
+
 def test_layout_without_the_field_is_the_papers():
     paper = make_scenario("paper")
     field = make_scenario("field")

@@ -32,7 +32,7 @@ POSITIVE_INT = ["n_x", "n_y", "n_symbols", "n_subcarriers", "ctrl_packet_bits",
                 "ctrl_blocklength", "comm_blocklength", "min_waypoints"]
 BLER = ["ctrl_target_bler", "comm_target_bler"]  # in (0, 0.5)
 ANY_FINITE = ["tx_power_dbm", "noise_psd_dbm_hz", "comm_snr_offset_db", "sensing_snr_offset_db",
-              "rician_k_db", "altitude_max_m"]
+              "rician_k_db", "rician_k_nlos_db", "altitude_max_m"]
 URBAN_INT = ["preview_slots", "preview_stride_slots"]  # integers >= 0 and >= 1; previews need blockage
 SPECIAL = ["lqg_q_pos", "gnss_update_period_s"]  # > 0 (and: zero position weight; a multiple of dt_s)
 CHOICES = {
@@ -48,6 +48,7 @@ CHOICES = {
     "blockage": ("none", "uma_av", "umi_av"),
     "preview_source": ("map", "truth"),
     "los_field_kernel": ("exponential", "gaussian"),
+    "rician_k_blockage": ("none", "uma_av", "umi_av"),
 }
 BOOLS = ["reference_feedforward", "show_world"]
 NUMERIC = POSITIVE + NON_NEGATIVE + POSITIVE_INT + BLER + ANY_FINITE + SPECIAL + URBAN_INT
@@ -162,11 +163,12 @@ def test_unrestricted_fields_accept_negative_values(name):
 
 @pytest.mark.parametrize("name", list(CHOICES))
 def test_choice_fields(name):
+    base = SCENARIOS["field"] if name == "rician_k_blockage" else Scenario()  # it switches the field's K
     for ok in CHOICES[name]:
-        assert getattr(Scenario().replace(**{name: ok}), name) == ok
+        assert getattr(base.replace(**{name: ok}), name) == ok
     for bad in ("bogus", CHOICES[name][0].upper(), "", None, 1):
         with pytest.raises(ValueError, match=_msg(name)):
-            Scenario().replace(**{name: bad})
+            base.replace(**{name: bad})
 
 
 @pytest.mark.parametrize("bad", [0, 1, "yes", None, 1.0])

@@ -20,8 +20,8 @@ from typing import Any, NamedTuple
 import numpy as np
 from numba import njit
 
-from iscc_gym.sim.kernel import env_row_one, observe_one, split_one
-from iscc_gym.sim.loop import WORK_MATS, WORK_VEC, init_row_one, slot_draws_one, work_from
+from iscc_gym.sim.kernel import LastSlot, env_row_one, observe_one, split_one
+from iscc_gym.sim.loop import WORK_MATS, WORK_VEC, LoopState, RowNext, init_row_one, slot_draws_one, work_from
 from iscc_gym.sim.noise import GOLDEN_GAMMA as _GAMMA
 from iscc_gym.sim.noise import fill_slot_normals
 from iscc_gym.sim.noise import mix64 as _mix64
@@ -148,7 +148,8 @@ def reset_row(i, c, k, st, obs, zbuf):
         st.queue[i, a] = 0.0
     st.ep_return[i] = 0.0
     st.ep_length[i] = 0
-    observe_one(c, st.x_hat[i], st.p[i], st.shadow[i], 0, ref, st.queue[i], 1.0, 0.0, obs[i], 0.0, 0.0)
+    observe_one(c, LoopState(st.x[i], st.x_hat[i], st.p[i], st.shadow[i], 0, ref, key, st.queue[i]),
+                LastSlot(1.0, 0.0, 0.0, 0.0), obs[i])
 
 
 @njit(cache=True, error_model="numpy")
@@ -176,9 +177,9 @@ def step_row(i, k, st, action, o, w, blocked, field):
     fill_slot_normals(st.key[i], ni, zi)
     ref = k.pool[st.mission[i]]
     mt = o.out[i]
-    st.shadow[i] = env_row_one(c, k.mats, w.xl, w.xhl, w.pl, st.shadow[i], ni, ref, w.ql[:nq], a0, a1, a2, zi,
-                               st.x[i], st.x_hat[i], st.p[i], st.queue[i], mt, o.obs[i], work_from(w.mbuf, w.vbuf),
-                               blocked, field)
+    now = LoopState(w.xl, w.xhl, w.pl, st.shadow[i], ni, ref, st.key[i], w.ql[:nq])
+    st.shadow[i] = env_row_one(c, k.mats, now, (a0, a1, a2), zi, RowNext(st.x[i], st.x_hat[i], st.p[i], st.queue[i]),
+                               mt, o.obs[i], work_from(w.mbuf, w.vbuf), blocked, field)
     st.n[i] = ni + 1
     r = mt[_REWARD]
     term = mt[_TERM] == 1.0

@@ -18,6 +18,12 @@ after a minibatch whose KL exceeds twice ``desired_kl``, multiplied by 1.5 after
 [:data:`LR_BOUNDS`]); ``"linear"`` anneals it to zero over the run (CleanRL's), ``"constant"`` keeps SB3's (the
 default: on the CPU stand-in, 120 s of training each, neither of the others did better; docs/gpu.md).
 
+Rows start spread over the mission (``random_start``, the default; :class:`iscc_gym.gpu.vector_env.DeviceVectorEnv`):
+with thousands of envs and 16-step rollouts a run lasts about one mission per env, and rows that all start at slot 0
+sweep the mission in step, every update's samples from one phase of it (the policy forgets the early slots while it
+trains on the late ones: on the stand-in it got worse as it trained, docs/gpu.md); rsl_rl starts its envs at random
+episode lengths for the same reason.
+
 Differences from SB3, stated: the normalisation statistics (VecNormalize's observation and return statistics) are
 updated once a rollout, from all its samples, not after every step (the rollout is normalised by the statistics it
 started with, its rewards scaled by those it ended with); a truncated episode's last reward is bootstrapped with the
@@ -106,6 +112,7 @@ class DevicePPOConfig:
     clip_obs: float = 10.0
     clip_reward: float = 10.0
     pool_size: int = 1024
+    random_start: bool = True  # each row's first episode at a random slot (DeviceVectorEnv's random_start)
     seed: int = 0
     env_overrides: dict = field(default_factory=dict)
 
@@ -113,6 +120,8 @@ class DevicePPOConfig:
         sized = all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in (self.n_envs, self.n_steps))
         if self.batch_size is None and sized:
             self.batch_size = max(1, int(self.n_envs) * int(self.n_steps) // N_MINIBATCHES)
+        if not isinstance(self.random_start, (bool, np.bool_)):
+            raise ValueError(f"random_start = {self.random_start!r}; expected True or False")
         if self.lr_schedule not in LR_SCHEDULES:
             raise ValueError(f"lr_schedule = {self.lr_schedule!r}; use one of {', '.join(LR_SCHEDULES)}")
         if not (isinstance(self.desired_kl, (int, float)) and 0.0 < self.desired_kl < math.inf):
@@ -202,7 +211,7 @@ def train(cfg: DevicePPOConfig, callback=None, quiet: bool = True) -> tuple[dict
 
     torch.manual_seed(cfg.seed)
     env = DeviceVectorEnv(cfg.env_id, num_envs=cfg.n_envs, device=cfg.device, pool_size=min(cfg.pool_size, cfg.n_envs),
-                          scenario=cfg.scenario, **cfg.env_overrides)
+                          scenario=cfg.scenario, random_start=cfg.random_start, **cfg.env_overrides)
     dev = env.obs.device
     pol = _policy(cfg, env, dev)
     opt = torch.optim.Adam(pol.parameters(), lr=cfg.learning_rate, eps=1e-5)

@@ -20,16 +20,16 @@ from typing import Any, NamedTuple
 import numpy as np
 from numba import njit
 
-from iscc_gym.sim.kernel import env_row_one, observe_one, split_one
-from iscc_gym.sim.loop import WORK_MATS, WORK_VEC, init_row_one, slot_draws_one, work_from
+from iscc_gym.sim.kernel import LastSlot, env_row_one, observe_one, split_one
+from iscc_gym.sim.loop import WORK_MATS, WORK_VEC, LoopState, RowNext, init_row_one, slot_draws_one, work_from
 from iscc_gym.sim.noise import GOLDEN_GAMMA as _GAMMA
 from iscc_gym.sim.noise import fill_slot_normals
 from iscc_gym.sim.noise import mix64 as _mix64
 from iscc_gym.sim.schema import COL, N_DRAWS
 
 __all__ = ["Consts", "Rows", "Outs", "Scratch", "MAX_QUEUE_SLOTS", "N_INIT_DRAWS", "episode_key", "mission_index",
-           "init_normals_key", "step_rows_cpu", "reset_rows_cpu", "cuda_kernels", "THREADS_PER_BLOCK", "PTX_LIMITS",
-           "kernel_ptx", "step_ptx", "ptxas_usage"]
+           "start_slot", "init_normals_key", "step_rows_cpu", "reset_rows_cpu", "cuda_kernels", "THREADS_PER_BLOCK",
+           "PTX_LIMITS", "kernel_ptx", "step_ptx", "ptxas_usage"]
 
 #: The data queue's longest buffer the device kernel holds per thread (its local memory is sized at compile time).
 MAX_QUEUE_SLOTS = 64
@@ -42,6 +42,7 @@ THREADS_PER_BLOCK = 128
 _REWARD, _TERM, _TRUNC = COL["reward"], COL["terminated"], COL["truncated"]
 _N_Z = N_DRAWS + 1  # a slot's draws with the queue's arrival (a constant: local arrays are sized at compile time)
 _INIT_SALT = np.uint64(0x5851F42D4C957F2D)  # separates a key's initial-state stream from its slots' streams
+_START_SALT = np.uint64(0x2545F4914F6CDD1D)  # and its start slot's draw (random_start)
 _ONE = np.uint64(1)
 _SHIFT = np.uint64(11)
 
@@ -62,6 +63,14 @@ def mission_index(key, pool_size):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
+def start_slot(key, max_steps):
+    """The slot a first episode with ``key`` starts at under ``random_start``: uniform over ``[0, max_steps)`` (the
+    salted key's top 53 bits, modulo ``max_steps``).
+    """
+    return np.int64(_mix64(key ^ _START_SALT) >> _SHIFT) % max_steps
+
+
+@njit(cache=True, error_model="numpy", inline="always")
 def init_normals_key(key):
     """The stream of an episode's initial-state normals (slot 0 of it): the key, salted."""
     return _mix64(key ^ _INIT_SALT)
@@ -69,8 +78,8 @@ def init_normals_key(key):
 
 class Consts(NamedTuple):
     """What every row of a run reads: the slot's record and matrices (:func:`iscc_gym.sim.params.slot_params`), the
-    mission pool ``(P, N + 1, C)``, the initial state's deviations (6,), the run's seed key (uint64) and the step
-    limit (int64).
+    mission pool ``(P, N + 1, C)``, the initial state's deviations (6,), the run's seed key (uint64), the step
+    limit (int64), and ``random_start`` (int64 1: a row's first episode starts at :func:`start_slot`; 0: at slot 0).
     """
 
     cp: Any
@@ -79,6 +88,7 @@ class Consts(NamedTuple):
     std0: Any
     seed_key: Any
     max_steps: Any
+    random_start: Any
 
 
 class Rows(NamedTuple):
@@ -133,7 +143,8 @@ def reset_row(i, c, k, st, obs, zbuf):
     """Start episode ``st.episode[i]`` of row ``i`` (``c``: the slot's record, ``k``: :class:`Consts`, ``st``:
     :class:`Rows`): its key, mission, initial state (:func:`iscc_gym.sim.loop.init_row_one`, as the CPU envs': the
     drone near the reference's start, the estimate at it, ``P_0`` diagonal, the shadowing a standard normal), an empty
-    queue, and its first observation into ``obs[i]``.
+    queue, and its first observation into ``obs[i]``. With ``k.random_start`` a row's first episode (``episode`` 0)
+    starts at :func:`start_slot` of its key instead of slot 0: the drone near the reference there.
     """
     key = episode_key(k.seed_key, i, st.episode[i])
     st.key[i] = key
@@ -142,13 +153,17 @@ def reset_row(i, c, k, st, obs, zbuf):
     ref = k.pool[j]
     z = zbuf[:N_INIT_DRAWS]
     fill_slot_normals(init_normals_key(key), 0, z)
-    st.shadow[i] = init_row_one(ref[0], k.std0, z, st.x[i], st.x_hat[i], st.p[i])
-    st.n[i] = 0
+    n0 = np.int64(0)
+    if k.random_start != 0 and st.episode[i] == 0:
+        n0 = start_slot(key, k.max_steps)
+    st.shadow[i] = init_row_one(ref[n0], k.std0, z, st.x[i], st.x_hat[i], st.p[i])
+    st.n[i] = n0
     for a in range(st.queue.shape[1]):
         st.queue[i, a] = 0.0
     st.ep_return[i] = 0.0
     st.ep_length[i] = 0
-    observe_one(c, st.x_hat[i], st.p[i], st.shadow[i], 0, ref, st.queue[i], 1.0, 0.0, obs[i], 0.0, 0.0)
+    observe_one(c, LoopState(st.x[i], st.x_hat[i], st.p[i], st.shadow[i], n0, ref, key, st.queue[i]),
+                LastSlot(1.0, 0.0, 0.0, 0.0), obs[i])
 
 
 @njit(cache=True, error_model="numpy")
@@ -176,9 +191,9 @@ def step_row(i, k, st, action, o, w, blocked, field):
     fill_slot_normals(st.key[i], ni, zi)
     ref = k.pool[st.mission[i]]
     mt = o.out[i]
-    st.shadow[i] = env_row_one(c, k.mats, w.xl, w.xhl, w.pl, st.shadow[i], ni, ref, w.ql[:nq], a0, a1, a2, zi,
-                               st.x[i], st.x_hat[i], st.p[i], st.queue[i], mt, o.obs[i], work_from(w.mbuf, w.vbuf),
-                               blocked, field)
+    now = LoopState(w.xl, w.xhl, w.pl, st.shadow[i], ni, ref, st.key[i], w.ql[:nq])
+    st.shadow[i] = env_row_one(c, k.mats, now, (a0, a1, a2), zi, RowNext(st.x[i], st.x_hat[i], st.p[i], st.queue[i]),
+                               mt, o.obs[i], work_from(w.mbuf, w.vbuf), blocked, field)
     st.n[i] = ni + 1
     r = mt[_REWARD]
     term = mt[_TERM] == 1.0

@@ -72,6 +72,13 @@ class DeviceVectorEnv:
         missions at most); the pool is the same for any number.
     max_episode_steps : int, optional
         Truncate after this many steps (default the mission's length, the task's registered limit).
+    random_start : bool
+        Each row's first episode after a reset starts at a slot drawn uniformly from ``[0, max_episode_steps)`` of a
+        pool mission (the drone near the reference there; :func:`iscc_gym.gpu.kernel.start_slot`), later episodes at
+        slot 0: a trainer's many envs then sample every phase of a mission from its first update, where all rows
+        starting at slot 0 together sweep the mission once, in step (rsl_rl's ``init_at_random_ep_len``; the device
+        PPO's default, :class:`iscc_gym.train.device_ppo.DevicePPOConfig`). Default False: the first episodes are the
+        CPU vector env's.
     scenario : str or Scenario, optional, and ``**overrides``: the task's preset by default, then field overrides.
 
     Attributes
@@ -97,7 +104,8 @@ class DeviceVectorEnv:
 
     def __init__(self, env_id: str = "iscc_gym/ISCC-v0", num_envs: int = 1024, device: str = "cuda",
                  pool_size: int | None = None, max_episode_steps: int | None = None,
-                 scenario: str | Scenario | None = None, pool_workers: int | None = None, **overrides: Any):
+                 scenario: str | Scenario | None = None, pool_workers: int | None = None, random_start: bool = False,
+                 **overrides: Any):
         import torch
 
         task = get_task(env_id)
@@ -114,6 +122,9 @@ class DeviceVectorEnv:
         self.scenario = s = make_scenario(task.preset if scenario is None else scenario, **overrides)
         self.max_steps = s.n_slots if max_episode_steps is None else min(
             _count(max_episode_steps, "max_episode_steps"), s.n_slots)
+        if not isinstance(random_start, (bool, np.bool_)):
+            raise ValueError(f"random_start = {random_start!r}; expected True or False")
+        self.random_start = bool(random_start)
         nq = task_effects(s).queue_deadline_slots
         if nq > MAX_QUEUE_SLOTS:
             raise ValueError(f"queue_deadline_s = {s.queue_deadline_s} is {nq} slots; the device kernel holds at most "
@@ -209,13 +220,17 @@ class DeviceVectorEnv:
         self._state = {k: self._to_device(v) for k, v in host.items()}
         # the kernels' arguments, built once a reset (the buffers never move between resets), not every step
         actions, metrics, obs, reward, terminated, truncated, final_return, final_length, final_obs = self._views
-        self._args = (Consts(self._c, self._mats, self._pool, self._std0, self._seed_key, np.int64(self.max_steps)),
+        self._args = (Consts(self._c, self._mats, self._pool, self._std0, self._seed_key, np.int64(self.max_steps),
+                             np.int64(self.random_start)),
                       Rows(**self._state), actions,
                       Outs(metrics, obs, reward, terminated, truncated, final_return, final_length, final_obs))
-        obs0 = observe(s, first.rows(np.arange(m)), np.ones(m), np.zeros(m))  # as the CPU vector env's reset
-        self.obs[:m] = torch.from_numpy(obs0).to(self.obs.device)
-        if n > m:
-            self._launch_reset(np.arange(m, n, dtype=np.int64))
+        if self.random_start:  # every row's first episode drawn on the device, at its start slot
+            self._launch_reset(np.arange(n, dtype=np.int64))
+        else:
+            obs0 = observe(s, first.rows(np.arange(m)), np.ones(m), np.zeros(m))  # as the CPU vector env's reset
+            self.obs[:m] = torch.from_numpy(obs0).to(self.obs.device)
+            if n > m:
+                self._launch_reset(np.arange(m, n, dtype=np.int64))
         self.final_return.fill_(float("nan"))
         self.final_length.zero_()
         return self.obs, {}

@@ -46,7 +46,7 @@ def observe(s: Scenario, state: loop.LoopState, last_received: ArrayLike, last_p
         return observe(s, loop.LoopState(*(f[None] for f in state)), last_received, last_peb_m)[0]
     nb = state.x.shape[0]
     obs = np.empty((nb, _output_sizes(s)[0]), np.float32)
-    kernel.observe_batch(slot_params(s)[0], state.x_hat, state.p, state.shadow, state.n, state.ref, state.queue,
+    kernel.observe_batch(slot_params(s)[0], tuple(state),
                          np.broadcast_to(np.asarray(last_received, dtype=float), (nb,)),
                          np.broadcast_to(np.asarray(last_peb_m, dtype=float), (nb,)), obs)
     return obs
@@ -150,13 +150,13 @@ def env_step(s: Scenario, state: loop.LoopState, actions: ArrayLike, normals: Ar
             raise ValueError(f"normals must have shape ({nb}, {draws}) (the slot's draws"
                              f"{', and the queue arrivals' if draws > N_DRAWS else ''}), got {z.shape}")
     b = _WHOLE_BAND if budget is None else budget
-    args = (c, mats, state.x, state.x_hat, state.p, state.shadow, state.n, state.ref, state.key, state.queue, actions,
-            b, z, active)
+    # plain tuples: a named one costs the compiled function's dispatcher about a microsecond
+    args = (c, mats, tuple(state), (actions, b, z, active), outputs)
     # numba.get_num_threads() costs ~0.5 us: asked only for a batch the parallel kernel could take
     if nb >= PARALLEL_MIN_BATCH and threads.use_parallel(nb, numba.get_num_threads()):
-        kernel.env_step_batch_parallel(*args, *outputs, kernel.parallel_chunk(nb), *blocked)
+        kernel.env_step_batch_parallel(*args, kernel.parallel_chunk(nb), *blocked)
     else:
-        kernel.env_step_batch(*args, *outputs, *blocked)
+        kernel.env_step_batch(*args, *blocked)
     n = state.n + 1 if all_active else state.n + active
     return state._replace(x=x, x_hat=x_hat, p=p, shadow=shadow, n=n, queue=queue), out, obs
 

@@ -22,6 +22,7 @@ passed as one typed record.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit, prange, vectorize
@@ -30,7 +31,18 @@ from iscc_gym.physics.channel import beam_gain_one, direction_one, link_snr_one
 from iscc_gym.physics.fbl import link_terms_one, min_comm_share_one, min_ctrl_share_one
 from iscc_gym.physics.queue import oldest_age_one
 from iscc_gym.physics.sensing import echo_amplitude_one
-from iscc_gym.sim.loop import channel_state_one, new_outputs, queue_slot_one, slot_draws_one, step_one, work_space
+from iscc_gym.sim.loop import (
+    LoopState,
+    StepOutputs,
+    channel_state_one,
+    new_outputs,
+    next_row,
+    queue_slot_one,
+    slot_draws_one,
+    state_row,
+    step_one,
+    work_space,
+)
 from iscc_gym.sim.mission import MC
 from iscc_gym.sim.noise import fill_slot_normals
 from iscc_gym.sim.schema import (
@@ -58,9 +70,32 @@ from iscc_gym.sim.schema import (
 
 __all__ = ["env_step_batch", "env_row_one", "env_step_batch_parallel", "observe_batch",
            "observe_one", "reward_one", "reward_batch", "split_one", "split_batch", "parallel_chunk", "new_outputs",
-           "METRIC_NAMES", "ENV_COLUMNS"]
+           "METRIC_NAMES", "ENV_COLUMNS", "LastSlot", "StepInputs"]
 
 N_ENV_COLUMNS = N_STEP_COLUMNS
+
+
+class LastSlot(NamedTuple):
+    """What the observation reports of the last slot: the command's delivery (1.0 or 0.0), the PEB (m), and the
+    field's measured block (the command link's fading gain and the echo SNR, dB); at reset ``(1.0, 0.0, 0.0, 0.0)``.
+    """
+
+    received: float
+    peb_m: float
+    fade_db: float
+    echo_db: float
+
+
+class StepInputs(NamedTuple):
+    """The batch step's inputs beside the state: ``action`` (B, 3), ``budget`` (B,) or no rows (the whole band), ``z``
+    the slot's normals (B, draws) or no rows (each loop draws its own), ``active`` (B,) bool. Passed to the compiled
+    functions as a plain tuple (see :class:`iscc_gym.sim.loop.StepOutputs`).
+    """
+
+    action: np.ndarray
+    budget: np.ndarray
+    z: np.ndarray
+    active: np.ndarray
 
 _ERR, _PEB, _EPS, _RX, _RATE_COMM, _DIVERGED = (COL[k] for k in ("tracking_error_m", "peb_m", "eps_ctrl",
                                                                 "packet_received", "rate_comm_bps", "diverged"))
@@ -90,14 +125,15 @@ def _symlog(x, scale):
 
 
 @njit(cache=True, error_model="numpy")
-def observe_one(c, x_hat, p, shadow, n, ref, q, last_received, last_peb, out, last_fade_db=0.0, last_echo_db=0.0):
+def observe_one(c, now, last, out):
     """The observation of one loop (the entries, scalings and layout of :data:`iscc_gym.sim.schema.OBS_BLOCKS`,
     :func:`iscc_gym.sim.schema.observation_table`), written into ``out`` (:func:`iscc_gym.sim.schema.obs_size`
     entries: the optional blocks at :func:`iscc_gym.sim.schema.obs_offsets`, passed in the record); returns False
-    where an entry could not be evaluated (NaN, written as 0) or the estimate is not finite. ``last_fade_db``,
-    ``last_echo_db``: the last slot's measured fading gain of the command link and echo SNR (the field's measured
-    block; 0 at reset).
+    where an entry could not be evaluated (NaN, written as 0) or the estimate is not finite. ``now``: the loop's
+    state (an unbatched :class:`iscc_gym.sim.loop.LoopState`; ``x`` unread); ``last``: :class:`LastSlot`.
     """
+    x_hat, p, shadow, n, ref, q = now.x_hat, now.p, now.shadow, now.n, now.ref, now.queue
+    last_received, last_peb, last_fade_db, last_echo_db = last
     dist, gx, gy, gz, ct, st, cp, sp = direction_one(c.gbs_height_m, x_hat[0], x_hat[1], x_hat[2])
     shadow_db, extra_db = channel_state_one(c, ref[n], x_hat[2], dist, shadow)
     # with blockage the slot's channel state is measured (the map tells only of the slots ahead)
@@ -174,11 +210,15 @@ def observe_one(c, x_hat, p, shadow, n, ref, q, last_received, last_peb, out, la
 
 
 @njit(cache=True, error_model="numpy")
-def observe_batch(cp, x_hat, p, shadow, n, ref, queue, last_received, last_peb, obs):
-    """The observation of a batch (:func:`observe_one`), written into ``obs`` (B, obs_size) float32."""
+def observe_batch(cp, state, last_received, last_peb, obs):
+    """The observation of a batch (:func:`observe_one`; ``state``: a :class:`iscc_gym.sim.loop.LoopState`'s fields as
+    a plain tuple, the last slot's delivery and PEB (B,) each; no measured block), written into ``obs`` (B, obs_size)
+    float32.
+    """
     c = cp[0]
-    for i in range(x_hat.shape[0]):
-        observe_one(c, x_hat[i], p[i], shadow[i], n[i], ref[i], queue[i], last_received[i], last_peb[i], obs[i])
+    st = LoopState(*state)
+    for i in range(st.x_hat.shape[0]):
+        observe_one(c, state_row(st, i), LastSlot(last_received[i], last_peb[i], 0.0, 0.0), obs[i])
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -269,9 +309,10 @@ def reward_batch(cp, err, rate, eps, dropped, terminated, n_next, cost_rate, cos
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def env_row_one(c, mats, xi, x_hat, p, shadow, ni, ref, q, a0, a1, a2, zi, x_next, x_hat_next, p_next, q_next, mt, ob,
-                work, blocked, field):
-    """One env step of one loop from its split ``(a0, a1, a2)`` and the slot's normals ``zi``: the slot transition
+def env_row_one(c, mats, now, alpha, zi, nxt, mt, ob, work, blocked, field):
+    """One env step of one loop (``now``: an unbatched :class:`iscc_gym.sim.loop.LoopState`) from its split ``alpha``
+    ``(a0, a1, a2)`` and the slot's normals ``zi``, its next state into ``nxt`` (:class:`iscc_gym.sim.loop.RowNext`):
+    the slot transition
     (:func:`iscc_gym.sim.loop.step_one`, then the data queue's :func:`iscc_gym.sim.loop.queue_slot_one`), the next
     observation (:func:`observe_one`, into ``ob``), reward and costs (:func:`reward_one`) and the done flags, written
     into the row ``mt`` (:data:`ENV_COLUMNS`); returns the next shadowing state.
@@ -282,15 +323,14 @@ def env_row_one(c, mats, xi, x_hat, p, shadow, ni, ref, q, a0, a1, a2, zi, x_nex
     memory on the GPU); the next state goes to arrays that must not alias the current one. Inlined into its caller
     (no call overhead; compiled under the caller's flags, as the code it replaced).
     """
-    shadow_next = step_one(c, mats, xi, x_hat, p, shadow, ni, ref, a0, a1, a2, zi, x_next, x_hat_next, p_next, mt,
-                           work, blocked, field)
-    queue_slot_one(c, q, zi, mt, q_next)
-    n_next = ni + 1
-    evaluable = observe_one(c, x_hat_next, p_next, shadow_next, n_next, ref, q_next, mt[_RX], mt[_PEB], ob,
-                            mt[_SNR] - mt[_SNR_LS], mt[_ECHO])
+    shadow_next = step_one(c, mats, now, alpha, zi, nxt, mt, work, blocked, field)
+    queue_slot_one(c, now.queue, zi, mt, nxt.queue)
+    n_next = now.n + 1
+    evaluable = observe_one(c, LoopState(nxt.x, nxt.x_hat, nxt.p, shadow_next, n_next, now.ref, now.key, nxt.queue),
+                            LastSlot(mt[_RX], mt[_PEB], mt[_SNR] - mt[_SNR_LS], mt[_ECHO]), ob)
     terminated = mt[_DIVERGED] == 1.0 or not evaluable
     cost_rate, cost_stab, reward = reward_one(c, mt[_ERR], mt[_RATE_COMM], mt[_EPS], mt[_DROPPED], terminated, n_next)
-    mt[_ALPHA], mt[_ALPHA + 1], mt[_ALPHA + 2] = a0, a1, a2
+    mt[_ALPHA], mt[_ALPHA + 1], mt[_ALPHA + 2] = alpha
     mt[_COST_RATE], mt[_COST_STAB], mt[_REWARD] = cost_rate, cost_stab, reward
     mt[_TERM] = 1.0 if terminated else 0.0
     mt[_TRUNC] = 1.0 if (not terminated and n_next >= c.n_slots) else 0.0
@@ -298,68 +338,65 @@ def env_row_one(c, mats, xi, x_hat, p, shadow, ni, ref, q, a0, a1, a2, zi, x_nex
 
 
 @njit(cache=True, error_model="numpy")
-def _env_rows(cp, mats, x, x_hat, p, shadow, n, ref, key, queue, action, budget, z, active, lo, hi,
-              x_next, x_hat_next, p_next, shadow_next, queue_next, out, obs, blocked=None, field=None):
+def _env_rows(cp, mats, state, inputs, outputs, lo, hi, blocked=None, field=None):
     """env_step_batch for rows lo..hi-1, writing into the output arrays (scratch: one work space and one draw
     buffer for the rows, :func:`env_row_one`).
     """
     c = cp[0]
+    st, ins, o = LoopState(*state), StepInputs(*inputs), StepOutputs(*outputs)
     work = work_space()
-    draw = z.shape[0] == 0
-    whole = budget.shape[0] == 0
+    draw = ins.z.shape[0] == 0
+    whole = ins.budget.shape[0] == 0
     zbuf = np.empty(slot_draws_one(c))
     for i in range(lo, hi):
-        if not active[i]:
-            x_next[i], x_hat_next[i], p_next[i], shadow_next[i] = x[i], x_hat[i], p[i], shadow[i]
-            queue_next[i] = queue[i]
-            out[i] = 0.0
-            obs[i] = 0.0
+        if not ins.active[i]:
+            o.x[i], o.x_hat[i], o.p[i], o.shadow[i] = st.x[i], st.x_hat[i], st.p[i], st.shadow[i]
+            o.queue[i] = st.queue[i]
+            o.out[i] = 0.0
+            o.obs[i] = 0.0
             continue
-        a0, a1, a2 = split_one(action[i, 0], action[i, 1], action[i, 2])
+        a0, a1, a2 = split_one(ins.action[i, 0], ins.action[i, 1], ins.action[i, 2])
         if not whole:  # the loop's share of the band (iscc_gym.envs.multi): its split scaled by it
-            b = budget[i]
+            b = ins.budget[i]
             a0, a1, a2 = a0 * b, a1 * b, a2 * b
         if draw:  # the episode's noise stream (noise.slot_normals), drawn where it is used
-            fill_slot_normals(key[i], n[i], zbuf)
+            fill_slot_normals(st.key[i], st.n[i], zbuf)
             zi = zbuf
         else:
-            zi = z[i]
-        shadow_next[i] = env_row_one(c, mats, x[i], x_hat[i], p[i], shadow[i], n[i], ref[i], queue[i], a0, a1, a2, zi,
-                                     x_next[i], x_hat_next[i], p_next[i], queue_next[i], out[i], obs[i], work,
-                                     blocked, field)
+            zi = ins.z[i]
+        o.shadow[i] = env_row_one(c, mats, state_row(st, i), (a0, a1, a2), zi, next_row(o, i), o.out[i], o.obs[i],
+                                  work, blocked, field)
 
 
 @njit(cache=True, error_model="numpy")
-def env_step_batch(c, mats, x, x_hat, p, shadow, n, ref, key, queue, action, budget, z, active,
-                   x_next, x_hat_next, p_next, shadow_next, queue_next, out, obs, blocked=None, field=None):
+def env_step_batch(c, mats, state, inputs, outputs, blocked=None, field=None):
     """One env step of a batch: action -> split (:func:`split_one`), slot transition
     (:func:`iscc_gym.sim.loop.step_one`, then the data queue's :func:`iscc_gym.sim.loop.queue_slot_one`), reward and
-    costs (:func:`reward_one`), next observation (:func:`observe_one`), written into the outputs: next x, x_hat, p,
-    shadow, queue, ``out`` (B, N_ENV_COLUMNS) and ``obs`` (B, obs_size) float32. ``budget`` (B,) scales loop i's split
+    costs (:func:`reward_one`), next observation (:func:`observe_one`). ``state``: a
+    :class:`iscc_gym.sim.loop.LoopState`'s fields, ``inputs``: :class:`StepInputs`', ``outputs``:
+    :class:`iscc_gym.sim.loop.StepOutputs`' (:func:`new_outputs`), each a plain tuple; written into the outputs: next
+    x, x_hat, p, shadow, queue, ``out`` (B, N_ENV_COLUMNS) and ``obs`` (B, obs_size) float32. ``budget`` (B,) scales
+    loop i's split
     to its share of the band (the multi-drone env, :mod:`iscc_gym.envs.multi`), or has no rows: the whole band (the
     single env). ``z`` holds the slot's normals (B, n_draws), or has no rows: then each loop draws its own from its
     episode key (noise.slot_normals(key[i], n[i])). Loops with ``active[i]`` False are left as they are (state copied,
     zero outputs). ``blocked``, ``field``: None without blockage, without the field's world (the defaults), True
     with (:func:`iscc_gym.sim.loop.step_one`'s compile-time switches).
     """
-    _env_rows(c, mats, x, x_hat, p, shadow, n, ref, key, queue, action, budget, z, active, 0, x.shape[0],
-              x_next, x_hat_next, p_next, shadow_next, queue_next, out, obs, blocked, field)
+    _env_rows(c, mats, state, inputs, outputs, 0, state[0].shape[0], blocked, field)
 
 
 @njit(cache=True, error_model="numpy", parallel=True)
-def env_step_batch_parallel(c, mats, x, x_hat, p, shadow, n, ref, key, queue, action, budget, z, active,
-                            x_next, x_hat_next, p_next, shadow_next, queue_next, out, obs, chunk, blocked=None,
-                            field=None):
+def env_step_batch_parallel(c, mats, state, inputs, outputs, chunk, blocked=None, field=None):
     """:func:`env_step_batch` with chunks of ``chunk`` rows spread over all cores: each row goes
     through the same compiled :func:`_env_rows`, so results equal the serial kernel's bit for bit
     whatever the chunking.
     """
-    nb = x.shape[0]
+    nb = state[0].shape[0]
     n_chunks = (nb + chunk - 1) // chunk
     for k in prange(n_chunks):
         lo = k * chunk
-        _env_rows(c, mats, x, x_hat, p, shadow, n, ref, key, queue, action, budget, z, active, lo,
-                  min(lo + chunk, nb), x_next, x_hat_next, p_next, shadow_next, queue_next, out, obs, blocked, field)
+        _env_rows(c, mats, state, inputs, outputs, lo, min(lo + chunk, nb), blocked, field)
 
 
 def parallel_chunk(nb: int) -> int:

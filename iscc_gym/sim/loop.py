@@ -66,7 +66,7 @@ __all__ = ["LoopState", "N_DRAWS", "init_state", "step", "reference_at", "work_f
            "standard_normals", "stack_references", "reference_array", "slot_noise", "step_one", "reference_rows",
            "vector_norm", "check_step", "channel_state_one", "init_mission", "blocked_switch", "field_switch",
            "slot_switches",
-           "step_batch", "new_outputs", "queue_slot_one"]
+           "step_batch", "new_outputs", "queue_slot_one", "RowNext", "StepOutputs", "state_row", "next_row"]
 
 
 class LoopState(NamedTuple):
@@ -104,6 +104,7 @@ class LoopState(NamedTuple):
     key: np.ndarray
     queue: np.ndarray
 
+
     def rows(self, idx) -> LoopState:
         """The loops ``idx`` of a batch (copies)."""
         return LoopState(*(field[idx] for field in self))
@@ -124,6 +125,44 @@ class LoopState(NamedTuple):
     def batch_size(self) -> int | None:
         """B for a batch of loops, None for a single (unbatched) loop."""
         return None if self.x.ndim == 1 else self.x.shape[0]
+
+
+class RowNext(NamedTuple):
+    """Where one loop's slot writes its next state: ``x`` (6,), ``x_hat`` (6,), ``p`` (6, 6) and the queue (D,); arrays
+    that must not alias the current state's (a row of :class:`StepOutputs`, :func:`next_row`).
+    """
+
+    x: np.ndarray
+    x_hat: np.ndarray
+    p: np.ndarray
+    queue: np.ndarray
+
+
+class StepOutputs(NamedTuple):
+    """The compiled batch step's outputs (:func:`new_outputs`): the next ``x``, ``x_hat``, ``p``, ``shadow``, ``queue``,
+    the columns ``out`` (B, columns) and the float32 observation ``obs`` (B, obs_size). The compiled functions take
+    them as a plain tuple (a named one costs the dispatcher about a microsecond a call) and name them inside.
+    """
+
+    x: np.ndarray
+    x_hat: np.ndarray
+    p: np.ndarray
+    shadow: np.ndarray
+    queue: np.ndarray
+    out: np.ndarray
+    obs: np.ndarray
+
+
+@njit(cache=True, inline="always")
+def state_row(st, i):
+    """Row ``i`` of a batch's :class:`LoopState` as an unbatched one (views, and the row's scalars)."""
+    return LoopState(st.x[i], st.x_hat[i], st.p[i], st.shadow[i], st.n[i], st.ref[i], st.key[i], st.queue[i])
+
+
+@njit(cache=True, inline="always")
+def next_row(o, i):
+    """Row ``i`` of :class:`StepOutputs` as the :class:`RowNext` a slot writes into."""
+    return RowNext(o.x[i], o.x_hat[i], o.p[i], o.queue[i])
 
 
 def slot_noise(state: LoopState, rng: np.random.Generator = None, k: int = N_DRAWS) -> np.ndarray:
@@ -310,16 +349,14 @@ def step(s: Scenario, state: LoopState, alpha: ArrayLike, rng: np.random.Generat
     check_step(s, state, alpha)
     z = slot_noise(state, rng, n_draws(s))
     nb = 1 if batch is None else batch
-    x_n, xh_n, p_n, sh_n, q_n, met, _ = new_outputs(nb, N_METRICS,
-                                                    queue_deadline_slots=task_effects(s).queue_deadline_slots)
+    outputs = new_outputs(nb, N_METRICS, 0, task_effects(s).queue_deadline_slots)
+    x_n, xh_n, p_n, sh_n, q_n, met, _ = outputs
     switches = slot_switches(s)
     if batch is None:  # a batch of one, squeezed back
-        step_batch(*slot_params(s), x[None], state.x_hat[None], state.p[None], state.shadow[None], state.n[None],
-                   state.ref[None], state.queue[None], alpha[None], z[None], x_n, xh_n, p_n, sh_n, q_n, met, *switches)
+        step_batch(*slot_params(s), tuple(f[None] for f in state), alpha[None], z[None], outputs, *switches)
         x_n, xh_n, p_n, sh_n, q_n, met = x_n[0], xh_n[0], p_n[0], sh_n[0], q_n[0], met[0]
     else:
-        step_batch(*slot_params(s), x, state.x_hat, state.p, state.shadow, state.n, state.ref, state.queue, alpha, z,
-                   x_n, xh_n, p_n, sh_n, q_n, met, *switches)
+        step_batch(*slot_params(s), tuple(state), alpha, z, outputs, *switches)
     metrics = dict(zip(METRIC_NAMES, met.T, strict=True))
     metrics["packet_received"] = metrics["packet_received"] > 0.5
     metrics["diverged"] = metrics["diverged"] > 0.5
@@ -400,19 +437,23 @@ def queue_slot_one(c, q, zi, mt, q_next):
 
 
 @njit(cache=True, error_model="numpy", fastmath={"reassoc", "contract"})
-def step_one(c, mats, xi, x_hat, p, shadow, ni, ref, a_sen, a_ctrl, a_comm, zi,
-             x_next, x_hat_next, p_next, mt, work, blocked=None, field=None):
+def step_one(c, mats, now, alpha, zi, nxt, mt, work, blocked=None, field=None):
     """The closed loop's part of one slot of one loop (``tests/oracle_loop.py``'s ``step_reference``; ``c``,
     ``mats``: :func:`iscc_gym.sim.params.slot_params`); the slot transition is this, then the data queue
-    (:func:`queue_slot_one`). Writes the next state (x, x_hat, p) and the metrics row ``mt``
-    (:data:`iscc_gym.sim.schema.METRIC_NAMES`; a row of the env's columns fits too: they start with them); returns
-    the next shadowing state. ``zi``: the slot's normals (:func:`iscc_gym.sim.schema.n_draws`); ``work``:
+    (:func:`queue_slot_one`). ``now``: the loop's state, an unbatched :class:`LoopState` (:func:`state_row`);
+    ``alpha``: the split ``(a_sen, a_ctrl, a_comm)``. Writes the next state into ``nxt`` (:class:`RowNext`: x, x_hat,
+    p) and the metrics row ``mt`` (:data:`iscc_gym.sim.schema.METRIC_NAMES`; a row of the env's columns fits too:
+    they start with them); returns the next shadowing state. ``zi``: the slot's normals
+    (:func:`iscc_gym.sim.schema.n_draws`); ``work``:
     :func:`work_space`, scratch reused from loop to loop (the slot allocates nothing). ``blocked``: None
     without blockage (the default), True with (a compile-time switch: see the comment in the body). ``field``:
     None without the field task's world (the default), True with: the slot's K-factor (both links) and the drone's
     RCS offset are the mission row's :data:`iscc_gym.sim.mission.WORLD_COLUMNS` instead of the scenario's constants.
     """
     w4, w6, y, x_post, p_post, u, bu, pa, h = work
+    xi, x_hat, p, shadow, ni, ref = now.x, now.x_hat, now.p, now.shadow, now.n, now.ref
+    a_sen, a_ctrl, a_comm = alpha
+    x_next, x_hat_next, p_next = nxt.x, nxt.x_hat, nxt.p
     px, py, pz = xi[0], xi[1], xi[2]
     # channel: geometry, large-scale SNR, fading
     dist, gx, gy, gz, ct, st, cp, sp = direction_one(c.gbs_height_m, px, py, pz)
@@ -527,20 +568,20 @@ def work_space():
 
 
 @njit(cache=True, error_model="numpy")
-def step_batch(cp, mats, x, x_hat, p, shadow, n, ref, queue, alpha, z, x_next, x_hat_next, p_next, shadow_next,
-               queue_next, metrics, blocked=None, field=None):
-    """The slot transition (:func:`step_one`, then :func:`queue_slot_one`) over a batch, written into the output
-    arrays (next x, x_hat, p, shadow, queue and the metrics (B, N_METRICS)); outputs are passed in because returning
-    fresh arrays from compiled code costs more than the slot itself at small batches. ``cp``: the parameter record
-    array (1,).
+def step_batch(cp, mats, state, alpha, z, outputs, blocked=None, field=None):
+    """The slot transition (:func:`step_one`, then :func:`queue_slot_one`) over a batch (``state``: a
+    :class:`LoopState`'s fields as a plain tuple; ``alpha`` (B, 3); ``z`` the slot's normals (B, draws)), written into
+    ``outputs`` (:class:`StepOutputs`' fields as a plain tuple, ``out`` the metrics (B, N_METRICS), ``obs`` unused);
+    outputs are passed in because returning fresh arrays from compiled code costs more than the slot itself at small
+    batches. ``cp``: the parameter record array (1,).
     """
     c = cp[0]
+    st, o = LoopState(*state), StepOutputs(*outputs)
     work = work_space()
-    for i in range(x.shape[0]):
-        shadow_next[i] = step_one(c, mats, x[i], x_hat[i], p[i], shadow[i], n[i], ref[i], alpha[i, 0],
-                                  alpha[i, 1], alpha[i, 2], z[i], x_next[i], x_hat_next[i], p_next[i],
-                                  metrics[i], work, blocked, field)
-        queue_slot_one(c, queue[i], z[i], metrics[i], queue_next[i])
+    for i in range(st.x.shape[0]):
+        o.shadow[i] = step_one(c, mats, state_row(st, i), (alpha[i, 0], alpha[i, 1], alpha[i, 2]), z[i],
+                               next_row(o, i), o.out[i], work, blocked, field)
+        queue_slot_one(c, st.queue[i], z[i], o.out[i], o.queue[i])
 
 
 def new_outputs(nb: int, columns: int, n_obs: int = N_OBS, queue_deadline_slots: int = 0):

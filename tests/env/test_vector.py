@@ -152,14 +152,13 @@ def test_parallel_kernel_equals_serial_kernel_bit_for_bit():
     refs = np.ascontiguousarray(np.broadcast_to(ref, (b,) + ref.shape))
     state = loop.init_state(s, refs, rng)
     c, mats = slot_params(s)
-    args = (c, mats, state.x, state.x_hat, state.p, state.shadow, state.n, state.ref, state.key, state.queue,
-            rng.uniform(-1, 1, (b, 3)), rng.uniform(0, 1, b), rng.standard_normal((b, loop.N_DRAWS)),
-            rng.random(b) < 0.9)
+    args = (c, mats, tuple(state), (rng.uniform(-1, 1, (b, 3)), rng.uniform(0, 1, b),
+                                    rng.standard_normal((b, loop.N_DRAWS)), rng.random(b) < 0.9))
     serial = kernel.new_outputs(b, len(STEP_COLUMNS))
-    kernel.env_step_batch(*args, *serial)
+    kernel.env_step_batch(*args, serial)
     for chunk in (16, 37, kernel.parallel_chunk(b)):
         parallel = kernel.new_outputs(b, len(STEP_COLUMNS))
-        kernel.env_step_batch_parallel(*args, *parallel, chunk)
+        kernel.env_step_batch_parallel(*args, parallel, chunk)
         for a, b_ in zip(serial, parallel, strict=True):
             assert np.array_equal(a, b_)
 

@@ -104,6 +104,40 @@ def test_autoreset_and_rows_beyond_the_pool_follow_the_documented_draws():
     np.testing.assert_array_equal(obs.numpy(), observe(s, state, np.ones(5), np.zeros(5)))
 
 
+def test_random_start_spreads_first_episodes_over_the_mission_and_later_ones_start_at_zero():
+    from iscc_gym.sim import loop
+    from iscc_gym.sim.functional import observe
+
+    s = make_scenario("paper")
+    n, limit = 64, 40
+    d = DeviceVectorEnv(num_envs=n, device="cpu", pool_size=8, max_episode_steps=limit, random_start=True)
+    obs, _ = d.reset(seed=2)
+    pool, st = d._pool, d.host_state()
+    assert (st["episode"] == 0).all() and 0 <= st["n"].min() and st["n"].max() < limit
+    assert len(np.unique(st["n"])) > n // 3  # spread, not in step
+    for row in (0, 7, 63):  # the documented draws: the start slot from the salted key, the drone near ref there
+        k, j, _, shadow = _oracle_reset(s, pool, d._seed_key, row, 0)
+        start = (_mix64(k ^ 0x2545F4914F6CDD1D) >> 11) % limit
+        assert st["key"][row] == k and st["mission"][row] == j and st["n"][row] == start
+        z = slot_normals(np.uint64(_mix64(k ^ 0x5851F42D4C957F2D)), 0, N_INIT_DRAWS)
+        std0 = np.array([s.initial_pos_std_m] * 3 + [s.initial_vel_std_mps] * 3)
+        np.testing.assert_allclose(st["x"][row], pool[j, start, :6] + std0 * z[:6], rtol=1e-12)
+        np.testing.assert_allclose(st["x_hat"][row], pool[j, start, :6])
+    state = loop.LoopState(x=st["x"], x_hat=st["x_hat"], p=st["p"], shadow=st["shadow"], n=st["n"],
+                           ref=pool[st["mission"]], key=st["key"], queue=st["queue"])
+    np.testing.assert_array_equal(obs.numpy(), observe(s, state, np.ones(n), np.zeros(n)))
+    ends = np.zeros(n, np.int64)
+    for step in range(limit):
+        _, _, term, trunc, info = d.step(torch.zeros((n, 3)))
+        done = (term | trunc).numpy()
+        ends[done & (ends == 0)] = step + 1
+    assert (ends == limit - st["n"]).all()  # each first episode truncated at the limit slot
+    after = d.host_state()
+    assert (after["episode"] == 1).all() and (after["n"] == limit - ends).all()  # the second ones from slot 0
+    with pytest.raises(ValueError, match="random_start = 1; expected True or False"):
+        DeviceVectorEnv(num_envs=2, device="cpu", random_start=1)
+
+
 def test_same_seed_same_run_and_tensors_are_shared():
     runs = []
     for _ in range(2):

@@ -245,7 +245,8 @@ def test_truncations_are_bootstrapped_with_the_value_of_the_final_observation(mo
 
     monkeypatch.setattr(device_ppo, "gae", spy)
     cfg = DevicePPOConfig(device="cpu", n_envs=4, n_steps=3, n_epochs=1, total_timesteps=12, pool_size=4,
-                          net_arch=[8, 8], gamma=0.5, normalize=False, env_overrides={})
+                          net_arch=[8, 8], gamma=0.5, normalize=False, env_overrides={},
+                          random_start=False)
     # episodes of 2 slots: step 1 of the rollout truncates every row
     monkeypatch.setattr(device_ppo, "_policy", _constant_value_policy(device_ppo._policy, 7.0))
     from iscc_gym.gpu import vector_env
@@ -309,3 +310,23 @@ def test_the_device_evaluation_is_the_cpu_envs_on_common_random_numbers():
     assert ours == pytest.approx(cpu, rel=1e-6)
     with pytest.raises(ValueError, match="consecutive"):
         device_reward_per_slot(trained.policy, trained.obs_rms, cfg, [1, 3], 5)
+
+
+def test_the_trainer_starts_its_rows_spread_over_the_mission_by_default(monkeypatch):
+    from iscc_gym.gpu import vector_env
+
+    assert DevicePPOConfig(device="cpu").random_start is True
+    with pytest.raises(ValueError, match="random_start = 'yes'; expected True or False"):
+        DevicePPOConfig(device="cpu", random_start="yes")
+    starts = {}
+    reset = vector_env.DeviceVectorEnv.reset
+
+    def spy(self, **kw):
+        out = reset(self, **kw)
+        starts["random_start"], starts["n"] = self.random_start, self.host_state()["n"].copy()
+        return out
+
+    monkeypatch.setattr(vector_env.DeviceVectorEnv, "reset", spy)
+    train(DevicePPOConfig(device="cpu", n_envs=16, n_steps=2, n_epochs=1, total_timesteps=32, pool_size=4,
+                          net_arch=[8, 8]))
+    assert starts["random_start"] and len(set(starts["n"].tolist())) > 4

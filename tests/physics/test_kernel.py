@@ -48,8 +48,7 @@ def test_env_step_kernel_matches_numpy_reference(name, overrides):
     for t in range(150):
         z = loop.standard_normals(rngs, b)
         x, x_hat, p, shadow, _, out, obs = outputs = kernel.new_outputs(b, len(STEP_COLUMNS))
-        kernel.env_step_batch(c, mats, state.x, state.x_hat, state.p, state.shadow, state.n, state.ref, state.key,
-                              state.queue, acts[t], np.empty(0), z, np.ones(b, dtype=bool), *outputs)
+        kernel.env_step_batch(c, mats, tuple(state), (acts[t], np.empty(0), z, np.ones(b, dtype=bool)), outputs)
         ref_state, ref_out, ref_obs = oracle_loop.env_step_reference(s, state, acts[t], z)
         np.testing.assert_allclose(out, ref_out, rtol=1e-9, atol=1e-12)
         np.testing.assert_allclose(obs, ref_obs, rtol=1e-6, atol=1e-6)
@@ -150,14 +149,13 @@ def test_kernel_draws_the_episode_stream_of_each_key():
     acts = np.random.default_rng(1).uniform(-1, 1, (b, 3))
     active = np.random.default_rng(2).random(b) < 0.8
     c, mats = slot_params(s)
-    args = (c, mats, state.x, state.x_hat, state.p, state.shadow, state.n, state.ref, state.key, state.queue, acts,
-            np.empty(0))
+    st = tuple(state)
     given = kernel.new_outputs(b, len(STEP_COLUMNS))
-    kernel.env_step_batch(*args, noise.slot_normals(state.key, state.n), active, *given)
+    kernel.env_step_batch(c, mats, st, (acts, np.empty(0), noise.slot_normals(state.key, state.n), active), given)
     drawn = kernel.new_outputs(b, len(STEP_COLUMNS))
-    kernel.env_step_batch(*args, np.empty((0, noise.N_DRAWS)), active, *drawn)
+    kernel.env_step_batch(c, mats, st, (acts, np.empty(0), np.empty((0, noise.N_DRAWS)), active), drawn)
     par = kernel.new_outputs(b, len(STEP_COLUMNS))
-    kernel.env_step_batch_parallel(*args, np.empty((0, noise.N_DRAWS)), active, *par, 16)
+    kernel.env_step_batch_parallel(c, mats, st, (acts, np.empty(0), np.empty((0, noise.N_DRAWS)), active), par, 16)
     for g, d, q in zip(given, drawn, par, strict=True):
         assert np.array_equal(g, d) and np.array_equal(g, q)
     new, out, obs = E.env_step(s, state, acts, active=active)

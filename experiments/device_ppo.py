@@ -35,7 +35,7 @@ def _dev(device: str) -> str:
     return "cuda" if device == "cuda" else "cpu"
 
 
-def ppo_rate(device: str, quick: bool = False, lr_schedule: str = "constant") -> dict:
+def ppo_rate(device: str, quick: bool = False, lr_schedule: str = "kl") -> dict:
     """PPO end to end on the paper task's device env: env-steps/s over 20 updates of 131,072 envs x 16 steps on a GPU
     (1,024 envs on the stand-in; ``quick``: 16 envs x 4 steps, two updates).
     """
@@ -179,7 +179,7 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> dict:
     ap = Parser(prog=prog, description=__doc__.split("\n\n")[0])
     ap.add_argument("--device", choices=("cuda", "standin"), default="cuda",
                     help="cuda: a GPU (the gpu extra); standin: the device env's CPU stand-in")
-    ap.add_argument("--schedules", default="kl,linear",
+    ap.add_argument("--schedules", default="kl,linear,constant",
                     help="learning-rate schedules to time to myopic, comma-separated (constant, kl, linear)")
     ap.add_argument("--max-wall-s", type=float, default=120.0, metavar="S",
                     help="training time allowed to each schedule's paper agent (default: 120)")

@@ -212,7 +212,7 @@ def test_the_device_run_is_scaled_to_its_batch():
     rule, within its bounds) or annealed to zero (CleanRL's), the statistics updated once a rollout."""
     cfg = DevicePPOConfig(device="cpu", n_envs=8, n_steps=4)
     assert cfg.batch_size == 8 * 4 // N_MINIBATCHES
-    assert default_n_envs("standin") == 4096 and paper_config("standin").lr_schedule == "constant"
+    assert default_n_envs("standin") == 4096 and paper_config("standin").lr_schedule == "kl"
     assert adapt_lr(1e-3, 0.05, 0.01) == pytest.approx(1e-3 / 1.5)
     assert adapt_lr(1e-3, 0.001, 0.01) == pytest.approx(1.5e-3)
     assert adapt_lr(1e-3, 0.01, 0.01) == 1e-3

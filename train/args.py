@@ -104,8 +104,9 @@ class Args:
     # training over randomised missions (iscc_gym.tasks: a task's shifts)
     randomize: str | None = run_setting(
         "train over randomised missions: <preset>-shifts, e.g. urban-shifts (the task's preset and each of its "
-        "shifted statistics, its shifts in iscc_gym.tasks, on equal shares of the envs: n_envs >= 5); none: the "
-        "env's own ({default})", "randomize", None, str)
+        "shifted statistics, its shifts in iscc_gym.tasks, on equal shares of the envs: n_envs >= 5), or "
+        "field-worlds (the field preset and 16 worlds drawn from iscc_gym.tasks.field.FIELD_WORLD_RANGES: n_envs >= "
+        "17); none: the env's own ({default})", "randomize", None, str)
     # issue 45: what only the simulator knows, at training time only (train/privileged.py)
     reward: str | None = run_setting(
         "the reward the learner is paid: sampled (the env's) or expected (the field task's expected one-slot reward "
@@ -168,12 +169,26 @@ def _to_bool(v):
 RUN_TYPES = {name: {int: _to_int, bool: _to_bool}.get(flag_type(name), flag_type(name)) for name in RUN_DEFAULTS}
 
 
+#: Worlds a ``--randomize field-worlds`` run trains over beside the field preset's own (issue 45, point 3).
+FIELD_RANDOM_WORLDS = 16
+
+
 def randomize_sets() -> dict[str, tuple[str, dict[str, dict]]]:
     """``--randomize NAME`` -> ``(env id, {shift: overrides})``: the shifted statistics a randomised run trains over
     beside the env's own (``<preset>-shifts``: the shifts of the task of that preset), read from the task table
-    when asked, so a task registered at run time counts too.
+    when asked, so a task registered at run time counts too; and ``field-worlds``: :data:`FIELD_RANDOM_WORLDS` laws of
+    the field task's world drawn from :data:`iscc_gym.tasks.field.FIELD_WORLD_RANGES` (:func:`train.estimator.
+    draw_worlds`, seed 0: the randomised learned estimator's draw), ranges that cover its test worlds but none of them
+    as such.
     """
-    return {f"{t.preset}-shifts": (e, t.shift_overrides()) for e, t in TASKS.items() if t.shifts}
+    from iscc_gym.tasks.field import FIELD_ENV_ID
+
+    from .estimator import draw_worlds
+
+    sets = {f"{t.preset}-shifts": (e, t.shift_overrides()) for e, t in TASKS.items() if t.shifts}
+    sets["field-worlds"] = (FIELD_ENV_ID, {f"world {k}": w
+                                           for k, w in enumerate(draw_worlds(FIELD_RANDOM_WORLDS, 0), 1)})
+    return sets
 
 
 def expand_algo(args: Args) -> Args:

@@ -213,6 +213,32 @@ def test_randomised_training_splits_the_envs_between_the_preset_and_its_shifts(t
             main(tiny_args(tmp_path / "bad", **bad))
 
 
+def test_field_worlds_randomise_the_field_task_over_drawn_worlds_not_its_test_worlds():
+    from iscc_gym.train.args import FIELD_RANDOM_WORLDS, randomize_sets
+    from iscc_gym.train.estimator import draw_worlds
+    from iscc_gym.train.train import make_train_env
+
+    from iscc_gym.tasks import FIELD_ENV_ID
+    from iscc_gym.tasks.field import FIELD_VARIANTS
+
+    env, worlds = randomize_sets()["field-worlds"]
+    assert env == FIELD_ENV_ID and list(worlds.values()) == draw_worlds(FIELD_RANDOM_WORLDS, 0)
+    assert not any(w == v.overrides for w in worlds.values() for v in FIELD_VARIANTS.values())
+    args, _ = resolve_args(parse_args(["--env", FIELD_ENV_ID, "--randomize", "field-worlds", "--n-envs", "17",
+                                       "--critic", "own", "--reward", "sampled"]))
+    parts = make_train_env(args).venv.venv.venvs  # VecMonitor(ResidualVecEnv(ConcatVecEnv))
+    assert [p.num_envs for p in parts] == [1] * 17 and parts[0].venv.scenario.rician_k_db == 9.0
+    assert all(getattr(parts[k].venv.scenario, key) == v for k, w in enumerate(worlds.values(), 1)
+               for key, v in w.items())
+    from iscc_gym.train.config import check_resolved
+
+    check_resolved(*resolve_args(parse_args(["--env", FIELD_ENV_ID, "--randomize", "field-worlds", "--n-envs", "17",
+                                             "--critic", "own", "--reward", "sampled"])))
+    with pytest.raises(ValueError, match="reward = 'expected'.*no --randomize"):  # the shipped entry's privileges
+        check_resolved(*resolve_args(parse_args(["--env", FIELD_ENV_ID, "--randomize", "field-worlds",
+                                                 "--n-envs", "17"])))
+
+
 def test_randomised_training_refuses_fewer_envs_than_mission_sets(tmp_path):
     # 4 envs over the preset and its 4 shifts would never train on the last shift
     with pytest.raises(ValueError, match="n_envs = 4.*--n-envs 5 or more"):

@@ -181,9 +181,7 @@ def randomize_sets() -> dict[str, tuple[str, dict[str, dict]]]:
     draw_worlds`, seed 0: the randomised learned estimator's draw), ranges that cover its test worlds but none of them
     as such.
     """
-    from iscc_gym.tasks.field import FIELD_ENV_ID
-
-    from .estimator import draw_worlds
+    from iscc_gym.tasks.field import FIELD_ENV_ID, draw_worlds
 
     sets = {f"{t.preset}-shifts": (e, t.shift_overrides()) for e, t in TASKS.items() if t.shifts}
     sets["field-worlds"] = (FIELD_ENV_ID, {f"world {k}": w

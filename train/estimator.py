@@ -29,6 +29,7 @@ import yaml
 from iscc_gym.agents.bayes import ESTIMATOR_INPUTS
 
 from iscc_gym.files import write_atomic
+from iscc_gym.tasks.field import draw_worlds
 
 from .callbacks import printer
 
@@ -59,25 +60,6 @@ def _cross_entropy(logp, index, weight):
         if isinstance(logp, np.ndarray) else \
         logp.gather(-1, (index + 1).clamp(max=logp.shape[-1] - 1).unsqueeze(-1)).squeeze(-1)
     return -((1.0 - weight) * lo + weight * hi)
-
-
-def draw_worlds(n: int, seed: int) -> list[dict]:
-    """``n`` worlds' laws (Scenario overrides) drawn from :data:`iscc_gym.tasks.field.FIELD_WORLD_RANGES` (uniform, the
-    correlation distance log-uniform), seeded; ``n`` = 1: the preset's own (no overrides).
-    """
-    from iscc_gym.tasks.field import FIELD_WORLD_RANGES
-
-    if n <= 1:
-        return [{}]
-    rng = np.random.default_rng([seed, 45])
-    out = []
-    for _ in range(n):
-        world = {}
-        for key, (lo, hi) in FIELD_WORLD_RANGES.items():
-            u = rng.random()
-            world[key] = round(float(lo * (hi / lo) ** u if key.endswith("_m") else lo + (hi - lo) * u), 3)
-        out.append(world)
-    return out
 
 
 def collect(scenario, n_envs: int, n_slots: int, seed: int, say=None, worlds=({},)) -> dict:

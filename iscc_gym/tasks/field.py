@@ -7,9 +7,11 @@ ladder, the reference, the shipped agent, its docs sections), as data.
 
 from __future__ import annotations
 
+import numpy as np
+
 from iscc_gym.tasks.task import Task, Variant
 
-__all__ = ["FIELD_ENV_ID", "FIELD_VARIANTS", "FIELD_WORLD_RANGES", "TASK"]
+__all__ = ["FIELD_ENV_ID", "FIELD_VARIANTS", "FIELD_WORLD_RANGES", "TASK", "draw_worlds"]
 
 #: The field task (issue 36): the paper's loop in a world its designer's model does not know.
 FIELD_ENV_ID = "iscc_gym/ISCC-Field-v0"
@@ -43,6 +45,24 @@ FIELD_VARIANTS: dict[str, Variant] = {
 FIELD_WORLD_RANGES: dict[str, tuple[float, float]] = {
     "rician_k_db": (2.0, 12.0), "rician_k_std_db": (2.0, 10.0), "rcs_std_db": (1.0, 8.0),
     "rician_k_correlation_m": (4.0, 60.0)}
+
+
+def draw_worlds(n: int, seed: int) -> list[dict]:
+    """``n`` worlds' laws (Scenario overrides) drawn from :data:`FIELD_WORLD_RANGES` (uniform, the
+    correlation distance log-uniform), seeded; ``n`` = 1: the preset's own (no overrides).
+    """
+    if n <= 1:
+        return [{}]
+    rng = np.random.default_rng([seed, 45])
+    out = []
+    for _ in range(n):
+        world = {}
+        for key, (lo, hi) in FIELD_WORLD_RANGES.items():
+            u = rng.random()
+            world[key] = round(float(lo * (hi / lo) ** u if key.endswith("_m") else lo + (hi - lo) * u), 3)
+        out.append(world)
+    return out
+
 
 # the shipped agent (a residual on bayes, trained with its critic shown the world; issue 45), the designer's per-slot
 # policies on the paper's model, the adaptive rung that re-estimates the world, the Bayesian rung that filters it on

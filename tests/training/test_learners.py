@@ -164,9 +164,7 @@ def test_the_world_critic_sees_the_world_and_the_actor_does_not(tmp_path):
 
 
 def test_randomised_worlds_are_drawn_inside_their_ranges_and_reproduce():
-    from iscc_gym.train.estimator import draw_worlds
-
-    from iscc_gym.tasks.field import FIELD_VARIANTS, FIELD_WORLD_RANGES
+    from iscc_gym.tasks.field import FIELD_VARIANTS, FIELD_WORLD_RANGES, draw_worlds
 
     assert draw_worlds(1, 0) == [{}]
     worlds = draw_worlds(64, 3)

@@ -215,11 +215,10 @@ def test_randomised_training_splits_the_envs_between_the_preset_and_its_shifts(t
 
 def test_field_worlds_randomise_the_field_task_over_drawn_worlds_not_its_test_worlds():
     from iscc_gym.train.args import FIELD_RANDOM_WORLDS, randomize_sets
-    from iscc_gym.train.estimator import draw_worlds
     from iscc_gym.train.train import make_train_env
 
     from iscc_gym.tasks import FIELD_ENV_ID
-    from iscc_gym.tasks.field import FIELD_VARIANTS
+    from iscc_gym.tasks.field import FIELD_VARIANTS, draw_worlds
 
     env, worlds = randomize_sets()["field-worlds"]
     assert env == FIELD_ENV_ID and list(worlds.values()) == draw_worlds(FIELD_RANDOM_WORLDS, 0)

@@ -22,7 +22,8 @@ def config_from_args(args, device: str) -> DevicePPOConfig:
     """The device run of ``python -m train --device cuda`` (or ``standin``): the task's YAML entry
     (:mod:`iscc_gym.train.config`: discount, GAE, clip range, entropy, learning rate, network, normalisation, budget)
     on the device's batch sizes and rate schedule (:data:`DEVICE_DEFAULTS`: on a GPU as many envs as fill it, a
-    rollout cut into four minibatches, SB3's constant rate; unless ``--n-envs`` or ``--set n_steps=`` /
+    rollout cut into four minibatches, the rate adapted to a KL target (rsl_rl's), the rows started spread over the
+    mission; unless ``--n-envs`` or ``--set n_steps=`` /
     ``batch_size=`` / ``lr_schedule=`` / ``desired_kl=`` say otherwise).
 
     Raises

@@ -29,7 +29,7 @@ from iscc_gym.sim.schema import COL, N_DRAWS
 
 __all__ = ["Consts", "Rows", "Outs", "Scratch", "MAX_QUEUE_SLOTS", "N_INIT_DRAWS", "episode_key", "mission_index",
            "start_slot", "init_normals_key", "step_rows_cpu", "reset_rows_cpu", "cuda_kernels", "THREADS_PER_BLOCK",
-           "PTX_LIMITS", "kernel_ptx", "step_ptx", "ptxas_usage"]
+           "PTX_LIMITS", "kernel_ptx", "ptxas_usage"]
 
 #: The data queue's longest buffer the device kernel holds per thread (its local memory is sized at compile time).
 MAX_QUEUE_SLOTS = 64
@@ -336,11 +336,6 @@ def kernel_ptx(which: str, args, switches=(None, None), queue_slots=MAX_QUEUE_SL
     with mock.patch.object(dispatcher, "get_current_device", lambda: _Device()):
         ptx, _ = cuda.compile_ptx(kernels[which].py_func, sig, cc=tuple(cc))
     return ptx
-
-
-def step_ptx(args, switches=(None, None), cc=(9, 0), queue_slots=MAX_QUEUE_SLOTS) -> str:
-    """:func:`kernel_ptx` of the step kernel."""
-    return kernel_ptx("step", args, switches, queue_slots, cc)
 
 
 def ptxas_usage(ptx: str, cc=(9, 0)) -> dict:

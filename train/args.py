@@ -177,9 +177,9 @@ def randomize_sets() -> dict[str, tuple[str, dict[str, dict]]]:
     """``--randomize NAME`` -> ``(env id, {shift: overrides})``: the shifted statistics a randomised run trains over
     beside the env's own (``<preset>-shifts``: the shifts of the task of that preset), read from the task table
     when asked, so a task registered at run time counts too; and ``field-worlds``: :data:`FIELD_RANDOM_WORLDS` laws of
-    the field task's world drawn from :data:`iscc_gym.tasks.field.FIELD_WORLD_RANGES` (:func:`train.estimator.
-    draw_worlds`, seed 0: the randomised learned estimator's draw), ranges that cover its test worlds but none of them
-    as such.
+    the field task's world drawn from :data:`iscc_gym.tasks.field.FIELD_WORLD_RANGES`
+    (:func:`iscc_gym.tasks.field.draw_worlds`, seed 0: the randomised learned estimator's draw), ranges that cover its
+    test worlds but none of them as such.
     """
     from iscc_gym.tasks.field import FIELD_ENV_ID, draw_worlds
 

@@ -21,7 +21,7 @@ import numpy as np
 from numba import njit
 
 from iscc_gym.sim.kernel import LastSlot, env_row_one, observe_one, split_one
-from iscc_gym.sim.loop import WORK_MATS, WORK_VEC, LoopState, RowNext, init_row_one, slot_draws_one, work_from
+from iscc_gym.sim.loop import WORK_MATS, WORK_VEC, LoopState, init_row_one, next_row, slot_draws_one, work_from
 from iscc_gym.sim.noise import GOLDEN_GAMMA as _GAMMA
 from iscc_gym.sim.noise import fill_slot_normals
 from iscc_gym.sim.noise import mix64 as _mix64
@@ -192,8 +192,8 @@ def step_row(i, k, st, action, o, w, blocked, field):
     ref = k.pool[st.mission[i]]
     mt = o.out[i]
     now = LoopState(w.xl, w.xhl, w.pl, st.shadow[i], ni, ref, st.key[i], w.ql[:nq])
-    st.shadow[i] = env_row_one(c, k.mats, now, (a0, a1, a2), zi, RowNext(st.x[i], st.x_hat[i], st.p[i], st.queue[i]),
-                               mt, o.obs[i], work_from(w.mbuf, w.vbuf), blocked, field)
+    st.shadow[i] = env_row_one(c, k.mats, now, (a0, a1, a2), zi, next_row(st, i), mt, o.obs[i],
+                               work_from(w.mbuf, w.vbuf), blocked, field)
     st.n[i] = ni + 1
     r = mt[_REWARD]
     term = mt[_TERM] == 1.0

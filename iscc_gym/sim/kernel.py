@@ -376,12 +376,11 @@ def env_step_batch(c, mats, state, inputs, outputs, blocked=None, field=None):
     :class:`iscc_gym.sim.loop.LoopState`'s fields, ``inputs``: :class:`StepInputs`', ``outputs``:
     :class:`iscc_gym.sim.loop.StepOutputs`' (:func:`new_outputs`), each a plain tuple; written into the outputs: next
     x, x_hat, p, shadow, queue, ``out`` (B, N_ENV_COLUMNS) and ``obs`` (B, obs_size) float32. ``budget`` (B,) scales
-    loop i's split
-    to its share of the band (the multi-drone env, :mod:`iscc_gym.envs.multi`), or has no rows: the whole band (the
-    single env). ``z`` holds the slot's normals (B, n_draws), or has no rows: then each loop draws its own from its
-    episode key (noise.slot_normals(key[i], n[i])). Loops with ``active[i]`` False are left as they are (state copied,
-    zero outputs). ``blocked``, ``field``: None without blockage, without the field's world (the defaults), True
-    with (:func:`iscc_gym.sim.loop.step_one`'s compile-time switches).
+    loop i's split to its share of the band (the multi-drone env, :mod:`iscc_gym.envs.multi`), or has no rows: the
+    whole band (the single env). ``z`` holds the slot's normals (B, n_draws), or has no rows: then each loop draws its
+    own from its episode key (noise.slot_normals(key[i], n[i])). Loops with ``active[i]`` False are left as they are
+    (state copied, zero outputs). ``blocked``, ``field``: None without blockage, without the field's world (the
+    defaults), True with (:func:`iscc_gym.sim.loop.step_one`'s compile-time switches).
     """
     _env_rows(c, mats, state, inputs, outputs, 0, state[0].shape[0], blocked, field)
 

@@ -104,7 +104,6 @@ class LoopState(NamedTuple):
     key: np.ndarray
     queue: np.ndarray
 
-
     def rows(self, idx) -> LoopState:
         """The loops ``idx`` of a batch (copies)."""
         return LoopState(*(field[idx] for field in self))
@@ -161,7 +160,9 @@ def state_row(st, i):
 
 @njit(cache=True, inline="always")
 def next_row(o, i):
-    """Row ``i`` of :class:`StepOutputs` as the :class:`RowNext` a slot writes into."""
+    """Row ``i`` of :class:`StepOutputs` (or of any batch with ``x``, ``x_hat``, ``p`` and ``queue``: the device's
+    rows) as the :class:`RowNext` a slot writes into.
+    """
     return RowNext(o.x[i], o.x_hat[i], o.p[i], o.queue[i])
 
 

@@ -39,9 +39,9 @@ FIELD_VARIANTS: dict[str, Variant] = {
 
 #: The ranges a learner trained over randomised worlds draws each world's law from (issue 45, point 3): uniform, the
 #: correlation distance log-uniform; the preset's values and every world of :data:`FIELD_VARIANTS` but the abrupt
-#: line-of-sight one (a switch, not a range) lie inside (a
-#: domain randomisation that covers the worlds it is compared on, so its comparator is ``bayes-learn``, which
-#: re-estimates its prior online, beside ``bayes`` on the preset's prior).
+#: line-of-sight one (a switch, not a range) lie inside (a domain randomisation that covers the worlds it is compared
+#: on, so its comparator is ``bayes-learn``, which re-estimates its prior online, beside ``bayes`` on the preset's
+#: prior).
 FIELD_WORLD_RANGES: dict[str, tuple[float, float]] = {
     "rician_k_db": (2.0, 12.0), "rician_k_std_db": (2.0, 10.0), "rcs_std_db": (1.0, 8.0),
     "rician_k_correlation_m": (4.0, 60.0)}
